@@ -1,0 +1,519 @@
+//! Detents to feed: the cumulative feed position and the paper's unit-step backlog.
+//!
+//! The EXTI task adds detents; the CAN side reads the position, takes unit steps and applies
+//! the master's commands. Both reach the accumulator through one RTIC resource, so it is a
+//! plain struct: the lock is the synchronisation.
+//!
+//! Safety rules, all enforced here rather than in the firmware:
+//! - the position moves only while feed is enabled and an axis is selected; turning the
+//!   wheel otherwise is counted ([`FeedAccumulator::ignored_detents`]) and never becomes feed;
+//! - a change of axis or multiplier, a disable and a stop (master lost, NMT state change)
+//!   discard pending unit steps and start a new selection epoch, so motion meant for one axis
+//!   or scale is never delivered to another;
+//! - a stop also disables feed: after the master comes back it must enable again;
+//! - the unit-step backlog is bounded: steps beyond the bound are dropped and flagged, so
+//!   run-on after the wheel stops can never exceed `bound x pacing`.
+
+use crate::pdo::FeedStatus;
+use crate::selector::{Axis, Multiplier, Selection};
+
+/// Default bound of the unit-step backlog.
+///
+/// At the default TPDO inhibit time of 2 ms the backlog drains at most 500 steps/s, so 40
+/// pending steps are at most 80 ms of run-on after the wheel stops. That stays under the
+/// 100 ms an operator perceives as "the machine kept going" and leaves 20 ms for bus
+/// arbitration and the controller's own cycle.
+pub const DEFAULT_STEP_BACKLOG: u16 = 40;
+
+/// Why the feed was stopped from outside.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// The master's heartbeat timed out.
+    MasterLost,
+    /// The device left Operational (NMT stop, pre-operational or reset).
+    NotOperational,
+}
+
+/// One unit step of the paper's format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnitStep {
+    /// The axis the step is for.
+    pub axis: Axis,
+    /// `true` = forward (positive).
+    pub forward: bool,
+}
+
+/// The feed accumulator.
+#[derive(Clone, Debug)]
+pub struct FeedAccumulator {
+    enabled: bool,
+    unit_steps: bool,
+    selection: Selection,
+    position: i32,
+    epoch: u8,
+    /// Flags latched in the current epoch (plus `MASTER_LOST`, latched until enabled).
+    latched: FeedStatus,
+    pending_steps: i32,
+    backlog_bound: i32,
+    ignored_detents: u32,
+    dropped_steps: u32,
+}
+
+impl Default for FeedAccumulator {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl FeedAccumulator {
+    /// Disabled, no axis, x1, position 0, backlog bound [`DEFAULT_STEP_BACKLOG`].
+    pub const fn new() -> Self {
+        Self {
+            enabled: false,
+            unit_steps: false,
+            selection: Selection {
+                axis: None,
+                multiplier: Multiplier::X1,
+            },
+            position: 0,
+            epoch: 0,
+            latched: FeedStatus::empty(),
+            pending_steps: 0,
+            backlog_bound: DEFAULT_STEP_BACKLOG as i32,
+            ignored_detents: 0,
+            dropped_steps: 0,
+        }
+    }
+
+    /// Sets the unit-step backlog bound; 0 is rejected (the unit-step mode could never send).
+    #[must_use = "a rejected bound leaves the previous one in force"]
+    pub fn set_backlog_bound(&mut self, bound: u16) -> bool {
+        if bound == 0 {
+            return false;
+        }
+        self.backlog_bound = i32::from(bound);
+        if self.pending_steps.abs() > self.backlog_bound {
+            self.pending_steps = self.backlog_bound * self.pending_steps.signum();
+        }
+        true
+    }
+
+    /// Adds detents from the decoder. Returns `true` when what a feed record carries changed
+    /// (position or status), i.e. when a frame is due.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn add_detents(&mut self, detents: i32) -> bool {
+        if detents == 0 {
+            return false;
+        }
+        if !self.enabled || self.selection.axis.is_none() {
+            self.ignored_detents = self.ignored_detents.wrapping_add(detents.unsigned_abs());
+            return self.latch(FeedStatus::IGNORED_MOTION);
+        }
+        let units = detents.wrapping_mul(i32::from(self.selection.multiplier.factor()));
+        self.position = self.position.wrapping_add(units);
+        if self.unit_steps {
+            // `units` is at most |detents| x 100 and the backlog at most 65535: no overflow
+            // for any detent count the decoder can deliver between two reads.
+            let wanted = self.pending_steps.saturating_add(units);
+            let kept = wanted.clamp(-self.backlog_bound, self.backlog_bound);
+            if kept != wanted {
+                let dropped = wanted.abs_diff(kept);
+                self.dropped_steps = self.dropped_steps.wrapping_add(dropped);
+                self.latch(FeedStatus::STEPS_DROPPED);
+            }
+            self.pending_steps = kept;
+        }
+        true
+    }
+
+    /// Notes an illegal quadrature transition. Returns `true` if the status changed.
+    #[must_use = "a changed status needs a TPDO"]
+    pub fn note_encoder_error(&mut self) -> bool {
+        self.latch(FeedStatus::ENCODER_ERROR)
+    }
+
+    /// Feed enable (object 0x2000). Any change starts a new epoch; disabling discards pending
+    /// steps. Returns `true` if anything changed.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn set_enabled(&mut self, enabled: bool) -> bool {
+        if enabled == self.enabled {
+            return false;
+        }
+        self.enabled = enabled;
+        if enabled {
+            self.latched.remove(FeedStatus::MASTER_LOST);
+        }
+        self.new_epoch();
+        true
+    }
+
+    /// Unit-step (paper) mode on or off (object 0x2001). Any change starts a new epoch.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn set_unit_step_mode(&mut self, on: bool) -> bool {
+        if on == self.unit_steps {
+            return false;
+        }
+        self.unit_steps = on;
+        self.new_epoch();
+        true
+    }
+
+    /// The debounced selector state. A change of axis or multiplier starts a new epoch.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn set_selection(&mut self, selection: Selection) -> bool {
+        if selection == self.selection {
+            return false;
+        }
+        self.selection = selection;
+        self.new_epoch();
+        true
+    }
+
+    /// Stops the feed from outside: disables it and discards pending steps, as a disable
+    /// does. Returns `true` if anything changed.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn stop(&mut self, reason: StopReason) -> bool {
+        let lost = reason == StopReason::MasterLost && self.latch(FeedStatus::MASTER_LOST);
+        // Disabled means no pending steps (disabling discards them, and nothing is added
+        // while disabled), so disabling is all a stop has to do.
+        let disabled = self.set_enabled(false);
+        lost || disabled
+    }
+
+    /// Takes the next unit step of the backlog, moving it one step toward zero.
+    #[must_use = "a taken step that is not sent is lost motion"]
+    pub fn take_unit_step(&mut self) -> Option<UnitStep> {
+        let axis = self.selection.axis?;
+        if !self.enabled || self.pending_steps == 0 {
+            return None;
+        }
+        let forward = self.pending_steps > 0;
+        self.pending_steps -= self.pending_steps.signum();
+        Some(UnitStep { axis, forward })
+    }
+
+    fn new_epoch(&mut self) {
+        self.epoch = self.epoch.wrapping_add(1);
+        self.pending_steps = 0;
+        self.latched = self.latched.intersection(FeedStatus::MASTER_LOST);
+    }
+
+    fn latch(&mut self, flag: FeedStatus) -> bool {
+        let changed = !self.latched.contains(flag);
+        self.latched.insert(flag);
+        changed
+    }
+
+    /// Cumulative feed position in multiplied units (object 0x6004), wrapping.
+    pub const fn position(&self) -> i32 {
+        self.position
+    }
+
+    /// The selection in force.
+    pub const fn selection(&self) -> Selection {
+        self.selection
+    }
+
+    /// Selection epoch (object 0x2010 sub 3): steps on every axis, multiplier, enable, mode
+    /// change and stop, wrapping.
+    pub const fn epoch(&self) -> u8 {
+        self.epoch
+    }
+
+    /// Whether feed is enabled.
+    pub const fn enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// Whether the unit-step (paper) mode is on.
+    pub const fn unit_step_mode(&self) -> bool {
+        self.unit_steps
+    }
+
+    /// Status bits for the feed record (object 0x2030).
+    pub fn status(&self) -> FeedStatus {
+        let mut status = self.latched;
+        if self.enabled {
+            status.insert(FeedStatus::ENABLED);
+        }
+        status
+    }
+
+    /// Signed unit steps waiting to be sent.
+    pub const fn pending_steps(&self) -> i32 {
+        self.pending_steps
+    }
+
+    /// The backlog bound in unit steps.
+    pub const fn backlog_bound(&self) -> u16 {
+        self.backlog_bound as u16
+    }
+
+    /// Detents turned while disabled or without an axis, wrapping.
+    pub const fn ignored_detents(&self) -> u32 {
+        self.ignored_detents
+    }
+
+    /// Unit steps dropped at the backlog bound, wrapping.
+    pub const fn dropped_steps(&self) -> u32 {
+        self.dropped_steps
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn active(axis: Axis, multiplier: Multiplier) -> FeedAccumulator {
+        let mut acc = FeedAccumulator::new();
+        assert!(acc.set_selection(Selection {
+            axis: Some(axis),
+            multiplier
+        }));
+        assert!(acc.set_enabled(true));
+        acc
+    }
+
+    fn drain(acc: &mut FeedAccumulator) -> (usize, i32) {
+        let mut n = 0;
+        let mut net = 0;
+        while let Some(step) = acc.take_unit_step() {
+            n += 1;
+            net += if step.forward { 1 } else { -1 };
+        }
+        (n, net)
+    }
+
+    #[test]
+    fn position_moves_by_detents_times_multiplier() {
+        let mut acc = active(Axis::X, Multiplier::X10);
+        assert!(acc.add_detents(3));
+        assert!(acc.add_detents(-1));
+        assert_eq!(acc.position(), 20);
+        assert!(acc.set_selection(Selection {
+            axis: Some(Axis::X),
+            multiplier: Multiplier::X100
+        }));
+        assert!(acc.add_detents(-2));
+        assert_eq!(acc.position(), -180);
+    }
+
+    #[test]
+    fn no_detents_is_no_change() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        assert!(!acc.add_detents(0));
+        assert_eq!(acc.position(), 0);
+    }
+
+    #[test]
+    fn disabled_turning_is_counted_but_never_feed() {
+        let mut acc = FeedAccumulator::new();
+        assert!(acc.set_selection(Selection {
+            axis: Some(Axis::Y),
+            multiplier: Multiplier::X100
+        }));
+        assert!(
+            acc.add_detents(5),
+            "first ignored motion latches a status bit"
+        );
+        assert!(!acc.add_detents(-2), "already latched: no new frame needed");
+        assert_eq!(acc.position(), 0);
+        assert_eq!(acc.ignored_detents(), 7);
+        assert!(acc.status().contains(FeedStatus::IGNORED_MOTION));
+        assert!(!acc.status().contains(FeedStatus::ENABLED));
+    }
+
+    #[test]
+    fn no_axis_turning_is_counted_but_never_feed() {
+        let mut acc = FeedAccumulator::new();
+        assert!(acc.set_enabled(true));
+        assert!(acc.add_detents(4));
+        assert_eq!(acc.position(), 0);
+        assert_eq!(acc.ignored_detents(), 4);
+    }
+
+    #[test]
+    fn position_wraps_at_i32_limits() {
+        let mut acc = active(Axis::Z, Multiplier::X100);
+        acc.position = i32::MAX - 50;
+        assert!(acc.add_detents(1));
+        assert_eq!(acc.position(), i32::MIN + 49);
+        assert!(acc.add_detents(-1));
+        assert_eq!(acc.position(), i32::MAX - 50);
+        // The host's delta across the wrap is still +100.
+        let before = i32::MAX - 50;
+        let after = before.wrapping_add(100);
+        assert_eq!(after.wrapping_sub(before), 100);
+    }
+
+    #[test]
+    fn every_selection_change_bumps_epoch_and_discards_steps() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        assert!(acc.set_unit_step_mode(true));
+        let epoch = acc.epoch();
+        let _ = acc.add_detents(5);
+        assert_eq!(acc.pending_steps(), 5);
+        assert!(acc.set_selection(Selection {
+            axis: Some(Axis::Y),
+            multiplier: Multiplier::X1
+        }));
+        assert_eq!(
+            (acc.pending_steps(), acc.epoch()),
+            (0, epoch.wrapping_add(1))
+        );
+
+        let _ = acc.add_detents(5);
+        assert!(acc.set_selection(Selection {
+            axis: Some(Axis::Y),
+            multiplier: Multiplier::X10
+        }));
+        assert_eq!(
+            (acc.pending_steps(), acc.epoch()),
+            (0, epoch.wrapping_add(2))
+        );
+
+        assert!(
+            !acc.set_selection(acc.selection()),
+            "same selection is no change"
+        );
+        assert_eq!(acc.epoch(), epoch.wrapping_add(2));
+    }
+
+    #[test]
+    fn disable_discards_steps_and_stops_feed() {
+        let mut acc = active(Axis::X, Multiplier::X10);
+        assert!(acc.set_unit_step_mode(true));
+        let _ = acc.add_detents(2);
+        assert_eq!(acc.pending_steps(), 20);
+        let epoch = acc.epoch();
+        assert!(acc.set_enabled(false));
+        assert_eq!(acc.pending_steps(), 0);
+        assert_eq!(acc.epoch(), epoch.wrapping_add(1));
+        assert_eq!(acc.take_unit_step(), None);
+        let _ = acc.add_detents(2);
+        assert_eq!(acc.position(), 20);
+    }
+
+    #[test]
+    fn master_lost_stops_disables_and_latches_until_enabled() {
+        let mut acc = active(Axis::W, Multiplier::X1);
+        assert!(acc.set_unit_step_mode(true));
+        let _ = acc.add_detents(3);
+        assert!(acc.stop(StopReason::MasterLost));
+        assert!(!acc.enabled());
+        assert_eq!(acc.pending_steps(), 0);
+        assert!(acc.status().contains(FeedStatus::MASTER_LOST));
+        assert!(
+            !acc.stop(StopReason::MasterLost),
+            "second stop changes nothing"
+        );
+        // Feed does not resume by itself.
+        let _ = acc.add_detents(3);
+        assert_eq!(acc.position(), 3);
+        assert!(acc.set_enabled(true));
+        assert!(!acc.status().contains(FeedStatus::MASTER_LOST));
+        let _ = acc.add_detents(1);
+        assert_eq!(acc.position(), 4);
+    }
+
+    #[test]
+    fn stop_when_already_disabled_is_no_change() {
+        let mut acc = FeedAccumulator::new();
+        let epoch = acc.epoch();
+        assert!(!acc.stop(StopReason::NotOperational));
+        assert_eq!(acc.epoch(), epoch);
+    }
+
+    #[test]
+    fn unit_steps_drain_toward_zero_in_order() {
+        let mut acc = active(Axis::V, Multiplier::X1);
+        assert!(acc.set_unit_step_mode(true));
+        let _ = acc.add_detents(2);
+        let _ = acc.add_detents(-3);
+        assert_eq!(acc.pending_steps(), -1);
+        assert_eq!(
+            acc.take_unit_step(),
+            Some(UnitStep {
+                axis: Axis::V,
+                forward: false
+            })
+        );
+        assert_eq!(acc.take_unit_step(), None);
+    }
+
+    #[test]
+    fn no_unit_steps_outside_unit_step_mode() {
+        let mut acc = active(Axis::X, Multiplier::X10);
+        let _ = acc.add_detents(3);
+        assert_eq!(acc.pending_steps(), 0);
+        assert_eq!(acc.take_unit_step(), None);
+    }
+
+    #[test]
+    fn backlog_is_bounded_and_overflow_is_flagged() {
+        let mut acc = active(Axis::X, Multiplier::X100);
+        assert!(acc.set_unit_step_mode(true));
+        let _ = acc.add_detents(1);
+        let bound = i32::from(DEFAULT_STEP_BACKLOG);
+        assert_eq!(acc.pending_steps(), bound);
+        assert_eq!(acc.dropped_steps(), 100 - DEFAULT_STEP_BACKLOG as u32);
+        assert!(acc.status().contains(FeedStatus::STEPS_DROPPED));
+        // The position still tells the truth.
+        assert_eq!(acc.position(), 100);
+        assert_eq!(drain(&mut acc), (DEFAULT_STEP_BACKLOG as usize, bound));
+    }
+
+    #[test]
+    fn reversal_eats_into_the_backlog_before_anything_is_dropped() {
+        let mut acc = active(Axis::X, Multiplier::X10);
+        assert!(acc.set_unit_step_mode(true));
+        let _ = acc.add_detents(3);
+        let _ = acc.add_detents(-4);
+        assert_eq!(acc.pending_steps(), -10);
+        assert_eq!(acc.dropped_steps(), 0);
+        assert!(!acc.status().contains(FeedStatus::STEPS_DROPPED));
+    }
+
+    #[test]
+    fn custom_bound_and_zero_bound() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        assert!(acc.set_unit_step_mode(true));
+        let _ = acc.add_detents(9);
+        assert!(acc.set_backlog_bound(4));
+        assert_eq!(
+            acc.pending_steps(),
+            4,
+            "shrinking the bound clips the backlog"
+        );
+        assert!(!acc.set_backlog_bound(0));
+        assert_eq!(acc.backlog_bound(), 4);
+    }
+
+    #[test]
+    fn latched_flags_last_for_the_epoch() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        assert!(acc.note_encoder_error());
+        assert!(!acc.note_encoder_error());
+        let _ = acc.add_detents(1);
+        assert!(acc.status().contains(FeedStatus::ENCODER_ERROR));
+        assert!(acc.set_selection(Selection {
+            axis: Some(Axis::Y),
+            multiplier: Multiplier::X1
+        }));
+        assert!(!acc.status().contains(FeedStatus::ENCODER_ERROR));
+        assert_eq!(
+            acc.status(),
+            FeedStatus::ENABLED,
+            "new epoch starts with only the level bits"
+        );
+    }
+
+    #[test]
+    fn epoch_wraps() {
+        let mut acc = FeedAccumulator::new();
+        for i in 0..300u32 {
+            assert!(acc.set_enabled(i % 2 == 0));
+        }
+        assert_eq!(acc.epoch(), (300 % 256) as u8);
+    }
+}

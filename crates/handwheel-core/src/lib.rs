@@ -1,0 +1,31 @@
+//! The hardware-independent heart of the CANopen CNC handwheel.
+//!
+//! Everything here is `no_std`, allocation-free and tested on the host. The firmware only
+//! moves pin levels and frames in and out of these types:
+//!
+//! - [`decoder`]: A/B quadrature to counts and detents, from the levels read in the EXTI ISR.
+//! - [`selector`]: debounced 5-position axis switch and 3-position multiplier switch.
+//! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
+//!   unit-step backlog), gated by enable, axis and the master's presence.
+//! - [`wheel`]: decoder and accumulator together, the one resource the EXTI task locks.
+//! - [`pdo`]: the 8-byte feed record and the paper's 1-byte unit-step format.
+//! - [`bittiming`]: bxCAN `BTR` values for the CiA bit-rate table.
+#![no_std]
+
+pub mod accumulator;
+pub mod bittiming;
+pub mod decoder;
+pub mod pdo;
+pub mod selector;
+pub mod wheel;
+
+pub use accumulator::{FeedAccumulator, StopReason, UnitStep, DEFAULT_STEP_BACKLOG};
+pub use bittiming::{BitRate, BitTiming, BitTimingError};
+pub use decoder::{
+    AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
+};
+pub use pdo::{CounterStride, FeedRecord, FeedRecordError, FeedStatus, UnitStepEncoder};
+pub use selector::{
+    Axis, Debouncer, Multiplier, Selection, Selector, SelectorLines, DEFAULT_DEBOUNCE_SAMPLES,
+};
+pub use wheel::{Handwheel, WheelAccess};

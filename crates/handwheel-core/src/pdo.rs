@@ -1,0 +1,327 @@
+//! PDO payloads: the 8-byte feed record and the paper's 1-byte unit-step format.
+//!
+//! # Feed record (TPDO1 default mapping, 8 bytes, little-endian)
+//!
+//! | byte | object | content |
+//! |---|---|---|
+//! | 0-3 | 0x6004 | position, I32: cumulative feed in multiplied units, wrapping |
+//! | 4 | 0x2010:1 | axis: 0 none, 1..5 = X, Y, Z, W, V |
+//! | 5 | 0x2010:2 | multiplier: 1, 10 or 100 |
+//! | 6 | 0x2030 | status bits, see [`FeedStatus`] |
+//! | 7 | 0x2031 | sequence: +1 for every feed record sent, wrapping |
+//!
+//! The host takes deltas of the position (wrapping subtraction) and applies them to the axis
+//! in the same frame. A lost frame costs nothing: the next one carries the truth.
+//!
+//! # Unit-step byte (the paper's format, compatibility mode)
+//!
+//! | bits | content |
+//! |---|---|
+//! | 0-2 | axis: X = 0 .. V = 4 |
+//! | 3 | direction: 1 = forward |
+//! | 4-7 | counter: +1 per frame, runs on across direction changes |
+
+use crate::accumulator::UnitStep;
+use crate::selector::{Axis, Multiplier};
+
+/// Status bits of the feed record (object 0x2030).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
+pub struct FeedStatus(u8);
+
+impl FeedStatus {
+    /// Feed is enabled (0x2000 = 1 and not stopped since).
+    pub const ENABLED: Self = Self(1 << 0);
+    /// An illegal quadrature transition (missed edge) happened in this epoch.
+    pub const ENCODER_ERROR: Self = Self(1 << 1);
+    /// Unit steps were dropped at the backlog bound in this epoch.
+    pub const STEPS_DROPPED: Self = Self(1 << 2);
+    /// The feed was stopped because the master's heartbeat was lost; cleared by enabling.
+    pub const MASTER_LOST: Self = Self(1 << 3);
+    /// The wheel was turned while disabled or without an axis in this epoch.
+    pub const IGNORED_MOTION: Self = Self(1 << 4);
+
+    const DEFINED: u8 = 0b1_1111;
+
+    /// No bit set.
+    pub const fn empty() -> Self {
+        Self(0)
+    }
+
+    /// The raw byte.
+    pub const fn bits(self) -> u8 {
+        self.0
+    }
+
+    /// From a raw byte; `None` if an undefined bit is set.
+    pub const fn from_bits(bits: u8) -> Option<Self> {
+        if bits & !Self::DEFINED == 0 {
+            Some(Self(bits))
+        } else {
+            None
+        }
+    }
+
+    /// Whether every bit of `other` is set.
+    pub const fn contains(self, other: Self) -> bool {
+        self.0 & other.0 == other.0
+    }
+
+    /// Sets the bits of `other`.
+    pub fn insert(&mut self, other: Self) {
+        self.0 |= other.0;
+    }
+
+    /// Clears the bits of `other`.
+    pub fn remove(&mut self, other: Self) {
+        self.0 &= !other.0;
+    }
+
+    /// The bits set in both.
+    #[must_use]
+    pub const fn intersection(self, other: Self) -> Self {
+        Self(self.0 & other.0)
+    }
+
+    /// The bits set in either.
+    #[must_use]
+    pub const fn union(self, other: Self) -> Self {
+        Self(self.0 | other.0)
+    }
+}
+
+/// The content of one feed record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FeedRecord {
+    /// Cumulative feed position in multiplied units.
+    pub position: i32,
+    /// Selected axis.
+    pub axis: Option<Axis>,
+    /// Multiplier in force.
+    pub multiplier: Multiplier,
+    /// Status bits.
+    pub status: FeedStatus,
+    /// Frame sequence number.
+    pub sequence: u8,
+}
+
+/// Why 8 bytes are not a feed record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FeedRecordError {
+    /// Axis byte not in 0..=5.
+    Axis(u8),
+    /// Multiplier byte not 1, 10 or 100.
+    Multiplier(u8),
+    /// An undefined status bit is set.
+    Status(u8),
+}
+
+impl FeedRecord {
+    /// Length on the wire.
+    pub const LEN: usize = 8;
+
+    /// The wire bytes.
+    pub fn to_bytes(&self) -> [u8; 8] {
+        let p = self.position.to_le_bytes();
+        [
+            p[0],
+            p[1],
+            p[2],
+            p[3],
+            Axis::option_value(self.axis),
+            self.multiplier.factor(),
+            self.status.bits(),
+            self.sequence,
+        ]
+    }
+
+    /// Parses the wire bytes (what a host does).
+    pub fn from_bytes(bytes: [u8; 8]) -> Result<Self, FeedRecordError> {
+        let axis = match bytes[4] {
+            0 => None,
+            v => Some(Axis::from_object_value(v).ok_or(FeedRecordError::Axis(v))?),
+        };
+        let multiplier =
+            Multiplier::from_factor(bytes[5]).ok_or(FeedRecordError::Multiplier(bytes[5]))?;
+        let status = FeedStatus::from_bits(bytes[6]).ok_or(FeedRecordError::Status(bytes[6]))?;
+        Ok(Self {
+            position: i32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]),
+            axis,
+            multiplier,
+            status,
+            sequence: bytes[7],
+        })
+    }
+}
+
+/// How far the unit-step counter moves per frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CounterStride {
+    /// Bits 4-7 step by one: the format the paper describes for real use.
+    #[default]
+    One,
+    /// Only bits 6-7 move (steps of 4): what the paper's printed experiment shows.
+    Four,
+}
+
+/// Encodes unit steps into the paper's 1-byte format, keeping the rolling counter.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct UnitStepEncoder {
+    counter: u8,
+    stride: CounterStride,
+}
+
+impl UnitStepEncoder {
+    /// Counter at 0.
+    pub const fn new(stride: CounterStride) -> Self {
+        Self { counter: 0, stride }
+    }
+
+    /// The byte for `step`; the counter advances for the next frame.
+    #[must_use = "the counter advanced: the byte must be sent"]
+    pub fn encode(&mut self, step: UnitStep) -> u8 {
+        let byte = (self.counter << 4) | ((step.forward as u8) << 3) | step.axis.paper_index();
+        let stride = match self.stride {
+            CounterStride::One => 1,
+            CounterStride::Four => 4,
+        };
+        self.counter = (self.counter + stride) & 0x0F;
+        byte
+    }
+
+    /// Decodes a unit-step byte into `(step, counter)`; `None` for axis fields 5..7.
+    pub const fn decode(byte: u8) -> Option<(UnitStep, u8)> {
+        let Some(axis) = Axis::from_object_value((byte & 0b111) + 1) else {
+            return None;
+        };
+        Some((
+            UnitStep {
+                axis,
+                forward: byte & 0b1000 != 0,
+            },
+            byte >> 4,
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn steps(encoder: &mut UnitStepEncoder, forward: bool, n: usize) -> [u8; 8] {
+        let mut out = [0; 8];
+        for b in out.iter_mut().take(n) {
+            *b = encoder.encode(UnitStep {
+                axis: Axis::X,
+                forward,
+            });
+        }
+        out
+    }
+
+    #[test]
+    fn four_forward_then_four_reverse_on_x() {
+        let mut enc = UnitStepEncoder::new(CounterStride::One);
+        let fwd = steps(&mut enc, true, 4);
+        let rev = steps(&mut enc, false, 4);
+        assert_eq!(fwd[..4], [0x08, 0x18, 0x28, 0x38]);
+        assert_eq!(rev[..4], [0x40, 0x50, 0x60, 0x70]);
+    }
+
+    #[test]
+    fn papers_printed_experiment_with_counter_stepping_by_four() {
+        let mut enc = UnitStepEncoder::new(CounterStride::Four);
+        assert_eq!(
+            steps(&mut enc, true, 5)[..5],
+            [0x08, 0x48, 0x88, 0xC8, 0x08]
+        );
+        assert_eq!(steps(&mut enc, false, 4)[..4], [0x40, 0x80, 0xC0, 0x00]);
+    }
+
+    #[test]
+    fn counter_wraps_after_sixteen_frames() {
+        let mut enc = UnitStepEncoder::new(CounterStride::One);
+        let mut counters = [0u8; 17];
+        for c in &mut counters {
+            let byte = enc.encode(UnitStep {
+                axis: Axis::V,
+                forward: false,
+            });
+            assert_eq!(byte & 0x0F, 4, "V reverse");
+            *c = byte >> 4;
+        }
+        assert_eq!(counters[15], 15);
+        assert_eq!(counters[16], 0);
+    }
+
+    #[test]
+    fn axis_field_per_axis_and_decode_round_trip() {
+        let mut enc = UnitStepEncoder::new(CounterStride::One);
+        for (i, axis) in Axis::ALL.into_iter().enumerate() {
+            let step = UnitStep {
+                axis,
+                forward: true,
+            };
+            let byte = enc.encode(step);
+            assert_eq!(byte & 0b111, i as u8);
+            assert_eq!(UnitStepEncoder::decode(byte), Some((step, i as u8)));
+        }
+        for field in 5..8u8 {
+            assert_eq!(UnitStepEncoder::decode(field), None);
+        }
+    }
+
+    #[test]
+    fn feed_record_layout() {
+        let rec = FeedRecord {
+            position: -2,
+            axis: Some(Axis::Z),
+            multiplier: Multiplier::X100,
+            status: FeedStatus::ENABLED.union(FeedStatus::ENCODER_ERROR),
+            sequence: 0xA5,
+        };
+        assert_eq!(rec.to_bytes(), [0xFE, 0xFF, 0xFF, 0xFF, 3, 100, 0b11, 0xA5]);
+        assert_eq!(FeedRecord::from_bytes(rec.to_bytes()), Ok(rec));
+    }
+
+    #[test]
+    fn feed_record_rejects_bad_fields() {
+        let good = [1, 0, 0, 0, 0, 1, 0, 0];
+        assert_eq!(
+            FeedRecord::from_bytes(good).map(|r| (r.position, r.axis)),
+            Ok((1, None))
+        );
+        let mut bad = good;
+        bad[4] = 6;
+        assert_eq!(FeedRecord::from_bytes(bad), Err(FeedRecordError::Axis(6)));
+        let mut bad = good;
+        bad[5] = 0;
+        assert_eq!(
+            FeedRecord::from_bytes(bad),
+            Err(FeedRecordError::Multiplier(0))
+        );
+        let mut bad = good;
+        bad[6] = 0x80;
+        assert_eq!(
+            FeedRecord::from_bytes(bad),
+            Err(FeedRecordError::Status(0x80))
+        );
+    }
+
+    #[test]
+    fn status_bits_are_distinct() {
+        let all = [
+            FeedStatus::ENABLED,
+            FeedStatus::ENCODER_ERROR,
+            FeedStatus::STEPS_DROPPED,
+            FeedStatus::MASTER_LOST,
+            FeedStatus::IGNORED_MOTION,
+        ];
+        let mut seen = 0u8;
+        for s in all {
+            assert_eq!(s.bits().count_ones(), 1);
+            assert_eq!(seen & s.bits(), 0);
+            seen |= s.bits();
+        }
+        assert_eq!(FeedStatus::from_bits(seen), Some(FeedStatus(seen)));
+    }
+}
