@@ -1,0 +1,99 @@
+//! A minimal, hand-written CANopen (CiA 301) device engine.
+//!
+//! `no_std`, no allocation, no HAL: frames go in through [`Device::on_frame`], time through
+//! every call, and frames come out through a [`FrameSink`]. The object dictionary is a
+//! static table ([`Od`]) declared by the application, whose own objects are reached
+//! through the [`Application`] trait.
+//!
+//! Supported: NMT slave, SDO server (expedited and segmented), heartbeat producer and two
+//! consumers, SYNC consumer, two TPDOs (event-driven and synchronous) with dynamic mapping,
+//! EMCY producer with error history, store/restore of parameters, CiA 303-3 indicators.
+//!
+//! ```
+//! use canopen_slave::*;
+//!
+//! const IDENTITY: Identity = Identity {
+//!     device_type: 0x0002_0196,
+//!     vendor_id: 0x123,
+//!     product_code: 1,
+//!     revision: 1,
+//!     device_name: "Handwheel",
+//!     hardware_version: "A",
+//!     software_version: "0.1.0",
+//! };
+//! static STANDARD: [OdEntry; STANDARD_OBJECTS] =
+//!     standard_objects(&IDENTITY, &CommDefaults::DEFAULT);
+//! static OBJECTS: [OdEntry; 2] = [
+//!     OdEntry::app(0x2000, 0, DataType::U8, Access::Rw).range(0, 1),
+//!     OdEntry::app(0x6004, 0, DataType::I32, Access::Ro).mappable(),
+//! ];
+//! static OD: Od = Od::checked(&[&STANDARD, &OBJECTS]);
+//!
+//! struct App {
+//!     flag: u8,
+//!     position: i32,
+//! }
+//!
+//! impl Application for App {
+//!     fn read(&mut self, index: u16, _sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
+//!         let bytes = match index {
+//!             0x2000 => &[self.flag][..],
+//!             _ => &self.position.to_le_bytes()[..],
+//!         };
+//!         buf.get_mut(..bytes.len()).ok_or(SdoAbort::OutOfMemory)?.copy_from_slice(bytes);
+//!         Ok(bytes.len())
+//!     }
+//!     fn write(&mut self, _index: u16, _sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
+//!         self.flag = data.first().copied().unwrap_or(0);
+//!         Ok(())
+//!     }
+//! }
+//!
+//! let node = NodeId::new(5).unwrap();
+//! let mut dev = Device::new(Config::new(node), OD, MemoryStorage::new());
+//! let mut app = App { flag: 0, position: 0 };
+//! let mut tx: heapless::Vec<Frame, 8> = heapless::Vec::new();
+//! dev.start(Instant::ZERO, &mut app, &mut tx);
+//! assert_eq!((tx[0].id(), tx[0].data()), (0x705, &[0x00][..])); // boot-up
+//!
+//! // An SDO upload of 0x1000 from the master.
+//! let request = Frame::new(0x605, &[0x40, 0x00, 0x10, 0, 0, 0, 0, 0]).unwrap();
+//! dev.on_frame(Instant::from_millis(1), &request, &mut app, &mut tx);
+//! assert_eq!(tx[1].data(), &[0x43, 0x00, 0x10, 0x00, 0x96, 0x01, 0x02, 0x00]);
+//!
+//! // The firmware polls at the deadline the engine asks for: the first heartbeat.
+//! assert_eq!(dev.next_deadline(), Some(Instant::from_millis(1000)));
+//! dev.poll(Instant::from_millis(1000), &mut app, &mut tx);
+//! assert_eq!(tx[2].data(), &[0x7F]);
+//! ```
+#![no_std]
+#![deny(unsafe_code)]
+#![warn(missing_docs)]
+
+#[macro_use]
+mod log;
+
+pub mod device;
+pub mod emcy;
+pub mod frame;
+pub mod heartbeat;
+pub mod identity;
+pub mod indicators;
+pub mod nmt;
+pub mod od;
+pub mod sdo;
+pub mod storage;
+pub mod sync;
+pub mod time;
+pub mod tpdo;
+
+pub use device::{Application, Config, Device, NoSuchPdo, Stats};
+pub use emcy::EmcyError;
+pub use frame::{Frame, FrameError, FrameSink, InvalidNodeId, NodeId, SinkFull};
+pub use identity::{CommDefaults, Identity, TpdoDefaults};
+pub use indicators::{indicators, ErrorIndication, Pattern};
+pub use nmt::{NmtCommand, NmtState};
+pub use od::{standard_objects, Access, DataType, Od, OdEntry, OdError, Value, STANDARD_OBJECTS};
+pub use sdo::SdoAbort;
+pub use storage::{MemoryStorage, Storage, StorageError};
+pub use time::Instant;

@@ -1,0 +1,326 @@
+//! Non-volatile parameters (0x1010 store, 0x1011 restore defaults).
+//!
+//! The engine serialises its communication parameters and the application's parameters
+//! into one small versioned blob and hands it to a [`Storage`] (flash on the board, RAM in
+//! tests). CiA 301 semantics: stored values are loaded at every reset (power-on and reset
+//! node load both parts, reset communication the communication part only), and "restore
+//! defaults" only takes effect at the next reset.
+//!
+//! Blob layout: magic, version, section flags, application length, the communication
+//! section (every stored engine parameter as a little-endian U32), the application section,
+//! CRC-16/CCITT of everything before it. A blob that fails any check reads as empty.
+
+use crate::tpdo::TPDOS;
+
+/// Signature to write to 0x1010 ("save", little-endian).
+pub const SAVE_SIGNATURE: u32 = 0x6576_6173;
+/// Signature to write to 0x1011 ("load", little-endian).
+pub const LOAD_SIGNATURE: u32 = 0x6461_6F6C;
+
+/// Largest application section (see `Application::save_application`).
+pub const APP_MAX: usize = 32;
+
+const MAGIC: u8 = 0xC0;
+/// Bumped whenever [`STORED`] or the layout changes, so that old blobs read as empty.
+const VERSION: u8 = 1;
+/// Section flags.
+pub(crate) const COMM: u8 = 1 << 0;
+pub(crate) const APP: u8 = 1 << 1;
+const HEADER: usize = 4;
+
+const STORED_LEN: usize = 6 + 13 * TPDOS;
+
+/// The engine-owned parameters that are stored, in blob order.
+pub(crate) const STORED: [(u16, u8); STORED_LEN] = stored_list();
+
+const fn stored_list() -> [(u16, u8); STORED_LEN] {
+    let head = [
+        (0x1005, 0),
+        (0x1014, 0),
+        (0x1015, 0),
+        (0x1016, 1),
+        (0x1016, 2),
+        (0x1017, 0),
+    ];
+    let mut list = [(0u16, 0u8); STORED_LEN];
+    let mut i = 0;
+    while i < head.len() {
+        list[i] = head[i];
+        i += 1;
+    }
+    let mut n = 0;
+    while n < TPDOS {
+        let comm = 0x1800 + n as u16;
+        let subs = [1, 2, 3, 5];
+        let mut s = 0;
+        while s < subs.len() {
+            list[i] = (comm, subs[s]);
+            i += 1;
+            s += 1;
+        }
+        let mut sub = 0;
+        while sub <= 8 {
+            list[i] = (0x1A00 + n as u16, sub);
+            i += 1;
+            sub += 1;
+        }
+        n += 1;
+    }
+    list
+}
+
+const COMM_BYTES: usize = STORED_LEN * 4;
+const APP_OFFSET: usize = HEADER + COMM_BYTES;
+/// Largest blob the engine writes; a [`Storage`] must hold at least this much.
+pub const BLOB_MAX: usize = APP_OFFSET + APP_MAX + 2;
+
+/// The storage refused or failed to write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StorageError {
+    /// The medium could not be written (flash error, blob too large).
+    WriteFailed,
+}
+
+/// Non-volatile memory for one parameter blob, implemented by the firmware.
+pub trait Storage {
+    /// Copies the stored blob into `buf` and returns its length (0 when nothing is stored).
+    fn load(&mut self, buf: &mut [u8]) -> usize;
+    /// Replaces the stored blob; an empty `blob` erases it.
+    fn store(&mut self, blob: &[u8]) -> Result<(), StorageError>;
+}
+
+/// A [`Storage`] in RAM: for tests, and for boards that keep parameters only until power
+/// is lost (they still survive NMT resets).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MemoryStorage {
+    data: [u8; BLOB_MAX],
+    len: usize,
+    writes: u32,
+}
+
+impl MemoryStorage {
+    /// Empty storage.
+    pub const fn new() -> Self {
+        Self {
+            data: [0; BLOB_MAX],
+            len: 0,
+            writes: 0,
+        }
+    }
+
+    /// The stored bytes.
+    pub fn bytes(&self) -> &[u8] {
+        self.data.get(..self.len).unwrap_or(&[])
+    }
+
+    /// Mutable stored bytes, to simulate corruption in tests.
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        self.data.get_mut(..self.len).unwrap_or(&mut [])
+    }
+
+    /// How many times [`Storage::store`] succeeded.
+    pub const fn writes(&self) -> u32 {
+        self.writes
+    }
+}
+
+impl Default for MemoryStorage {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Storage for MemoryStorage {
+    fn load(&mut self, buf: &mut [u8]) -> usize {
+        let n = self.len.min(buf.len());
+        if let (Some(dst), Some(src)) = (buf.get_mut(..n), self.data.get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        n
+    }
+
+    fn store(&mut self, blob: &[u8]) -> Result<(), StorageError> {
+        let dst = self
+            .data
+            .get_mut(..blob.len())
+            .ok_or(StorageError::WriteFailed)?;
+        dst.copy_from_slice(blob);
+        self.len = blob.len();
+        self.writes = self.writes.wrapping_add(1);
+        Ok(())
+    }
+}
+
+fn crc16(data: &[u8]) -> u16 {
+    // CRC-16/CCITT-FALSE, bitwise: a table would cost 512 bytes of flash for no gain here.
+    data.iter().fold(0xFFFF, |mut crc: u16, &b| {
+        crc ^= u16::from(b) << 8;
+        for _ in 0..8 {
+            crc = if crc & 0x8000 != 0 {
+                (crc << 1) ^ 0x1021
+            } else {
+                crc << 1
+            };
+        }
+        crc
+    })
+}
+
+/// A blob being read or edited in RAM.
+pub(crate) struct Blob {
+    buf: [u8; BLOB_MAX],
+    sections: u8,
+    app_len: usize,
+}
+
+impl Blob {
+    /// Loads and checks the stored blob; anything invalid reads as empty.
+    pub(crate) fn load(storage: &mut impl Storage) -> Self {
+        let mut blob = Self {
+            buf: [0; BLOB_MAX],
+            sections: 0,
+            app_len: 0,
+        };
+        let n = storage.load(&mut blob.buf).min(BLOB_MAX);
+        if !blob.validate(n) {
+            blob.buf = [0; BLOB_MAX];
+        }
+        blob
+    }
+
+    fn validate(&mut self, n: usize) -> bool {
+        let [magic, version, sections, app_len, ..] = self.buf;
+        let app_len = usize::from(app_len);
+        let body = APP_OFFSET + app_len;
+        if magic != MAGIC || version != VERSION || app_len > APP_MAX || n != body + 2 {
+            return false;
+        }
+        let (Some(data), Some(&[c0, c1])) = (self.buf.get(..body), self.buf.get(body..n)) else {
+            return false;
+        };
+        if crc16(data) != u16::from_le_bytes([c0, c1]) {
+            return false;
+        }
+        self.sections = sections & (COMM | APP);
+        self.app_len = app_len;
+        true
+    }
+
+    /// The communication section as (index, sub, value) triples, if stored.
+    pub(crate) fn comm(&self) -> Option<impl Iterator<Item = (u16, u8, u32)> + '_> {
+        let bytes = self.buf.get(HEADER..APP_OFFSET)?;
+        (self.sections & COMM != 0).then(|| {
+            STORED
+                .iter()
+                .zip(bytes.chunks_exact(4))
+                .map(|(&(i, s), v)| {
+                    let raw = <[u8; 4]>::try_from(v).unwrap_or_default();
+                    (i, s, u32::from_le_bytes(raw))
+                })
+        })
+    }
+
+    /// The application section, if stored.
+    pub(crate) fn app(&self) -> Option<&[u8]> {
+        let bytes = self.buf.get(APP_OFFSET..APP_OFFSET + self.app_len)?;
+        (self.sections & APP != 0).then_some(bytes)
+    }
+
+    /// Replaces the communication section with the values `value` gives for [`STORED`].
+    pub(crate) fn set_comm(&mut self, mut value: impl FnMut(u16, u8) -> u32) {
+        if let Some(bytes) = self.buf.get_mut(HEADER..APP_OFFSET) {
+            for (&(i, s), dst) in STORED.iter().zip(bytes.chunks_exact_mut(4)) {
+                for (d, b) in dst.iter_mut().zip(value(i, s).to_le_bytes()) {
+                    *d = b;
+                }
+            }
+            self.sections |= COMM;
+        }
+    }
+
+    /// Replaces the application section with what `save` writes (it returns the length).
+    pub(crate) fn set_app(&mut self, save: impl FnOnce(&mut [u8]) -> usize) {
+        if let Some(bytes) = self.buf.get_mut(APP_OFFSET..APP_OFFSET + APP_MAX) {
+            self.app_len = save(bytes).min(APP_MAX);
+            self.sections |= APP;
+        }
+    }
+
+    /// Forgets sections (restore defaults).
+    pub(crate) fn remove(&mut self, sections: u8) {
+        self.sections &= !sections;
+        if self.sections & APP == 0 {
+            self.app_len = 0;
+        }
+    }
+
+    /// Writes the blob back, or erases the storage when no section is left.
+    pub(crate) fn store(&mut self, storage: &mut impl Storage) -> Result<(), StorageError> {
+        if self.sections == 0 {
+            return storage.store(&[]);
+        }
+        let body = APP_OFFSET + self.app_len;
+        // app_len <= APP_MAX was enforced when it was set.
+        let header = [MAGIC, VERSION, self.sections, self.app_len as u8];
+        if let Some(h) = self.buf.get_mut(..HEADER) {
+            h.copy_from_slice(&header);
+        }
+        let crc = self.buf.get(..body).map(crc16).unwrap_or(0);
+        let end = body + 2;
+        let tail = self
+            .buf
+            .get_mut(body..end)
+            .ok_or(StorageError::WriteFailed)?;
+        tail.copy_from_slice(&crc.to_le_bytes());
+        storage.store(self.buf.get(..end).unwrap_or(&[]))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crc_matches_the_ccitt_false_check_value() {
+        assert_eq!(crc16(b"123456789"), 0x29B1);
+    }
+
+    #[test]
+    fn stored_list_covers_each_parameter_once() {
+        for (i, a) in STORED.iter().enumerate() {
+            assert!(STORED.iter().skip(i + 1).all(|b| b != a), "{a:?}");
+        }
+        assert_eq!(STORED[6], (0x1800, 1));
+        assert_eq!(STORED[STORED_LEN - 1], (0x1A01, 8));
+    }
+
+    #[test]
+    fn blob_round_trip() {
+        let mut storage = MemoryStorage::new();
+        let mut blob = Blob::load(&mut storage);
+        assert!(blob.comm().is_none() && blob.app().is_none());
+        blob.set_comm(|index, sub| u32::from(index) << 8 | u32::from(sub));
+        blob.set_app(|buf| {
+            buf[..3].copy_from_slice(b"abc");
+            3
+        });
+        blob.store(&mut storage).unwrap();
+        assert_eq!(storage.bytes().len(), APP_OFFSET + 3 + 2);
+        let blob = Blob::load(&mut storage);
+        assert_eq!(blob.app(), Some(&b"abc"[..]));
+        let comm: heapless::Vec<(u16, u8, u32), 64> = blob.comm().unwrap().collect();
+        assert_eq!(comm.len(), STORED_LEN);
+        assert!(comm
+            .iter()
+            .all(|&(i, s, v)| v == u32::from(i) << 8 | u32::from(s)));
+        // An application claiming more than APP_MAX bytes is clamped.
+        let mut blob = Blob::load(&mut storage);
+        blob.set_app(|_| 1000);
+        blob.store(&mut storage).unwrap();
+        assert_eq!(
+            Blob::load(&mut storage).app().map(<[u8]>::len),
+            Some(APP_MAX)
+        );
+    }
+}

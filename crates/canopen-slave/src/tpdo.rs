@@ -1,0 +1,278 @@
+//! Transmit PDOs: communication (0x1800+n) and mapping (0x1A00+n) parameters and the
+//! transmission-type timing rules of CiA 301 7.2.2.
+
+use crate::frame::{check_cob_id_write, COB_INVALID, MAX_STANDARD_ID};
+use crate::od::Od;
+use crate::sdo::SdoAbort;
+use crate::time::Instant;
+
+/// Number of transmit PDOs.
+pub const TPDOS: usize = 2;
+/// Most objects one PDO maps.
+pub const MAX_MAPPED: usize = 8;
+
+/// A mapping entry split into (index, sub-index, length in bits).
+pub(crate) const fn split_mapping(entry: u32) -> (u16, u8, u8) {
+    ((entry >> 16) as u16, (entry >> 8) as u8, entry as u8)
+}
+
+/// Checks that `entry` names an object that can go into a TPDO; returns its size in bytes.
+/// Only whole objects are mapped: the length must equal the object's size.
+pub(crate) fn check_mapping(od: &Od, entry: u32) -> Result<usize, SdoAbort> {
+    let (index, sub, bits) = split_mapping(entry);
+    let e = od.find(index, sub)?;
+    let size = e.data_type().size().ok_or(SdoAbort::NotMappable)?;
+    if !e.is_mappable() || !e.access().readable() || usize::from(bits) != size * 8 {
+        return Err(SdoAbort::NotMappable);
+    }
+    Ok(size)
+}
+
+/// One transmit PDO: its parameters and its transmission state.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct Tpdo {
+    cob_id: u32,
+    transmission_type: u8,
+    inhibit_100us: u16,
+    event_timer_ms: u16,
+    mapped: u8,
+    mapping: [u32; MAX_MAPPED],
+    /// An event (application request, event timer, entry to Operational) awaits sending.
+    pending: bool,
+    /// No frame of this PDO before this instant (inhibit time, or a retry after a full sink).
+    hold_until: Instant,
+    event_at: Option<Instant>,
+    sync_count: u8,
+}
+
+impl Tpdo {
+    pub(crate) const fn new() -> Self {
+        Self {
+            cob_id: COB_INVALID,
+            transmission_type: 255,
+            inhibit_100us: 0,
+            event_timer_ms: 0,
+            mapped: 0,
+            mapping: [0; MAX_MAPPED],
+            pending: false,
+            hold_until: Instant::ZERO,
+            event_at: None,
+            sync_count: 0,
+        }
+    }
+
+    fn valid(&self) -> bool {
+        self.cob_id & COB_INVALID == 0
+    }
+
+    /// Whether the PDO exists and has something mapped.
+    pub(crate) fn active(&self) -> bool {
+        self.valid() && self.mapped != 0
+    }
+
+    /// Types 254/255: sent on events and on the event timer, subject to the inhibit time.
+    pub(crate) fn event_driven(&self) -> bool {
+        self.transmission_type >= 254
+    }
+
+    /// CAN-ID to send on.
+    pub(crate) fn can_id(&self) -> u16 {
+        (self.cob_id & u32::from(MAX_STANDARD_ID)) as u16
+    }
+
+    /// The active mapping entries.
+    pub(crate) fn mapping(&self) -> &[u32] {
+        self.mapping
+            .get(..usize::from(self.mapped))
+            .unwrap_or(&self.mapping)
+    }
+
+    /// Reads 0x1800+n.
+    pub(crate) fn read_comm(&self, sub: u8) -> Result<u32, SdoAbort> {
+        match sub {
+            1 => Ok(self.cob_id),
+            2 => Ok(self.transmission_type.into()),
+            3 => Ok(self.inhibit_100us.into()),
+            5 => Ok(self.event_timer_ms.into()),
+            _ => Err(SdoAbort::NoSubIndex),
+        }
+    }
+
+    /// Checked write of 0x1800+n.
+    pub(crate) fn write_comm(
+        &mut self,
+        sub: u8,
+        v: u32,
+        now: Instant,
+        operational: bool,
+    ) -> Result<(), SdoAbort> {
+        match sub {
+            1 => check_cob_id_write(self.cob_id, v)?,
+            // 241..=251 are reserved; 252/253 (RTR only) are not supported.
+            2 if matches!(v, 241..=253) => return Err(SdoAbort::InvalidValue),
+            // CiA 301: the inhibit time may not change while the PDO exists.
+            3 if self.valid() => return Err(SdoAbort::InvalidValue),
+            2 | 3 | 5 => {}
+            _ => return Err(SdoAbort::NoSubIndex),
+        }
+        self.set_comm(sub, v);
+        self.sync_count = 0;
+        // A new COB-ID, type or timer takes effect now: restart the event timer.
+        self.event_at = None;
+        if operational {
+            self.arm_event_timer(now);
+        }
+        Ok(())
+    }
+
+    /// Unchecked write of 0x1800+n (defaults, stored parameters).
+    pub(crate) fn set_comm(&mut self, sub: u8, v: u32) {
+        // Truncations are intended: the table types these sub-indices as U8/U16.
+        match sub {
+            1 => self.cob_id = v,
+            2 => self.transmission_type = v as u8,
+            3 => self.inhibit_100us = v as u16,
+            5 => self.event_timer_ms = v as u16,
+            _ => {}
+        }
+    }
+
+    /// Reads 0x1A00+n.
+    pub(crate) fn read_mapping(&self, sub: u8) -> Result<u32, SdoAbort> {
+        if sub == 0 {
+            return Ok(self.mapped.into());
+        }
+        usize::from(sub)
+            .checked_sub(1)
+            .and_then(|i| self.mapping.get(i))
+            .copied()
+            .ok_or(SdoAbort::NoSubIndex)
+    }
+
+    /// Checked write of 0x1A00+n, enforcing the CiA 301 re-mapping procedure: PDO invalid,
+    /// sub 0 = 0, entries, sub 0 = n.
+    pub(crate) fn write_mapping(&mut self, sub: u8, v: u32, od: &Od) -> Result<(), SdoAbort> {
+        if self.valid() {
+            return Err(SdoAbort::DeviceState);
+        }
+        if sub == 0 {
+            let n = usize::try_from(v).map_err(|_| SdoAbort::ValueTooHigh)?;
+            let entries = self.mapping.get(..n).ok_or(SdoAbort::ValueTooHigh)?;
+            let mut bytes = 0;
+            for &entry in entries {
+                bytes += check_mapping(od, entry)?;
+            }
+            if bytes > 8 {
+                return Err(SdoAbort::PdoTooLong);
+            }
+        } else {
+            if self.mapped != 0 {
+                return Err(SdoAbort::DeviceState);
+            }
+            if usize::from(sub) > MAX_MAPPED {
+                return Err(SdoAbort::NoSubIndex);
+            }
+            // 0 clears an entry; anything else must name a mappable object.
+            if v != 0 {
+                check_mapping(od, v)?;
+            }
+        }
+        self.set_mapping(sub, v);
+        Ok(())
+    }
+
+    /// Unchecked write of 0x1A00+n (defaults, stored parameters).
+    pub(crate) fn set_mapping(&mut self, sub: u8, v: u32) {
+        if sub == 0 {
+            // Clamped so that a corrupt stored value can never index past the array.
+            self.mapped = (v.min(MAX_MAPPED as u32)) as u8;
+        } else if let Some(m) = usize::from(sub)
+            .checked_sub(1)
+            .and_then(|i| self.mapping.get_mut(i))
+        {
+            *m = v;
+        }
+    }
+
+    fn arm_event_timer(&mut self, now: Instant) {
+        self.event_at = (self.active() && self.event_driven() && self.event_timer_ms != 0)
+            .then(|| now.add_millis(self.event_timer_ms.into()));
+    }
+
+    /// Entry to Operational: timers start; an `announce`d event-driven PDO is sent at once.
+    pub(crate) fn start(&mut self, now: Instant, announce: bool) {
+        self.pending = announce && self.active() && self.event_driven();
+        self.hold_until = Instant::ZERO;
+        self.sync_count = 0;
+        self.arm_event_timer(now);
+    }
+
+    /// Leaving Operational: nothing may be sent any more.
+    pub(crate) fn stop(&mut self) {
+        self.pending = false;
+        self.event_at = None;
+        self.sync_count = 0;
+    }
+
+    /// The application changed mapped data (types 0, 254, 255; cyclic types ignore it).
+    pub(crate) fn request(&mut self) {
+        if self.active() && (self.transmission_type == 0 || self.event_driven()) {
+            self.pending = true;
+        }
+    }
+
+    /// Whether an event-driven frame should go out now (event timer folded into `pending`).
+    pub(crate) fn event_due(&mut self, now: Instant) -> bool {
+        if !self.active() || !self.event_driven() {
+            return false;
+        }
+        if self.event_at.is_some_and(|t| now >= t) {
+            self.event_at = None;
+            self.pending = true;
+        }
+        self.pending && now >= self.hold_until
+    }
+
+    /// A SYNC arrived: whether this PDO sends now.
+    pub(crate) fn on_sync(&mut self) -> bool {
+        if !self.active() {
+            return false;
+        }
+        match self.transmission_type {
+            0 => self.pending,
+            n @ 1..=240 => {
+                self.sync_count = self.sync_count.saturating_add(1);
+                if self.sync_count >= n {
+                    self.sync_count = 0;
+                    true
+                } else {
+                    false
+                }
+            }
+            _ => false,
+        }
+    }
+
+    /// The frame went out: start the inhibit time and restart the event timer.
+    pub(crate) fn sent(&mut self, now: Instant) {
+        self.pending = false;
+        self.hold_until = now.add_100us(self.inhibit_100us);
+        self.arm_event_timer(now);
+    }
+
+    /// The sink was full: try again a little later instead of spinning.
+    pub(crate) fn retry_later(&mut self, now: Instant) {
+        self.hold_until = now.add_millis(1);
+    }
+
+    /// When `poll` must next look at this PDO (in Operational).
+    pub(crate) fn deadline(&self) -> Option<Instant> {
+        if !self.active() || !self.event_driven() {
+            None
+        } else if self.pending {
+            Some(self.hold_until)
+        } else {
+            self.event_at
+        }
+    }
+}
