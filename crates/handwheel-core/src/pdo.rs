@@ -179,13 +179,24 @@ impl UnitStepEncoder {
     /// The byte for `step`; the counter advances for the next frame.
     #[must_use = "the counter advanced: the byte must be sent"]
     pub fn encode(&mut self, step: UnitStep) -> u8 {
-        let byte = (self.counter << 4) | ((step.forward as u8) << 3) | step.axis.paper_index();
+        let byte = self.peek(step);
+        self.advance();
+        byte
+    }
+
+    /// The byte `step` would be sent as, without advancing the counter: for a frame that may
+    /// still be withdrawn before it reaches the bus.
+    pub const fn peek(&self, step: UnitStep) -> u8 {
+        (self.counter << 4) | ((step.forward as u8) << 3) | step.axis.paper_index()
+    }
+
+    /// Advances the counter: one frame went out.
+    pub fn advance(&mut self) {
         let stride = match self.stride {
             CounterStride::One => 1,
             CounterStride::Four => 4,
         };
         self.counter = (self.counter + stride) & 0x0F;
-        byte
     }
 
     /// Decodes a unit-step byte into `(step, counter)`; `None` for axis fields 5..7.
@@ -251,6 +262,19 @@ mod tests {
         }
         assert_eq!(counters[15], 15);
         assert_eq!(counters[16], 0);
+    }
+
+    #[test]
+    fn peek_does_not_advance() {
+        let mut enc = UnitStepEncoder::new(CounterStride::One);
+        let step = UnitStep {
+            axis: Axis::Y,
+            forward: true,
+        };
+        assert_eq!(enc.peek(step), 0x09);
+        assert_eq!(enc.peek(step), 0x09);
+        enc.advance();
+        assert_eq!(enc.peek(step), 0x19);
     }
 
     #[test]

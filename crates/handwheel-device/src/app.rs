@@ -1,0 +1,290 @@
+//! The handwheel's application objects (0x2000 and up, 0x6004) over the shared wheel.
+
+use canopen_slave::{Application, NmtState, SdoAbort};
+use handwheel_core::{
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, Handwheel, StopReason, UnitStep,
+    UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
+};
+
+use crate::od::{
+    ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT, FEED_SEQUENCE, FEED_STATUS,
+    POSITION_VALUE, SELECTION, UNIT_STEP,
+};
+
+/// Application parameters that 0x1010 stores: everything the integrator configures about
+/// the wheel, never the feed enable (a handwheel must not power up live).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WheelParameters {
+    /// 0x2001: unit-step (paper) format instead of the feed record.
+    pub unit_steps: bool,
+    /// 0x2020:3 and :4.
+    pub decoder: DecoderConfig,
+    /// 0x2040:3.
+    pub backlog_bound: u16,
+}
+
+impl WheelParameters {
+    /// Factory settings.
+    pub const DEFAULT: Self = Self {
+        unit_steps: false,
+        decoder: DecoderConfig {
+            counts_per_detent: CountsPerDetent::Four,
+            invert: false,
+        },
+        backlog_bound: DEFAULT_STEP_BACKLOG,
+    };
+
+    const BLOB_VERSION: u8 = 1;
+    const BLOB_LEN: usize = 6;
+
+    fn to_blob(self) -> [u8; Self::BLOB_LEN] {
+        let bound = self.backlog_bound.to_le_bytes();
+        [
+            Self::BLOB_VERSION,
+            self.unit_steps as u8,
+            self.decoder.counts_per_detent.get(),
+            self.decoder.invert as u8,
+            bound[0],
+            bound[1],
+        ]
+    }
+
+    /// `None` for a blob of another version or with any field out of range.
+    fn from_blob(blob: &[u8]) -> Option<Self> {
+        let &[version, unit_steps, cpd, invert, b0, b1] = blob else {
+            return None;
+        };
+        let bound = u16::from_le_bytes([b0, b1]);
+        let valid = version == Self::BLOB_VERSION
+            && unit_steps <= 1
+            && invert <= 1
+            && (1..=crate::od::MAX_BACKLOG_BOUND).contains(&bound);
+        Some(Self {
+            unit_steps: unit_steps == 1,
+            decoder: DecoderConfig {
+                counts_per_detent: CountsPerDetent::from_u8(cpd)?,
+                invert: invert == 1,
+            },
+            backlog_bound: bound,
+        })
+        .filter(|_| valid)
+    }
+
+    /// Pushes the parameters into the wheel.
+    pub(crate) fn apply(self, wheel: &mut Handwheel) {
+        wheel.decoder.configure(self.decoder);
+        // The bound was validated on its way in; a rejected bound keeps the previous one.
+        let _ = wheel.feed.set_backlog_bound(self.backlog_bound);
+        let _ = wheel.feed.set_unit_step_mode(self.unit_steps);
+    }
+}
+
+/// What the application keeps between engine calls.
+#[derive(Clone, Debug)]
+pub struct FeedApp {
+    pub(crate) parameters: WheelParameters,
+    pub(crate) nmt: NmtState,
+    /// 0x2031: feed records sent.
+    pub(crate) sequence: u8,
+    pub(crate) encoder: UnitStepEncoder,
+    /// The unit step waiting for TPDO2; its byte is in 0x2032 until it is sent.
+    pub(crate) step_in_flight: Option<UnitStep>,
+    /// 0x2032: the last unit-step byte handed to TPDO2.
+    pub(crate) step_byte: u8,
+    /// Something in the feed record changed: TPDO1 is due.
+    pub(crate) feed_due: bool,
+}
+
+impl FeedApp {
+    pub(crate) const fn new() -> Self {
+        Self {
+            parameters: WheelParameters::DEFAULT,
+            nmt: NmtState::Initialising,
+            sequence: 0,
+            encoder: UnitStepEncoder::new(CounterStride::One),
+            step_in_flight: None,
+            step_byte: 0,
+            feed_due: false,
+        }
+    }
+}
+
+/// The application as the engine sees it during one call: the kept state plus access to
+/// the shared wheel.
+pub(crate) struct AppContext<'a, W: WheelAccess> {
+    pub app: &'a mut FeedApp,
+    pub wheel: &'a mut W,
+}
+
+fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, SdoAbort> {
+    let dst = buf.get_mut(..bytes.len()).ok_or(SdoAbort::OutOfMemory)?;
+    dst.copy_from_slice(bytes);
+    Ok(bytes.len())
+}
+
+impl<W: WheelAccess> Application for AppContext<'_, W> {
+    fn read(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
+        let app = &*self.app;
+        match (index, sub) {
+            (FEED_FORMAT, 0) => put(buf, &[app.parameters.unit_steps as u8]),
+            (ENCODER, 3) => put(buf, &[app.parameters.decoder.counts_per_detent.get()]),
+            (ENCODER, 4) => put(buf, &[app.parameters.decoder.invert as u8]),
+            (FEED_SEQUENCE, 0) => put(buf, &[app.sequence]),
+            (UNIT_STEP, 0) => put(buf, &[app.step_byte]),
+            (FEED_DIAGNOSTICS, 3) => put(buf, &app.parameters.backlog_bound.to_le_bytes()),
+            _ => self.wheel.with_wheel(|w| {
+                let feed = &w.feed;
+                match (index, sub) {
+                    (FEED_ENABLE, 0) => put(buf, &[feed.enabled() as u8]),
+                    (SELECTION, 1) => put(buf, &[Axis::option_value(feed.selection().axis)]),
+                    (SELECTION, 2) => put(buf, &[feed.selection().multiplier.factor()]),
+                    (SELECTION, 3) => put(buf, &[feed.epoch()]),
+                    (ENCODER, 1) => put(buf, &w.decoder.count().to_le_bytes()),
+                    (ENCODER, 2) => put(buf, &w.decoder.illegal_transitions().to_le_bytes()),
+                    (FEED_STATUS, 0) => put(buf, &[feed.status().bits()]),
+                    (FEED_DIAGNOSTICS, 1) => put(buf, &feed.ignored_detents().to_le_bytes()),
+                    (FEED_DIAGNOSTICS, 2) => put(buf, &feed.dropped_steps().to_le_bytes()),
+                    (POSITION_VALUE, 0) => put(buf, &feed.position().to_le_bytes()),
+                    _ => Err(SdoAbort::NoObject),
+                }
+            }),
+        }
+    }
+
+    fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
+        // The engine checked length and the table's range: `byte` is the whole value of the
+        // U8 objects, `word` of the U16 one.
+        let byte = data.first().copied().unwrap_or(0);
+        let word = u16::from_le_bytes([byte, data.get(1).copied().unwrap_or(0)]);
+        let mut parameters = self.app.parameters;
+        match (index, sub) {
+            (FEED_ENABLE, 0) => {
+                // Feed only runs while PDOs flow: enabling in Pre-operational would let the
+                // position move unseen and jump at the next start.
+                if byte == 1 && self.app.nmt != NmtState::Operational {
+                    return Err(SdoAbort::DeviceState);
+                }
+                let changed = self.wheel.with_wheel(|w| w.feed.set_enabled(byte == 1));
+                self.app.feed_due |= changed;
+                return Ok(());
+            }
+            (FEED_FORMAT, 0) => parameters.unit_steps = byte == 1,
+            (ENCODER, 3) => {
+                parameters.decoder.counts_per_detent =
+                    CountsPerDetent::from_u8(byte).ok_or(SdoAbort::InvalidValue)?;
+            }
+            (ENCODER, 4) => parameters.decoder.invert = byte == 1,
+            (FEED_DIAGNOSTICS, 3) => parameters.backlog_bound = word,
+            _ => return Err(SdoAbort::ReadOnly),
+        }
+        self.set_parameters(parameters);
+        Ok(())
+    }
+
+    fn on_nmt_state(&mut self, state: NmtState) {
+        self.app.nmt = state;
+        if state != NmtState::Operational {
+            self.stop(StopReason::NotOperational);
+        }
+    }
+
+    fn on_heartbeat_lost(&mut self, _node_id: u8) {
+        self.stop(StopReason::MasterLost);
+    }
+
+    fn on_reset_application(&mut self) {
+        let nmt = self.app.nmt;
+        *self.app = FeedApp::new();
+        self.app.nmt = nmt;
+        self.wheel.with_wheel(|w| {
+            let levels = w.decoder.levels();
+            let selection = w.feed.selection();
+            *w = Handwheel::new(WheelParameters::DEFAULT.decoder, levels);
+            // The selector is hardware state, not application state: it survives the reset.
+            let _ = w.feed.set_selection(selection);
+        });
+    }
+
+    fn on_tpdo_sent(&mut self, pdo: u8) {
+        match pdo {
+            1 => self.app.sequence = self.app.sequence.wrapping_add(1),
+            2 => {
+                // Without a step in flight this was a repeat (an integrator's event timer):
+                // the counter stays, so the host can tell it from a new step.
+                let sent = self.app.step_in_flight.take();
+                if sent.is_some() {
+                    self.app.encoder.advance();
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn save_application(&self, buf: &mut [u8]) -> usize {
+        let blob = self.app.parameters.to_blob();
+        match buf.get_mut(..blob.len()) {
+            Some(dst) => {
+                dst.copy_from_slice(&blob);
+                blob.len()
+            }
+            None => 0,
+        }
+    }
+
+    fn restore_application(&mut self, data: &[u8]) {
+        if let Some(parameters) = WheelParameters::from_blob(data) {
+            self.set_parameters(parameters);
+        }
+    }
+}
+
+impl<W: WheelAccess> AppContext<'_, W> {
+    fn set_parameters(&mut self, parameters: WheelParameters) {
+        self.app.parameters = parameters;
+        self.app.step_in_flight = None;
+        self.wheel.with_wheel(|w| parameters.apply(w));
+        self.app.feed_due = true;
+    }
+
+    fn stop(&mut self, reason: StopReason) {
+        // A step that has not reached the bus is withdrawn with the rest of the backlog.
+        self.app.step_in_flight = None;
+        let changed = self.wheel.with_wheel(|w| w.feed.stop(reason));
+        self.app.feed_due |= changed;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parameter_blob_round_trips() {
+        let p = WheelParameters {
+            unit_steps: true,
+            decoder: DecoderConfig {
+                counts_per_detent: CountsPerDetent::Two,
+                invert: true,
+            },
+            backlog_bound: 300,
+        };
+        assert_eq!(p.to_blob(), [1, 1, 2, 1, 0x2C, 0x01]);
+        assert_eq!(WheelParameters::from_blob(&p.to_blob()), Some(p));
+    }
+
+    #[test]
+    fn bad_blobs_are_refused() {
+        let good = WheelParameters::DEFAULT.to_blob();
+        assert!(WheelParameters::from_blob(&good).is_some());
+        for (i, bad) in [(0, 2), (1, 2), (2, 3), (3, 7), (4, 0)] {
+            let mut blob = good;
+            blob[i] = bad;
+            if i == 4 {
+                blob[5] = 0;
+            }
+            assert_eq!(WheelParameters::from_blob(&blob), None, "byte {i} = {bad}");
+        }
+        assert_eq!(WheelParameters::from_blob(&good[..5]), None);
+        assert_eq!(WheelParameters::from_blob(&[]), None);
+    }
+}

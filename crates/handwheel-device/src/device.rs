@@ -1,0 +1,168 @@
+//! The handwheel device: the CANopen engine, the handwheel's dictionary and the feed logic
+//! that runs between engine calls.
+
+use canopen_slave::{
+    Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, Storage,
+};
+use handwheel_core::{FeedStatus, Selection, WheelAccess};
+
+use crate::app::{AppContext, FeedApp};
+use crate::od::OD;
+
+/// EMCY code raised while an illegal quadrature transition is latched in the feed status
+/// (CiA 301 "sensor" class). It clears with the epoch, i.e. when the operator re-selects.
+pub const EMCY_ENCODER: u16 = 0x7300;
+/// Error register bit for the encoder error: generic only, CiA 301 has no sensor bit.
+const ERROR_REGISTER_GENERIC: u8 = 0x01;
+
+/// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
+/// the wheel itself lives outside, shared with the EXTI task, and is reached through a
+/// [`WheelAccess`] on every call.
+pub struct HandwheelDevice<S> {
+    engine: Device<S>,
+    app: FeedApp,
+    encoder_error_raised: bool,
+}
+
+impl<S: Storage> HandwheelDevice<S> {
+    /// A device in Initialising; nothing is sent before [`HandwheelDevice::start`].
+    pub fn new(node_id: NodeId, serial_number: u32, storage: S) -> Self {
+        let mut config = Config::new(node_id);
+        config.serial_number = serial_number;
+        Self {
+            engine: Device::new(config, OD, storage),
+            app: FeedApp::new(),
+            encoder_error_raised: false,
+        }
+    }
+
+    /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
+    pub fn start(&mut self, now: Instant, wheel: &mut impl WheelAccess, tx: &mut dyn FrameSink) {
+        let mut ctx = AppContext {
+            app: &mut self.app,
+            wheel: &mut *wheel,
+        };
+        // Stored application parameters arrive through `restore_application`; without
+        // any, the factory settings must still reach the wheel.
+        let params = ctx.app.parameters;
+        ctx.wheel.with_wheel(|w| params.apply(w));
+        self.engine.start(now, &mut ctx, tx);
+        self.service(wheel);
+    }
+
+    /// One received frame.
+    pub fn on_frame(
+        &mut self,
+        now: Instant,
+        frame: &Frame,
+        wheel: &mut impl WheelAccess,
+        tx: &mut dyn FrameSink,
+    ) {
+        let mut ctx = AppContext {
+            app: &mut self.app,
+            wheel: &mut *wheel,
+        };
+        self.engine.on_frame(now, frame, &mut ctx, tx);
+        self.service(wheel);
+    }
+
+    /// Time-driven work; call at [`HandwheelDevice::next_deadline`] at the latest, and after
+    /// [`HandwheelDevice::feed_changed`] or [`HandwheelDevice::set_selection`].
+    pub fn poll(&mut self, now: Instant, wheel: &mut impl WheelAccess, tx: &mut dyn FrameSink) {
+        self.service(wheel);
+        let mut ctx = AppContext {
+            app: &mut self.app,
+            wheel: &mut *wheel,
+        };
+        self.engine.poll(now, &mut ctx, tx);
+        self.service(wheel);
+    }
+
+    /// The EXTI task reported a change of the feed record (a detent, a status bit).
+    pub fn feed_changed(&mut self) {
+        self.app.feed_due = true;
+    }
+
+    /// The debounced selector changed.
+    pub fn set_selection(&mut self, selection: Selection, wheel: &mut impl WheelAccess) {
+        let changed = wheel.with_wheel(|w| w.feed.set_selection(selection));
+        if changed {
+            // Pending unit steps were for the old selection: a prepared one goes too.
+            self.app.step_in_flight = None;
+            self.app.feed_due = true;
+        }
+    }
+
+    /// When [`HandwheelDevice::poll`] has work next.
+    pub fn next_deadline(&self) -> Option<Instant> {
+        let feed_pending = self.app.feed_due;
+        match self.engine.next_deadline() {
+            Some(t) if !feed_pending => Some(t),
+            _ if feed_pending => Some(Instant::ZERO),
+            other => other,
+        }
+    }
+
+    /// NMT state.
+    pub fn nmt_state(&self) -> NmtState {
+        self.engine.nmt_state()
+    }
+
+    /// What the ERR LED shows on account of the protocol (heartbeat loss).
+    pub fn error_indication(&self) -> ErrorIndication {
+        self.engine.error_indication()
+    }
+
+    /// The engine, for errors the firmware raises itself (CAN controller EMCYs) and
+    /// statistics.
+    pub fn engine(&mut self) -> &mut Device<S> {
+        &mut self.engine
+    }
+
+    /// Feed records sent (0x2031).
+    pub fn feed_sequence(&self) -> u8 {
+        self.app.sequence
+    }
+
+    /// Work between engine calls: requests the TPDOs that are due, prepares the next unit
+    /// step, and keeps the encoder EMCY in step with the feed status.
+    fn service(&mut self, wheel: &mut impl WheelAccess) {
+        let operational = self.engine.nmt_state() == NmtState::Operational;
+        if self.app.feed_due {
+            self.app.feed_due = false;
+            // Outside Operational the request is dropped by design: entering Operational
+            // sends TPDO1 with the present values anyway.
+            let _ = self.engine.request_tpdo(1);
+        }
+        if operational && self.app.parameters.unit_steps {
+            if self.app.step_in_flight.is_none() {
+                if let Some(step) = wheel.with_wheel(|w| w.feed.take_unit_step()) {
+                    self.app.step_byte = self.app.encoder.peek(step);
+                    self.app.step_in_flight = Some(step);
+                }
+            }
+            if self.app.step_in_flight.is_some() {
+                let _ = self.engine.request_tpdo(2);
+            }
+        }
+        let (status, illegal) = wheel.with_wheel(|w| {
+            (
+                w.feed.status(),
+                w.decoder.illegal_transitions().to_le_bytes(),
+            )
+        });
+        let encoder_error = status.contains(FeedStatus::ENCODER_ERROR);
+        if encoder_error != self.encoder_error_raised {
+            if encoder_error {
+                let info = [illegal[0], illegal[1], illegal[2], illegal[3], 0];
+                self.encoder_error_raised = self
+                    .engine
+                    .raise_error(EMCY_ENCODER, ERROR_REGISTER_GENERIC, info)
+                    .is_ok();
+            } else {
+                self.engine.clear_error(EMCY_ENCODER);
+                self.encoder_error_raised = false;
+            }
+        }
+    }
+}

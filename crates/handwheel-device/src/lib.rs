@@ -1,0 +1,20 @@
+//! The CANopen CNC handwheel as a device: the `canopen-slave` engine bound to
+//! `handwheel-core`'s wheel through the handwheel's object dictionary.
+//!
+//! Host-tested and hardware-free; the firmware creates one [`HandwheelDevice`], shares a
+//! [`handwheel_core::Handwheel`] with its EXTI task and moves frames and time in and out.
+//!
+//! Safety behaviour lives here and in `handwheel-core`, not in the firmware:
+//! - feed can only be enabled (0x2000 = 1) in Operational (abort 0x08000022 otherwise);
+//! - leaving Operational, or losing the master's heartbeat (0x1016), stops the feed,
+//!   discards pending unit steps and disables feed until the master enables it again;
+//! - the paper's unit-step stream (0x2001 = 1) goes out on TPDO2, one frame per step, from a
+//!   bounded backlog.
+#![no_std]
+
+mod app;
+mod device;
+pub mod od;
+
+pub use app::WheelParameters;
+pub use device::{HandwheelDevice, EMCY_ENCODER};

@@ -1,0 +1,219 @@
+//! `eds/handwheel.eds` against the device: every object of the EDS exists in the device's
+//! table with the same type, access, PDO mapping and limits, a fresh device answers an SDO
+//! upload with the EDS default, and every object of the table is in the EDS.
+
+mod common;
+
+use std::collections::BTreeMap;
+
+use canopen_slave::{Access, DataType, MemoryStorage};
+use common::*;
+use handwheel_device::od::OD;
+
+#[derive(Debug)]
+struct EdsEntry {
+    data_type: u16,
+    access: String,
+    default: String,
+    pdo_mapping: bool,
+    limits: Option<(i64, i64)>,
+}
+
+fn parse_number(text: &str) -> i64 {
+    let text = text.trim();
+    let (text, node) = match text.strip_prefix("$NODEID+") {
+        Some(rest) => (rest, i64::from(NODE)),
+        None => (text, 0),
+    };
+    let value = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => i64::from_str_radix(hex, 16).unwrap(),
+        None => text.parse().unwrap(),
+    };
+    value + node
+}
+
+/// Sections of the EDS as key/value maps.
+fn sections() -> BTreeMap<String, BTreeMap<String, String>> {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../eds/handwheel.eds"
+    ))
+    .expect("eds/handwheel.eds is readable");
+    let mut out: BTreeMap<String, BTreeMap<String, String>> = BTreeMap::new();
+    let mut current = None;
+    for line in text.lines().map(str::trim) {
+        if line.is_empty() || line.starts_with(';') {
+            continue;
+        }
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            current = Some(name.to_string());
+            out.entry(name.to_string()).or_default();
+        } else if let (Some(section), Some((k, v))) = (&current, line.split_once('=')) {
+            out.get_mut(section)
+                .unwrap()
+                .insert(k.trim().to_string(), v.trim().to_string());
+        }
+    }
+    out
+}
+
+/// Every variable of the EDS by (index, sub).
+fn eds_entries() -> BTreeMap<(u16, u8), EdsEntry> {
+    let sections = sections();
+    let mut entries = BTreeMap::new();
+    for (name, keys) in &sections {
+        let (index, sub) = match name.split_once("sub") {
+            Some((i, s)) => (i, u8::from_str_radix(s, 16)),
+            None => (name.as_str(), Ok(0)),
+        };
+        let (Ok(index), Ok(sub)) = (u16::from_str_radix(index, 16), sub) else {
+            continue; // FileInfo, DeviceInfo and the like
+        };
+        if keys.get("ObjectType").map(String::as_str) != Some("0x7") {
+            continue; // an array or record header; its subs are sections of their own
+        }
+        let limits = match (keys.get("LowLimit"), keys.get("HighLimit")) {
+            (Some(lo), Some(hi)) => Some((parse_number(lo), parse_number(hi))),
+            (None, None) => None,
+            _ => panic!("{name}: LowLimit without HighLimit"),
+        };
+        entries.insert(
+            (index, sub),
+            EdsEntry {
+                data_type: parse_number(&keys["DataType"]) as u16,
+                access: keys["AccessType"].to_lowercase(),
+                default: keys.get("DefaultValue").cloned().unwrap_or_default(),
+                pdo_mapping: keys.get("PDOMapping").map(String::as_str) == Some("1"),
+                limits,
+            },
+        );
+    }
+    entries
+}
+
+fn eds_type(t: DataType) -> u16 {
+    match t {
+        DataType::Boolean => 0x0001,
+        DataType::I8 => 0x0002,
+        DataType::I16 => 0x0003,
+        DataType::I32 => 0x0004,
+        DataType::U8 => 0x0005,
+        DataType::U16 => 0x0006,
+        DataType::U32 => 0x0007,
+        DataType::VisibleString => 0x0009,
+    }
+}
+
+fn eds_access(a: Access) -> &'static str {
+    match a {
+        Access::Ro => "ro",
+        Access::Wo => "wo",
+        Access::Rw => "rw",
+        Access::Const => "const",
+    }
+}
+
+#[test]
+fn eds_and_table_describe_the_same_objects() {
+    let eds = eds_entries();
+    let table: Vec<_> = OD.entries().collect();
+    for e in &table {
+        let key = (e.index(), e.sub());
+        let d = eds
+            .get(&key)
+            .unwrap_or_else(|| panic!("{:04X}sub{} missing from the EDS", key.0, key.1));
+        assert_eq!(d.data_type, eds_type(e.data_type()), "{key:04X?} type");
+        assert_eq!(d.access, eds_access(e.access()), "{key:04X?} access");
+        assert_eq!(d.pdo_mapping, e.is_mappable(), "{key:04X?} PDO mapping");
+    }
+    for key in eds.keys() {
+        assert!(
+            table.iter().any(|e| (e.index(), e.sub()) == *key),
+            "{key:04X?} in the EDS but not in the device"
+        );
+    }
+    assert_eq!(eds.len(), table.len());
+}
+
+#[test]
+fn a_fresh_device_answers_the_eds_defaults() {
+    // Serial number 0, so the runtime-supplied 0x1018:4 matches the EDS default too.
+    let mut b = Bench::with_serial(MemoryStorage::new(), 0);
+    let eds = eds_entries();
+    let mut checked = 0;
+    for (&(index, sub), d) in &eds {
+        if d.access == "wo" {
+            continue;
+        }
+        if index == 0x1003 && sub > 0 {
+            // CiA 301: entries above the error count hold no data yet.
+            assert_eq!(b.sdo_upload(index, sub), Err(0x0800_0024), "1003sub{sub}");
+            continue;
+        }
+        let value = b
+            .sdo_upload(index, sub)
+            .unwrap_or_else(|abort| panic!("{index:04X}sub{sub}: abort {abort:#010x}"));
+        if d.data_type == 0x0009 {
+            assert_eq!(
+                String::from_utf8(value).unwrap(),
+                d.default,
+                "{index:04X}sub{sub}"
+            );
+        } else {
+            let mut raw = value.clone();
+            let negative =
+                matches!(d.data_type, 2..=4) && raw.last().is_some_and(|b| b & 0x80 != 0);
+            raw.resize(8, if negative { 0xFF } else { 0 });
+            let got = i64::from_le_bytes(raw.try_into().unwrap());
+            assert_eq!(got, parse_number(&d.default), "{index:04X}sub{sub}");
+        }
+        checked += 1;
+    }
+    assert!(checked > 60, "only {checked} objects read");
+}
+
+#[test]
+fn eds_limits_are_the_limits_the_device_enforces() {
+    let eds = eds_entries();
+    let mut b = Bench::new();
+    // Mapping counts can only be written while the PDO is invalid (CiA 301 procedure).
+    for cob in [0x1800u16, 0x1801] {
+        let id = b.read_u32(cob, 1) | 0x8000_0000;
+        b.sdo_write(cob, 1, &id.to_le_bytes()).unwrap();
+    }
+    let mut checked = 0;
+    for (&(index, sub), d) in &eds {
+        let Some((lo, hi)) = d.limits else { continue };
+        assert_eq!(
+            d.access, "rw",
+            "{index:04X}sub{sub}: limits only on writable objects"
+        );
+        let size = match d.data_type {
+            0x0005 => 1,
+            0x0006 => 2,
+            0x0007 => 4,
+            t => panic!("limits on type {t:#x} not covered"),
+        };
+        let bytes = |v: i64| v.to_le_bytes()[..size].to_vec();
+        let restore = b.sdo_upload(index, sub).unwrap();
+        assert_eq!(
+            b.sdo_write(index, sub, &bytes(hi + 1)),
+            Err(0x0609_0031),
+            "{index:04X}sub{sub} above"
+        );
+        if lo > 0 {
+            assert_eq!(
+                b.sdo_write(index, sub, &bytes(lo - 1)),
+                Err(0x0609_0032),
+                "{index:04X}sub{sub} below"
+            );
+        }
+        assert_eq!(
+            b.sdo_upload(index, sub).unwrap(),
+            restore,
+            "rejected writes change nothing"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 5, "only {checked} limited objects");
+}
