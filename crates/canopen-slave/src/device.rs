@@ -37,6 +37,13 @@ pub trait Application {
     /// parameters, if any, follow through [`Application::restore_application`].
     fn on_reset_application(&mut self) {}
 
+    /// TPDO `pdo` (1-based) is about to be built and sent (an event, the event timer or a
+    /// SYNC). Returning `false` withdraws it: nothing is sent. For PDOs that carry events
+    /// rather than state, where a stale or repeated frame would be wrong.
+    fn tpdo_ready(&mut self, _pdo: u8) -> bool {
+        true
+    }
+
     /// TPDO `pdo` (1-based) was handed to the sink.
     fn on_tpdo_sent(&mut self, _pdo: u8) {}
 
@@ -494,6 +501,14 @@ impl<S: Storage> Inner<S> {
         app: &mut dyn Application,
         tx: &mut dyn FrameSink,
     ) {
+        // i < TPDOS, so the PDO number fits a u8.
+        let pdo = i as u8 + 1;
+        if !app.tpdo_ready(pdo) {
+            if let Some(t) = self.tpdos.get_mut(i) {
+                t.withdrawn(now);
+            }
+            return;
+        }
         let built = self.build_tpdo(i, app);
         let sent = match built {
             Ok(frame) => Some(self.emit(tx, frame)),
@@ -510,8 +525,7 @@ impl<S: Storage> Inner<S> {
             Some(false) => t.retry_later(now),
             Some(true) => {
                 t.sent(now);
-                // i < TPDOS, so the PDO number fits a u8.
-                app.on_tpdo_sent(i as u8 + 1);
+                app.on_tpdo_sent(pdo);
             }
             // Give this event up rather than retrying a mapping that cannot be read.
             None => t.sent(now),

@@ -260,6 +260,13 @@ impl Tpdo {
         self.arm_event_timer(now);
     }
 
+    /// The application withdrew the event: nothing is sent and the inhibit time does not
+    /// start, but the event timer starts over as if a frame had gone out.
+    pub(crate) fn withdrawn(&mut self, now: Instant) {
+        self.pending = false;
+        self.arm_event_timer(now);
+    }
+
     /// The sink was full: try again a little later instead of spinning.
     pub(crate) fn retry_later(&mut self, now: Instant) {
         self.hold_until = now.add_millis(1);

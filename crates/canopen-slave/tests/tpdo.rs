@@ -306,3 +306,22 @@ fn mapping_of_a_readable_record_member() {
         Some(&frame(TPDO2, &0xCAFE_F00Du32.to_le_bytes()))
     );
 }
+
+#[test]
+fn application_can_withdraw_a_requested_pdo() {
+    let mut b = Bench::operational();
+    b.download(0x1017, 0, &0u16.to_le_bytes()).unwrap();
+    b.take();
+    b.app.withdraw = vec![2];
+    b.dev.request_tpdo(2).unwrap();
+    b.poll_at(ms(1));
+    assert_eq!(b.take(), vec![], "withdrawn: nothing sent");
+    assert_eq!(b.dev.stats().tpdo_errors, 0, "a withdrawal is not an error");
+    // The withdrawal started no inhibit time: the next event goes out at once.
+    b.app.withdraw.clear();
+    b.app.buttons = 5;
+    b.dev.request_tpdo(2).unwrap();
+    b.poll_at(ms(1));
+    assert_eq!(b.take(), vec![frame(TPDO2, &[5])]);
+    assert_eq!(b.app.tpdo_sent.last(), Some(&2));
+}

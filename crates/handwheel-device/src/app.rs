@@ -205,18 +205,19 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         });
     }
 
+    fn tpdo_ready(&mut self, pdo: u8) -> bool {
+        // TPDO2 carries unit steps, i.e. motion: it may only go out with a step in flight.
+        // A step withdrawn by a stop or an axis change, an event timer or a SYNC an
+        // integrator configured, must never repeat the last byte.
+        pdo != 2 || self.app.step_in_flight.is_some()
+    }
+
     fn on_tpdo_sent(&mut self, pdo: u8) {
-        match pdo {
-            1 => self.app.sequence = self.app.sequence.wrapping_add(1),
-            2 => {
-                // Without a step in flight this was a repeat (an integrator's event timer):
-                // the counter stays, so the host can tell it from a new step.
-                let sent = self.app.step_in_flight.take();
-                if sent.is_some() {
-                    self.app.encoder.advance();
-                }
-            }
-            _ => {}
+        if pdo == 1 {
+            self.app.sequence = self.app.sequence.wrapping_add(1);
+        } else if pdo == 2 && self.app.step_in_flight.take().is_some() {
+            // `tpdo_ready` let TPDO2 go only with a step in flight: that step is on the bus.
+            self.app.encoder.advance();
         }
     }
 

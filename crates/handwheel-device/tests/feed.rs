@@ -351,3 +351,37 @@ fn reset_node_keeps_the_selector_but_zeroes_the_feed() {
     assert_eq!(b.read_u32(0x2010, 2), 10);
     assert_eq!(b.read_u32(0x2031, 0), 0);
 }
+
+fn unit_step_mode(axis: Axis, mult: Multiplier) -> Bench {
+    let mut b = Bench::new();
+    b.select(Some(axis), mult);
+    b.sdo_write(0x2001, 0, &[1]).unwrap();
+    b.nmt(0x01);
+    b.sdo_write(0x2000, 0, &[1]).unwrap();
+    b.advance_ms(5);
+    b.take();
+    b
+}
+
+#[test]
+fn a_step_waiting_for_inhibit_is_withdrawn_by_an_axis_change() {
+    // Found by the property test: the step prepared for X must not go out once the axis
+    // switch has left X, even though TPDO2 was already requested.
+    let mut b = unit_step_mode(Axis::X, Multiplier::X1);
+    b.turn(2);
+    assert_eq!(b.take_id(TPDO2).len(), 1, "first step at once, second waits");
+    b.select(None, Multiplier::X1);
+    b.advance_ms(50);
+    assert!(b.take_id(TPDO2).is_empty());
+}
+
+#[test]
+fn an_event_timer_on_tpdo2_never_repeats_a_step() {
+    let mut b = unit_step_mode(Axis::Y, Multiplier::X1);
+    // An integrator sets a 10 ms event timer on the unit-step PDO.
+    b.sdo_write(0x1801, 5, &10u16.to_le_bytes()).unwrap();
+    b.turn(1);
+    b.advance_ms(100);
+    let bytes: Vec<u8> = b.take_id(TPDO2).iter().map(|s| s.data[0]).collect();
+    assert_eq!(bytes, [0x09], "one step, never repeated");
+}

@@ -86,6 +86,8 @@ pub struct TestApp {
     pub lost: Vec<u8>,
     pub resets: u32,
     pub tpdo_sent: Vec<u8>,
+    /// TPDOs the application withdraws when they are about to go out.
+    pub withdraw: Vec<u8>,
     pub restored: Vec<Vec<u8>>,
 }
 
@@ -138,6 +140,10 @@ impl Application for TestApp {
     fn on_reset_application(&mut self) {
         self.resets += 1;
         self.flag = 0;
+    }
+
+    fn tpdo_ready(&mut self, pdo: u8) -> bool {
+        !self.withdraw.contains(&pdo)
     }
 
     fn on_tpdo_sent(&mut self, pdo: u8) {
