@@ -369,7 +369,11 @@ fn a_step_waiting_for_inhibit_is_withdrawn_by_an_axis_change() {
     // switch has left X, even though TPDO2 was already requested.
     let mut b = unit_step_mode(Axis::X, Multiplier::X1);
     b.turn(2);
-    assert_eq!(b.take_id(TPDO2).len(), 1, "first step at once, second waits");
+    assert_eq!(
+        b.take_id(TPDO2).len(),
+        1,
+        "first step at once, second waits"
+    );
     b.select(None, Multiplier::X1);
     b.advance_ms(50);
     assert!(b.take_id(TPDO2).is_empty());
