@@ -3,6 +3,8 @@
 //! `cargo xtask test` is the one test command of the README and of `.ci/run`: everything a
 //! change must pass, in the order that fails fastest.
 
+mod footprint;
+
 use std::env;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -52,6 +54,7 @@ fn test() -> Result<(), String> {
             FIRMWARE_TARGET,
         ])?;
     }
+    // The firmware, its library and its on-target tests, for the MCU.
     cargo(&[
         "clippy",
         "--locked",
@@ -59,15 +62,51 @@ fn test() -> Result<(), String> {
         "handwheel-firmware",
         "--target",
         FIRMWARE_TARGET,
+        "--all-targets",
         "--",
         "-D",
         "warnings",
     ])?;
     firmware_build()?;
+    // The on-target suites (defmt-test) cannot run here, but they must build.
+    cargo(&[
+        "build",
+        "--locked",
+        "--release",
+        "--tests",
+        "-p",
+        "handwheel-firmware",
+        "--target",
+        FIRMWARE_TARGET,
+    ])?;
+    // The dev profile must fit the part too (the linker checks memory.x; this prints it).
+    cargo(&[
+        "build",
+        "--locked",
+        "-p",
+        "handwheel-firmware",
+        "--target",
+        FIRMWARE_TARGET,
+    ])?;
+    footprint::check(
+        &firmware_elf("debug"),
+        "dev firmware",
+        footprint::Budget {
+            flash: 63 * 1024,
+            ram: 20 * 1024,
+        },
+    )?;
     eprintln!("xtask: all checks passed");
     Ok(())
 }
 
+/// Release footprint budget of the issue: 20 KiB flash, 4 KiB static RAM (RTT included).
+const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
+    flash: 20 * 1024,
+    ram: 4 * 1024,
+};
+
+/// Builds the release firmware and fails if it is over its footprint budget.
 fn firmware_build() -> Result<(), String> {
     cargo(&[
         "build",
@@ -77,7 +116,20 @@ fn firmware_build() -> Result<(), String> {
         "handwheel-firmware",
         "--target",
         FIRMWARE_TARGET,
-    ])
+    ])?;
+    footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)?;
+    Ok(())
+}
+
+/// The firmware ELF of a profile directory (`release` or `debug`).
+fn firmware_elf(profile: &str) -> PathBuf {
+    let target_dir = env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("target"));
+    target_dir
+        .join(FIRMWARE_TARGET)
+        .join(profile)
+        .join("handwheel-firmware")
 }
 
 /// Runs cargo from the workspace root, echoing the command.

@@ -1,0 +1,125 @@
+//! bxCAN error state: what the controller reports, and the EMCY it calls for.
+//!
+//! The error-state flags live in `CAN_ESR` and bxcan 0.8 has no accessor for them, nor for
+//! the `CAN_IER` bits that turn their changes into the status-change (SCE) interrupt; the
+//! little register glue for both is here.
+//!
+//! bxCAN interrupts when a flag is set (warning limit, error passive, bus-off), never when
+//! it clears. The SCE interrupt wakes the CAN-side task at once on the way down; the way back
+//! up is seen by that task re-reading the state on every wake, every
+//! [`RECOVERY_POLL_MS`] while the controller is not error-active.
+
+use stm32f1xx_hal::pac;
+
+/// EMCY error code: CAN overrun, objects lost (CiA 301).
+pub const EMCY_CAN_OVERRUN: u16 = 0x8110;
+/// EMCY error code: CAN in error passive mode (CiA 301).
+pub const EMCY_CAN_ERROR_PASSIVE: u16 = 0x8120;
+/// EMCY error code: recovered from bus-off (CiA 301).
+pub const EMCY_BUS_OFF_RECOVERED: u16 = 0x8140;
+
+/// How often the CAN-side task re-reads the error state while it is not error-active.
+pub const RECOVERY_POLL_MS: u32 = 10;
+
+/// Fault confinement state, in order of severity.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, defmt::Format)]
+pub enum BusState {
+    /// Both error counters below 96.
+    ErrorActive,
+    /// An error counter reached the warning limit (96).
+    Warning,
+    /// An error counter passed 127: the node may only send passive error flags.
+    ErrorPassive,
+    /// Transmit error counter passed 255: off the bus until 128 x 11 recessive bits were
+    /// seen (bxCAN's automatic bus-off management, ABOM).
+    BusOff,
+}
+
+/// Error counters and the last error code, for the log.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub struct ErrorCounters {
+    /// Transmit error counter.
+    pub tec: u8,
+    /// Receive error counter.
+    pub rec: u8,
+    /// Last error code: 0 none, 1 stuff, 2 form, 3 ack, 4 bit recessive, 5 bit dominant,
+    /// 6 CRC, 7 set by software.
+    pub lec: u8,
+}
+
+/// Reads the controller's error state.
+pub fn read_status() -> (BusState, ErrorCounters) {
+    // SAFETY: a read of CAN_ESR, which has no side effects (its only writable field, LEC, is
+    // not written here); the peripheral's clock is on since `board::init`.
+    let esr = unsafe { (*pac::CAN::ptr()).esr().read() };
+    let state = if esr.boff().bit_is_set() {
+        BusState::BusOff
+    } else if esr.epvf().bit_is_set() {
+        BusState::ErrorPassive
+    } else if esr.ewgf().bit_is_set() {
+        BusState::Warning
+    } else {
+        BusState::ErrorActive
+    };
+    let counters = ErrorCounters {
+        tec: esr.tec().bits(),
+        rec: esr.rec().bits(),
+        lec: esr.lec().bits(),
+    };
+    (state, counters)
+}
+
+/// Routes warning, error-passive and bus-off changes to the SCE interrupt.
+pub(super) fn enable_status_interrupts() {
+    // SAFETY: called while the `bxcan::Can` that owns the peripheral is borrowed mutably
+    // (configuration), so no other code writes CAN_IER concurrently; the modify keeps the
+    // interrupt bits bxcan set and adds only the error-status ones.
+    unsafe {
+        (*pac::CAN::ptr()).ier().modify(|_, w| {
+            w.ewgie().set_bit();
+            w.epvie().set_bit();
+            w.bofie().set_bit();
+            w.errie().set_bit()
+        });
+    }
+}
+
+/// Acknowledges a status-change interrupt (clears `ERRI`).
+pub(super) fn acknowledge_status_change() {
+    // SAFETY: CAN_MSR's flags are write-one-to-clear; writing only ERRI clears that flag and
+    // leaves WKUI, SLAKI and the mode request bits (in CAN_MCR) untouched. Called from the SCE
+    // task, which holds the CAN port resource.
+    unsafe {
+        (*pac::CAN::ptr()).msr().write(|w| w.erri().set_bit());
+    }
+}
+
+/// A change of error state worth a log line or an EMCY.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum BusEvent {
+    /// Warning limit reached (log, ERR LED single flash).
+    WarningLimit,
+    /// Entered error passive: raise EMCY 0x8120.
+    ErrorPassive,
+    /// Left error passive for error active or warning: clear EMCY 0x8120.
+    ErrorActiveAgain,
+    /// Went bus-off: nothing can be sent; ERR LED on.
+    BusOff,
+    /// Back on the bus after bus-off: EMCY 0x8140, and 0x8120 is over too.
+    BusOffRecovered,
+}
+
+/// The event for a change of error state from `from` to `to`, if any.
+pub const fn transition(from: BusState, to: BusState) -> Option<BusEvent> {
+    use BusState::*;
+    match (from, to) {
+        (BusOff, BusOff) => None,
+        (_, BusOff) => Some(BusEvent::BusOff),
+        (BusOff, _) => Some(BusEvent::BusOffRecovered),
+        (ErrorPassive, ErrorPassive) => None,
+        (_, ErrorPassive) => Some(BusEvent::ErrorPassive),
+        (ErrorPassive, _) => Some(BusEvent::ErrorActiveAgain),
+        (ErrorActive, Warning) => Some(BusEvent::WarningLimit),
+        _ => None,
+    }
+}

@@ -1,0 +1,40 @@
+//! Board glue of the CANopen CNC handwheel for the STM32F103C8 (Blue Pill class).
+//!
+//! The RTIC application (`src/main.rs`) binds interrupts and moves data between these
+//! modules and the host-tested crates; every decision about decoding, feed and CANopen
+//! lives there, not here.
+//!
+//! - [`board`]: clocks, the pin map, wheel and switch inputs, LEDs, reset cause, unique ID.
+//! - [`can`]: bxCAN bit timing, filters, transmit queue, receive draining, error state.
+//! - [`clock`]: the device's 64-bit microsecond clock from the 32-bit tick count.
+//! - [`storage`]: the parameter page in flash (0x1010/0x1011).
+//! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters.
+//! - [`events`]: interrupt-to-task wake-ups.
+//! - [`leds`]: CiA 303-3 patterns.
+//! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
+//! - [`wheel`]: the CAN side's locked access to the shared wheel.
+//!
+//! Linking this crate also brings the panic handler (location to the defmt log, then UDF).
+#![no_std]
+#![warn(missing_docs)]
+
+pub mod board;
+pub mod can;
+pub mod clock;
+pub mod events;
+pub mod leds;
+pub mod node_config;
+mod panic;
+pub mod storage;
+pub mod supervision;
+pub mod wheel;
+
+/// The serial number for 0x1018:4: CRC-32 of the 96-bit unique ID's 12 bytes, so that it
+/// spreads over all 32 bits and stays the same for the life of the chip.
+pub fn serial_number(unique_id: [u32; 3]) -> u32 {
+    let mut bytes = [0; 12];
+    for (chunk, word) in bytes.chunks_exact_mut(4).zip(unique_id) {
+        chunk.copy_from_slice(&word.to_le_bytes());
+    }
+    storage::record::crc32(&bytes)
+}

@@ -1,0 +1,75 @@
+//! What the CAN-side task watches between rounds: the controller's error state, lost
+//! receive frames and the decoder's illegal transitions. Each change becomes a log line here
+//! and, where CiA 301 asks for one, an EMCY request for the device.
+
+use crate::can::bus::{self, BusEvent, BusState};
+
+/// Counters as last seen, to report only what changed.
+pub struct Supervision {
+    bus: BusState,
+    rx_overruns: u32,
+    illegal_transitions: u32,
+}
+
+impl Supervision {
+    /// Nothing seen yet; the controller starts error-active.
+    pub const fn new() -> Self {
+        Self {
+            bus: BusState::ErrorActive,
+            rx_overruns: 0,
+            illegal_transitions: 0,
+        }
+    }
+
+    /// The error state as last read.
+    pub const fn bus_state(&self) -> BusState {
+        self.bus
+    }
+
+    /// Re-reads the controller's error state; logs and returns a change worth an EMCY.
+    pub fn check_bus(&mut self) -> Option<BusEvent> {
+        let (state, counters) = bus::read_status();
+        let event = bus::transition(self.bus, state);
+        match event {
+            Some(BusEvent::BusOff | BusEvent::ErrorPassive) => {
+                defmt::error!("CAN {}: {}", event, counters)
+            }
+            Some(BusEvent::WarningLimit) => defmt::warn!("CAN {}: {}", event, counters),
+            Some(BusEvent::ErrorActiveAgain | BusEvent::BusOffRecovered) => {
+                defmt::info!("CAN {}: {}", event, counters)
+            }
+            None => {}
+        }
+        self.bus = state;
+        event
+    }
+
+    /// Logs receive frames lost since the last call; `true` when there were any (EMCY 0x8110).
+    pub fn check_rx_overruns(&mut self, total: u32) -> bool {
+        let lost = total.wrapping_sub(self.rx_overruns);
+        self.rx_overruns = total;
+        if lost != 0 {
+            defmt::warn!("CAN RX overrun: {=u32} frame(s) lost", lost);
+        }
+        lost != 0
+    }
+
+    /// Logs illegal quadrature transitions (missed edges) since the last call.
+    pub fn check_encoder(&mut self, total: u32) {
+        let new = total.wrapping_sub(self.illegal_transitions);
+        self.illegal_transitions = total;
+        if new != 0 {
+            defmt::warn!(
+                "encoder: {=u32} illegal transition(s), {=u32} since boot",
+                new,
+                total
+            );
+        }
+    }
+}
+
+impl Default for Supervision {
+    fn default() -> Self {
+        Self::new()
+    }
+}

@@ -1,0 +1,108 @@
+//! On-target: the parameter page round-trips, and an empty or damaged page reads as empty.
+//!
+//! This erases the stored parameters of the board it runs on. Run with a board and a probe:
+//! `cargo test --target thumbv7m-none-eabi -p handwheel-firmware --test storage`.
+#![no_std]
+#![no_main]
+
+use defmt_rtt as _;
+use handwheel_firmware as _;
+
+#[defmt_test::tests]
+mod tests {
+    use handwheel_core::BitRate;
+    use handwheel_firmware::board;
+    use handwheel_firmware::storage::{
+        FlashStorage, NodeSettings, StoreError, BLOB_MAX, PAGE_OFFSET,
+    };
+    use stm32f1xx_hal::flash::{FlashSize, SectorSize};
+    use stm32f1xx_hal::pac;
+
+    struct State {
+        storage: Option<FlashStorage>,
+    }
+
+    #[init]
+    fn init() -> State {
+        let dp = defmt::unwrap!(pac::Peripherals::take());
+        State {
+            storage: Some(board::init(dp).storage),
+        }
+    }
+
+    const SETTINGS: NodeSettings = NodeSettings {
+        node_id: 42,
+        bit_rate: BitRate::Kbit250,
+    };
+
+    #[test]
+    fn an_erased_page_reads_as_nothing_stored(state: &mut State) {
+        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).erase());
+        defmt::assert!(defmt::unwrap!(state.storage.as_mut()).load().is_none());
+    }
+
+    #[test]
+    fn a_record_round_trips(state: &mut State) {
+        let blob = [0xA5, 0x00, 0xFF, 0x12, 0x34];
+        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &blob));
+        let stored = defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load());
+        defmt::assert_eq!(stored.settings, SETTINGS);
+        defmt::assert_eq!(stored.blob.as_slice(), &blob[..]);
+    }
+
+    #[test]
+    fn empty_and_largest_blobs_round_trip(state: &mut State) {
+        let max = NodeSettings {
+            node_id: 127,
+            bit_rate: BitRate::Kbit10,
+        };
+        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(max, &[]));
+        let stored = defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load());
+        defmt::assert_eq!(stored.settings, max);
+        defmt::assert!(stored.blob.is_empty());
+
+        let mut blob = [0u8; BLOB_MAX];
+        for (i, b) in blob.iter_mut().enumerate() {
+            *b = i as u8;
+        }
+        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &blob));
+        defmt::assert_eq!(
+            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load())
+                .blob
+                .as_slice(),
+            &blob[..]
+        );
+    }
+
+    #[test]
+    fn an_oversized_blob_is_refused_and_the_old_record_kept(state: &mut State) {
+        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &[1, 2, 3]));
+        let big = [0u8; BLOB_MAX + 1];
+        defmt::assert_eq!(
+            defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &big),
+            Err(StoreError::TooLarge)
+        );
+        defmt::assert_eq!(
+            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load())
+                .blob
+                .as_slice(),
+            &[1, 2, 3]
+        );
+    }
+
+    #[test]
+    fn a_damaged_record_reads_as_nothing_stored(state: &mut State) {
+        defmt::unwrap!(
+            defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &[0xFF, 0xFF, 0x55, 0x55])
+        );
+        // Program the first blob half-word (0xFFFF) to 0x0000: allowed without an erase,
+        // and the CRC no longer matches.
+        let mut parts = defmt::unwrap!(state.storage.take()).free();
+        let mut writer = parts.writer(SectorSize::Sz1K, FlashSize::Sz64K);
+        defmt::unwrap!(writer.write(PAGE_OFFSET + 8, &[0, 0]).ok());
+        state.storage = Some(FlashStorage::new(parts));
+        defmt::assert!(defmt::unwrap!(state.storage.as_mut()).load().is_none());
+        // Leave the board with nothing stored: it boots with its defaults.
+        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).erase());
+    }
+}
