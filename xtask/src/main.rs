@@ -11,7 +11,12 @@ use std::process::{Command, ExitCode};
 
 const FIRMWARE_TARGET: &str = "thumbv7m-none-eabi";
 /// Crates that must also build without `std` for the MCU.
-const NO_STD_CRATES: &[&str] = &["handwheel-core", "canopen-slave", "handwheel-device"];
+const NO_STD_CRATES: &[&str] = &[
+    "handwheel-core",
+    "canopen-slave",
+    "handwheel-device",
+    "sim-io",
+];
 
 fn main() -> ExitCode {
     let args: Vec<String> = env::args().skip(1).collect();
