@@ -8,7 +8,7 @@ use crate::heartbeat::Heartbeat;
 use crate::indicators::ErrorIndication;
 use crate::nmt::{NmtCommand, NmtState};
 use crate::od::{Od, OdEntry, Value};
-use crate::sdo::{ObjectAccess, SdoAbort, SdoServer, SDO_BUFFER};
+use crate::sdo::{ObjectAccess, SdoAbort, SdoServer};
 use crate::storage::{self, Blob, Storage, LOAD_SIGNATURE, SAVE_SIGNATURE};
 use crate::sync::SyncConsumer;
 use crate::time::{earliest, Instant};
@@ -265,6 +265,8 @@ impl<S: Storage> Device<S> {
     /// Raises an error: recorded in 0x1001/0x1003 and announced by an EMCY at the next
     /// `poll` (not in Stopped, where only the record is kept). `info` are the five
     /// manufacturer-specific bytes. Raising an active code again does nothing.
+    // Out of line: called from several places, inlined copies cost more flash.
+    #[inline(never)]
     pub fn raise_error(
         &mut self,
         code: u16,
@@ -450,6 +452,8 @@ impl<S: Storage> Device<S> {
 }
 
 impl<S: Storage> Inner<S> {
+    // Out of line: called from several places, inlined copies cost more flash.
+    #[inline(never)]
     fn emit(&mut self, tx: &mut dyn FrameSink, frame: Frame) -> bool {
         let sent = tx.send(frame).is_ok();
         if !sent {
@@ -513,7 +517,9 @@ impl<S: Storage> Inner<S> {
         let sent = match built {
             Ok(frame) => Some(self.emit(tx, frame)),
             Err(abort) => {
-                warn!("TPDO{=usize} not built: {=u32:#x}", i + 1, abort.code());
+                // Repeats at the event timer's rate while the fault lasts: debug only, the
+                // count is in `Stats::tpdo_errors`.
+                debug!("TPDO{=u8} not built: {=u32:#x}", pdo, abort.code());
                 self.tpdo_errors = self.tpdo_errors.saturating_add(1);
                 None
             }
@@ -538,9 +544,7 @@ impl<S: Storage> Inner<S> {
         let mut len = 0;
         for &entry in t.mapping() {
             // Stored or default mappings never went through the SDO checks: re-check here.
-            let size = tpdo::check_mapping(&self.od, entry)?;
-            let (index, sub, _) = tpdo::split_mapping(entry);
-            let e = self.od.find(index, sub)?;
+            let (e, size) = tpdo::check_mapping(&self.od, entry)?;
             let dst = data.get_mut(len..len + size).ok_or(SdoAbort::PdoTooLong)?;
             self.read_value(e, dst, app)?;
             len += size;
@@ -731,7 +735,6 @@ impl<S: Storage> Inner<S> {
         if sections & storage::APP != 0 {
             blob.set_app(|buf| app.save_application(buf));
         }
-        info!("parameters stored (sub {=u8})", sub);
         blob.store(&mut self.storage)
             .map_err(|_| SdoAbort::Hardware)
     }
@@ -744,7 +747,6 @@ impl<S: Storage> Inner<S> {
         let sections = sections(sub)?;
         let mut blob = Blob::load(&mut self.storage);
         blob.remove(sections);
-        info!("defaults restored at next reset (sub {=u8})", sub);
         blob.store(&mut self.storage)
             .map_err(|_| SdoAbort::Hardware)
     }
@@ -790,17 +792,14 @@ impl<S: Storage> ObjectAccess for Objects<'_, S> {
         let Some(size) = size.map(|s| usize::try_from(s).unwrap_or(usize::MAX)) else {
             return Ok(());
         };
-        match e.data_type().size() {
-            Some(n) if size > n => Err(SdoAbort::TooLong),
-            Some(n) if size < n => Err(SdoAbort::TooShort),
-            None if size > SDO_BUFFER => Err(SdoAbort::TooLong),
-            _ => Ok(()),
-        }
+        e.data_type().check_len(size)
     }
 
     fn download(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
-        debug!("SDO download {=u16:#x}:{=u8}", index, sub);
         self.inner
-            .write_object(self.now, index, sub, data, self.app)
+            .write_object(self.now, index, sub, data, self.app)?;
+        // Refused writes are logged with their abort code by the SDO server.
+        info!("SDO write {=u16:#x}:{=u8}", index, sub);
+        Ok(())
     }
 }

@@ -122,10 +122,13 @@ impl Emcy {
             .map_err(|_| EmcyError::TooManyErrors)?;
         // Newest first; the additional-information word carries the first two
         // manufacturer bytes (e.g. the lost node-ID of a heartbeat error).
-        self.history.copy_within(..HISTORY - 1, 1);
         let [i0, i1, i2, i3, i4] = info;
         let [c0, c1] = code.to_le_bytes();
-        self.history[0] = u32::from(code) | u32::from(u16::from_le_bytes([i0, i1])) << 16;
+        // A rippling shift rather than `copy_within`, which would link a 1.6 KiB memmove.
+        let mut carry = u32::from(code) | u32::from(u16::from_le_bytes([i0, i1])) << 16;
+        for slot in &mut self.history {
+            carry = core::mem::replace(slot, carry);
+        }
         self.history_len = self.history_len.saturating_add(1).min(HISTORY as u8);
         let reg = self.error_register();
         info!("EMCY raised {=u16:#x} register {=u8:#x}", code, reg);
@@ -177,12 +180,16 @@ impl Emcy {
     /// The frame from [`Emcy::next_frame`] was accepted (or, `sent == false`, refused).
     pub(crate) fn sent(&mut self, now: Instant, sent: bool) {
         if sent {
-            if !self.queue.is_empty() {
-                self.queue.remove(0);
+            // Drop the head: ripple every entry one place forward (no memmove), then the
+            // last, now a duplicate, goes.
+            let mut carry = [0; 8];
+            for slot in self.queue.iter_mut().rev() {
+                carry = core::mem::replace(slot, carry);
             }
+            self.queue.pop();
             self.hold_until = now.add_100us(self.inhibit_100us);
         } else {
-            self.hold_until = now.add_millis(1);
+            self.hold_until = now.after_ms(1);
         }
     }
 

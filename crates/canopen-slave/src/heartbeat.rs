@@ -73,8 +73,10 @@ impl Heartbeat {
     }
 
     /// The next heartbeat is one period after `now` (after a boot-up or state change).
+    // Out of line: called from several places, inlined copies cost more flash.
+    #[inline(never)]
     pub(crate) fn restart(&mut self, now: Instant) {
-        self.next_beat = (self.producer_ms != 0).then(|| now.add_millis(self.producer_ms.into()));
+        self.next_beat = (self.producer_ms != 0).then(|| now.after_ms(self.producer_ms));
     }
 
     /// Whether a heartbeat is due; if so, schedules the next one.
@@ -86,9 +88,9 @@ impl Heartbeat {
             return false;
         }
         // Keep the period drift-free, but do not burst to catch up after a late poll.
-        let next = due.add_millis(self.producer_ms.into());
+        let next = due.after_ms(self.producer_ms);
         self.next_beat = Some(if next <= now {
-            now.add_millis(self.producer_ms.into())
+            now.after_ms(self.producer_ms)
         } else {
             next
         });
@@ -145,7 +147,7 @@ impl Heartbeat {
         for c in &mut self.consumers {
             if c.enabled() && c.node() == node {
                 recovered |= c.monitor == Monitor::Lost;
-                c.monitor = Monitor::Active(now.add_millis(c.time_ms().into()));
+                c.monitor = Monitor::Active(now.after_ms(c.time_ms()));
             }
         }
         recovered

@@ -87,92 +87,96 @@ pub(crate) trait ObjectAccess {
     fn download(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort>;
 }
 
-/// SDO server transfer state, named after the CiA 301 protocols.
+/// Which segmented transfer is running, named after the CiA 301 protocols.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Transfer {
+enum Mode {
     Idle,
-    SegmentedDownload {
-        index: u16,
-        sub: u8,
-        toggle: bool,
-        size: Option<u32>,
-        deadline: Instant,
-    },
-    SegmentedUpload {
-        index: u16,
-        sub: u8,
-        toggle: bool,
-        deadline: Instant,
-    },
+    SegmentedDownload,
+    SegmentedUpload,
 }
 
 /// The SDO server: one transfer at a time, replies built into 8-byte payloads.
+///
+/// A flat record rather than an enum with the transfer's fields in each variant: the fields
+/// past `mode` only mean something while a transfer runs, and flat fields are much cheaper
+/// to update in place.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct SdoServer {
-    transfer: Transfer,
-    buf: [u8; SDO_BUFFER],
+    mode: Mode,
+    /// Toggle bit the next segment must carry.
+    toggle: bool,
+    index: u16,
+    sub: u8,
     /// Bytes in `buf`: received so far (download) or to send in total (upload).
     len: u8,
     /// Bytes of `buf` already sent (upload).
     sent: u8,
-    timeout_us: u64,
+    /// Size the client indicated (download).
+    size: Option<u32>,
+    /// When the running transfer times out.
+    deadline: Instant,
+    timeout_us: u32,
+    buf: [u8; SDO_BUFFER],
 }
 
 type Reply = Result<[u8; 8], SdoAbort>;
 
 /// An initiate reply or abort: command byte, echoed multiplexer, 4 data bytes.
-fn reply(cmd: u8, index: u16, sub: u8, data: [u8; 4]) -> [u8; 8] {
+fn reply(cmd: u8, index: u16, sub: u8, data: u32) -> [u8; 8] {
     let [i0, i1] = index.to_le_bytes();
-    let [d0, d1, d2, d3] = data;
+    let [d0, d1, d2, d3] = data.to_le_bytes();
     [cmd, i0, i1, sub, d0, d1, d2, d3]
 }
 
 pub(crate) fn abort_payload(index: u16, sub: u8, abort: SdoAbort) -> [u8; 8] {
-    reply(0x80, index, sub, abort.code().to_le_bytes())
+    reply(0x80, index, sub, abort.code())
 }
 
 impl SdoServer {
     pub(crate) const fn new(timeout_ms: u16) -> Self {
         Self {
-            transfer: Transfer::Idle,
-            buf: [0; SDO_BUFFER],
+            mode: Mode::Idle,
+            toggle: false,
+            index: 0,
+            sub: 0,
             len: 0,
             sent: 0,
-            timeout_us: timeout_ms as u64 * 1000,
+            size: None,
+            deadline: Instant::ZERO,
+            // u16 * 1000 always fits a u32.
+            timeout_us: timeout_ms as u32 * 1000,
+            buf: [0; SDO_BUFFER],
         }
     }
 
     /// Drops any transfer silently (client abort, NMT state change, reset).
     pub(crate) fn reset(&mut self) {
-        self.transfer = Transfer::Idle;
+        self.mode = Mode::Idle;
     }
 
-    fn mux(&self) -> Option<(u16, u8)> {
-        match self.transfer {
-            Transfer::Idle => None,
-            Transfer::SegmentedDownload { index, sub, .. }
-            | Transfer::SegmentedUpload { index, sub, .. } => Some((index, sub)),
-        }
+    /// Starts a segmented transfer of `index:sub`.
+    fn begin(&mut self, mode: Mode, index: u16, sub: u8) {
+        self.mode = mode;
+        self.index = index;
+        self.sub = sub;
+        self.toggle = false;
+        self.len = 0;
+        self.sent = 0;
     }
 
     /// When the current transfer times out.
     pub(crate) fn deadline(&self) -> Option<Instant> {
-        match self.transfer {
-            Transfer::Idle => None,
-            Transfer::SegmentedDownload { deadline, .. }
-            | Transfer::SegmentedUpload { deadline, .. } => Some(deadline),
-        }
+        (self.mode != Mode::Idle).then_some(self.deadline)
     }
 
     /// Aborts a transfer the client has left unfinished for too long.
     pub(crate) fn poll(&mut self, now: Instant) -> Option<[u8; 8]> {
-        let (index, sub) = self.mux()?;
-        if self.deadline().is_some_and(|d| now < d) {
+        if self.mode == Mode::Idle || now < self.deadline {
             return None;
         }
         self.reset();
-        warn!("SDO {=u16:#x}:{=u8} timed out", index, sub);
-        Some(abort_payload(index, sub, SdoAbort::Timeout))
+        warn!("SDO {=u16:#x}:{=u8} timed out", self.index, self.sub);
+        Some(abort_payload(self.index, self.sub, SdoAbort::Timeout))
     }
 
     /// Handles one client request (DLC already checked to be 8); returns the reply, if any.
@@ -184,19 +188,19 @@ impl SdoServer {
     ) -> Option<[u8; 8]> {
         let [cmd, i0, i1, sub, d0, d1, d2, d3] = *req;
         let index = u16::from_le_bytes([i0, i1]);
-        let data = [d0, d1, d2, d3];
-        let deadline = now.add_micros(self.timeout_us);
+        let data = u32::from_le_bytes([d0, d1, d2, d3]);
         let ccs = cmd >> 5;
         // Segment requests carry no multiplexer: an abort then names the running transfer.
-        let (abort_index, abort_sub) = match ccs {
-            0 | 3 => self.mux().unwrap_or((index, sub)),
-            _ => (index, sub),
+        let segment = ccs == 0 || ccs == 3;
+        let (abort_index, abort_sub) = if segment && self.mode != Mode::Idle {
+            (self.index, self.sub)
+        } else {
+            (index, sub)
         };
         let result = match ccs {
-            0 => self.download_segment(cmd, req, deadline, od),
-            1 => self.initiate_download(cmd, index, sub, data, deadline, od),
-            2 => self.initiate_upload(index, sub, deadline, od),
-            3 => self.upload_segment(cmd, deadline),
+            0 | 3 => self.segment(cmd, req, od),
+            1 => self.initiate_download(cmd, index, sub, data, od),
+            2 => self.initiate_upload(index, sub, od),
             4 => {
                 // An abort from the client ends the transfer without an answer.
                 self.reset();
@@ -206,7 +210,11 @@ impl SdoServer {
             _ => Err(SdoAbort::UnknownCommand),
         };
         match result {
-            Ok(payload) => Some(payload),
+            Ok(payload) => {
+                // A transfer that goes on has the full timeout again.
+                self.deadline = now.after_us(self.timeout_us);
+                Some(payload)
+            }
             Err(abort) => {
                 self.reset();
                 warn!(
@@ -225,8 +233,7 @@ impl SdoServer {
         cmd: u8,
         index: u16,
         sub: u8,
-        data: [u8; 4],
-        deadline: Instant,
+        data: u32,
         od: &mut impl ObjectAccess,
     ) -> Reply {
         // A new initiate replaces whatever transfer was pending.
@@ -240,133 +247,96 @@ impl SdoServer {
                 // 0x22: the client left the size to the object (strings: all 4 bytes).
                 od.size_of(index, sub)?.min(4)
             };
-            od.download(index, sub, data.get(..len).unwrap_or(&data))?;
+            let bytes = data.to_le_bytes();
+            od.download(index, sub, bytes.get(..len).unwrap_or(&bytes))?;
         } else {
-            let size = size_indicated.then(|| u32::from_le_bytes(data));
+            let size = size_indicated.then_some(data);
             od.check_download(index, sub, size)?;
-            self.len = 0;
-            self.transfer = Transfer::SegmentedDownload {
-                index,
-                sub,
-                toggle: false,
-                size,
-                deadline,
-            };
+            self.begin(Mode::SegmentedDownload, index, sub);
+            self.size = size;
         }
-        Ok(reply(0x60, index, sub, [0; 4]))
+        Ok(reply(0x60, index, sub, 0))
     }
 
-    fn download_segment(
-        &mut self,
-        cmd: u8,
-        req: &[u8; 8],
-        deadline: Instant,
-        od: &mut impl ObjectAccess,
-    ) -> Reply {
-        let Transfer::SegmentedDownload {
-            index,
-            sub,
-            toggle,
-            size,
-            ..
-        } = self.transfer
-        else {
-            return Err(SdoAbort::UnknownCommand);
+    /// A download or upload segment (client command specifier 0 or 3).
+    fn segment(&mut self, cmd: u8, req: &[u8; 8], od: &mut impl ObjectAccess) -> Reply {
+        let upload = cmd & 0x60 != 0;
+        let mode = if upload {
+            Mode::SegmentedUpload
+        } else {
+            Mode::SegmentedDownload
         };
-        if (cmd & 0x10 != 0) != toggle {
+        if self.mode != mode {
+            return Err(SdoAbort::UnknownCommand);
+        }
+        let toggle = cmd & 0x10;
+        if (toggle != 0) != self.toggle {
             return Err(SdoAbort::ToggleBit);
         }
-        let unused = usize::from((cmd >> 1) & 0x07);
-        let segment = req.get(1..8 - unused).unwrap_or(&[]);
+        self.toggle = !self.toggle;
+        if upload {
+            return Ok(self.upload_segment(toggle));
+        }
+        // Bytes 1..8 carry 7 - n data bytes.
+        let used = 7 - usize::from((cmd >> 1) & 0x07);
         let start = usize::from(self.len);
-        let end = start + segment.len();
-        self.buf
-            .get_mut(start..end)
-            .ok_or(SdoAbort::TooLong)?
-            .copy_from_slice(segment);
-        // end <= SDO_BUFFER, checked by the slice above.
+        let end = start + used;
+        if end > SDO_BUFFER {
+            return Err(SdoAbort::TooLong);
+        }
+        for (dst, src) in self.buf.iter_mut().skip(start).zip(&req[1..]).take(used) {
+            *dst = *src;
+        }
+        // end <= SDO_BUFFER, checked above.
         self.len = end as u8;
         if cmd & 0x01 != 0 {
-            if size.is_some_and(|s| s != end as u32) {
+            if self.size.is_some_and(|s| s != end as u32) {
                 return Err(SdoAbort::LengthMismatch);
             }
-            od.download(index, sub, self.buf.get(..end).unwrap_or(&[]))?;
+            od.download(self.index, self.sub, self.buf.get(..end).unwrap_or(&[]))?;
             self.reset();
-        } else {
-            self.transfer = Transfer::SegmentedDownload {
-                index,
-                sub,
-                toggle: !toggle,
-                size,
-                deadline,
-            };
         }
-        Ok([0x20 | (cmd & 0x10), 0, 0, 0, 0, 0, 0, 0])
+        Ok([0x20 | toggle, 0, 0, 0, 0, 0, 0, 0])
     }
 
-    fn initiate_upload(
-        &mut self,
-        index: u16,
-        sub: u8,
-        deadline: Instant,
-        od: &mut impl ObjectAccess,
-    ) -> Reply {
+    fn initiate_upload(&mut self, index: u16, sub: u8, od: &mut impl ObjectAccess) -> Reply {
         self.reset();
         let len = od.upload(index, sub, &mut self.buf)?.min(SDO_BUFFER);
         if (1..=4).contains(&len) {
-            let mut data = [0u8; 4];
-            if let (Some(dst), Some(src)) = (data.get_mut(..len), self.buf.get(..len)) {
-                dst.copy_from_slice(src);
-            }
+            // Only the value's bytes: the rest of the buffer may hold an older transfer.
+            let [b0, b1, b2, b3, ..] = self.buf;
+            let data = u32::from_le_bytes([b0, b1, b2, b3]) & (u32::MAX >> (32 - 8 * len));
             // e = 1, s = 1, n = number of unused bytes.
             let cmd = 0x43 | (((4 - len) as u8) << 2);
             return Ok(reply(cmd, index, sub, data));
         }
         // Longer (or empty) values go segmented with the size indicated.
+        self.begin(Mode::SegmentedUpload, index, sub);
         self.len = len as u8;
-        self.sent = 0;
-        self.transfer = Transfer::SegmentedUpload {
-            index,
-            sub,
-            toggle: false,
-            deadline,
-        };
-        Ok(reply(0x41, index, sub, (len as u32).to_le_bytes()))
+        Ok(reply(0x41, index, sub, len as u32))
     }
 
-    fn upload_segment(&mut self, cmd: u8, deadline: Instant) -> Reply {
-        let Transfer::SegmentedUpload {
-            index, sub, toggle, ..
-        } = self.transfer
-        else {
-            return Err(SdoAbort::UnknownCommand);
-        };
-        if (cmd & 0x10 != 0) != toggle {
-            return Err(SdoAbort::ToggleBit);
-        }
-        let rest = self
-            .buf
-            .get(usize::from(self.sent)..usize::from(self.len))
-            .unwrap_or(&[]);
-        let n = rest.len().min(7);
-        let last = rest.len() <= 7;
+    /// The next upload segment; `toggle` is the (checked) toggle bit of the request.
+    fn upload_segment(&mut self, toggle: u8) -> [u8; 8] {
+        let sent = usize::from(self.sent);
+        let rest = usize::from(self.len).saturating_sub(sent);
+        let n = rest.min(7);
+        let last = rest <= 7;
         let mut out = [0u8; 8];
-        if let (Some(dst), Some(src)) = (out.get_mut(1..=n), rest.get(..n)) {
-            dst.copy_from_slice(src);
+        for (dst, src) in out
+            .iter_mut()
+            .skip(1)
+            .zip(self.buf.iter().skip(sent))
+            .take(n)
+        {
+            *dst = *src;
         }
-        out[0] = (cmd & 0x10) | (((7 - n) as u8) << 1) | u8::from(last);
+        out[0] = toggle | (((7 - n) as u8) << 1) | u8::from(last);
         // n <= 7 and sent + n <= len <= SDO_BUFFER: no overflow.
         self.sent += n as u8;
-        self.transfer = if last {
-            Transfer::Idle
-        } else {
-            Transfer::SegmentedUpload {
-                index,
-                sub,
-                toggle: !toggle,
-                deadline,
-            }
-        };
-        Ok(out)
+        if last {
+            self.reset();
+        }
+        out
     }
 }

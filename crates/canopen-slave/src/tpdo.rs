@@ -2,7 +2,7 @@
 //! transmission-type timing rules of CiA 301 7.2.2.
 
 use crate::frame::{check_cob_id_write, COB_INVALID, MAX_STANDARD_ID};
-use crate::od::Od;
+use crate::od::{Od, OdEntry};
 use crate::sdo::SdoAbort;
 use crate::time::Instant;
 
@@ -16,16 +16,16 @@ pub(crate) const fn split_mapping(entry: u32) -> (u16, u8, u8) {
     ((entry >> 16) as u16, (entry >> 8) as u8, entry as u8)
 }
 
-/// Checks that `entry` names an object that can go into a TPDO; returns its size in bytes.
-/// Only whole objects are mapped: the length must equal the object's size.
-pub(crate) fn check_mapping(od: &Od, entry: u32) -> Result<usize, SdoAbort> {
+/// Checks that `entry` names an object that can go into a TPDO; returns it with its size in
+/// bytes. Only whole objects are mapped: the length must equal the object's size.
+pub(crate) fn check_mapping(od: &Od, entry: u32) -> Result<(&'static OdEntry, usize), SdoAbort> {
     let (index, sub, bits) = split_mapping(entry);
     let e = od.find(index, sub)?;
     let size = e.data_type().size().ok_or(SdoAbort::NotMappable)?;
     if !e.is_mappable() || !e.access().readable() || usize::from(bits) != size * 8 {
         return Err(SdoAbort::NotMappable);
     }
-    Ok(size)
+    Ok((e, size))
 }
 
 /// One transmit PDO: its parameters and its transmission state.
@@ -126,6 +126,8 @@ impl Tpdo {
     }
 
     /// Unchecked write of 0x1800+n (defaults, stored parameters).
+    // Out of line: called from several places, inlined copies cost more flash.
+    #[inline(never)]
     pub(crate) fn set_comm(&mut self, sub: u8, v: u32) {
         // Truncations are intended: the table types these sub-indices as U8/U16.
         match sub {
@@ -160,7 +162,7 @@ impl Tpdo {
             let entries = self.mapping.get(..n).ok_or(SdoAbort::ValueTooHigh)?;
             let mut bytes = 0;
             for &entry in entries {
-                bytes += check_mapping(od, entry)?;
+                bytes += check_mapping(od, entry)?.1;
             }
             if bytes > 8 {
                 return Err(SdoAbort::PdoTooLong);
@@ -182,6 +184,8 @@ impl Tpdo {
     }
 
     /// Unchecked write of 0x1A00+n (defaults, stored parameters).
+    // Out of line: called from several places, inlined copies cost more flash.
+    #[inline(never)]
     pub(crate) fn set_mapping(&mut self, sub: u8, v: u32) {
         if sub == 0 {
             // Clamped so that a corrupt stored value can never index past the array.
@@ -196,7 +200,7 @@ impl Tpdo {
 
     fn arm_event_timer(&mut self, now: Instant) {
         self.event_at = (self.active() && self.event_driven() && self.event_timer_ms != 0)
-            .then(|| now.add_millis(self.event_timer_ms.into()));
+            .then(|| now.after_ms(self.event_timer_ms));
     }
 
     /// Entry to Operational: timers start; an `announce`d event-driven PDO is sent at once.
@@ -269,7 +273,7 @@ impl Tpdo {
 
     /// The sink was full: try again a little later instead of spinning.
     pub(crate) fn retry_later(&mut self, now: Instant) {
-        self.hold_until = now.add_millis(1);
+        self.hold_until = now.after_ms(1);
     }
 
     /// When `poll` must next look at this PDO (in Operational).

@@ -115,7 +115,9 @@ impl FeedAccumulator {
             // `units` is at most |detents| x 100 and the backlog at most 65535: no overflow
             // for any detent count the decoder can deliver between two reads.
             let wanted = self.pending_steps.saturating_add(units);
-            let kept = wanted.clamp(-self.backlog_bound, self.backlog_bound);
+            // max/min rather than clamp: clamp's min <= max assertion would link core::fmt
+            // into the firmware, and the bound is positive by construction.
+            let kept = wanted.max(-self.backlog_bound).min(self.backlog_bound);
             if kept != wanted {
                 let dropped = wanted.abs_diff(kept);
                 self.dropped_steps = self.dropped_steps.wrapping_add(dropped);
