@@ -129,23 +129,6 @@ impl Bench {
         }
     }
 
-    /// SDO expedited upload; the data bytes or `Err(abort code)`.
-    pub fn sdo_read(&mut self, index: u16, sub: u8) -> Result<Vec<u8>, u32> {
-        self.receive(
-            SDO_RX,
-            &[0x40, index as u8, (index >> 8) as u8, sub, 0, 0, 0, 0],
-        );
-        let reply = self.sdo_reply(index, sub);
-        match reply[0] {
-            0x80 => Err(u32::from_le_bytes([reply[4], reply[5], reply[6], reply[7]])),
-            c if c & 0xF3 == 0x43 => {
-                let n = 4 - ((c >> 2) & 3) as usize;
-                Ok(reply[4..4 + n].to_vec())
-            }
-            other => panic!("unexpected SDO reply {other:#04x}"),
-        }
-    }
-
     /// SDO upload of any size: expedited or segmented.
     pub fn sdo_upload(&mut self, index: u16, sub: u8) -> Result<Vec<u8>, u32> {
         self.receive(
@@ -203,7 +186,7 @@ impl Bench {
     }
 
     pub fn read_u32(&mut self, index: u16, sub: u8) -> u32 {
-        let mut b = self.sdo_read(index, sub).unwrap();
+        let mut b = self.sdo_upload(index, sub).unwrap();
         b.resize(4, 0);
         u32::from_le_bytes([b[0], b[1], b[2], b[3]])
     }
