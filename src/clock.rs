@@ -33,8 +33,15 @@ impl Default for WideClock {
     }
 }
 
-/// The first millisecond tick at or after `deadline_us`, as the monotonic counts it
-/// (modulo 2^32, which is how its timer queue compares instants).
-pub const fn deadline_tick(deadline_us: u64) -> u32 {
-    deadline_us.div_ceil(1000) as u32
+/// Whole milliseconds to sleep from `now_us` until `deadline_us` (rounded up, so the
+/// deadline has passed on waking), at most `max_ms`. Only the difference is divided, in 32
+/// bits: a 64-bit division would link about 1 KiB of runtime support.
+pub fn sleep_ms(now_us: u64, deadline_us: u64, max_ms: u32) -> u32 {
+    let ahead_us = deadline_us.saturating_sub(now_us);
+    let cap_us = max_ms.saturating_mul(1000);
+    if ahead_us >= u64::from(cap_us) {
+        max_ms
+    } else {
+        (ahead_us as u32).div_ceil(1000)
+    }
 }

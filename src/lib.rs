@@ -1,4 +1,5 @@
-//! Board glue of the CANopen CNC handwheel for the STM32F103C8 (Blue Pill class).
+//! Board glue of the CANopen CNC handwheel for the STM32F103C8 (Blue Pill class), and of
+//! its QEMU variant (`--features qemu`, module [`qemu`]).
 //!
 //! The RTIC application (`src/main.rs`) binds interrupts and moves data between these
 //! modules and the host-tested crates; every decision about decoding, feed and CANopen
@@ -10,21 +11,37 @@
 //! - [`storage`]: the parameter page in flash (0x1010/0x1011).
 //! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters.
 //! - [`events`]: interrupt-to-task wake-ups.
-//! - [`leds`]: CiA 303-3 patterns.
 //! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
 //! - [`wheel`]: the CAN side's locked access to the shared wheel.
 //!
 //! Linking this crate also brings the panic handler (location to the defmt log, then UDF).
+//!
+//! Board variants (Cargo features, exactly one): `board` (default) builds the glue above
+//! for the STM32F103C8; `qemu` builds the same application for `qemu-system-arm -M
+//! stm32vldiscovery`, where [`board`] is `qemu::board`, the CAN port runs SLCAN on USART1,
+//! the parameters stay in RAM, and a stimulus line on USART2 drives the simulated inputs.
 #![no_std]
 #![warn(missing_docs)]
 
+#[cfg(all(feature = "board", feature = "qemu"))]
+compile_error!(
+    "features `board` and `qemu` exclude each other: build the QEMU variant with \
+     `--no-default-features --features qemu` (`cargo xtask qemu` does)"
+);
+#[cfg(not(any(feature = "board", feature = "qemu")))]
+compile_error!("enable one board variant: feature `board` (default) or `qemu`");
+
+#[cfg(not(feature = "qemu"))]
 pub mod board;
+#[cfg(feature = "qemu")]
+pub use qemu::board;
 pub mod can;
 pub mod clock;
 pub mod events;
-pub mod leds;
 pub mod node_config;
 mod panic;
+#[cfg(feature = "qemu")]
+pub mod qemu;
 pub mod storage;
 pub mod supervision;
 pub mod wheel;

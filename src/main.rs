@@ -6,8 +6,8 @@
 //! | `can_rx0` | USB_LP_CAN_RX0 | 3 | `can` |
 //! | `can_tx` | USB_HP_CAN_TX | 3 | `can` |
 //! | `can_sce` | CAN_SCE | 3 | `can` |
-//! | `canopen` | software (TIM3 dispatcher) | 2 | `wheel`, `can`, `status` |
-//! | `selector` | software (TIM3 dispatcher) | 2 | `wheel` |
+//! | `canopen` | software (TIM3 dispatcher) | 2 | `device`, `wheel`, `can`, `status` |
+//! | `selector` | software (TIM3 dispatcher) | 2 | `device`, `wheel` |
 //! | `indicators` | software (TIM2 dispatcher) | 1 | `status` |
 //! | `idle` | thread mode | 0 | - |
 //!
@@ -20,10 +20,19 @@
 //!
 //! SysTick (the monotonic) keeps its reset priority, above all tasks: its handler is a
 //! counter increment and a timer-queue check, and it must not miss a tick.
+//!
+//! The QEMU variant (`--features qemu`) is this same application, task for task, over the
+//! QEMU board layer (`handwheel_firmware::qemu`): there `can_rx0` is pended by the USART1
+//! interrupt that carries SLCAN from the host, and `wheel_edge` by the USART2 interrupt that
+//! carries stimulus commands. Those two handlers belong to the board layer, outside this
+//! app, at priority 3, and share nothing with it but lock-free queues and atomics.
 #![no_std]
 #![no_main]
 
+#[cfg(feature = "board")]
 use defmt_rtt as _;
+#[cfg(feature = "qemu")]
+use defmt_semihosting as _;
 
 use handwheel_firmware::events::Events;
 use rtic_monotonics::systick::prelude::*;
@@ -39,24 +48,30 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
+    use canopen_slave::{
+        emcy::register, indicators as indicator_leds, ErrorIndication, Instant, NmtState, NodeId,
+    };
     use defmt::{info, unwrap};
     use handwheel_core::{
         DecoderConfig, Handwheel, Selector, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
     };
+    use handwheel_device::HandwheelDevice;
     use handwheel_firmware::{
         board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
-        can::{self, CanPort, Mode, RxConsumer, RxProducer, RxQueue},
-        clock::WideClock,
+        can::{
+            self,
+            bus::{BusEvent, BusState},
+            CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink,
+        },
+        clock::{self, WideClock},
         events::EventSet,
-        leds::{err_pattern, Pattern},
         node_config,
-        storage::FlashStorage,
+        storage::DeviceStorage,
         supervision::Supervision,
         wheel::SharedWheel,
     };
     use rtic::Mutex;
     use rtic_monotonics::systick::prelude::*;
-    use stm32f1xx_hal::watchdog::IndependentWatchdog;
 
     /// Selector sampling period (4 stable samples = 20 ms debounce).
     const SAMPLE_PERIOD_MS: u32 = 5;
@@ -68,8 +83,13 @@ mod app {
     /// page erase (up to 40 ms).
     const WATCHDOG_MS: u32 = 500;
 
+    /// The CANopen handwheel with its parameter page.
+    type Device = HandwheelDevice<DeviceStorage>;
+
     #[shared]
     struct Shared {
+        /// The CANopen device: only priority-2 tasks touch it, so its lock costs nothing.
+        device: Device,
         /// Decoder and feed accumulator: written by every edge, read and configured by the
         /// CAN side.
         wheel: Handwheel,
@@ -87,15 +107,15 @@ mod app {
         selectors: Selectors,
         selector: Selector,
         leds: Leds,
-        watchdog: IndependentWatchdog,
-        storage: FlashStorage,
+        watchdog: board::watchdog::Watchdog,
     }
 
     /// Inputs of the indicator LEDs.
     #[derive(Clone, Copy)]
     pub struct Status {
-        bus: can::bus::BusState,
-        // INTEGRATION: the device's NMT state and error indication join here.
+        bus: BusState,
+        nmt: NmtState,
+        device_error: ErrorIndication,
     }
 
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]
@@ -119,27 +139,30 @@ mod app {
             "serial number {=u32:#010x} (unique ID {=u32:08x}{=u32:08x}{=u32:08x})",
             serial, board.unique_id[2], board.unique_id[1], board.unique_id[0]
         );
-        // INTEGRATION: `HandwheelDevice::new(node_id, serial, storage)` here, with
-        // `settings.node_id`, `serial` (0x1018:4) and `board.storage` behind the engine's
-        // `Storage` trait (blob = `Stored::blob`); it becomes a `device` resource shared by
-        // `canopen`, `selector` and `indicators`.
+        // `node_config` only yields node-IDs 1..=127.
+        let node_id = unwrap!(NodeId::new(settings.node_id).ok());
+        let device =
+            HandwheelDevice::new(node_id, serial, DeviceStorage::new(board.storage, settings));
 
         let can = can::start(board.can, settings.bit_rate, settings.node_id, Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         let wheel = Handwheel::new(DecoderConfig::default(), board.wheel.levels());
         let selector = unwrap!(Selector::new(DEFAULT_DEBOUNCE_SAMPLES));
 
-        board.watchdog.start(WATCHDOG_MS.millis());
+        board.watchdog.start(WATCHDOG_MS);
         unwrap!(canopen::spawn());
         unwrap!(selector::spawn());
         unwrap!(indicators::spawn());
 
         (
             Shared {
+                device,
                 wheel,
                 can: CanPort::new(can),
                 status: Status {
-                    bus: can::bus::BusState::ErrorActive,
+                    bus: BusState::ErrorActive,
+                    nmt: NmtState::Initialising,
+                    device_error: ErrorIndication::NoError,
                 },
             },
             Local {
@@ -150,7 +173,6 @@ mod app {
                 selector,
                 leds: board.leds,
                 watchdog: board.watchdog,
-                storage: board.storage,
             },
         )
     }
@@ -209,80 +231,112 @@ mod app {
     /// The CAN side: everything that touches the CANopen device, in one loop at one priority.
     ///
     /// Each round feeds the watchdog, so if this loop stops (a hung lock, a dead executor),
-    /// the MCU resets. It sleeps until an interrupt raises an event or the next deadline.
+    /// the MCU resets. It sleeps until an interrupt raises an event or the device's next
+    /// deadline. The device reaches the wheel and the transmit queue through one short lock
+    /// per object access or frame, never for a whole round.
     #[task(
         priority = 2,
         local = [
             rx_consumer,
             watchdog,
-            storage,
             supervision: Supervision = Supervision::new(),
             clock: WideClock = WideClock::new(),
         ],
-        shared = [wheel, can, status]
+        shared = [device, wheel, can, status]
     )]
     async fn canopen(mut cx: canopen::Context) {
-        // INTEGRATION: device.start(Instant::from_micros(now), &mut SharedWheel(&mut
-        // cx.shared.wheel), &mut can::TxSink(&mut cx.shared.can)), `now` from
-        // `cx.local.clock`; `TxSink` implements the engine's `FrameSink` through
-        // `Frame::new(f.id(), f.data())`. `cx.local.storage` moves into the device.
-        let mut frames: u32 = 0;
+        let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
+        let mut device = cx.shared.device;
+        let mut wheel = SharedWheel(cx.shared.wheel);
+        let mut tx = TxSink(cx.shared.can);
+        device.lock(|d| d.start(now, &mut wheel, &mut tx));
         loop {
             cx.local.watchdog.feed();
-            let wake_at = wake_time(cx.local.supervision);
+            let deadline = device.lock(|d| d.next_deadline());
+            let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
+            let wake_at = wake_time(cx.local.supervision, now, deadline);
             let events = match Mono::timeout_at(wake_at, EVENTS.wait()).await {
                 Ok(events) => events,
                 Err(_timeout) => EVENTS.take(),
             };
-            let _now = cx.local.clock.now_us(Mono::now().ticks());
-
-            while let Some(_frame) = cx.local.rx_consumer.dequeue() {
-                frames = frames.wrapping_add(1);
-                // INTEGRATION: device.on_frame(_now, &_frame, &mut wheel, &mut tx_sink);
-            }
-            if events.contains(EventSet::FEED_DUE) {
-                // INTEGRATION: device.feed_changed();
-            }
-            supervise(&mut cx, frames);
-            // INTEGRATION: device.poll(_now, &mut wheel, &mut tx_sink);
+            let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
+            device.lock(|d| {
+                while let Some(frame) = cx.local.rx_consumer.dequeue() {
+                    d.on_frame(now, &frame, &mut wheel, &mut tx);
+                }
+                if events.contains(EventSet::FEED_DUE) {
+                    d.feed_changed();
+                }
+                supervise(cx.local.supervision, d, &mut wheel, &mut tx.0);
+                d.poll(now, &mut wheel, &mut tx);
+                let status = (d.nmt_state(), d.error_indication());
+                let bus = cx.local.supervision.bus_state();
+                cx.shared.status.lock(|s| {
+                    (s.nmt, s.device_error) = status;
+                    s.bus = bus;
+                });
+            });
         }
     }
 
-    /// Bus state, lost frames and encoder errors: log them and publish the bus state.
-    fn supervise(cx: &mut canopen::Context, frames: u32) {
-        let supervision = &mut *cx.local.supervision;
-        if let Some(_event) = supervision.check_bus() {
-            // INTEGRATION: EMCY through device.engine() per `_event` (0x8120 raise on
-            // ErrorPassive, clear on ErrorActiveAgain; 0x8140 on BusOffRecovered).
+    /// Bus state, lost frames and encoder errors: log them, and raise the EMCYs CiA 301 asks
+    /// for. Error passive is a condition (raised, then cleared); an overrun and a bus-off
+    /// recovery are events (raised and cleared at once: the EMCY, then the error reset).
+    fn supervise(
+        supervision: &mut Supervision,
+        device: &mut Device,
+        wheel: &mut impl WheelAccess,
+        can: &mut impl Mutex<T = CanPort>,
+    ) {
+        let engine = device.engine();
+        let comm = register::COMMUNICATION;
+        let event = |engine: &mut canopen_slave::Device<DeviceStorage>, code| {
+            if engine.raise_error(code, comm, [0; 5]).is_ok() {
+                engine.clear_error(code);
+            }
+        };
+        match supervision.check_bus() {
+            Some(BusEvent::ErrorPassive) => {
+                let _ = engine.raise_error(can::bus::EMCY_CAN_ERROR_PASSIVE, comm, [0; 5]);
+            }
+            Some(BusEvent::ErrorActiveAgain) => {
+                engine.clear_error(can::bus::EMCY_CAN_ERROR_PASSIVE);
+            }
+            Some(BusEvent::BusOffRecovered) => {
+                engine.clear_error(can::bus::EMCY_CAN_ERROR_PASSIVE);
+                event(engine, can::bus::EMCY_BUS_OFF_RECOVERED);
+            }
+            Some(BusEvent::WarningLimit | BusEvent::BusOff) | None => {}
         }
-        let stats = cx.shared.can.lock(|can| can.stats());
+        let stats = can.lock(|can| can.stats());
         if supervision.check_rx_overruns(stats.rx_overruns) {
-            // INTEGRATION: EMCY 0x8110 through device.engine() (bus::EMCY_CAN_OVERRUN).
+            event(engine, can::bus::EMCY_CAN_OVERRUN);
         }
-        let illegal =
-            SharedWheel(&mut cx.shared.wheel).with_wheel(|w| w.decoder.illegal_transitions());
-        supervision.check_encoder(illegal);
-        let bus = supervision.bus_state();
-        cx.shared.status.lock(|status| status.bus = bus);
-        defmt::trace!("canopen round: {=u32} frames so far, {}", frames, stats);
+        supervision.check_encoder(wheel.with_wheel(|w| w.decoder.illegal_transitions()));
     }
 
-    /// When `canopen` must run next even without an event.
-    fn wake_time(supervision: &Supervision) -> <Mono as Monotonic>::Instant {
-        // While the controller is not error-active, poll for its recovery (no interrupt
-        // announces it).
-        let sleep_ms = match supervision.bus_state() {
-            can::bus::BusState::ErrorActive => MAX_SLEEP_MS,
+    /// When `canopen` must run next even without an event: the device's deadline, and while
+    /// the controller is not error-active a short poll for its recovery (no interrupt
+    /// announces it), and at the latest in time to feed the watchdog.
+    fn wake_time(
+        supervision: &Supervision,
+        now: Instant,
+        deadline: Option<Instant>,
+    ) -> <Mono as Monotonic>::Instant {
+        let max_ms = match supervision.bus_state() {
+            BusState::ErrorActive => MAX_SLEEP_MS,
             _ => can::bus::RECOVERY_POLL_MS,
         };
-        // INTEGRATION: the earlier of this and `device.next_deadline()`, converted with
-        // `clock::deadline_tick(t.as_micros())` into `Instant::from_ticks(..)`.
+        let sleep_ms = match deadline {
+            Some(t) => clock::sleep_ms(now.as_micros(), t.as_micros(), max_ms),
+            None => max_ms,
+        };
         Mono::now() + sleep_ms.millis()
     }
 
     /// Samples the axis and multiplier switches every 5 ms; a debounced change goes to the
     /// feed accumulator (a new epoch, a feed frame due).
-    #[task(priority = 2, local = [selectors, selector], shared = [wheel])]
+    #[task(priority = 2, local = [selectors, selector], shared = [device, wheel])]
     async fn selector(mut cx: selector::Context) {
         let mut next = Mono::now();
         loop {
@@ -293,10 +347,12 @@ mod app {
                     handwheel_core::Axis::option_value(selection.axis),
                     selection.multiplier.factor()
                 );
-                // INTEGRATION: device.set_selection(selection, &mut wheel) instead.
-                if cx.shared.wheel.lock(|w| w.feed.set_selection(selection)) {
-                    EVENTS.raise(EventSet::FEED_DUE | EventSet::SELECTION);
-                }
+                let wheel = &mut cx.shared.wheel;
+                cx.shared
+                    .device
+                    .lock(|d| d.set_selection(selection, &mut SharedWheel(wheel)));
+                // `canopen` sends the frame the new selection made due.
+                EVENTS.raise(EventSet::SELECTION);
             }
             next += SAMPLE_PERIOD_MS.millis();
             Mono::delay_until(next).await;
@@ -310,11 +366,12 @@ mod app {
         loop {
             let now_ms = Mono::now().ticks();
             let status = cx.shared.status.lock(|status| *status);
-            // INTEGRATION: (run, err) = canopen_slave::indicators(device.nmt_state(),
-            // max(device.error_indication(), bus error), now_ms). Until then RUN blinks
-            // (not operational) and ERR shows the controller's error state.
-            let run = Pattern::Blinking.is_on(now_ms);
-            let err = err_pattern(status.bus).is_on(now_ms);
+            let bus_error = match status.bus {
+                BusState::ErrorActive => ErrorIndication::NoError,
+                BusState::Warning | BusState::ErrorPassive => ErrorIndication::WarningLimit,
+                BusState::BusOff => ErrorIndication::BusOff,
+            };
+            let (run, err) = indicator_leds(status.nmt, status.device_error.max(bus_error), now_ms);
             cx.local.leds.set(run, err);
             next += LED_PERIOD_MS.millis();
             Mono::delay_until(next).await;

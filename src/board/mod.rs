@@ -6,6 +6,7 @@
 //! application above it stays as it is.
 
 pub mod pins;
+pub mod watchdog;
 
 use handwheel_core::{AbLevels, SelectorLines};
 use stm32f1xx_hal::{
@@ -15,11 +16,11 @@ use stm32f1xx_hal::{
     pac,
     prelude::*,
     rcc::{self, Rcc},
-    watchdog::IndependentWatchdog,
 };
 
 use crate::storage::FlashStorage;
 use pins::{ErrLed, RunLed, SwitchLine, WheelA, WheelB, WHEEL_A_BIT, WHEEL_B_BIT};
+use watchdog::Watchdog;
 
 /// The crystal on the board.
 pub const HSE_HZ: u32 = 8_000_000;
@@ -49,7 +50,7 @@ pub struct Board {
     /// The parameter page in flash.
     pub storage: FlashStorage,
     /// Independent watchdog, not started yet.
-    pub watchdog: IndependentWatchdog,
+    pub watchdog: Watchdog,
     /// Why the MCU last reset.
     pub reset_cause: ResetCause,
     /// The MCU's 96-bit unique ID.
@@ -134,9 +135,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         .remap::<2>(&mut afio.mapr)
         .can(dp.USB, (gpiob.pb9, can_rx), &mut rcc);
 
-    let watchdog = IndependentWatchdog::new(dp.IWDG);
-    // A debugger halt must not end in a watchdog reset.
-    watchdog.stop_on_debug(&dp.DBGMCU, true);
+    let watchdog = Watchdog::new(dp.IWDG, &dp.DBGMCU);
 
     Board {
         wheel,

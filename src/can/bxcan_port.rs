@@ -1,0 +1,202 @@
+//! The board's CAN port: bxCAN bit timing, acceptance filters, the three transmit
+//! mailboxes and receive FIFO 0.
+
+use bxcan::filter::{ListEntry16, Mask16};
+use bxcan::{Fifo, Interrupts, StandardId};
+use handwheel_core::{BitRate, BitTiming};
+
+use super::{
+    bus, frame, CanStats, Frame, Mode, TxQueue, COB_HEARTBEAT, COB_NMT, COB_SDO_RX, COB_SYNC,
+    RX_QUEUE_LEN, TX_QUEUE_LEN,
+};
+use crate::board::{CanInstance, APB1_HZ};
+
+/// The configured controller.
+pub type Bxcan = bxcan::Can<CanInstance>;
+
+/// `CAN_BTR` timing bits for every rate of [`BitRate::ALL`] (by code) at the 36 MHz APB1
+/// clock, from `handwheel-core`'s search, evaluated at compile time: the build fails if a
+/// table rate has no exact timing, and the image carries no 64-bit division.
+pub const BTR_TABLE: [u32; 8] = {
+    let mut table = [0; 8];
+    let mut code = 0;
+    while code < 8 {
+        let rate = BitRate::ALL[code];
+        table[code] = match BitTiming::for_bitrate(APB1_HZ, rate.bits_per_second()) {
+            Ok(timing) => timing.btr(),
+            Err(_) => panic!("a table bit rate has no exact bxCAN timing at 36 MHz"),
+        };
+        code += 1;
+    }
+    table
+};
+
+/// The `CAN_BTR` timing bits for `rate`.
+pub const fn btr(rate: BitRate) -> u32 {
+    BTR_TABLE[rate.code() as usize]
+}
+
+/// Configures bit timing, filters and interrupts, and starts the controller.
+///
+/// Returns once the controller is in normal mode, which needs 11 recessive bits on RX: on
+/// a silent bus that is immediate, on a busy one at most a frame's time.
+pub fn start(instance: CanInstance, bit_rate: BitRate, node_id: u8, mode: Mode) -> Bxcan {
+    let loopback = mode == Mode::SilentLoopback;
+    let mut can = bxcan::Can::builder(instance)
+        .set_bit_timing(btr(bit_rate))
+        .set_loopback(loopback)
+        .set_silent(loopback)
+        .leave_disabled();
+    set_filters(&mut can, node_id);
+    // FIFO 0 pending covers "full" too; the overrun interrupt makes a lost frame visible
+    // even if the FIFO had been drained in between.
+    can.enable_interrupts(
+        Interrupts::TRANSMIT_MAILBOX_EMPTY
+            | Interrupts::FIFO0_MESSAGE_PENDING
+            | Interrupts::FIFO0_OVERRUN,
+    );
+    bus::enable_status_interrupts();
+    // Also sets ABOM: after bus-off the controller rejoins on its own once it has seen
+    // 128 x 11 recessive bits.
+    nb::block!(can.enable_non_blocking()).unwrap_or_else(|never| match never {});
+    can
+}
+
+/// Programs the acceptance filters for `node_id`; everything else is dropped in hardware.
+///
+/// Bank 0 lists NMT (0x000), SYNC (0x080) and our SDO request (0x600 + node-ID); bank 1
+/// passes every heartbeat (0x700..0x77F) for the heartbeat consumer, which picks its
+/// producers itself. Data frames only: RTR is not served.
+pub fn set_filters(can: &mut Bxcan, node_id: u8) {
+    let data = |id: u16| ListEntry16::data_frames_with_id(standard_id(id));
+    let mut heartbeats = Mask16::frames_with_std_id(standard_id(COB_HEARTBEAT), standard_id(0x780));
+    heartbeats.data_frames_only();
+    let mut filters = can.modify_filters();
+    filters.clear();
+    filters.enable_bank(
+        0,
+        Fifo::Fifo0,
+        [
+            data(COB_NMT),
+            data(COB_SYNC),
+            data(COB_SDO_RX + u16::from(node_id & 0x7F)),
+            // A list bank holds four entries; the fourth repeats NMT.
+            data(COB_NMT),
+        ],
+    );
+    filters.enable_bank(1, Fifo::Fifo0, [heartbeats, heartbeats]);
+}
+
+fn standard_id(id: u16) -> StandardId {
+    StandardId::new(id & 0x7FF).unwrap_or(StandardId::ZERO)
+}
+
+/// The controller and its transmit queue.
+pub struct CanPort {
+    can: Bxcan,
+    queue: TxQueue<TX_QUEUE_LEN>,
+    stats: CanStats,
+}
+
+impl CanPort {
+    /// Wraps a started controller.
+    pub fn new(can: Bxcan) -> Self {
+        Self {
+            can,
+            queue: TxQueue::new(),
+            stats: CanStats::default(),
+        }
+    }
+
+    /// Queues `frame` and hands as many queued frames to the mailboxes as they take.
+    /// Gives the frame back when the queue is full; nothing already queued is dropped.
+    pub fn send(&mut self, frame: Frame) -> Result<(), Frame> {
+        let result = self.queue.push(frame);
+        if result.is_err() {
+            self.stats.tx_refused += 1;
+        }
+        self.pump();
+        result
+    }
+
+    /// The TX interrupt: a mailbox became free.
+    pub fn on_mailbox_empty(&mut self) {
+        self.can.clear_tx_interrupt();
+        self.pump();
+    }
+
+    fn pump(&mut self) {
+        while let Some(next) = self.queue.front() {
+            match self.can.transmit(&frame::to_bxcan(next)) {
+                Ok(status) => {
+                    self.queue.pop_front();
+                    if let Some(displaced) = status.dequeued_frame().and_then(frame::from_bxcan) {
+                        // The pop above made room, so this cannot fail.
+                        let _ = self.queue.requeue(displaced);
+                        self.stats.tx_displaced += 1;
+                    }
+                }
+                // Every pending mailbox outranks the next frame: the TX interrupt resumes.
+                Err(nb::Error::WouldBlock) => break,
+                Err(nb::Error::Other(never)) => match never {},
+            }
+        }
+    }
+
+    /// The RX0 interrupt: moves every frame from the hardware FIFO to `rx`. Returns `true`
+    /// when frames were lost (FIFO overrun or `rx` full).
+    pub fn drain_fifo0(
+        &mut self,
+        rx: &mut heapless::spsc::Producer<'_, Frame, RX_QUEUE_LEN>,
+    ) -> bool {
+        let mut lost = false;
+        loop {
+            match self.can.receive() {
+                Ok(frame) => {
+                    let Some(frame) = frame::from_bxcan(&frame) else {
+                        continue;
+                    };
+                    if rx.enqueue(frame).is_ok() {
+                        self.stats.rx_frames += 1;
+                    } else {
+                        self.stats.rx_overruns += 1;
+                        lost = true;
+                    }
+                }
+                Err(nb::Error::WouldBlock) => break,
+                // bxcan reports the overrun once and clears the flag; the frames still in
+                // the FIFO come on the next rounds of this loop.
+                Err(nb::Error::Other(_overrun)) => {
+                    self.stats.rx_overruns += 1;
+                    lost = true;
+                }
+            }
+        }
+        lost
+    }
+
+    /// The SCE interrupt: acknowledges an error-state change.
+    pub fn on_status_change(&mut self) {
+        bus::acknowledge_status_change();
+    }
+
+    /// Re-programs the acceptance filters (a new node-ID at reset communication).
+    pub fn set_node_id(&mut self, node_id: u8) {
+        set_filters(&mut self.can, node_id);
+    }
+
+    /// Counters since start-up.
+    pub fn stats(&self) -> CanStats {
+        self.stats
+    }
+
+    /// Frames waiting in the software queue.
+    pub fn queued(&self) -> usize {
+        self.queue.len()
+    }
+
+    /// Gives the controller back (tests).
+    pub fn free(self) -> Bxcan {
+        self.can
+    }
+}

@@ -1,0 +1,187 @@
+//! The QEMU board (`-M stm32vldiscovery`): what `init` sets up, and the stand-ins for the
+//! hardware the emulator does not model. Same names as the STM32F103 board module, so the
+//! RTIC application uses either unchanged.
+
+use core::convert::Infallible;
+
+use cortex_m::peripheral::NVIC;
+use handwheel_core::AbLevels;
+use stm32f1xx_hal::{
+    pac::{self, Interrupt, NVIC_PRIO_BITS},
+    prelude::*,
+    rcc,
+};
+
+use super::{
+    sim,
+    slcan_port::{RxBytes, SlcanLink},
+    stimulus::StimulusLink,
+    storage::RamStorage,
+    usart::Usart,
+};
+
+/// Core clock, also the SysTick clock: QEMU's SysTick counts at 24 MHz whatever RCC is set
+/// to, so the monotonic must be started with this rate for real-time milliseconds.
+pub const SYSCLK_HZ: u32 = 24_000_000;
+
+/// USART1 carrying the CAN link (SLCAN), the QEMU stand-in for the bxCAN instance.
+pub type CanInstance = SlcanLink;
+
+/// Priority of the two USART interrupts (the RTIC app's numbering): that of the CAN
+/// interrupts, below the wheel's EXTI task, above the `canopen` task.
+pub const USART_PRIORITY: u8 = 3;
+
+/// A fixed "unique ID" (ASCII `QEMU`): the emulator has no factory-programmed one.
+const UNIQUE_ID: [u32; 3] = [u32::from_le_bytes(*b"QEMU"), 0, 0];
+
+/// Everything `init` sets up for the application.
+pub struct Board {
+    /// Wheel A/B inputs (simulated).
+    pub wheel: WheelInputs,
+    /// Axis and multiplier switch lines (simulated).
+    pub selectors: Selectors,
+    /// DIP switch: all off, so the stored (never, in RAM) or default node-ID 16 applies.
+    pub dip: u8,
+    /// RUN and ERR LEDs (not shown anywhere).
+    pub leds: Leds,
+    /// The CAN link on USART1, not yet started.
+    pub can: CanInstance,
+    /// Parameters in RAM.
+    pub storage: RamStorage,
+    /// Watchdog stand-in.
+    pub watchdog: watchdog::Watchdog,
+    /// Why the MCU last reset: the emulator always starts cold.
+    pub reset_cause: ResetCause,
+    /// The fixed stand-in for the 96-bit unique ID.
+    pub unique_id: [u32; 3],
+}
+
+/// Sets the clock to HSI only, enables both USARTs and their interrupts. Takes the device
+/// peripherals that RTIC's `init` hands over; runs with interrupts disabled (RTIC's `init`).
+pub fn init(dp: pac::Peripherals) -> Board {
+    // HSI (the reset clock) without PLL: the HAL's setup waits for nothing then. (Waiting for
+    // HSE or PLL ready would hang: QEMU's RCC is a stub that reads 0.) The clocks it reports
+    // are not used; SysTick runs at `SYSCLK_HZ` in QEMU.
+    let mut flash = dp.FLASH.constrain();
+    let _rcc = dp.RCC.freeze(rcc::Config::hsi(), &mut flash.acr);
+
+    // Both USARTs at once: QEMU drops bytes that arrive before UE and RE are set.
+    // SAFETY: the second USART1 handle goes to the transmitting half only, which writes DR's
+    // transmit side and reads SR; the receiving half (the first handle) only reads SR and
+    // DR's receive side. Nothing else uses USART1.
+    let (usart1_rx, usart1_tx) = Usart::new(dp.USART1).split(unsafe { pac::USART1::steal() });
+    let rx_bytes = defmt::unwrap!(cortex_m::singleton!(: RxBytes = RxBytes::new()));
+    let can = SlcanLink::new(usart1_rx, usart1_tx, rx_bytes);
+    StimulusLink::install(Usart::new(dp.USART2));
+    enable_usart_interrupts();
+
+    Board {
+        wheel: WheelInputs { _private: () },
+        selectors: Selectors { _private: () },
+        dip: 0,
+        leds: Leds { _private: () },
+        can,
+        storage: RamStorage::new(),
+        watchdog: watchdog::Watchdog::new(),
+        reset_cause: ResetCause::PowerOn,
+        unique_id: UNIQUE_ID,
+    }
+}
+
+/// Gives the two board-layer USART handlers [`USART_PRIORITY`] and unmasks them, after their
+/// state was handed over.
+fn enable_usart_interrupts() {
+    // RTIC's logical priority to the NVIC's: higher logical = lower number, in the top bits.
+    const HW_PRIORITY: u8 = ((1 << NVIC_PRIO_BITS) - USART_PRIORITY) << (8 - NVIC_PRIO_BITS);
+    // SAFETY: only the priority registers of USART1 and USART2 are written, which the RTIC
+    // app (the NVIC's owner) never touches: no task is bound to them. Changing priorities
+    // can break priority-based critical sections, but these handlers share no RTIC resource
+    // (they use lock-free queues and atomics), so no lock depends on their level.
+    let mut nvic = unsafe { cortex_m::Peripherals::steal() }.NVIC;
+    for interrupt in [Interrupt::USART1, Interrupt::USART2] {
+        // SAFETY: as above; unmasking is what `init` would do for a bound task, and the
+        // handlers' state is in place.
+        unsafe {
+            nvic.set_priority(interrupt, HW_PRIORITY);
+            NVIC::unmask(interrupt);
+        }
+    }
+}
+
+/// The simulated wheel inputs: the levels the stimulus line last set.
+pub struct WheelInputs {
+    _private: (),
+}
+
+impl WheelInputs {
+    /// Acknowledges an edge interrupt and returns the A/B levels after it. The "interrupt" is
+    /// a software pend of EXTI9_5 (there is no EXTI to clear in QEMU).
+    #[inline(always)]
+    pub fn acknowledge_edge(&mut self) -> AbLevels {
+        self.levels()
+    }
+
+    /// The current A/B levels (also the decoder's starting point at boot: A = B = 0).
+    #[inline(always)]
+    pub fn levels(&self) -> AbLevels {
+        sim::ab()
+    }
+}
+
+/// The simulated axis and multiplier switch lines.
+pub struct Selectors {
+    _private: (),
+}
+
+impl Selectors {
+    /// The masks of active lines `(axis, multiplier)`, as the board's `SelectorLines::read`.
+    pub fn read(&mut self) -> Result<(u8, u8), Infallible> {
+        Ok(sim::selector_masks())
+    }
+}
+
+/// The indicator LEDs: the emulated board has none to drive.
+pub struct Leds {
+    _private: (),
+}
+
+impl Leds {
+    /// Lights (`true`) or darkens each LED: nothing to see under QEMU.
+    pub fn set(&mut self, _run: bool, _err: bool) {}
+}
+
+/// Why the MCU last came out of reset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum ResetCause {
+    /// The emulator started (QEMU has no reset flags; every start is a power-on).
+    PowerOn,
+}
+
+/// The watchdog stand-in.
+pub mod watchdog {
+    /// QEMU does not model the independent watchdog (its registers are a stub), so there is
+    /// nothing to start or feed: a hung `canopen` loop shows as a silent node instead of a
+    /// reset.
+    pub struct Watchdog {
+        _private: (),
+    }
+
+    impl Watchdog {
+        /// The stand-in.
+        pub const fn new() -> Self {
+            Self { _private: () }
+        }
+
+        /// Nothing to start.
+        pub fn start(&mut self, _ms: u32) {}
+
+        /// Nothing to feed.
+        pub fn feed(&mut self) {}
+    }
+
+    impl Default for Watchdog {
+        fn default() -> Self {
+            Self::new()
+        }
+    }
+}

@@ -1,0 +1,27 @@
+//! The QEMU board variant (`--features qemu`): the same RTIC application on
+//! `qemu-system-arm -M stm32vldiscovery` (an STM32F100 with 8 KiB RAM), with the hardware the
+//! emulator lacks replaced by two serial transports.
+//!
+//! QEMU models the CPU, NVIC, SysTick (24 MHz whatever RCC says) and the USARTs; RCC, GPIO,
+//! AFIO, EXTI and timers are stubs that read 0, and bxCAN is not mapped at all. So only the
+//! board layer differs from the STM32F103 build:
+//!
+//! - [`board`]: `init` (HSI clock only, both USARTs), simulated wheel and selector inputs, LED
+//!   and watchdog stand-ins, `SYSCLK_HZ` = 24 MHz for the SysTick monotonic.
+//! - [`slcan_port`]: the [`CanPort`](crate::can::CanPort) over SLCAN (Lawicel) on USART1,
+//!   with the methods the CAN tasks call on the bxCAN port.
+//! - [`stimulus`]: the test command line on USART2 that turns the simulated wheel (edge by
+//!   edge through the EXTI9_5 task) and sets the simulated switch lines.
+//! - [`storage`]: the parameters in RAM (`canopen_slave::MemoryStorage`).
+//! - [`sim`]: the simulated input lines shared by `stimulus` and `board`.
+//! - [`usart`]: the few USART registers the transports need.
+//!
+//! The byte-level protocols are in the host-tested `sim-io` crate; this module only moves
+//! bytes between the USARTs and it. The defmt log goes out over semihosting.
+
+pub mod board;
+pub mod sim;
+pub mod slcan_port;
+pub mod stimulus;
+pub mod storage;
+pub mod usart;

@@ -1,0 +1,107 @@
+//! The stimulus line on USART2: the test harness (or the demo) turns the simulated wheel and
+//! sets the simulated switch lines.
+//!
+//! Commands and replies are `sim_io::stimulus`'s: `turn <n>`, `ab <0..3>`,
+//! `axis <off|x|y|z|w|v>`, `mult <1|10|100>`, each answered with `ok` once applied or
+//! `err <reason>`.
+//!
+//! The USART2 interrupt handler below does all of it. It belongs to the board layer (the RTIC
+//! app does not know it), runs at priority 3, below the wheel's EXTI task, and shares nothing
+//! with the app but the simulated lines ([`sim`](super::sim)), which are atomics.
+//!
+//! A wheel edge is made the way the board sees one: the new A/B levels go to the simulated
+//! port and the EXTI9_5 interrupt is pended, so the shipping `wheel_edge` task reads and
+//! decodes them. It has the highest priority, so it runs at once (after the `isb`, which
+//! keeps back-to-back pends from merging); each edge is handled before the next is made, and
+//! `turn` replies after its last edge. Selector commands only set the lines: the `selector`
+//! task's own sampling and debouncing decide when the selection changes (4 samples, 5 ms
+//! apart).
+
+use core::cell::RefCell;
+
+use cortex_m::interrupt::Mutex;
+use cortex_m::peripheral::NVIC;
+use handwheel_core::AbLevels;
+use sim_io::stimulus::{self, Command, StimError, StimulusPort};
+use stm32f1xx_hal::pac::{self, interrupt, Interrupt};
+
+use super::{sim, usart::Usart};
+
+/// The USART2 interrupt's state, handed over once by `board::init`.
+static HANDOFF: Mutex<RefCell<Option<StimulusLink>>> = Mutex::new(RefCell::new(None));
+
+/// Quadrature edges per detent the simulated wheel makes: one full A/B cycle.
+pub const EDGES_PER_DETENT: u32 = 4;
+
+/// USART2 and the command line assembler.
+pub struct StimulusLink {
+    usart: Usart<pac::USART2>,
+    port: StimulusPort,
+}
+
+impl StimulusLink {
+    /// Hands the enabled USART2 to its interrupt handler (enable the interrupt only after
+    /// this).
+    pub fn install(usart: Usart<pac::USART2>) {
+        let link = Self {
+            usart,
+            port: StimulusPort::new(),
+        };
+        cortex_m::interrupt::free(|cs| {
+            HANDOFF.borrow(cs).replace(Some(link));
+        });
+    }
+
+    /// Applies every completed command line and answers it.
+    fn on_serial_rx(&mut self) {
+        while let Some(byte) = self.usart.read() {
+            if let Some(command) = self.port.push(byte) {
+                let result = command.and_then(apply);
+                self.usart.write_all(stimulus::render(result).as_bytes());
+            }
+        }
+    }
+}
+
+/// USART2 received a byte.
+#[interrupt]
+fn USART2() {
+    static mut LINK: Option<StimulusLink> = None;
+    if LINK.is_none() {
+        *LINK = cortex_m::interrupt::free(|cs| HANDOFF.borrow(cs).take());
+    }
+    if let Some(link) = LINK.as_mut() {
+        link.on_serial_rx();
+    }
+}
+
+/// Carries out one command.
+fn apply(command: Command) -> Result<(), StimError> {
+    match command {
+        Command::Turn(detents) => {
+            let mut levels = sim::ab();
+            for _ in 0..detents.unsigned_abs() * EDGES_PER_DETENT {
+                levels = if detents > 0 {
+                    levels.next_forward()
+                } else {
+                    levels.next_reverse()
+                };
+                edge(levels);
+            }
+        }
+        Command::Ab(bits) => edge(AbLevels::from_bits(bits)),
+        Command::Axis(axis) => sim::set_axis_mask(axis.active_mask()),
+        Command::Mult(multiplier) => sim::set_multiplier_mask(multiplier.active_mask()),
+    }
+    Ok(())
+}
+
+/// Sets the wheel's levels and runs the EXTI9_5 task on them, as a pin change would.
+fn edge(levels: AbLevels) {
+    sim::set_ab(levels);
+    rtic::pend(Interrupt::EXTI9_5);
+    cortex_m::asm::isb();
+    // The EXTI task outranks this one and runs right after the `isb`; should the emulator
+    // deliver it late, wait, so that no two edges merge into one read.
+    while NVIC::is_pending(Interrupt::EXTI9_5) {}
+}

@@ -1,0 +1,458 @@
+#!/usr/bin/env python3
+"""The handwheel without hardware: the firmware's QEMU variant and a python-canopen master.
+
+Started by `cargo xtask demo [--script]`, which builds the QEMU image and the Python venv
+(target/interop-venv) first. This script starts `cargo xtask qemu` itself (in its own process
+group, its decoded defmt log in a file), connects python-can's `slcan` interface to the
+emulated USART1, boots the node, puts it in Operational and enables the feed (0x2000 = 1),
+then shows what a CNC would receive from TPDO1 (axis, multiplier, position, frames/s) while
+the wheel is turned through the stimulus line on USART2:
+
+- interactive (default, needs a terminal): arrow keys turn the wheel one detent (right/up
+  forward, left/down back), PgUp/PgDn ten; x y z w v select the axis, 0 none; 1 2 3 the
+  multiplier x1 x10 x100; e toggles the feed enable; q or Ctrl-C quits.
+- `--script`: a scripted tour over every axis and multiplier that checks the CNC's result
+  at each step (exit status 1 if one is wrong), then quits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import select
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import termios
+import threading
+import time
+import tty
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import can
+import canopen
+
+ROOT = Path(__file__).resolve().parents[1]
+EDS = ROOT / "eds" / "handwheel.eds"
+
+NODE_ID = 16
+TPDO1 = 0x180 + NODE_ID
+EMCY = 0x080 + NODE_ID
+HEARTBEAT = 0x700 + NODE_ID
+
+AXIS_NAMES = ["none", "X", "Y", "Z", "W", "V"]
+STATE_NAMES = {0x00: "boot-up", 0x04: "Stopped", 0x05: "Operational", 0x7F: "Pre-operational"}
+STATUS_BITS = ["enabled", "encoder error", "steps dropped", "master lost", "turned unseen"]
+
+# The first start may build the firmware; `cargo xtask demo` has built it already.
+START_TIMEOUT = float(os.environ.get("HANDWHEEL_QEMU_START_TIMEOUT", 600))
+STEP_TIMEOUT = 5.0
+
+
+def free_ports(count: int) -> List[int]:
+    """`count` distinct free TCP ports on 127.0.0.1."""
+    socks = []
+    try:
+        for _ in range(count):
+            s = socket.socket()
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+class Emulator:
+    """`cargo xtask qemu` in its own process group (so that the terminal's Ctrl-C reaches
+    this script only, which then ends the emulator itself)."""
+
+    def __init__(self, log_path: Path) -> None:
+        self.can_port, self.stim_port = free_ports(2)
+        self.log_path = log_path
+        self._log = open(log_path, "wb")
+        self.proc = subprocess.Popen(
+            [os.environ.get("CARGO", "cargo"), "xtask", "qemu",
+             "--can-port", str(self.can_port), "--stim-port", str(self.stim_port)],
+            cwd=ROOT, stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+    def check_alive(self) -> None:
+        code = self.proc.poll()
+        if code is not None:
+            tail = "\n".join(self.log_path.read_text(errors="replace").splitlines()[-20:])
+            raise RuntimeError(f"`cargo xtask qemu` exited with {code}:\n{tail}")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGTERM)
+                self.proc.wait(10)
+            except ProcessLookupError:
+                pass
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(10)
+        self._log.close()
+
+
+class Stimulus:
+    """The stimulus line: one command out, one reply line back (`ok` once applied)."""
+
+    def __init__(self, port: int) -> None:
+        self._sock = socket.create_connection(("127.0.0.1", port), timeout=30)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._reader = self._sock.makefile("rb")
+
+    def send(self, command: str) -> str:
+        self._sock.sendall(command.encode() + b"\n")
+        return self._reader.readline().decode(errors="replace").strip()
+
+    def close(self) -> None:
+        self._reader.close()
+        self._sock.close()
+
+
+class Cnc(can.Listener):
+    """What a CNC makes of the node's frames: the feed record applied to its axes (the
+    wrapping difference of the position goes to the axis in the same frame), the NMT
+    state, the last EMCY and the frame rates."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Condition()
+        self.axes: Dict[str, int] = {name: 0 for name in AXIS_NAMES[1:]}
+        self.record: Optional[Tuple[int, int, int, int, int]] = None
+        self.state: Optional[int] = None
+        self.booted = False
+        self.emcy = "none"
+        self._last_position: Optional[int] = None
+        self._tpdo_times: collections.deque = collections.deque()
+        self._all_times: collections.deque = collections.deque()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_extended_id:
+            return
+        now = time.monotonic()
+        data = bytes(msg.data)
+        with self.lock:
+            if msg.arbitration_id in (TPDO1, EMCY, HEARTBEAT, 0x280 + NODE_ID, 0x580 + NODE_ID):
+                self._all_times.append(now)
+            if msg.arbitration_id == TPDO1 and len(data) == 8:
+                self._tpdo_times.append(now)
+                self._feed(data)
+            elif msg.arbitration_id == HEARTBEAT and len(data) == 1:
+                self.state = data[0]
+                if data[0] == 0x00:
+                    self.booted = True
+                    self._last_position = None  # reset node zeroes the position
+            elif msg.arbitration_id == EMCY and len(data) == 8:
+                code = int.from_bytes(data[0:2], "little")
+                self.emcy = "error reset" if code == 0 else f"0x{code:04X}"
+            self.lock.notify_all()
+
+    def on_error(self, exc: Exception) -> None:
+        pass
+
+    def _feed(self, data: bytes) -> None:
+        position = int.from_bytes(data[0:4], "little", signed=True)
+        axis, multiplier, status, sequence = data[4], data[5], data[6], data[7]
+        if self._last_position is not None and 1 <= axis <= 5:
+            delta = (position - self._last_position + 2**31) % 2**32 - 2**31
+            self.axes[AXIS_NAMES[axis]] += delta
+        self._last_position = position
+        self.record = (position, axis, multiplier, status, sequence)
+
+    def rates(self) -> Tuple[float, float]:
+        """TPDO1 frames and all frames from the node per second, over the last second."""
+        now = time.monotonic()
+        with self.lock:
+            for times in (self._tpdo_times, self._all_times):
+                while times and times[0] < now - 1.0:
+                    times.popleft()
+            return float(len(self._tpdo_times)), float(len(self._all_times))
+
+    def wait(self, predicate, timeout: float) -> bool:
+        with self.lock:
+            return self.lock.wait_for(predicate, timeout)
+
+
+def describe_status(status: int) -> str:
+    names = [name for bit, name in enumerate(STATUS_BITS) if status & (1 << bit)]
+    return f"0x{status:02X} [{', '.join(names) or 'feed off'}]"
+
+
+class Demo:
+    """The booted node, its master and the wheel."""
+
+    def __init__(self, log_path: Path) -> None:
+        self.emulator = Emulator(log_path)
+        self.cnc = Cnc()
+        self.bus: Optional[can.BusABC] = None
+        self.network: Optional[canopen.Network] = None
+        self.stim: Optional[Stimulus] = None
+        self.feed_enabled = False
+        self.last_action = "-"
+
+    def boot(self) -> None:
+        deadline = time.monotonic() + START_TIMEOUT
+        while True:  # QEMU listens once it is up, and starts the CPU when we connect
+            self.emulator.check_alive()
+            try:
+                self.bus = can.Bus(interface="slcan",
+                                   channel=f"socket://127.0.0.1:{self.emulator.can_port}",
+                                   sleep_after_open=0)
+                break
+            except (can.CanError, OSError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+        self.network = canopen.Network(self.bus)
+        self.network.listeners.append(self.cnc)
+        self.node = self.network.add_node(NODE_ID, str(EDS))
+        self.network.connect()
+        # QEMU drops what reaches USART1 before the firmware enables it: re-send `O`.
+        while not self.cnc.wait(lambda: self.cnc.booted, 0.2):
+            self.emulator.check_alive()
+            if time.monotonic() > deadline:
+                raise RuntimeError("no boot-up frame from the node")
+            self.bus.open()
+        self.stim = Stimulus(self.emulator.stim_port)
+
+    def select(self, axis: str, multiplier: int) -> None:
+        """Sets the switch lines and waits until the firmware's debounced selection (0x2010)
+        shows them."""
+        self.stimulus(f"axis {axis}")
+        self.stimulus(f"mult {multiplier}")
+        want = (AXIS_NAMES.index(axis.upper()) if axis != "off" else 0, multiplier)
+        deadline = time.monotonic() + STEP_TIMEOUT
+        while (self.read(0x2010, 1), self.read(0x2010, 2)) != want:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the selection did not become {want}")
+            time.sleep(0.01)
+
+    def stimulus(self, command: str) -> bool:
+        """Sends a stimulus command; `True` when the firmware answered `ok`."""
+        reply = self.stim.send(command)
+        self.last_action = f"{command} -> {reply}"
+        return reply == "ok"
+
+    def read(self, index: int, sub: int) -> int:
+        return int.from_bytes(self.node.sdo.upload(index, sub), "little")
+
+    def start_feed(self) -> None:
+        self.node.nmt.state = "OPERATIONAL"
+        if not self.cnc.wait(lambda: self.cnc.state == 0x05, STEP_TIMEOUT):
+            raise RuntimeError("the node did not become Operational")
+        self.set_feed(True)
+
+    def set_feed(self, on: bool) -> None:
+        self.node.sdo.download(0x2000, 0, bytes([int(on)]))
+        self.feed_enabled = on
+        self.last_action = f"0x2000 = {int(on)}"
+
+    def close(self) -> None:
+        try:
+            if self.stim is not None:
+                self.stim.close()
+            if self.network is not None:
+                self.network.disconnect()
+        except Exception:  # the emulator is about to go anyway
+            pass
+        self.emulator.stop()
+
+    # The view ---------------------------------------------------------------------------
+
+    def axes(self) -> str:
+        with self.cnc.lock:
+            return "  ".join(f"{name} {value:+5d}" for name, value in self.cnc.axes.items())
+
+    def view(self) -> List[str]:
+        cnc = self.cnc
+        tpdo_rate, all_rate = cnc.rates()
+        axes = self.axes()
+        with cnc.lock:
+            state = STATE_NAMES.get(cnc.state, "?") if cnc.state is not None else "?"
+            record = cnc.record
+            emcy = cnc.emcy
+        if record is None:
+            feed = "no feed record yet"
+            selection = "-"
+        else:
+            position, axis, multiplier, status, sequence = record
+            feed = f"position {position:+d}  seq {sequence:3d}  status {describe_status(status)}"
+            selection = f"axis {AXIS_NAMES[axis] if axis < 6 else axis}  x{multiplier}"
+        return [
+            f"node {NODE_ID}: {state}, feed {'enabled' if self.feed_enabled else 'disabled'}",
+            f"selection    {selection}",
+            f"TPDO1        {feed}",
+            f"CNC axes     {axes}",
+            f"frames/s     TPDO1 {tpdo_rate:3.0f}, all {all_rate:3.0f}   last EMCY {emcy}",
+            f"last         {self.last_action}",
+        ]
+
+
+# Interactive mode ---------------------------------------------------------------------------
+
+KEYS_HELP = ("keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10\n"
+             "       x y z w v axis, 0 none, 1 2 3 = x1 x10 x100, e feed on/off, q quit\n"
+             "       (CNC axes in detents x multiplier)")
+
+ARROWS = {b"\x1b[A": 1, b"\x1b[C": 1, b"\x1b[B": -1, b"\x1b[D": -1,
+          b"\x1b[5~": 10, b"\x1b[6~": -10, b"\x1bOA": 1, b"\x1bOC": 1, b"\x1bOB": -1,
+          b"\x1bOD": -1}
+
+
+def split_keys(data: bytes) -> List[bytes]:
+    """Keys from a terminal read: escape sequences whole, other bytes one by one."""
+    keys = []
+    i = 0
+    while i < len(data):
+        for seq in ARROWS:
+            if data.startswith(seq, i):
+                keys.append(seq)
+                i += len(seq)
+                break
+        else:
+            keys.append(data[i:i + 1])
+            i += 1
+    return keys
+
+
+def interactive(demo: Demo) -> None:
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    tty.setcbreak(fd)  # keys one by one, no echo; Ctrl-C still raises KeyboardInterrupt
+    out = sys.stdout
+    drawn = 0
+    try:
+        out.write("\x1b[?25l" + KEYS_HELP + "\n")
+        while True:
+            width = shutil.get_terminal_size().columns - 1
+            lines = [line[:width] for line in demo.view()]  # a wrapped line breaks the redraw
+            if drawn:
+                out.write(f"\x1b[{drawn}F")
+            for line in lines:
+                out.write("\x1b[2K" + line + "\n")
+            out.flush()
+            drawn = len(lines)
+            ready, _, _ = select.select([fd], [], [], 0.1)
+            if not ready:
+                continue
+            for key in split_keys(os.read(fd, 64)):
+                if key in (b"q", b"Q"):
+                    return
+                if key in ARROWS:
+                    demo.stimulus(f"turn {ARROWS[key]:+d}")
+                elif key.lower() in (b"x", b"y", b"z", b"w", b"v"):
+                    demo.stimulus(f"axis {key.decode().lower()}")
+                elif key == b"0":
+                    demo.stimulus("axis off")
+                elif key in (b"1", b"2", b"3"):
+                    demo.stimulus(f"mult {10 ** (int(key) - 1)}")
+                elif key in (b"e", b"E"):
+                    try:
+                        demo.set_feed(not demo.feed_enabled)
+                    except canopen.SdoAbortedError as e:
+                        demo.last_action = f"0x2000 write refused: {e}"
+    finally:
+        out.write("\x1b[?25h")
+        out.flush()
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
+# Scripted tour ------------------------------------------------------------------------------
+
+# (axis, multiplier, detents): each step's motion, checked on the CNC's axes.
+TOUR = [
+    ("x", 1, 5), ("x", 1, -2), ("x", 10, 4), ("y", 100, -3), ("z", 1, 10),
+    ("off", 1, 3), ("w", 10, 2), ("v", 1, -1), ("x", 100, 1),
+]
+
+
+def tour(demo: Demo, pace: float) -> bool:
+    expected = {name: 0 for name in AXIS_NAMES[1:]}
+    ok = True
+    for axis, multiplier, detents in TOUR:
+        demo.select(axis, multiplier)
+        if not demo.stimulus(f"turn {detents:+d}"):
+            raise RuntimeError(f"stimulus refused: {demo.last_action}")
+        if axis != "off":
+            expected[axis.upper()] += detents * multiplier
+        # The feed record follows the turn within its 2 ms inhibit time; the event timer
+        # repeats it every 100 ms.
+        matched = demo.cnc.wait(lambda: demo.cnc.axes == expected, STEP_TIMEOUT)
+        note = "" if matched else f"   <-- expected {expected}"
+        ok &= matched
+        print(f"axis {axis:>4} x{multiplier:<3} turn {detents:+3d}:  CNC {demo.axes()}{note}")
+        time.sleep(pace)
+    # Disabled feed: turning moves nothing (and the node says so in status bit 4).
+    demo.set_feed(False)
+    demo.stimulus("turn +2")
+    time.sleep(max(pace, 0.3))
+    with demo.cnc.lock:
+        matched = demo.cnc.axes == expected
+    ok &= matched
+    print(f"feed disabled, turn  +2:  CNC {demo.axes()}{'' if matched else '   <-- moved'}")
+    for line in demo.view():
+        print("  " + line)
+    return ok
+
+
+def interrupt(_signum, _frame) -> None:
+    """SIGTERM ends the demo as cleanly as Ctrl-C."""
+    raise KeyboardInterrupt
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--script", action="store_true",
+                        help="run a scripted tour instead of reading the keyboard")
+    parser.add_argument("--pace", type=float, default=0.5,
+                        help="seconds between the tour's steps (default 0.5)")
+    args = parser.parse_args()
+    if not args.script and not sys.stdin.isatty():
+        print("demo: the interactive mode reads keys from a terminal; use --script",
+              file=sys.stderr)
+        return 2
+
+    log_path = Path(os.environ.get("HANDWHEEL_QEMU_LOG") or
+                    Path(tempfile.gettempdir()) / "handwheel-demo.log")
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    signal.signal(signal.SIGTERM, interrupt)
+    demo = Demo(log_path)
+    status = 0
+    try:
+        print(f"demo: starting the handwheel firmware in QEMU (log: {log_path})")
+        demo.boot()
+        demo.select("x", 1)
+        demo.start_feed()
+        print("demo: node booted, Operational, feed enabled (0x2000 = 1), axis X x1")
+        if args.script:
+            status = 0 if tour(demo, args.pace) else 1
+            print("demo: tour " + ("finished, every step as expected" if status == 0
+                                   else "FAILED: a step did not move the CNC as expected"))
+        else:
+            interactive(demo)
+    except KeyboardInterrupt:
+        pass
+    except Exception as e:  # show the firmware log's tail with any failure
+        print(f"demo: {e}", file=sys.stderr)
+        tail = log_path.read_text(errors="replace").splitlines()[-15:] if log_path.exists() else []
+        print("\n".join(["--- firmware log (tail) ---", *tail]), file=sys.stderr)
+        status = 1
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        demo.close()
+        print("demo: stopped")
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+//! The Python environment of the interop suite: a venv in `target/interop-venv` made from
+//! `tests/interop/requirements.txt` (pinned python-can, canopen, pyserial, pytest).
+//!
+//! The venv is rebuilt only when the requirements file or the interpreter changes: a stamp
+//! file in the venv records a hash of both, and is written last, so an interrupted install
+//! is redone next time. On a fresh Debian machine, running as root, a missing `python3` or
+//! `venv` module (packages `python3`, `python3-venv`) is installed with apt-get.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::host;
+
+/// The requirements file, relative to the workspace root.
+pub const REQUIREMENTS: &str = "tests/interop/requirements.txt";
+/// The suite, relative to the workspace root.
+pub const SUITE: &str = "tests/interop";
+/// Stamp file inside the venv.
+const STAMP: &str = "requirements.stamp";
+
+/// The venv folder below the target directory.
+pub fn venv_dir(target_dir: &Path) -> PathBuf {
+    target_dir.join("interop-venv")
+}
+
+/// The venv's interpreter.
+pub fn venv_python(venv: &Path) -> PathBuf {
+    venv.join("bin").join("python")
+}
+
+/// 64-bit FNV-1a: enough to notice that a file changed.
+fn fnv1a(chunks: &[&[u8]]) -> u64 {
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for chunk in chunks {
+        for &b in *chunk {
+            hash ^= u64::from(b);
+            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        // Separate the chunks, so that ("ab", "c") and ("a", "bc") differ.
+        hash ^= 0xff;
+        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    hash
+}
+
+/// `python3 --version` of the base interpreter (empty if it does not run).
+fn interpreter_version(python: &Path) -> String {
+    Command::new(python)
+        .arg("--version")
+        .output()
+        .map(|o| {
+            let mut v = o.stdout;
+            v.extend_from_slice(&o.stderr);
+            String::from_utf8_lossy(&v).trim().to_string()
+        })
+        .unwrap_or_default()
+}
+
+/// The base interpreter: `$PYTHON` if set, else `python3` on PATH (installed as root).
+fn base_python() -> Result<PathBuf, String> {
+    if let Some(p) = std::env::var_os("PYTHON") {
+        return Ok(PathBuf::from(p));
+    }
+    host::require("python3", &["python3", "python3-venv"])
+}
+
+fn run(cmd: &mut Command) -> Result<(), String> {
+    eprintln!("xtask: {cmd:?}");
+    let status = cmd
+        .status()
+        .map_err(|e| format!("cannot run {:?}: {e}", cmd.get_program()))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{cmd:?} failed ({status})"))
+    }
+}
+
+/// Creates or refreshes the venv at `venv` from `<root>/tests/interop/requirements.txt`;
+/// returns the venv's interpreter. Does nothing when the stamp matches.
+pub fn ensure(root: &Path, venv: &Path) -> Result<PathBuf, String> {
+    let requirements = root.join(REQUIREMENTS);
+    let pinned = std::fs::read(&requirements)
+        .map_err(|e| format!("cannot read {}: {e}", requirements.display()))?;
+    let base = base_python()?;
+    let version = interpreter_version(&base);
+    let stamp = format!("{:016x} {version}\n", fnv1a(&[&pinned, version.as_bytes()]));
+    let python = venv_python(venv);
+    let stamp_path = venv.join(STAMP);
+    if python.is_file() && std::fs::read_to_string(&stamp_path).ok().as_deref() == Some(&stamp) {
+        return Ok(python);
+    }
+    // A half-made or outdated venv is rebuilt from scratch: `--clear` empties it.
+    let _ = std::fs::remove_file(&stamp_path);
+    let make = |python: &Path| {
+        run(Command::new(python)
+            .args(["-m", "venv", "--clear"])
+            .arg(venv))
+    };
+    if let Err(first) = make(&base) {
+        // Debian's python3 lacks `ensurepip` until python3-venv is installed.
+        if !host::is_root() {
+            return Err(format!(
+                "{first}\nthe Python `venv` module does not work: install the Debian \
+                 package `python3-venv` (or run this task as root to have it installed)"
+            ));
+        }
+        host::apt_install(&["python3-venv"])?;
+        make(&base)?;
+    }
+    run(Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--disable-pip-version-check",
+            "--no-input",
+            "--quiet",
+            "-r",
+        ])
+        .arg(&requirements))?;
+    std::fs::write(&stamp_path, stamp)
+        .map_err(|e| format!("cannot write {}: {e}", stamp_path.display()))?;
+    Ok(python)
+}
+
+/// `python -m pytest tests/interop <extra>` from the workspace root.
+pub fn pytest(root: &Path, python: &Path, extra: &[&str]) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.args(["-m", "pytest", SUITE])
+        .args(extra)
+        .current_dir(root);
+    cmd
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hash_notices_changes_and_chunk_boundaries() {
+        assert_eq!(fnv1a(&[b"abc"]), fnv1a(&[b"abc"]));
+        assert_ne!(fnv1a(&[b"abc"]), fnv1a(&[b"abd"]));
+        assert_ne!(fnv1a(&[b"ab", b"c"]), fnv1a(&[b"a", b"bc"]));
+    }
+}
