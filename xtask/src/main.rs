@@ -38,7 +38,9 @@ tasks:
                                         tcp:127.0.0.1:P (waits for the client), stimulus on
                                         tcp:127.0.0.1:Q, decoded defmt log on stderr
   interop [pytest args]                 only the interop suite (venv, QEMU variant, pytest)
-  demo [--script]                       the handwheel in QEMU with a live python-canopen master";
+  demo [--script]                       the handwheel in QEMU with a live python-canopen master
+  bench                                 feed protocol comparison (writes docs/feed-protocols.svg)
+                                        and the release firmware's footprint by section";
 
 fn main() -> ExitCode {
     let args: Vec<String> = env::args().skip(1).collect();
@@ -49,6 +51,7 @@ fn main() -> ExitCode {
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
         Some("interop") => interop(rest),
         Some("demo") => demo(rest),
+        Some("bench") => bench(),
         _ => {
             eprintln!("{USAGE}");
             return ExitCode::from(2);
@@ -158,6 +161,22 @@ fn test() -> Result<(), String> {
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The benchmarks that exist so far: the feed protocol simulation (paper vs this project,
+/// with its plot) and the release footprint by section with its headroom.
+fn bench() -> Result<(), String> {
+    cargo(&[
+        "run",
+        "--locked",
+        "--release",
+        "-q",
+        "-p",
+        "feed-bench",
+        "--",
+        "docs/feed-protocols.svg",
+    ])?;
+    firmware_build()
 }
 
 /// Release footprint budget the firmware issue sets: 20 KiB flash, 4 KiB static RAM (RTT

@@ -1,6 +1,6 @@
 //! Prints the feed protocol comparison and writes its plot.
 //!
-//! Usage: `feed-bench [plot.svg]` (`cargo xtask bench` passes `docs/feed-protocols.svg`).
+//! Usage: `feed-bench [plot.svg]`; `cargo xtask bench` runs it with `docs/feed-protocols.svg`.
 
 use feed_bench::{plot, run_all, scheme::Scheme, Row};
 
