@@ -23,8 +23,6 @@ impl EventSet {
     pub const RX_OVERRUN: Self = Self(1 << 2);
     /// The controller's error state changed.
     pub const BUS_STATUS: Self = Self(1 << 3);
-    /// The debounced axis or multiplier selection changed.
-    pub const SELECTION: Self = Self(1 << 4);
 
     /// No bit set.
     pub const fn empty() -> Self {

@@ -6,17 +6,16 @@
 //! | `can_rx0` | USB_LP_CAN_RX0 | 3 | `can` |
 //! | `can_tx` | USB_HP_CAN_TX | 3 | `can` |
 //! | `can_sce` | CAN_SCE | 3 | `can` |
-//! | `canopen` | software (TIM3 dispatcher) | 2 | `device`, `wheel`, `can`, `status` |
-//! | `selector` | software (TIM3 dispatcher) | 2 | `device`, `wheel` |
-//! | `indicators` | software (TIM2 dispatcher) | 1 | `status` |
+//! | `canopen` | software (TIM3 dispatcher) | 2 | `device`, `wheel`, `can` |
 //! | `idle` | thread mode | 0 | - |
 //!
 //! The wheel's edges preempt everything: an edge is only known by the levels read after it,
 //! so a late read merges two edges into an illegal jump. Nothing else is urgent on that scale.
 //! The CAN interrupts come next because the receive FIFO holds only three frames and the
 //! mailboxes only three; they only move frames between hardware and queues. Everything that
-//! touches the CANopen device runs at one priority (2), so the device itself needs no lock
-//! and its tasks never preempt one another. The LEDs come last.
+//! touches the CANopen device runs in one task, `canopen` (priority 2), which also samples
+//! the selector switches and drives the LEDs: the device is that task's local resource and
+//! needs no lock, and nothing on the CAN side ever preempts another part of it.
 //!
 //! SysTick (the monotonic) keeps its reset priority, above all tasks: its handler is a
 //! counter increment and a timer-queue check, and it must not miss a tick.
@@ -44,12 +43,12 @@ defmt::timestamp!("{=u32:ms}", Mono::now().ticks());
 /// Interrupt-to-`canopen` wake-ups.
 static EVENTS: Events = Events::new();
 
-#[rtic::app(device = stm32f1xx_hal::pac, dispatchers = [TIM2, TIM3])]
+#[rtic::app(device = stm32f1xx_hal::pac, dispatchers = [TIM3])]
 mod app {
     use super::{Mono, EVENTS};
 
     use canopen_slave::{
-        emcy::register, indicators as indicator_leds, ErrorIndication, Instant, NmtState, NodeId,
+        emcy::register, indicators as indicator_leds, ErrorIndication, Instant, NodeId,
     };
     use defmt::{info, unwrap};
     use handwheel_core::{
@@ -88,19 +87,17 @@ mod app {
 
     #[shared]
     struct Shared {
-        /// The CANopen device: only priority-2 tasks touch it, so its lock costs nothing.
-        device: Device,
         /// Decoder and feed accumulator: written by every edge, read and configured by the
         /// CAN side.
         wheel: Handwheel,
         /// bxCAN and its transmit queue.
         can: CanPort,
-        /// What the LEDs show.
-        status: Status,
     }
 
     #[local]
     struct Local {
+        /// The CANopen device: only `canopen` touches it.
+        device: Device,
         wheel_inputs: WheelInputs,
         rx_producer: RxProducer,
         rx_consumer: RxConsumer,
@@ -110,22 +107,13 @@ mod app {
         watchdog: board::watchdog::Watchdog,
     }
 
-    /// Inputs of the indicator LEDs.
-    #[derive(Clone, Copy)]
-    pub struct Status {
-        bus: BusState,
-        nmt: NmtState,
-        device_error: ErrorIndication,
-    }
-
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut board = board::init(cx.device);
         Mono::start(cx.core.SYST, SYSCLK_HZ);
 
-        let stored = board.storage.load();
-        let (settings, source) =
-            node_config::select(board.dip, stored.as_ref().map(|s| s.settings));
+        let stored = board.storage.load().map(|s| s.settings);
+        let (settings, source) = node_config::select(board.dip, stored);
         let serial = handwheel_firmware::serial_number(board.unique_id);
         info!(
             "boot: node-ID {=u8}, {=u32} kbit/s ({}, DIP {=u8:#04x}), reset cause {}",
@@ -151,21 +139,14 @@ mod app {
 
         board.watchdog.start(WATCHDOG_MS);
         unwrap!(canopen::spawn());
-        unwrap!(selector::spawn());
-        unwrap!(indicators::spawn());
 
         (
             Shared {
-                device,
                 wheel,
                 can: CanPort::new(can),
-                status: Status {
-                    bus: BusState::ErrorActive,
-                    nmt: NmtState::Initialising,
-                    device_error: ErrorIndication::NoError,
-                },
             },
             Local {
+                device,
                 wheel_inputs: board.wheel,
                 rx_producer,
                 rx_consumer,
@@ -231,51 +212,110 @@ mod app {
     /// The CAN side: everything that touches the CANopen device, in one loop at one priority.
     ///
     /// Each round feeds the watchdog, so if this loop stops (a hung lock, a dead executor),
-    /// the MCU resets. It sleeps until an interrupt raises an event or the device's next
-    /// deadline. The device reaches the wheel and the transmit queue through one short lock
-    /// per object access or frame, never for a whole round.
+    /// the MCU resets. It sleeps until an interrupt raises an event, the device's next
+    /// deadline, the next selector sample (every 5 ms) or the next LED update (every 50 ms).
+    /// Sampling the switches and driving the LEDs here rather than in tasks of their own
+    /// costs nothing in latency (they are 5 and 50 ms periodic, far slower than a round) and
+    /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The device
+    /// reaches the wheel and the transmit queue through one short lock per object access or
+    /// frame, never for a whole round.
     #[task(
         priority = 2,
         local = [
+            device,
             rx_consumer,
             watchdog,
+            selectors,
+            selector,
+            leds,
             supervision: Supervision = Supervision::new(),
             clock: WideClock = WideClock::new(),
         ],
-        shared = [device, wheel, can, status]
+        shared = [wheel, can]
     )]
-    async fn canopen(mut cx: canopen::Context) {
+    async fn canopen(cx: canopen::Context) {
         let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
-        let mut device = cx.shared.device;
+        let device = cx.local.device;
         let mut wheel = SharedWheel(cx.shared.wheel);
         let mut tx = TxSink(cx.shared.can);
-        device.lock(|d| d.start(now, &mut wheel, &mut tx));
+        device.start(now, &mut wheel, &mut tx);
+        let mut next_sample = Periodic::new(SAMPLE_PERIOD_MS);
+        let mut next_led = Periodic::new(LED_PERIOD_MS);
         loop {
             cx.local.watchdog.feed();
-            let deadline = device.lock(|d| d.next_deadline());
+            let deadline = device.next_deadline();
             let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
-            let wake_at = wake_time(cx.local.supervision, now, deadline);
+            let wake_at = wake_time(cx.local.supervision, now, deadline)
+                .min(next_sample.at)
+                .min(next_led.at);
             let events = match Mono::timeout_at(wake_at, EVENTS.wait()).await {
                 Ok(events) => events,
                 Err(_timeout) => EVENTS.take(),
             };
-            let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
-            device.lock(|d| {
-                while let Some(frame) = cx.local.rx_consumer.dequeue() {
-                    d.on_frame(now, &frame, &mut wheel, &mut tx);
-                }
-                if events.contains(EventSet::FEED_DUE) {
-                    d.feed_changed();
-                }
-                supervise(cx.local.supervision, d, &mut wheel, &mut tx.0);
-                d.poll(now, &mut wheel, &mut tx);
-                let status = (d.nmt_state(), d.error_indication());
-                let bus = cx.local.supervision.bus_state();
-                cx.shared.status.lock(|s| {
-                    (s.nmt, s.device_error) = status;
-                    s.bus = bus;
-                });
-            });
+            let ticks = Mono::now();
+            let now = Instant::from_micros(cx.local.clock.now_us(ticks.ticks()));
+            let selection = if next_sample.is_due(ticks) {
+                let Ok((axis, multiplier)) = cx.local.selectors.read();
+                cx.local.selector.sample(axis, multiplier)
+            } else {
+                None
+            };
+            while let Some(frame) = cx.local.rx_consumer.dequeue() {
+                device.on_frame(now, &frame, &mut wheel, &mut tx);
+            }
+            if let Some(selection) = selection {
+                info!(
+                    "selection: axis {=u8}, x{=u8}",
+                    handwheel_core::Axis::option_value(selection.axis),
+                    selection.multiplier.factor()
+                );
+                device.set_selection(selection, &mut wheel);
+            }
+            if events.contains(EventSet::FEED_DUE) {
+                device.feed_changed();
+            }
+            supervise(cx.local.supervision, device, &mut wheel, &mut tx.0);
+            device.poll(now, &mut wheel, &mut tx);
+            if next_led.is_due(ticks) {
+                let bus_error = match cx.local.supervision.bus_state() {
+                    BusState::ErrorActive => ErrorIndication::NoError,
+                    BusState::Warning | BusState::ErrorPassive => ErrorIndication::WarningLimit,
+                    BusState::BusOff => ErrorIndication::BusOff,
+                };
+                let error = device.error_indication().max(bus_error);
+                let (run, err) = indicator_leds(device.nmt_state(), error, ticks.ticks());
+                cx.local.leds.set(run, err);
+            }
+        }
+    }
+
+    /// A periodic duty of the `canopen` loop (selector sampling, LED update).
+    struct Periodic {
+        at: <Mono as Monotonic>::Instant,
+        period_ms: u32,
+    }
+
+    impl Periodic {
+        /// Due at once, then every `period_ms`.
+        fn new(period_ms: u32) -> Self {
+            Self {
+                at: Mono::now(),
+                period_ms,
+            }
+        }
+
+        /// Whether the duty is due at `now`; if so, schedules the next one. After a late
+        /// round the next one is a full period away, never sooner: the debouncer counts
+        /// samples, so catching up with a burst would shorten the debounce time.
+        fn is_due(&mut self, now: <Mono as Monotonic>::Instant) -> bool {
+            if now < self.at {
+                return false;
+            }
+            self.at += self.period_ms.millis();
+            if self.at <= now {
+                self.at = now + self.period_ms.millis();
+            }
+            true
         }
     }
 
@@ -332,49 +372,5 @@ mod app {
             None => max_ms,
         };
         Mono::now() + sleep_ms.millis()
-    }
-
-    /// Samples the axis and multiplier switches every 5 ms; a debounced change goes to the
-    /// feed accumulator (a new epoch, a feed frame due).
-    #[task(priority = 2, local = [selectors, selector], shared = [device, wheel])]
-    async fn selector(mut cx: selector::Context) {
-        let mut next = Mono::now();
-        loop {
-            let Ok((axis, multiplier)) = cx.local.selectors.read();
-            if let Some(selection) = cx.local.selector.sample(axis, multiplier) {
-                info!(
-                    "selection: axis {=u8}, x{=u8}",
-                    handwheel_core::Axis::option_value(selection.axis),
-                    selection.multiplier.factor()
-                );
-                let wheel = &mut cx.shared.wheel;
-                cx.shared
-                    .device
-                    .lock(|d| d.set_selection(selection, &mut SharedWheel(wheel)));
-                // `canopen` sends the frame the new selection made due.
-                EVENTS.raise(EventSet::SELECTION);
-            }
-            next += SAMPLE_PERIOD_MS.millis();
-            Mono::delay_until(next).await;
-        }
-    }
-
-    /// RUN and ERR LEDs (CiA 303-3), updated every 50 ms.
-    #[task(priority = 1, local = [leds], shared = [status])]
-    async fn indicators(mut cx: indicators::Context) {
-        let mut next = Mono::now();
-        loop {
-            let now_ms = Mono::now().ticks();
-            let status = cx.shared.status.lock(|status| *status);
-            let bus_error = match status.bus {
-                BusState::ErrorActive => ErrorIndication::NoError,
-                BusState::Warning | BusState::ErrorPassive => ErrorIndication::WarningLimit,
-                BusState::BusOff => ErrorIndication::BusOff,
-            };
-            let (run, err) = indicator_leds(status.nmt, status.device_error.max(bus_error), now_ms);
-            cx.local.leds.set(run, err);
-            next += LED_PERIOD_MS.millis();
-            Mono::delay_until(next).await;
-        }
     }
 }

@@ -47,7 +47,7 @@ mod tests {
         defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &blob));
         let stored = defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load());
         defmt::assert_eq!(stored.settings, SETTINGS);
-        defmt::assert_eq!(stored.blob.as_slice(), &blob[..]);
+        defmt::assert_eq!(stored.blob, &blob[..]);
     }
 
     #[test]
@@ -67,9 +67,7 @@ mod tests {
         }
         defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &blob));
         defmt::assert_eq!(
-            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load())
-                .blob
-                .as_slice(),
+            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load()).blob,
             &blob[..]
         );
     }
@@ -83,9 +81,7 @@ mod tests {
             Err(StoreError::TooLarge)
         );
         defmt::assert_eq!(
-            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load())
-                .blob
-                .as_slice(),
+            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load()).blob,
             &[1, 2, 3]
         );
     }

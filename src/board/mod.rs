@@ -8,18 +8,20 @@
 pub mod pins;
 pub mod watchdog;
 
-use handwheel_core::{AbLevels, SelectorLines};
+use core::convert::Infallible;
+
+use handwheel_core::AbLevels;
 use stm32f1xx_hal::{
     can::Can,
     flash,
-    gpio::{Edge, ExtiPin, PinState, PullUp},
-    pac,
+    gpio::Floating,
+    pac::{self, gpioa::RegisterBlock as Port},
     prelude::*,
     rcc::{self, Rcc},
 };
 
 use crate::storage::FlashStorage;
-use pins::{ErrLed, RunLed, SwitchLine, WheelA, WheelB, WHEEL_A_BIT, WHEEL_B_BIT};
+use pins::{PortConfig, WHEEL_A_BIT, WHEEL_B_BIT, WHEEL_EXTI_LINES};
 use watchdog::Watchdog;
 
 /// The crystal on the board.
@@ -29,11 +31,9 @@ pub const SYSCLK_HZ: u32 = 72_000_000;
 /// APB1 clock, the bxCAN kernel clock that the bit timing table is computed for.
 pub const APB1_HZ: u32 = 36_000_000;
 
-/// The bxCAN peripheral with its pins, ready for `bxcan::Can::builder`.
-pub type CanInstance = Can<pac::CAN, PullUp>;
-
-/// The selector lines: 5 axis lines and 3 multiplier lines, read by `handwheel-core`.
-pub type Selectors = SelectorLines<SwitchLine>;
+/// The bxCAN peripheral, ready for `bxcan::Can::builder`. Its pins (PB8/PB9, remap 2) are
+/// set up by [`init`] with the rest of the pin map, so the HAL gets none.
+pub type CanInstance = Can<pac::CAN, Floating>;
 
 /// Everything `init` sets up for the application.
 pub struct Board {
@@ -73,75 +73,56 @@ pub fn init(dp: pac::Peripherals) -> Board {
     defmt::assert_eq!(rcc.clocks.pclk1().raw(), APB1_HZ);
 
     let reset_cause = ResetCause::take(&mut rcc);
-    let mut afio = dp.AFIO.constrain(&mut rcc);
-    let mut gpioa = dp.GPIOA.split(&mut rcc);
-    let mut gpiob = dp.GPIOB.split(&mut rcc);
-    let mut gpioc = dp.GPIOC.split(&mut rcc);
+    rcc.apb2enr().modify(|_, w| {
+        w.afioen()
+            .set_bit()
+            .iopaen()
+            .set_bit()
+            .iopben()
+            .set_bit()
+            .iopcen()
+            .set_bit()
+    });
+    configure_port(&dp.GPIOA, pins::PORT_A);
+    configure_port(&dp.GPIOB, pins::PORT_B);
+    configure_port(&dp.GPIOC, pins::PORT_C);
 
-    // Wheel: both edges of both channels on EXTI6/EXTI7 (they share the EXTI9_5 vector).
-    let mut exti = dp.EXTI;
-    let mut a: WheelA = gpiob.pb6.into_pull_up_input(&mut gpiob.crl);
-    let mut b: WheelB = gpiob.pb7.into_pull_up_input(&mut gpiob.crl);
-    for pin in [&mut a as &mut dyn ExtiPin, &mut b] {
-        pin.make_interrupt_source(&mut afio);
-        pin.trigger_on_edge(&mut exti, Edge::RisingFalling);
-        pin.enable_interrupt(&mut exti);
-    }
-    let wheel = WheelInputs { _a: a, _b: b, exti };
+    // Wheel: both edges of both channels on EXTI6/EXTI7 (they share the EXTI9_5 vector),
+    // taken from port B. The CAN pins move to PB8/PB9; SWJ_CFG written as 0 keeps SWD.
+    // SAFETY (both `bits`): EXTI6/EXTI7 = 1 selects port B, a valid source; CAN_REMAP =
+    // 0b10 is the documented PB8/PB9 mapping.
+    dp.AFIO
+        .exticr2()
+        .modify(|_, w| unsafe { w.exti6().bits(1).exti7().bits(1) });
+    dp.AFIO
+        .mapr()
+        .modify(|_, w| unsafe { w.can_remap().bits(pins::CAN_REMAP_PB8_PB9) });
+    let exti = dp.EXTI;
+    // SAFETY (all three): setting the two wheel lines' bits, which exist on this part.
+    exti.rtsr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
+    exti.ftsr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
+    exti.imr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
 
-    let selectors = SelectorLines {
-        axis: [
-            gpioa.pa0.into_pull_up_input(&mut gpioa.crl).erase(),
-            gpioa.pa1.into_pull_up_input(&mut gpioa.crl).erase(),
-            gpioa.pa2.into_pull_up_input(&mut gpioa.crl).erase(),
-            gpioa.pa3.into_pull_up_input(&mut gpioa.crl).erase(),
-            gpioa.pa4.into_pull_up_input(&mut gpioa.crl).erase(),
-        ],
-        multiplier: [
-            gpioa.pa5.into_pull_up_input(&mut gpioa.crl).erase(),
-            gpioa.pa6.into_pull_up_input(&mut gpioa.crl).erase(),
-            gpioa.pa7.into_pull_up_input(&mut gpioa.crl).erase(),
-        ],
-    };
-
-    let dip_lines: [SwitchLine; 8] = [
-        gpiob.pb12.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb13.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb14.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb15.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb0.into_pull_up_input(&mut gpiob.crl).erase(),
-        gpiob.pb1.into_pull_up_input(&mut gpiob.crl).erase(),
-        gpiob.pb10.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb11.into_pull_up_input(&mut gpiob.crh).erase(),
-    ];
     // The pull-ups need a moment to lift the open lines after the mode change.
     cortex_m::asm::delay(SYSCLK_HZ / 10_000);
-    let dip = read_active_low(&dip_lines);
+    let dip = pins::dip_from_port(dp.GPIOB.idr().read().bits());
 
-    let leds = Leds {
-        run: gpioc
-            .pc13
-            .into_push_pull_output_with_state(&mut gpioc.crh, PinState::High),
-        err: gpiob
-            .pb5
-            .into_push_pull_output_with_state(&mut gpiob.crl, PinState::Low),
-    };
-
-    // CAN on PB8 (RX) / PB9 (TX): AFIO remap 2. The USB peripheral is consumed because it
-    // shares its packet SRAM with bxCAN.
-    let can_rx = gpiob.pb8.into_pull_up_input(&mut gpiob.crh);
-    let can = dp
-        .CAN
-        .remap::<2>(&mut afio.mapr)
-        .can(dp.USB, (gpiob.pb9, can_rx), &mut rcc);
+    // The USB peripheral is consumed because it shares its packet SRAM with bxCAN.
+    let can = Can::new_loopback(dp.CAN, dp.USB, &mut rcc);
 
     let watchdog = Watchdog::new(dp.IWDG, &dp.DBGMCU);
 
     Board {
-        wheel,
-        selectors,
+        wheel: WheelInputs { exti },
+        selectors: Selectors { port: dp.GPIOA },
         dip,
-        leds,
+        leds: Leds {
+            port_b: dp.GPIOB,
+            port_c: dp.GPIOC,
+        },
         can,
         storage: FlashStorage::new(flash),
         watchdog,
@@ -150,20 +131,26 @@ pub fn init(dp: pac::Peripherals) -> Board {
     }
 }
 
-/// Mask of the lines that read low (switch closed to ground), bit `i` = `lines[i]`.
-fn read_active_low(lines: &[SwitchLine]) -> u8 {
-    lines
-        .iter()
-        .enumerate()
-        .filter(|(_, line)| line.is_low())
-        .fold(0, |mask, (bit, _)| mask | (1 << bit))
+/// Applies `config` to `port`: output levels first, so that an output starts at its level,
+/// then the pin modes, one read-modify-write per configuration register.
+fn configure_port(port: &Port, config: PortConfig) {
+    // SAFETY (all three): BSRR only sets or clears output data bits; the CR values come
+    // from the pin map's nibbles for its own pins and keep every other pin's nibble.
+    port.bsrr().write(|w| unsafe { w.bits(config.bsrr()) });
+    let [low_mask, high_mask] = [config.cr_mask as u32, (config.cr_mask >> 32) as u32];
+    let [low_bits, high_bits] = [config.cr_bits as u32, (config.cr_bits >> 32) as u32];
+    if low_mask != 0 {
+        port.crl()
+            .modify(|r, w| unsafe { w.bits(r.bits() & !low_mask | low_bits) });
+    }
+    if high_mask != 0 {
+        port.crh()
+            .modify(|r, w| unsafe { w.bits(r.bits() & !high_mask | high_bits) });
+    }
 }
 
 /// The wheel's A/B inputs and the EXTI controller that signals their edges.
 pub struct WheelInputs {
-    // Owned so that nothing else reconfigures the pins; read through the port register.
-    _a: WheelA,
-    _b: WheelB,
     exti: pac::EXTI,
 }
 
@@ -184,24 +171,45 @@ impl WheelInputs {
     #[inline(always)]
     pub fn levels(&self) -> AbLevels {
         // SAFETY: a read of GPIOB's input data register, which is read-only and has no side
-        // effects; the pins' configuration is owned by this struct and not touched here.
+        // effects; GPIOB's writes (LED, at init the pin modes) never touch the wheel's bits.
         let idr = unsafe { (*pac::GPIOB::ptr()).idr().read().bits() };
         AbLevels::new(idr & (1 << WHEEL_A_BIT) != 0, idr & (1 << WHEEL_B_BIT) != 0)
     }
 }
 
+/// The axis and multiplier switches, read as one port.
+pub struct Selectors {
+    port: pac::GPIOA,
+}
+
+impl Selectors {
+    /// The masks of active lines `(axis, multiplier)`, as `handwheel_core::Selector` takes
+    /// them. Never fails; the `Result` matches `handwheel_core::SelectorLines::read`.
+    pub fn read(&mut self) -> Result<(u8, u8), Infallible> {
+        Ok(pins::selector_from_port(self.port.idr().read().bits()))
+    }
+}
+
 /// The CiA 303-3 indicator LEDs.
 pub struct Leds {
-    run: RunLed,
-    err: ErrLed,
+    port_b: pac::GPIOB,
+    port_c: pac::GPIOC,
 }
 
 impl Leds {
     /// Lights (`true`) or darkens each LED.
     pub fn set(&mut self, run: bool, err: bool) {
-        // PC13 sinks the on-board LED's current: low lights it.
-        self.run.set_state(PinState::from(!run));
-        self.err.set_state(PinState::from(err));
+        // BSRR: bit n sets pin n, bit n + 16 clears it; no read-modify-write, so the
+        // wheel's reads of GPIOB never race with it. PC13 sinks the on-board LED's current:
+        // low lights it.
+        let bsrr = |bit: u32, high: bool| if high { 1 << bit } else { 1 << (bit + 16) };
+        // SAFETY (both): one set or clear bit of the LED's own pin.
+        self.port_c
+            .bsrr()
+            .write(|w| unsafe { w.bits(bsrr(pins::RUN_LED_BIT, !run)) });
+        self.port_b
+            .bsrr()
+            .write(|w| unsafe { w.bits(bsrr(pins::ERR_LED_BIT, err)) });
     }
 }
 

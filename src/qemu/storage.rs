@@ -20,7 +20,7 @@ impl RamStorage {
     }
 
     /// Node-ID and bit rate stored with 0x1010 before this boot: never any in RAM.
-    pub fn load(&mut self) -> Option<Stored> {
+    pub fn load(&self) -> Option<Stored<'static>> {
         None
     }
 }

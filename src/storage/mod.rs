@@ -23,11 +23,11 @@ pub use crate::qemu::storage::{DeviceStorage, RamStorage};
 pub use flash::{DeviceStorage, FlashStorage, StoreError, PAGE_ADDRESS, PAGE_OFFSET};
 pub use record::{NodeSettings, BLOB_MAX, RECORD_MAX};
 
-/// What a valid page holds.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Stored {
+/// What a valid page holds, read in place.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stored<'a> {
     /// Node-ID and bit rate stored with 0x1010.
     pub settings: NodeSettings,
     /// The device's parameter blob.
-    pub blob: heapless::Vec<u8, BLOB_MAX>,
+    pub blob: &'a [u8],
 }

@@ -65,14 +65,14 @@ impl defmt::Format for NodeSettings {
     }
 }
 
-/// Writes the record for `settings` and `blob` into `out`; returns its even length, or
-/// `None` when the blob is longer than [`BLOB_MAX`].
+/// Writes the record for `settings` and `blob` into the start of `out`; returns its even
+/// length, or `None` when the blob is longer than [`BLOB_MAX`]. Bytes past the returned
+/// length are left as they were; a pad byte that makes the length even is 0xFF.
 pub fn encode(settings: NodeSettings, blob: &[u8], out: &mut [u8; RECORD_MAX]) -> Option<usize> {
     let blob_len = u16::try_from(blob.len())
         .ok()
         .filter(|&n| usize::from(n) <= BLOB_MAX)?;
     let body = HEADER + blob.len();
-    out.fill(0xFF);
     out[..4].copy_from_slice(&MAGIC);
     out[4] = settings.node_id;
     out[5] = settings.bit_rate.code();
@@ -80,7 +80,12 @@ pub fn encode(settings: NodeSettings, blob: &[u8], out: &mut [u8; RECORD_MAX]) -
     out[HEADER..body].copy_from_slice(blob);
     let crc = crc32(&out[..body]);
     out[body..body + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
-    Some((body + CRC_LEN).next_multiple_of(2))
+    let len = (body + CRC_LEN).next_multiple_of(2);
+    if len > body + CRC_LEN {
+        // The pad byte reads as erased flash.
+        out[len - 1] = 0xFF;
+    }
+    Some(len)
 }
 
 /// Reads a record from the start of `page`: the settings and the device blob, or `None` when

@@ -124,31 +124,36 @@ fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, SdoAbort> {
 
 impl<W: WheelAccess> Application for AppContext<'_, W> {
     fn read(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
+        // Every application object is an integer of 1, 2 or 4 bytes: pick the value and its
+        // size, then copy once (one copy instead of one per object keeps the image small).
         let app = &*self.app;
-        match (index, sub) {
-            (FEED_FORMAT, 0) => put(buf, &[app.parameters.unit_steps as u8]),
-            (ENCODER, 3) => put(buf, &[app.parameters.decoder.counts_per_detent.get()]),
-            (ENCODER, 4) => put(buf, &[app.parameters.decoder.invert as u8]),
-            (FEED_SEQUENCE, 0) => put(buf, &[app.sequence]),
-            (UNIT_STEP, 0) => put(buf, &[app.step_byte]),
-            (FEED_DIAGNOSTICS, 3) => put(buf, &app.parameters.backlog_bound.to_le_bytes()),
+        let (value, size): (u32, usize) = match (index, sub) {
+            (FEED_FORMAT, 0) => (app.parameters.unit_steps.into(), 1),
+            (ENCODER, 3) => (app.parameters.decoder.counts_per_detent.get().into(), 1),
+            (ENCODER, 4) => (app.parameters.decoder.invert.into(), 1),
+            (FEED_SEQUENCE, 0) => (app.sequence.into(), 1),
+            (UNIT_STEP, 0) => (app.step_byte.into(), 1),
+            (FEED_DIAGNOSTICS, 3) => (app.parameters.backlog_bound.into(), 2),
             _ => self.wheel.with_wheel(|w| {
                 let feed = &w.feed;
-                match (index, sub) {
-                    (FEED_ENABLE, 0) => put(buf, &[feed.enabled() as u8]),
-                    (SELECTION, 1) => put(buf, &[Axis::option_value(feed.selection().axis)]),
-                    (SELECTION, 2) => put(buf, &[feed.selection().multiplier.factor()]),
-                    (SELECTION, 3) => put(buf, &[feed.epoch()]),
-                    (ENCODER, 1) => put(buf, &w.decoder.count().to_le_bytes()),
-                    (ENCODER, 2) => put(buf, &w.decoder.illegal_transitions().to_le_bytes()),
-                    (FEED_STATUS, 0) => put(buf, &[feed.status().bits()]),
-                    (FEED_DIAGNOSTICS, 1) => put(buf, &feed.ignored_detents().to_le_bytes()),
-                    (FEED_DIAGNOSTICS, 2) => put(buf, &feed.dropped_steps().to_le_bytes()),
-                    (POSITION_VALUE, 0) => put(buf, &feed.position().to_le_bytes()),
-                    _ => Err(SdoAbort::NoObject),
-                }
-            }),
-        }
+                Ok(match (index, sub) {
+                    (FEED_ENABLE, 0) => (feed.enabled().into(), 1),
+                    (SELECTION, 1) => (Axis::option_value(feed.selection().axis).into(), 1),
+                    (SELECTION, 2) => (feed.selection().multiplier.factor().into(), 1),
+                    (SELECTION, 3) => (feed.epoch().into(), 1),
+                    // Two's complement bytes of the signed objects, as CiA 301 sends them.
+                    (ENCODER, 1) => (w.decoder.count() as u32, 4),
+                    (ENCODER, 2) => (w.decoder.illegal_transitions(), 4),
+                    (FEED_STATUS, 0) => (feed.status().bits().into(), 1),
+                    (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
+                    (FEED_DIAGNOSTICS, 2) => (feed.dropped_steps(), 4),
+                    (POSITION_VALUE, 0) => (feed.position() as u32, 4),
+                    _ => return Err(SdoAbort::NoObject),
+                })
+            })?,
+        };
+        let bytes = value.to_le_bytes();
+        put(buf, &bytes[..size])
     }
 
     fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
