@@ -12,7 +12,8 @@ Every executed instruction goes through `cycles.CycleCounter`; every handler cal
 an `Invocation` with its instruction count, cycle estimate and stack depth. Nested
 preemption is not emulated: a handler pended by another runs after it. Stack depths are
 measured per handler from its own frame, so the worst case is composed from them (see
-`bench.py`).
+`bench.py`). After every MSR/CPS in a handler the machine also checks whether PRIMASK or
+BASEPRI now hold off a chosen interrupt (`mask_priority`) and keeps the longest such stretch.
 """
 
 from __future__ import annotations
@@ -379,7 +380,7 @@ class Machine:
             self.longest_mask = (
                 length,
                 self.counter.instructions - instructions,
-                self.current.name,
+                f"{self.current.name} (during: {self.current.label})",
                 address,
             )
 
