@@ -1,5 +1,6 @@
-//! The Python environment of the interop suite: a venv in `target/interop-venv` made from
-//! `tests/interop/requirements.txt` (pinned python-can, canopen, pyserial, pytest).
+//! The Python environments: the interop suite's venv in `target/interop-venv` made from
+//! `tests/interop/requirements.txt` (pinned python-can, canopen, pyserial, pytest), and any
+//! other pinned requirements file through [`ensure_from`] (the machine benchmark's).
 //!
 //! The venv is rebuilt only when the requirements file or the interpreter changes: a stamp
 //! file in the venv records a hash of both, and is written last, so an interrupted install
@@ -79,8 +80,13 @@ fn run(cmd: &mut Command) -> Result<(), String> {
 /// Creates or refreshes the venv at `venv` from `<root>/tests/interop/requirements.txt`;
 /// returns the venv's interpreter. Does nothing when the stamp matches.
 pub fn ensure(root: &Path, venv: &Path) -> Result<PathBuf, String> {
-    let requirements = root.join(REQUIREMENTS);
-    let pinned = std::fs::read(&requirements)
+    ensure_from(&root.join(REQUIREMENTS), venv)
+}
+
+/// Creates or refreshes the venv at `venv` from the pinned `requirements` file; returns the
+/// venv's interpreter. Does nothing when the stamp matches.
+pub fn ensure_from(requirements: &Path, venv: &Path) -> Result<PathBuf, String> {
+    let pinned = std::fs::read(requirements)
         .map_err(|e| format!("cannot read {}: {e}", requirements.display()))?;
     let base = base_python()?;
     let version = interpreter_version(&base);
@@ -118,7 +124,7 @@ pub fn ensure(root: &Path, venv: &Path) -> Result<PathBuf, String> {
             "--quiet",
             "-r",
         ])
-        .arg(&requirements))?;
+        .arg(requirements))?;
     std::fs::write(&stamp_path, stamp)
         .map_err(|e| format!("cannot write {}: {e}", stamp_path.display()))?;
     Ok(python)

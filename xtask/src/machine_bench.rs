@@ -1,0 +1,359 @@
+//! The machine benchmark (`tools/machine-bench`): the release firmware's machine code in an
+//! instruction-level emulator (Python `unicorn`), for the CPU cost of the wheel's edge
+//! interrupt and of the SDO path, and for the worst-case stack depth.
+//!
+//! The Python side runs in its own venv (`target/machine-bench-venv`, from
+//! `tools/machine-bench/requirements.txt`), first its unit tests, then the benchmark. The
+//! benchmark prints the CPU figures itself and writes the stack figures to a small
+//! tab-separated file that this module parses, prints and checks against the stack budget.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::pyenv;
+
+/// The pinned requirements, relative to the workspace root.
+const REQUIREMENTS: &str = "tools/machine-bench/requirements.txt";
+/// The benchmark's folder (its unit tests are `test_*.py` there).
+const DIR: &str = "tools/machine-bench";
+/// The benchmark script.
+const SCRIPT: &str = "tools/machine-bench/bench.py";
+
+/// The venv folder below the target directory.
+fn venv_dir(target_dir: &Path) -> PathBuf {
+    target_dir.join("machine-bench-venv")
+}
+
+/// One preemption level: its NVIC priority byte, its deepest handler and that handler's
+/// stack use (bytes below the exception frame).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Level {
+    /// Hardware priority byte (0 = most urgent; SysTick keeps 0).
+    pub priority: u8,
+    /// The handler that went deepest.
+    pub handler: String,
+    /// Its stack use in bytes, without the exception frame.
+    pub depth: u32,
+    /// Every handler at this priority.
+    pub handlers: Vec<String>,
+}
+
+/// The stack figures the benchmark measured.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StackReport {
+    /// Deepest thread-mode use (init, idle).
+    pub thread: u32,
+    /// Each preemption level, most urgent first.
+    pub levels: Vec<Level>,
+    /// Bytes the hardware stacks per exception, alignment included.
+    pub frame: u32,
+    /// Thread mode plus every level's deepest handler and frame.
+    pub total: u32,
+    /// The lowest SP seen in the run, as bytes below the top of the stack.
+    pub lowest: u32,
+    /// The deepest word of the painted stack that was overwritten, same measure.
+    pub painted: u32,
+    /// Room between the end of static RAM and the top of RAM.
+    pub region: u32,
+}
+
+fn number(field: Option<&str>, line: &str) -> Result<u32, String> {
+    field
+        .and_then(|f| f.trim().parse().ok())
+        .ok_or_else(|| format!("bad number in stack report line `{line}`"))
+}
+
+impl StackReport {
+    /// Parses the benchmark's report: `key<TAB>value` lines, `level` lines with priority,
+    /// deepest handler, depth and the comma-separated handlers of the level.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let mut report = StackReport {
+            thread: 0,
+            levels: Vec::new(),
+            frame: 0,
+            total: 0,
+            lowest: 0,
+            painted: 0,
+            region: 0,
+        };
+        let mut seen = Vec::new();
+        for line in text.lines().filter(|l| !l.trim().is_empty()) {
+            let mut fields = line.split('\t');
+            let key = fields.next().unwrap_or_default();
+            if key == "level" {
+                let priority = number(fields.next(), line)?;
+                let priority = u8::try_from(priority)
+                    .map_err(|_| format!("priority out of range in `{line}`"))?;
+                let handler = fields
+                    .next()
+                    .filter(|h| !h.is_empty())
+                    .ok_or_else(|| format!("no handler in `{line}`"))?
+                    .to_string();
+                let depth = number(fields.next(), line)?;
+                let handlers = fields
+                    .next()
+                    .unwrap_or_default()
+                    .split(',')
+                    .filter(|h| !h.is_empty())
+                    .map(str::to_string)
+                    .collect();
+                report.levels.push(Level {
+                    priority,
+                    handler,
+                    depth,
+                    handlers,
+                });
+                continue;
+            }
+            let value = number(fields.next(), line)?;
+            let slot = match key {
+                "thread" => &mut report.thread,
+                "frame" => &mut report.frame,
+                "total" => &mut report.total,
+                "lowest" => &mut report.lowest,
+                "painted" => &mut report.painted,
+                "region" => &mut report.region,
+                other => return Err(format!("unknown key `{other}` in the stack report")),
+            };
+            *slot = value;
+            seen.push(key.to_string());
+        }
+        for key in ["thread", "frame", "total", "region"] {
+            if !seen.iter().any(|k| k == key) {
+                return Err(format!("the stack report has no `{key}` line"));
+            }
+        }
+        if report.levels.is_empty() {
+            return Err("the stack report lists no preemption level".into());
+        }
+        let sum = report.thread
+            + report
+                .levels
+                .iter()
+                .map(|l| l.depth + report.frame)
+                .sum::<u32>();
+        if sum != report.total {
+            return Err(format!(
+                "the stack report's total {} is not the sum of its parts {sum}",
+                report.total
+            ));
+        }
+        Ok(report)
+    }
+
+    /// The table `cargo xtask` prints, with the headroom against `budget`.
+    pub fn render(&self, budget: u32) -> String {
+        let mut out = String::from(
+            "xtask: worst-case stack of the release firmware (machine benchmark; each \
+             preemption level's deepest handler stacked on thread mode)\n",
+        );
+        let _ = writeln!(
+            out,
+            "  thread mode (init, idle)          {:>6} B",
+            self.thread
+        );
+        for level in &self.levels {
+            let name = if level.priority == 0 {
+                "reset priority".to_string()
+            } else {
+                // RTIC's logical priority for 4 NVIC priority bits.
+                format!("priority {}", 16 - u32::from(level.priority >> 4))
+            };
+            let _ = writeln!(
+                out,
+                "  {name:<14} {:<18} {:>6} B + {} B frame   ({})",
+                level.handler,
+                level.depth,
+                self.frame,
+                level.handlers.join(", ")
+            );
+        }
+        let _ = writeln!(
+            out,
+            "  total {:>6} B of the {budget} B stack budget, headroom {} B (room below static \
+             RAM: {} B)",
+            self.total,
+            i64::from(budget) - i64::from(self.total),
+            self.region
+        );
+        let _ = writeln!(
+            out,
+            "  this run's deepest point: SP {} B below the top, painted stack overwritten to {} B",
+            self.lowest, self.painted
+        );
+        out
+    }
+
+    /// Errors when the worst case is over `budget` or the stack region, or when the painted
+    /// stack contradicts the SP measurement (a write below the lowest SP seen).
+    pub fn check(&self, budget: u32) -> Result<(), String> {
+        if self.total > budget {
+            return Err(format!(
+                "worst-case stack {} B is over the {budget} B budget",
+                self.total
+            ));
+        }
+        if self.total > self.region {
+            return Err(format!(
+                "worst-case stack {} B does not fit the {} B between static RAM and the top",
+                self.total, self.region
+            ));
+        }
+        if self.painted > self.lowest {
+            return Err(format!(
+                "the painted stack was written {} B deep, below the lowest SP seen ({} B): \
+                 the SP tracking missed something",
+                self.painted, self.lowest
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Runs the benchmark's unit tests and the benchmark on `elf`; returns the stack figures.
+/// `quiet` prints a one-line CPU summary instead of the full report.
+pub fn run(root: &Path, target_dir: &Path, elf: &Path, quiet: bool) -> Result<StackReport, String> {
+    let python = pyenv::ensure_from(&root.join(REQUIREMENTS), &venv_dir(target_dir))?;
+    let mut unit = Command::new(&python);
+    unit.args([
+        "-m",
+        "unittest",
+        "discover",
+        "-q",
+        "-s",
+        DIR,
+        "-p",
+        "test_*.py",
+    ])
+    .current_dir(root);
+    run_command(&mut unit, "the machine benchmark's unit tests")?;
+    let out_dir = target_dir.join("machine-bench");
+    std::fs::create_dir_all(&out_dir)
+        .map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
+    let report_path = out_dir.join("stack.tsv");
+    let _ = std::fs::remove_file(&report_path);
+    let mut bench = Command::new(&python);
+    bench
+        .arg(SCRIPT)
+        .arg(elf)
+        .arg("--stack-report")
+        .arg(&report_path)
+        .current_dir(root);
+    if quiet {
+        bench.arg("--quiet");
+    }
+    run_command(&mut bench, "the machine benchmark")?;
+    let text = std::fs::read_to_string(&report_path)
+        .map_err(|e| format!("cannot read {}: {e}", report_path.display()))?;
+    StackReport::parse(&text)
+}
+
+fn run_command(cmd: &mut Command, what: &str) -> Result<(), String> {
+    eprintln!("xtask: {cmd:?}");
+    let status = cmd
+        .status()
+        .map_err(|e| format!("cannot run {what}: {e}"))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{what} failed ({status})"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SAMPLE: &str = "thread\t1152\n\
+        level\t0\tSysTick\t40\tSysTick\n\
+        level\t192\tEXTI9_5\t24\tEXTI9_5\n\
+        level\t208\tUSB_LP_CAN_RX0\t208\tCAN_SCE,USB_HP_CAN_TX,USB_LP_CAN_RX0\n\
+        level\t224\tTIM3\t1464\tTIM3\n\
+        level\t240\tTIM2\t80\tTIM2\n\
+        frame\t36\n\
+        total\t3148\n\
+        lowest\t1504\n\
+        painted\t1244\n\
+        region\t18172\n";
+
+    #[test]
+    fn parses_the_benchmark_report() {
+        let report = StackReport::parse(SAMPLE).unwrap();
+        assert_eq!(report.thread, 1152);
+        assert_eq!(report.levels.len(), 5);
+        assert_eq!(
+            report.levels[2],
+            Level {
+                priority: 208,
+                handler: "USB_LP_CAN_RX0".into(),
+                depth: 208,
+                handlers: vec![
+                    "CAN_SCE".into(),
+                    "USB_HP_CAN_TX".into(),
+                    "USB_LP_CAN_RX0".into()
+                ],
+            }
+        );
+        assert_eq!(report.frame, 36);
+        assert_eq!(report.total, 3148);
+        assert_eq!(report.lowest, 1504);
+        assert_eq!(report.painted, 1244);
+        assert_eq!(report.region, 18172);
+    }
+
+    #[test]
+    fn rejects_a_total_that_is_not_the_sum() {
+        let text = SAMPLE.replace("total\t3148", "total\t3000");
+        let error = StackReport::parse(&text).unwrap_err();
+        assert!(error.contains("3000"), "{error}");
+        assert!(error.contains("3148"), "{error}");
+    }
+
+    #[test]
+    fn rejects_missing_and_unknown_lines() {
+        let no_region = SAMPLE.replace("region\t18172\n", "");
+        assert!(StackReport::parse(&no_region)
+            .unwrap_err()
+            .contains("region"));
+        let unknown = format!("{SAMPLE}heap\t12\n");
+        assert!(StackReport::parse(&unknown).unwrap_err().contains("heap"));
+        let no_levels: String = SAMPLE
+            .lines()
+            .filter(|l| !l.starts_with("level"))
+            .map(|l| format!("{l}\n"))
+            .collect::<String>()
+            .replace("total\t3148", "total\t1152");
+        assert!(StackReport::parse(&no_levels)
+            .unwrap_err()
+            .contains("no preemption level"));
+    }
+
+    #[test]
+    fn checks_the_budget_and_the_paint() {
+        let report = StackReport::parse(SAMPLE).unwrap();
+        assert_eq!(report.check(4096), Ok(()));
+        assert_eq!(report.check(3148), Ok(()));
+        let over = report.check(3147).unwrap_err();
+        assert!(over.contains("3148 B is over the 3147 B budget"), "{over}");
+        let mut bad_paint = report.clone();
+        bad_paint.painted = 1600;
+        assert!(bad_paint.check(4096).unwrap_err().contains("painted"));
+        let mut no_room = report;
+        no_room.region = 3000;
+        assert!(no_room.check(4096).unwrap_err().contains("3000"));
+    }
+
+    #[test]
+    fn renders_levels_and_headroom() {
+        let text = StackReport::parse(SAMPLE).unwrap().render(4096);
+        assert!(text.contains("reset priority"), "{text}");
+        assert!(text.contains("priority 4"), "{text}");
+        assert!(text.contains("priority 1"), "{text}");
+        assert!(text.contains("headroom 948 B"), "{text}");
+        assert!(
+            text.contains("CAN_SCE, USB_HP_CAN_TX, USB_LP_CAN_RX0"),
+            "{text}"
+        );
+    }
+}
