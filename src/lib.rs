@@ -38,6 +38,7 @@ pub use qemu::board;
 pub mod can;
 pub mod clock;
 pub mod events;
+mod mem;
 pub mod node_config;
 mod panic;
 #[cfg(feature = "qemu")]

@@ -3,6 +3,7 @@
 //! | task | runs on | priority | shares |
 //! |---|---|---|---|
 //! | `wheel_edge` | EXTI9_5 (wheel A/B, both edges) | 4 | `wheel` |
+//! | `feed_due` | TIM2 vector, pended by `wheel_edge` | 3 | - |
 //! | `can_rx0` | USB_LP_CAN_RX0 | 3 | `can` |
 //! | `can_tx` | USB_HP_CAN_TX | 3 | `can` |
 //! | `can_sce` | CAN_SCE | 3 | `can` |
@@ -50,7 +51,7 @@ mod app {
     use canopen_slave::{
         emcy::register, indicators as indicator_leds, ErrorIndication, Instant, NodeId,
     };
-    use defmt::{info, unwrap};
+    use defmt::info;
     use handwheel_core::{
         DecoderConfig, Handwheel, Selector, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
     };
@@ -65,7 +66,7 @@ mod app {
         clock::{self, WideClock},
         events::EventSet,
         node_config,
-        storage::DeviceStorage,
+        storage::{DeviceStorage, NodeSettings},
         supervision::Supervision,
         wheel::SharedWheel,
     };
@@ -81,6 +82,18 @@ mod app {
     /// Watchdog timeout: several missed rounds of the CAN-side task, longer than a flash
     /// page erase (up to 40 ms).
     const WATCHDOG_MS: u32 = 500;
+
+    /// The axis and multiplier debouncer: 4 equal samples, 5 ms apart.
+    const SELECTOR: Selector = match Selector::new(DEFAULT_DEBOUNCE_SAMPLES) {
+        Some(selector) => selector,
+        None => panic!("the default debounce count is valid"),
+    };
+
+    /// The factory node-ID, as a checked `NodeId`.
+    const DEFAULT_NODE_ID: NodeId = match NodeId::new(NodeSettings::DEFAULT.node_id) {
+        Ok(id) => id,
+        Err(_) => panic!("the default node-ID is valid"),
+    };
 
     /// The CANopen handwheel with its parameter page.
     type Device = HandwheelDevice<DeviceStorage>;
@@ -102,7 +115,6 @@ mod app {
         rx_producer: RxProducer,
         rx_consumer: RxConsumer,
         selectors: Selectors,
-        selector: Selector,
         leds: Leds,
         watchdog: board::watchdog::Watchdog,
     }
@@ -116,29 +128,29 @@ mod app {
         let (settings, source) = node_config::select(board.dip, stored);
         let serial = handwheel_firmware::serial_number(board.unique_id);
         info!(
-            "boot: node-ID {=u8}, {=u32} kbit/s ({}, DIP {=u8:#04x}), reset cause {}",
+            "boot: node-ID {=u8}, {=u32} kbit/s ({}, DIP {=u8:#04x}), reset cause {}, \
+             serial number {=u32:#010x}",
             settings.node_id,
             settings.bit_rate.kbit_per_second(),
             source,
             board.dip,
-            board.reset_cause
+            board.reset_cause,
+            serial
         );
-        info!(
-            "serial number {=u32:#010x} (unique ID {=u32:08x}{=u32:08x}{=u32:08x})",
-            serial, board.unique_id[2], board.unique_id[1], board.unique_id[0]
-        );
-        // `node_config` only yields node-IDs 1..=127.
-        let node_id = unwrap!(NodeId::new(settings.node_id).ok());
+        // `node_config` only yields node-IDs 1..=127 (`NodeSettings::from_parts` checks
+        // stored ones), so the fallback is never taken.
+        let node_id = NodeId::new(settings.node_id).unwrap_or(DEFAULT_NODE_ID);
         let device =
             HandwheelDevice::new(node_id, serial, DeviceStorage::new(board.storage, settings));
 
         let can = can::start(board.can, settings.bit_rate, settings.node_id, Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         let wheel = Handwheel::new(DecoderConfig::default(), board.wheel.levels());
-        let selector = unwrap!(Selector::new(DEFAULT_DEBOUNCE_SAMPLES));
 
         board.watchdog.start(WATCHDOG_MS);
-        unwrap!(canopen::spawn());
+        // The first spawn of a task cannot fail. Were it ever to, nothing would feed the
+        // watchdog started above, and the MCU would reset.
+        let _ = canopen::spawn();
 
         (
             Shared {
@@ -151,7 +163,6 @@ mod app {
                 rx_producer,
                 rx_consumer,
                 selectors: board.selectors,
-                selector,
                 leds: board.leds,
                 watchdog: board.watchdog,
             },
@@ -171,14 +182,23 @@ mod app {
     ///
     /// The highest priority, so the wheel's lock is free here and nothing delays the read
     /// beyond SysTick. The CAN side's locks of `wheel` hold this task off for at most one
-    /// short object access. It wakes `canopen` only when a detent (or a status change) makes
-    /// a feed frame due.
+    /// short object access. When a detent (or a status change) makes a feed frame due, it
+    /// only pends `feed_due`: one store to the NVIC instead of waking the async task from
+    /// here, which would cost this handler more than the decoding itself.
     #[task(binds = EXTI9_5, priority = 4, local = [wheel_inputs], shared = [wheel])]
     fn wheel_edge(mut cx: wheel_edge::Context) {
         let levels = cx.local.wheel_inputs.acknowledge_edge();
         if cx.shared.wheel.lock(|wheel| wheel.on_edge(levels)) {
-            EVENTS.raise(EventSet::FEED_DUE);
+            rtic::pend(stm32f1xx_hal::pac::Interrupt::TIM2);
         }
+    }
+
+    /// Wakes `canopen` for a feed frame. Runs on TIM2's vector (the timer itself is unused),
+    /// pended by `wheel_edge`; below the wheel's priority, so an edge preempts it, and above
+    /// `canopen`'s, so the wake-up is immediate. Several edges before it runs cost one wake.
+    #[task(binds = TIM2, priority = 3)]
+    fn feed_due(_: feed_due::Context) {
+        EVENTS.raise(EventSet::FEED_DUE);
     }
 
     /// Receive FIFO 0 has frames: move them to the receive queue for `canopen`.
@@ -226,7 +246,7 @@ mod app {
             rx_consumer,
             watchdog,
             selectors,
-            selector,
+            selector: Selector = SELECTOR,
             leds,
             supervision: Supervision = Supervision::new(),
             clock: WideClock = WideClock::new(),

@@ -31,12 +31,12 @@ impl Supervision {
         let (state, counters) = bus::read_status();
         let event = bus::transition(self.bus, state);
         match event {
-            Some(BusEvent::BusOff | BusEvent::ErrorPassive) => {
-                defmt::error!("CAN {}: {}", event, counters)
+            Some(e @ (BusEvent::BusOff | BusEvent::ErrorPassive)) => {
+                defmt::error!("CAN {}: {}", e, counters)
             }
-            Some(BusEvent::WarningLimit) => defmt::warn!("CAN {}: {}", event, counters),
-            Some(BusEvent::ErrorActiveAgain | BusEvent::BusOffRecovered) => {
-                defmt::info!("CAN {}: {}", event, counters)
+            Some(e @ BusEvent::WarningLimit) => defmt::warn!("CAN {}: {}", e, counters),
+            Some(e @ (BusEvent::ErrorActiveAgain | BusEvent::BusOffRecovered)) => {
+                defmt::info!("CAN {}: {}", e, counters)
             }
             None => {}
         }
