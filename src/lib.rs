@@ -14,7 +14,9 @@
 //! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
 //! - [`wheel`]: the CAN side's locked access to the shared wheel.
 //!
-//! Linking this crate also brings the panic handler (location to the defmt log, then UDF).
+//! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
+//! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' 1 KiB
+//! word-wise one to keep the image inside its flash budget).
 //!
 //! Board variants (Cargo features, exactly one): `board` (default) builds the glue above
 //! for the STM32F103C8; `qemu` builds the same application for `qemu-system-arm -M
