@@ -9,7 +9,9 @@
 //! - [`can`]: bxCAN bit timing, filters, transmit queue, receive draining, error state.
 //! - [`clock`]: the device's 64-bit microsecond clock from the 32-bit tick count.
 //! - [`storage`]: the parameter page in flash (0x1010/0x1011).
-//! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters.
+//! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters
+//!   (re-exported from the host-tested `handwheel-device`, like the record layout in
+//!   `storage::record`).
 //! - [`events`]: interrupt-to-task wake-ups.
 //! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
 //! - [`wheel`]: the CAN side's locked access to the shared wheel.
@@ -41,7 +43,7 @@ pub mod can;
 pub mod clock;
 pub mod events;
 mod mem;
-pub mod node_config;
+pub use handwheel_device::node_config;
 mod panic;
 #[cfg(feature = "qemu")]
 pub mod qemu;

@@ -15,7 +15,7 @@
 
 #[cfg(not(feature = "qemu"))]
 mod flash;
-pub mod record;
+pub use handwheel_device::record;
 
 #[cfg(feature = "qemu")]
 pub use crate::qemu::storage::{DeviceStorage, RamStorage};

@@ -12,10 +12,11 @@
 
 use handwheel_core::BitRate;
 
-use crate::storage::NodeSettings;
+use crate::record::NodeSettings;
 
 /// Where the settings in force came from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Source {
     /// Node-ID and bit rate from the DIP switch.
     Dip,

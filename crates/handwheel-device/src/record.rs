@@ -1,4 +1,6 @@
-//! The byte layout of the parameter page. Pure functions, no flash access.
+//! The byte layout of the firmware's parameter page (0x1010 store): node-ID, bit rate and
+//! the device's blob under a CRC-32. Pure functions, no flash access: the board's flash glue
+//! erases and programs, this module decides what the bytes mean.
 //!
 //! ```text
 //! offset  size  field
@@ -54,6 +56,7 @@ impl NodeSettings {
     }
 }
 
+#[cfg(feature = "defmt")]
 impl defmt::Format for NodeSettings {
     fn format(&self, f: defmt::Formatter) {
         defmt::write!(

@@ -1,0 +1,195 @@
+//! The stored parameter record and the boot-time choice of node-ID and bit rate.
+//!
+//! The record comes back from flash, which may hold anything (erased, half-written, damaged,
+//! another layout): decoding must refuse all of it rather than guess, and never panic.
+
+use handwheel_core::BitRate;
+use handwheel_device::node_config::{select, Source};
+use handwheel_device::record::{crc32, decode, encode, NodeSettings, BLOB_MAX, RECORD_MAX};
+use proptest::prelude::*;
+
+const SETTINGS: NodeSettings = NodeSettings {
+    node_id: 42,
+    bit_rate: BitRate::Kbit250,
+};
+
+fn encoded(settings: NodeSettings, blob: &[u8]) -> Vec<u8> {
+    let mut out = [0u8; RECORD_MAX];
+    let len = encode(settings, blob, &mut out).expect("blob fits");
+    out[..len].to_vec()
+}
+
+#[test]
+fn crc32_is_the_ieee_one() {
+    // The standard check value of CRC-32/ISO-HDLC (zlib, Ethernet).
+    assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
+    assert_eq!(crc32(b""), 0);
+}
+
+#[test]
+fn the_layout_is_the_documented_one() {
+    let bytes = encoded(SETTINGS, &[0xA5, 0x01, 0x02]);
+    // 8 header + 3 blob + 4 CRC = 15, padded to 16 with 0xFF.
+    assert_eq!(bytes.len(), 16);
+    assert_eq!(&bytes[..4], b"HWP1");
+    assert_eq!(bytes[4], 42);
+    assert_eq!(bytes[5], BitRate::Kbit250.code());
+    assert_eq!(&bytes[6..8], &[3, 0]);
+    assert_eq!(&bytes[8..11], &[0xA5, 0x01, 0x02]);
+    assert_eq!(&bytes[11..15], &crc32(&bytes[..11]).to_le_bytes());
+    assert_eq!(bytes[15], 0xFF);
+}
+
+#[test]
+fn an_even_record_has_no_pad_byte() {
+    assert_eq!(encoded(SETTINGS, &[1, 2]).len(), 14);
+    assert_eq!(encoded(SETTINGS, &[]).len(), 12);
+    assert_eq!(encoded(SETTINGS, &[0; BLOB_MAX]).len(), RECORD_MAX);
+}
+
+#[test]
+fn an_oversized_blob_is_refused() {
+    let mut out = [0u8; RECORD_MAX];
+    assert_eq!(encode(SETTINGS, &[0; BLOB_MAX + 1], &mut out), None);
+}
+
+#[test]
+fn an_erased_or_short_page_holds_nothing() {
+    assert_eq!(decode(&[0xFF; 1024]), None);
+    assert_eq!(decode(&[0x00; 1024]), None);
+    assert_eq!(decode(&encoded(SETTINGS, &[1, 2, 3])[..10]), None);
+    assert_eq!(decode(&[]), None);
+}
+
+#[test]
+fn a_record_with_a_valid_crc_but_impossible_settings_is_refused() {
+    for (node_id, code) in [(0u8, 0u8), (128, 0), (255, 0), (16, 8)] {
+        let mut bytes = encoded(SETTINGS, &[]);
+        bytes[4] = node_id;
+        bytes[5] = code;
+        let crc = crc32(&bytes[..8]).to_le_bytes();
+        bytes[8..12].copy_from_slice(&crc);
+        assert_eq!(decode(&bytes), None, "node {node_id} code {code}");
+    }
+}
+
+#[test]
+fn a_blob_length_beyond_the_maximum_is_refused() {
+    let mut bytes = vec![0xFF; 1024];
+    bytes[..8].copy_from_slice(b"HWP1\x10\x00\x01\x01"); // 257 bytes of blob
+    let crc = crc32(&bytes[..8 + 257]).to_le_bytes();
+    bytes[8 + 257..8 + 261].copy_from_slice(&crc);
+    assert_eq!(decode(&bytes), None);
+}
+
+#[test]
+fn dip_all_off_uses_the_stored_settings_or_the_default() {
+    assert_eq!(select(0, Some(SETTINGS)), (SETTINGS, Source::Stored));
+    assert_eq!(
+        select(0, None),
+        (
+            NodeSettings {
+                node_id: 16,
+                bit_rate: BitRate::Kbit1000
+            },
+            Source::Default
+        )
+    );
+}
+
+#[test]
+fn dip_node_switches_set_the_node_id_and_rate_switches_the_rate() {
+    // Switches 1 and 3 on (node 5), switch 7 on (code 2 = 500 kbit/s).
+    let dip = 0b0100_0101;
+    assert_eq!(
+        select(dip, Some(SETTINGS)),
+        (
+            NodeSettings {
+                node_id: 5,
+                bit_rate: BitRate::Kbit500
+            },
+            Source::Dip
+        )
+    );
+    // Node switches off, switch 6 on (code 1 = 800 kbit/s): stored node-ID at that rate.
+    assert_eq!(
+        select(0b0010_0000, Some(SETTINGS)),
+        (
+            NodeSettings {
+                node_id: 42,
+                bit_rate: BitRate::Kbit800
+            },
+            Source::DipBitRate
+        )
+    );
+    assert_eq!(
+        select(0b0010_0000, None).0,
+        NodeSettings {
+            node_id: 16,
+            bit_rate: BitRate::Kbit800
+        }
+    );
+}
+
+fn any_settings() -> impl Strategy<Value = NodeSettings> {
+    (1u8..=127, 0u8..=7).prop_map(|(node_id, code)| NodeSettings {
+        node_id,
+        bit_rate: BitRate::from_code(code),
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    #[test]
+    fn records_round_trip(
+        settings in any_settings(),
+        blob in proptest::collection::vec(any::<u8>(), 0..=BLOB_MAX),
+        page_tail in any::<u8>(),
+    ) {
+        let mut page = encoded(settings, &blob);
+        // Whatever follows the record on the page does not matter.
+        page.resize(1024, page_tail);
+        prop_assert_eq!(decode(&page), Some((settings, &blob[..])));
+    }
+
+    #[test]
+    fn any_damage_to_a_record_is_detected(
+        settings in any_settings(),
+        blob in proptest::collection::vec(any::<u8>(), 0..=32),
+        at in any::<prop::sample::Index>(),
+        flip in 1u8..=255,
+    ) {
+        let mut bytes = encoded(settings, &blob);
+        // Only the bytes the CRC covers or holds; a pad byte is not part of the record.
+        let covered = 8 + blob.len() + 4;
+        bytes[at.index(covered)] ^= flip;
+        prop_assert_eq!(decode(&bytes), None);
+    }
+
+    #[test]
+    fn decoding_arbitrary_bytes_never_panics_and_only_accepts_valid_settings(
+        page in proptest::collection::vec(any::<u8>(), 0..300),
+    ) {
+        if let Some((settings, blob)) = decode(&page) {
+            prop_assert!((1..=127).contains(&settings.node_id));
+            prop_assert!(blob.len() <= BLOB_MAX);
+        }
+    }
+
+    #[test]
+    fn the_node_id_in_force_is_always_valid(dip in any::<u8>(), stored in proptest::option::of(any_settings())) {
+        let (settings, source) = select(dip, stored);
+        prop_assert!((1..=127).contains(&settings.node_id));
+        let expected_source = match (dip, dip & 0x1F, stored) {
+            (0, _, Some(_)) => Source::Stored,
+            (0, _, None) => Source::Default,
+            (_, 0, _) => Source::DipBitRate,
+            _ => Source::Dip,
+        };
+        prop_assert_eq!(source, expected_source);
+        if dip != 0 {
+            prop_assert_eq!(settings.bit_rate, BitRate::from_code(dip >> 5));
+        }
+    }
+}
