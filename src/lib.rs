@@ -7,7 +7,6 @@
 //!
 //! - [`board`]: clocks, the pin map, wheel and switch inputs, LEDs, reset cause, unique ID.
 //! - [`can`]: bxCAN bit timing, filters, transmit queue, receive draining, error state.
-//! - [`clock`]: the device's 64-bit microsecond clock from the 32-bit tick count.
 //! - [`storage`]: the parameter page in flash (0x1010/0x1011).
 //! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters
 //!   (re-exported from the host-tested `handwheel-device`, like the record layout in
@@ -40,7 +39,6 @@ pub mod board;
 #[cfg(feature = "qemu")]
 pub use qemu::board;
 pub mod can;
-pub mod clock;
 pub mod events;
 mod mem;
 pub use handwheel_device::node_config;

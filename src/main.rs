@@ -49,7 +49,7 @@ mod app {
     use super::{Mono, EVENTS};
 
     use canopen_slave::{
-        emcy::register, indicators as indicator_leds, ErrorIndication, Instant, NodeId,
+        indicators as indicator_leds, sleep_ms, Instant, NodeId, Periodic, WideClock,
     };
     use defmt::info;
     use handwheel_core::{
@@ -58,12 +58,7 @@ mod app {
     use handwheel_device::HandwheelDevice;
     use handwheel_firmware::{
         board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
-        can::{
-            self,
-            bus::{BusEvent, BusState},
-            CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink,
-        },
-        clock::{self, WideClock},
+        can::{self, bus::BusState, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
         events::EventSet,
         node_config,
         storage::{DeviceStorage, NodeSettings},
@@ -254,28 +249,31 @@ mod app {
         shared = [wheel, can]
     )]
     async fn canopen(cx: canopen::Context) {
-        let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
+        let now = cx.local.clock.now(Mono::now().ticks());
         let device = cx.local.device;
         let mut wheel = SharedWheel(cx.shared.wheel);
         let mut tx = TxSink(cx.shared.can);
         device.start(now, &mut wheel, &mut tx);
-        let mut next_sample = Periodic::new(SAMPLE_PERIOD_MS);
-        let mut next_led = Periodic::new(LED_PERIOD_MS);
+        // Sampling and LED duties: due at once, then every period; a late round is not caught
+        // up in a burst (the debouncer counts samples).
+        let start_ms = Mono::now().ticks();
+        let mut next_sample = Periodic::new(start_ms, SAMPLE_PERIOD_MS);
+        let mut next_led = Periodic::new(start_ms, LED_PERIOD_MS);
         loop {
             cx.local.watchdog.feed();
             let deadline = device.next_deadline();
-            let now = Instant::from_micros(cx.local.clock.now_us(Mono::now().ticks()));
+            let now = cx.local.clock.now(Mono::now().ticks());
             let wake_at = wake_time(cx.local.supervision, now, deadline)
-                .min(next_sample.at)
-                .min(next_led.at);
+                .min(mono_at(next_sample.next_ms()))
+                .min(mono_at(next_led.next_ms()));
             let events = match Mono::timeout_at(wake_at, EVENTS.wait()).await {
                 Ok(events) => events,
                 Err(_timeout) => EVENTS.take(),
             };
-            let ticks = Mono::now();
-            let now = Instant::from_micros(cx.local.clock.now_us(ticks.ticks()));
+            let ticks = Mono::now().ticks();
+            let now = cx.local.clock.now(ticks);
             let selection = if next_sample.is_due(ticks) {
-                let Ok((axis, multiplier)) = cx.local.selectors.read();
+                let (axis, multiplier) = cx.local.selectors.read();
                 cx.local.selector.sample(axis, multiplier)
             } else {
                 None
@@ -297,51 +295,16 @@ mod app {
             supervise(cx.local.supervision, device, &mut wheel, &mut tx.0);
             device.poll(now, &mut wheel, &mut tx);
             if next_led.is_due(ticks) {
-                let bus_error = match cx.local.supervision.bus_state() {
-                    BusState::ErrorActive => ErrorIndication::NoError,
-                    BusState::Warning | BusState::ErrorPassive => ErrorIndication::WarningLimit,
-                    BusState::BusOff => ErrorIndication::BusOff,
-                };
+                let bus_error = cx.local.supervision.bus_state().indication();
                 let error = device.error_indication().max(bus_error);
-                let (run, err) = indicator_leds(device.nmt_state(), error, ticks.ticks());
+                let (run, err) = indicator_leds(device.nmt_state(), error, ticks);
                 cx.local.leds.set(run, err);
             }
         }
     }
 
-    /// A periodic duty of the `canopen` loop (selector sampling, LED update).
-    struct Periodic {
-        at: <Mono as Monotonic>::Instant,
-        period_ms: u32,
-    }
-
-    impl Periodic {
-        /// Due at once, then every `period_ms`.
-        fn new(period_ms: u32) -> Self {
-            Self {
-                at: Mono::now(),
-                period_ms,
-            }
-        }
-
-        /// Whether the duty is due at `now`; if so, schedules the next one. After a late
-        /// round the next one is a full period away, never sooner: the debouncer counts
-        /// samples, so catching up with a burst would shorten the debounce time.
-        fn is_due(&mut self, now: <Mono as Monotonic>::Instant) -> bool {
-            if now < self.at {
-                return false;
-            }
-            self.at += self.period_ms.millis();
-            if self.at <= now {
-                self.at = now + self.period_ms.millis();
-            }
-            true
-        }
-    }
-
-    /// Bus state, lost frames and encoder errors: log them, and raise the EMCYs CiA 301 asks
-    /// for. Error passive is a condition (raised, then cleared); an overrun and a bus-off
-    /// recovery are events (raised and cleared at once: the EMCY, then the error reset).
+    /// Bus state, lost frames and encoder errors: `Supervision` logs the changes, the engine
+    /// decides the EMCYs (`Device::on_bus_event`, `Device::on_rx_overrun`).
     fn supervise(
         supervision: &mut Supervision,
         device: &mut Device,
@@ -349,28 +312,12 @@ mod app {
         can: &mut impl Mutex<T = CanPort>,
     ) {
         let engine = device.engine();
-        let comm = register::COMMUNICATION;
-        let event = |engine: &mut canopen_slave::Device<DeviceStorage>, code| {
-            if engine.raise_error(code, comm, [0; 5]).is_ok() {
-                engine.clear_error(code);
-            }
-        };
-        match supervision.check_bus() {
-            Some(BusEvent::ErrorPassive) => {
-                let _ = engine.raise_error(can::bus::EMCY_CAN_ERROR_PASSIVE, comm, [0; 5]);
-            }
-            Some(BusEvent::ErrorActiveAgain) => {
-                engine.clear_error(can::bus::EMCY_CAN_ERROR_PASSIVE);
-            }
-            Some(BusEvent::BusOffRecovered) => {
-                engine.clear_error(can::bus::EMCY_CAN_ERROR_PASSIVE);
-                event(engine, can::bus::EMCY_BUS_OFF_RECOVERED);
-            }
-            Some(BusEvent::WarningLimit | BusEvent::BusOff) | None => {}
+        if let Some(event) = supervision.check_bus() {
+            engine.on_bus_event(event);
         }
         let stats = can.lock(|can| can.stats());
         if supervision.check_rx_overruns(stats.rx_overruns) {
-            event(engine, can::bus::EMCY_CAN_OVERRUN);
+            engine.on_rx_overrun();
         }
         supervision.check_encoder(wheel.with_wheel(|w| w.decoder.illegal_transitions()));
     }
@@ -388,9 +335,14 @@ mod app {
             _ => can::bus::RECOVERY_POLL_MS,
         };
         let sleep_ms = match deadline {
-            Some(t) => clock::sleep_ms(now.as_micros(), t.as_micros(), max_ms),
+            Some(t) => sleep_ms(now, t, max_ms),
             None => max_ms,
         };
         Mono::now() + sleep_ms.millis()
+    }
+
+    /// The monotonic's instant of tick `ms`.
+    fn mono_at(ms: u32) -> <Mono as Monotonic>::Instant {
+        <Mono as Monotonic>::Instant::from_ticks(ms)
     }
 }

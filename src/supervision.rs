@@ -29,7 +29,7 @@ impl Supervision {
     /// Re-reads the controller's error state; logs and returns a change worth an EMCY.
     pub fn check_bus(&mut self) -> Option<BusEvent> {
         let (state, counters) = bus::read_status();
-        let event = bus::transition(self.bus, state);
+        let event = canopen_slave::bus::transition(self.bus, state);
         match event {
             Some(e @ (BusEvent::BusOff | BusEvent::ErrorPassive)) => {
                 defmt::error!("CAN {}: {}", e, counters)

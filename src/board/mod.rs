@@ -8,8 +8,6 @@
 pub mod pins;
 pub mod watchdog;
 
-use core::convert::Infallible;
-
 use handwheel_core::AbLevels;
 use stm32f1xx_hal::{
     can::Can,
@@ -184,9 +182,9 @@ pub struct Selectors {
 
 impl Selectors {
     /// The masks of active lines `(axis, multiplier)`, as `handwheel_core::Selector` takes
-    /// them. Never fails; the `Result` matches `handwheel_core::SelectorLines::read`.
-    pub fn read(&mut self) -> Result<(u8, u8), Infallible> {
-        Ok(pins::selector_from_port(self.port.idr().read().bits()))
+    /// them.
+    pub fn read(&mut self) -> (u8, u8) {
+        pins::selector_from_port(self.port.idr().read().bits())
     }
 }
 

@@ -1,4 +1,5 @@
-//! bxCAN error state: what the controller reports, and the EMCY it calls for.
+//! bxCAN error state: reading what the controller reports. What a change means (event,
+//! EMCY, ERR LED) is decided by `canopen_slave::bus`.
 //!
 //! The error-state flags live in `CAN_ESR` and bxcan 0.8 has no accessor for them, nor for
 //! the `CAN_IER` bits that turn their changes into the status-change (SCE) interrupt; the
@@ -12,29 +13,10 @@
 #[cfg(not(feature = "qemu"))]
 use stm32f1xx_hal::pac;
 
-/// EMCY error code: CAN overrun, objects lost (CiA 301).
-pub const EMCY_CAN_OVERRUN: u16 = 0x8110;
-/// EMCY error code: CAN in error passive mode (CiA 301).
-pub const EMCY_CAN_ERROR_PASSIVE: u16 = 0x8120;
-/// EMCY error code: recovered from bus-off (CiA 301).
-pub const EMCY_BUS_OFF_RECOVERED: u16 = 0x8140;
+pub use canopen_slave::bus::{BusEvent, BusState};
 
 /// How often the CAN-side task re-reads the error state while it is not error-active.
 pub const RECOVERY_POLL_MS: u32 = 10;
-
-/// Fault confinement state, in order of severity.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, defmt::Format)]
-pub enum BusState {
-    /// Both error counters below 96.
-    ErrorActive,
-    /// An error counter reached the warning limit (96).
-    Warning,
-    /// An error counter passed 127: the node may only send passive error flags.
-    ErrorPassive,
-    /// Transmit error counter passed 255: off the bus until 128 x 11 recessive bits were
-    /// seen (bxCAN's automatic bus-off management, ABOM).
-    BusOff,
-}
 
 /// Error counters and the last error code, for the log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
@@ -106,35 +88,5 @@ pub(super) fn acknowledge_status_change() {
     // task, which holds the CAN port resource.
     unsafe {
         (*pac::CAN::ptr()).msr().write(|w| w.erri().set_bit());
-    }
-}
-
-/// A change of error state worth a log line or an EMCY.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub enum BusEvent {
-    /// Warning limit reached (log, ERR LED single flash).
-    WarningLimit,
-    /// Entered error passive: raise EMCY 0x8120.
-    ErrorPassive,
-    /// Left error passive for error active or warning: clear EMCY 0x8120.
-    ErrorActiveAgain,
-    /// Went bus-off: nothing can be sent; ERR LED on.
-    BusOff,
-    /// Back on the bus after bus-off: EMCY 0x8140, and 0x8120 is over too.
-    BusOffRecovered,
-}
-
-/// The event for a change of error state from `from` to `to`, if any.
-pub const fn transition(from: BusState, to: BusState) -> Option<BusEvent> {
-    use BusState::*;
-    match (from, to) {
-        (BusOff, BusOff) => None,
-        (_, BusOff) => Some(BusEvent::BusOff),
-        (BusOff, _) => Some(BusEvent::BusOffRecovered),
-        (ErrorPassive, ErrorPassive) => None,
-        (_, ErrorPassive) => Some(BusEvent::ErrorPassive),
-        (ErrorPassive, _) => Some(BusEvent::ErrorActiveAgain),
-        (ErrorActive, Warning) => Some(BusEvent::WarningLimit),
-        _ => None,
     }
 }

@@ -2,8 +2,6 @@
 //! hardware the emulator does not model. Same names as the STM32F103 board module, so the
 //! RTIC application uses either unchanged.
 
-use core::convert::Infallible;
-
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
 use stm32f1xx_hal::{
@@ -134,9 +132,9 @@ pub struct Selectors {
 }
 
 impl Selectors {
-    /// The masks of active lines `(axis, multiplier)`, as the board's `SelectorLines::read`.
-    pub fn read(&mut self) -> Result<(u8, u8), Infallible> {
-        Ok(sim::selector_masks())
+    /// The masks of active lines `(axis, multiplier)`, as the board's `Selectors::read`.
+    pub fn read(&mut self) -> (u8, u8) {
+        sim::selector_masks()
     }
 }
 

@@ -227,7 +227,7 @@ pub fn run(root: &Path, target_dir: &Path, elf: &Path, quiet: bool) -> Result<St
         "test_*.py",
     ])
     .current_dir(root);
-    run_command(&mut unit, "the machine benchmark's unit tests")?;
+    pyenv::run(&mut unit)?;
     let out_dir = target_dir.join("machine-bench");
     std::fs::create_dir_all(&out_dir)
         .map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
@@ -243,22 +243,10 @@ pub fn run(root: &Path, target_dir: &Path, elf: &Path, quiet: bool) -> Result<St
     if quiet {
         bench.arg("--quiet");
     }
-    run_command(&mut bench, "the machine benchmark")?;
+    pyenv::run(&mut bench)?;
     let text = std::fs::read_to_string(&report_path)
         .map_err(|e| format!("cannot read {}: {e}", report_path.display()))?;
     StackReport::parse(&text)
-}
-
-fn run_command(cmd: &mut Command, what: &str) -> Result<(), String> {
-    eprintln!("xtask: {cmd:?}");
-    let status = cmd
-        .status()
-        .map_err(|e| format!("cannot run {what}: {e}"))?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(format!("{what} failed ({status})"))
-    }
 }
 
 #[cfg(test)]

@@ -65,7 +65,8 @@ fn base_python() -> Result<PathBuf, String> {
     host::require("python3", &["python3", "python3-venv"])
 }
 
-fn run(cmd: &mut Command) -> Result<(), String> {
+/// Runs `cmd`, echoing it; fails unless it exits successfully.
+pub fn run(cmd: &mut Command) -> Result<(), String> {
     eprintln!("xtask: {cmd:?}");
     let status = cmd
         .status()

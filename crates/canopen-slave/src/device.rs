@@ -2,6 +2,7 @@
 //! EMCY services over the object dictionary. Sans-I/O: frames come in through
 //! [`Device::on_frame`], time through every call, frames go out to a [`FrameSink`].
 
+use crate::bus::{self, BusEvent};
 use crate::emcy::{self, Emcy, EmcyError};
 use crate::frame::{cob, Frame, FrameSink, NodeId, COB_INVALID};
 use crate::heartbeat::Heartbeat;
@@ -282,6 +283,56 @@ impl<S: Storage> Device<S> {
     pub fn clear_error(&mut self, code: u16) -> bool {
         let transmit = self.inner.state != NmtState::Stopped;
         self.inner.emcy.clear(code, transmit)
+    }
+
+    /// Raises and clears the EMCYs CiA 301 asks for when the CAN controller's error state
+    /// changes: error passive is a condition (0x8120 raised, then cleared when it is over);
+    /// a bus-off recovery is an event (0x8140 raised and cleared at once: the EMCY, then the
+    /// error reset), and it ends error passive too. Warning and bus-off send nothing (the
+    /// ERR LED shows them; nothing can be sent in bus-off anyway).
+    pub fn on_bus_event(&mut self, event: BusEvent) {
+        match event {
+            BusEvent::ErrorPassive => {
+                // An error already active or a full history only means no new frame.
+                let _ = self.raise_error(
+                    bus::EMCY_CAN_ERROR_PASSIVE,
+                    emcy::register::COMMUNICATION,
+                    [0; 5],
+                );
+            }
+            BusEvent::ErrorActiveAgain => {
+                self.clear_error(bus::EMCY_CAN_ERROR_PASSIVE);
+            }
+            BusEvent::BusOffRecovered => {
+                // The recovery EMCY first, while 0x8120 still holds the error register, so
+                // that the end of both is a single error reset.
+                let code = bus::EMCY_BUS_OFF_RECOVERED;
+                let raised = self
+                    .raise_error(code, emcy::register::COMMUNICATION, [0; 5])
+                    .is_ok();
+                self.clear_error(bus::EMCY_CAN_ERROR_PASSIVE);
+                if raised {
+                    self.clear_error(code);
+                }
+            }
+            BusEvent::WarningLimit | BusEvent::BusOff => {}
+        }
+    }
+
+    /// Received frames were lost (controller or receive queue overrun): EMCY 0x8110, an
+    /// event, raised and cleared at once.
+    pub fn on_rx_overrun(&mut self) {
+        self.error_event(bus::EMCY_CAN_OVERRUN);
+    }
+
+    /// An error that is over as soon as it is reported: the EMCY, then its clearing.
+    fn error_event(&mut self, code: u16) {
+        if self
+            .raise_error(code, emcy::register::COMMUNICATION, [0; 5])
+            .is_ok()
+        {
+            self.clear_error(code);
+        }
     }
 
     /// Current NMT state.

@@ -7,7 +7,9 @@
 //!
 //! Supported: NMT slave, SDO server (expedited and segmented), heartbeat producer and two
 //! consumers, SYNC consumer, two TPDOs (event-driven and synchronous) with dynamic mapping,
-//! EMCY producer with error history, store/restore of parameters, CiA 303-3 indicators.
+//! EMCY producer with error history, store/restore of parameters, CiA 303-3 indicators, the
+//! CAN controller's error states as EMCYs and LED codes ([`bus`]), and helpers to drive the
+//! engine from a 32-bit millisecond tick ([`WideClock`], [`sleep_ms`], [`Periodic`]).
 //!
 //! ```
 //! use canopen_slave::*;
@@ -73,6 +75,7 @@
 #[macro_use]
 mod log;
 
+pub mod bus;
 pub mod device;
 pub mod emcy;
 pub mod frame;
@@ -87,6 +90,7 @@ pub mod sync;
 pub mod time;
 pub mod tpdo;
 
+pub use bus::{BusEvent, BusState};
 pub use device::{Application, Config, Device, NoSuchPdo, Stats};
 pub use emcy::EmcyError;
 pub use frame::{Frame, FrameError, FrameSink, InvalidNodeId, NodeId, SinkFull};
@@ -96,4 +100,4 @@ pub use nmt::{NmtCommand, NmtState};
 pub use od::{standard_objects, Access, DataType, Od, OdEntry, OdError, Value, STANDARD_OBJECTS};
 pub use sdo::SdoAbort;
 pub use storage::{MemoryStorage, Storage, StorageError};
-pub use time::Instant;
+pub use time::{sleep_ms, Instant, Periodic, WideClock};

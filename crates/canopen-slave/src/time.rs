@@ -78,3 +78,81 @@ pub(crate) fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant
         (None, b) => b,
     }
 }
+
+/// Extends a 32-bit millisecond tick count (a typical MCU monotonic, wrapping after 49.7
+/// days) to the engine's [`Instant`], which never wraps. It must see the count at least
+/// once per wrap; a caller that polls the engine at its deadlines and at least every few
+/// seconds does.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct WideClock {
+    last: u32,
+    wraps: u64,
+}
+
+impl WideClock {
+    /// A clock that starts at tick 0.
+    pub const fn new() -> Self {
+        Self { last: 0, wraps: 0 }
+    }
+
+    /// The instant of `ticks_ms`, the current tick count.
+    pub fn now(&mut self, ticks_ms: u32) -> Instant {
+        if ticks_ms < self.last {
+            self.wraps += 1;
+        }
+        self.last = ticks_ms;
+        Instant::from_millis((self.wraps << 32) | u64::from(ticks_ms))
+    }
+}
+
+/// Whole milliseconds to sleep from `now` until `deadline` (rounded up, so that the
+/// deadline has passed on waking), at most `max_ms`. Only the difference is divided, in 32
+/// bits: a 64-bit division would link about 1 KiB of runtime support on a Cortex-M3.
+pub fn sleep_ms(now: Instant, deadline: Instant, max_ms: u32) -> u32 {
+    let ahead_us = deadline.as_micros().saturating_sub(now.as_micros());
+    let cap_us = max_ms.saturating_mul(1000);
+    if ahead_us >= u64::from(cap_us) {
+        max_ms
+    } else {
+        (ahead_us as u32).div_ceil(1000)
+    }
+}
+
+/// A periodic duty on a wrapping 32-bit millisecond tick (switch sampling, LED update).
+///
+/// After a late round the next one is a full period away, never sooner: a duty that counts
+/// its rounds (a debouncer) must not be caught up in a burst.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Periodic {
+    next_ms: u32,
+    period_ms: u32,
+}
+
+impl Periodic {
+    /// Due at `now_ms`, then every `period_ms`.
+    pub const fn new(now_ms: u32, period_ms: u32) -> Self {
+        Self {
+            next_ms: now_ms,
+            period_ms,
+        }
+    }
+
+    /// The tick at which it is due next.
+    pub const fn next_ms(&self) -> u32 {
+        self.next_ms
+    }
+
+    /// Whether the duty is due at `now_ms`; if so, schedules the next round. Ticks compare
+    /// by wrapping difference, so the wrap of the count does not matter.
+    pub fn is_due(&mut self, now_ms: u32) -> bool {
+        let reached = |at: u32| now_ms.wrapping_sub(at) < 1 << 31;
+        if !reached(self.next_ms) {
+            return false;
+        }
+        self.next_ms = self.next_ms.wrapping_add(self.period_ms);
+        if reached(self.next_ms) {
+            self.next_ms = now_ms.wrapping_add(self.period_ms);
+        }
+        true
+    }
+}
