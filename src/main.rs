@@ -49,7 +49,7 @@ mod app {
     use super::{Mono, EVENTS};
 
     use canopen_slave::{
-        indicators as indicator_leds, sleep_ms, Instant, NodeId, Periodic, WideClock,
+        indicators as indicator_leds, sleep_ms, Instant, NodeId, Periodic, RxFilter, WideClock,
     };
     use defmt::info;
     use handwheel_core::{
@@ -106,6 +106,8 @@ mod app {
     struct Local {
         /// The CANopen device: only `canopen` touches it.
         device: Device,
+        /// The acceptance filter the CAN port has now.
+        rx_filter: RxFilter,
         wheel_inputs: WheelInputs,
         rx_producer: RxProducer,
         rx_consumer: RxConsumer,
@@ -138,7 +140,10 @@ mod app {
         let device =
             HandwheelDevice::new(node_id, serial, DeviceStorage::new(board.storage, settings));
 
-        let can = can::start(board.can, settings.bit_rate, settings.node_id, Mode::Normal);
+        // The defaults' filter; `canopen` reprograms it once the device has loaded stored
+        // parameters (a stored 0x1005) and whenever a master moves an identifier.
+        let filter = RxFilter::new(node_id);
+        let can = can::start(board.can, settings.bit_rate, filter, Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         let wheel = Handwheel::new(DecoderConfig::default(), board.wheel.levels());
 
@@ -154,6 +159,7 @@ mod app {
             },
             Local {
                 device,
+                rx_filter: filter,
                 wheel_inputs: board.wheel,
                 rx_producer,
                 rx_consumer,
@@ -238,6 +244,7 @@ mod app {
         priority = 2,
         local = [
             device,
+            rx_filter,
             rx_consumer,
             watchdog,
             selectors,
@@ -254,6 +261,7 @@ mod app {
         let mut wheel = SharedWheel(cx.shared.wheel);
         let mut tx = TxSink(cx.shared.can);
         device.start(now, &mut wheel, &mut tx);
+        follow_rx_filter(device, cx.local.rx_filter, &mut tx.0);
         // Sampling and LED duties: due at once, then every period; a late round is not caught
         // up in a burst (the debouncer counts samples).
         let start_ms = Mono::now().ticks();
@@ -294,6 +302,7 @@ mod app {
             }
             supervise(cx.local.supervision, device, &mut wheel, &mut tx.0);
             device.poll(now, &mut wheel, &mut tx);
+            follow_rx_filter(device, cx.local.rx_filter, &mut tx.0);
             if next_led.is_due(ticks) {
                 let bus_error = cx.local.supervision.bus_state().indication();
                 let error = device.error_indication().max(bus_error);
@@ -320,6 +329,27 @@ mod app {
             engine.on_rx_overrun();
         }
         supervision.check_encoder(wheel.with_wheel(|w| w.decoder.illegal_transitions()));
+    }
+
+    /// Reprograms the CAN port's acceptance filter when the device's identifiers changed
+    /// (a master moved SYNC with 0x1005, a reset of communication moved it back). Checked
+    /// after every round, so a frame on the new identifier is received from the next round
+    /// on; before that it is dropped, as by any controller before its reconfiguration.
+    fn follow_rx_filter(
+        device: &Device,
+        current: &mut RxFilter,
+        can: &mut impl Mutex<T = CanPort>,
+    ) {
+        let wanted = device.rx_filter();
+        if wanted != *current {
+            defmt::debug!(
+                "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x}",
+                wanted.sync(),
+                wanted.sdo_request()
+            );
+            can.lock(|can| can.set_rx_filter(wanted));
+            *current = wanted;
+        }
     }
 
     /// When `canopen` must run next even without an event: the device's deadline, and while

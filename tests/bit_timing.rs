@@ -18,6 +18,7 @@ fn btr_register() -> u32 {
 #[defmt_test::tests]
 mod tests {
     use super::btr_register;
+    use canopen_slave::{NodeId, RxFilter};
     use handwheel_core::{BitRate, BitTiming};
     use handwheel_firmware::board::{self, CanInstance, APB1_HZ};
     use handwheel_firmware::can::{self, Mode, BTR_TABLE};
@@ -63,7 +64,8 @@ mod tests {
     fn every_rate_lands_in_the_register(state: &mut State) {
         for rate in BitRate::ALL {
             let instance = defmt::unwrap!(state.can.take());
-            let started = can::start(instance, rate, 1, Mode::SilentLoopback);
+            let node = defmt::unwrap!(NodeId::new(1).ok());
+            let started = can::start(instance, rate, RxFilter::new(node), Mode::SilentLoopback);
             let btr = btr_register();
             defmt::info!(
                 "{=u32} kbit/s: CAN_BTR {=u32:#010x}",

@@ -53,6 +53,7 @@ pub fn hold_transmission(hold: bool) {
 #[defmt_test::tests]
 mod tests {
     use super::{frame, hold_transmission, round_trip};
+    use canopen_slave::{NodeId, RxFilter};
     use handwheel_core::BitRate;
     use handwheel_firmware::board;
     use handwheel_firmware::can::{self, CanPort, Frame, Mode, RxQueue, RX_QUEUE_LEN};
@@ -69,7 +70,13 @@ mod tests {
     fn init() -> State {
         let dp = defmt::unwrap!(pac::Peripherals::take());
         let board = board::init(dp);
-        let can = can::start(board.can, BitRate::Kbit1000, NODE_ID, Mode::SilentLoopback);
+        let node = defmt::unwrap!(NodeId::new(NODE_ID).ok());
+        let can = can::start(
+            board.can,
+            BitRate::Kbit1000,
+            RxFilter::new(node),
+            Mode::SilentLoopback,
+        );
         State {
             port: CanPort::new(can),
             rx: RxQueue::new(),
@@ -104,6 +111,16 @@ mod tests {
         let received = round_trip(&mut state.port, &mut state.rx, &sent);
         // The heartbeat mask passes 0x700..0x77F as a block, 0x700 included.
         defmt::assert_eq!(received.as_slice(), &sent[4..]);
+    }
+
+    #[test]
+    fn a_moved_sync_is_received_on_its_new_identifier_only(state: &mut State) {
+        let node = defmt::unwrap!(NodeId::new(NODE_ID).ok());
+        state.port.set_rx_filter(RxFilter::with_sync(node, 0x081));
+        let sent = [frame(0x080, &[]), frame(0x081, &[])];
+        let received = round_trip(&mut state.port, &mut state.rx, &sent);
+        state.port.set_rx_filter(RxFilter::new(node));
+        defmt::assert_eq!(received.as_slice(), &sent[1..]);
     }
 
     #[test]

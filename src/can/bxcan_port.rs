@@ -3,12 +3,10 @@
 
 use bxcan::filter::{ListEntry16, Mask16};
 use bxcan::{Fifo, Interrupts, StandardId};
+use canopen_slave::RxFilter;
 use handwheel_core::{BitRate, BitTiming};
 
-use super::{
-    bus, frame, CanStats, Frame, Mode, TxQueue, COB_HEARTBEAT, COB_NMT, COB_SDO_RX, COB_SYNC,
-    RX_QUEUE_LEN, TX_QUEUE_LEN,
-};
+use super::{bus, frame, CanStats, Frame, Mode, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
 use crate::board::{CanInstance, APB1_HZ};
 
 /// The configured controller.
@@ -36,18 +34,19 @@ pub const fn btr(rate: BitRate) -> u32 {
     BTR_TABLE[rate.code() as usize]
 }
 
-/// Configures bit timing, filters and interrupts, and starts the controller.
+/// Configures bit timing, the acceptance filters for `filter` and interrupts, and starts the
+/// controller.
 ///
 /// Returns once the controller is in normal mode, which needs 11 recessive bits on RX: on
 /// a silent bus that is immediate, on a busy one at most a frame's time.
-pub fn start(instance: CanInstance, bit_rate: BitRate, node_id: u8, mode: Mode) -> Bxcan {
+pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: Mode) -> Bxcan {
     let loopback = mode == Mode::SilentLoopback;
     let mut can = bxcan::Can::builder(instance)
         .set_bit_timing(btr(bit_rate))
         .set_loopback(loopback)
         .set_silent(loopback)
         .leave_disabled();
-    set_filters(&mut can, node_id);
+    set_filters(&mut can, filter);
     // FIFO 0 pending covers "full" too; the overrun interrupt makes a lost frame visible
     // even if the FIFO had been drained in between.
     can.enable_interrupts(
@@ -62,14 +61,18 @@ pub fn start(instance: CanInstance, bit_rate: BitRate, node_id: u8, mode: Mode) 
     can
 }
 
-/// Programs the acceptance filters for `node_id`; everything else is dropped in hardware.
+/// Programs the acceptance filters to pass exactly what `filter` accepts; everything else
+/// is dropped in hardware.
 ///
-/// Bank 0 lists NMT (0x000), SYNC (0x080) and our SDO request (0x600 + node-ID); bank 1
-/// passes every heartbeat (0x700..0x77F) for the heartbeat consumer, which picks its
-/// producers itself. Data frames only: RTR is not served.
-pub fn set_filters(can: &mut Bxcan, node_id: u8) {
+/// Bank 0 lists NMT, SYNC (wherever 0x1005 put it) and our SDO request; bank 1 passes every
+/// heartbeat (0x700..0x77F) for the heartbeat consumer, which picks its producers itself.
+/// Data frames only: RTR is not served. Reprogramming while running (RM0008 24.7.4: the
+/// banks are deactivated in filter init mode) can miss a frame that arrives in those few
+/// register writes; only a master's reconfiguration triggers it.
+pub fn set_filters(can: &mut Bxcan, filter: RxFilter) {
     let data = |id: u16| ListEntry16::data_frames_with_id(standard_id(id));
-    let mut heartbeats = Mask16::frames_with_std_id(standard_id(COB_HEARTBEAT), standard_id(0x780));
+    let (base, mask) = filter.heartbeats();
+    let mut heartbeats = Mask16::frames_with_std_id(standard_id(base), standard_id(mask));
     heartbeats.data_frames_only();
     let mut filters = can.modify_filters();
     filters.clear();
@@ -77,11 +80,11 @@ pub fn set_filters(can: &mut Bxcan, node_id: u8) {
         0,
         Fifo::Fifo0,
         [
-            data(COB_NMT),
-            data(COB_SYNC),
-            data(COB_SDO_RX + u16::from(node_id & 0x7F)),
+            data(filter.nmt()),
+            data(filter.sync()),
+            data(filter.sdo_request()),
             // A list bank holds four entries; the fourth repeats NMT.
-            data(COB_NMT),
+            data(filter.nmt()),
         ],
     );
     filters.enable_bank(1, Fifo::Fifo0, [heartbeats, heartbeats]);
@@ -180,9 +183,10 @@ impl CanPort {
         bus::acknowledge_status_change();
     }
 
-    /// Re-programs the acceptance filters (a new node-ID at reset communication).
-    pub fn set_node_id(&mut self, node_id: u8) {
-        set_filters(&mut self.can, node_id);
+    /// Re-programs the acceptance filters (the device's identifiers changed: 0x1005, or a
+    /// new node-ID).
+    pub fn set_rx_filter(&mut self, filter: RxFilter) {
+        set_filters(&mut self.can, filter);
     }
 
     /// Counters since start-up.

@@ -34,15 +34,6 @@ pub type RxProducer = heapless::spsc::Producer<'static, Frame, RX_QUEUE_LEN>;
 /// The CAN-side task's end of the receive queue.
 pub type RxConsumer = heapless::spsc::Consumer<'static, Frame, RX_QUEUE_LEN>;
 
-/// NMT module control.
-pub(crate) const COB_NMT: u16 = 0x000;
-/// SYNC (default COB-ID).
-pub(crate) const COB_SYNC: u16 = 0x080;
-/// SDO client-to-server base; plus node-ID.
-pub(crate) const COB_SDO_RX: u16 = 0x600;
-/// Heartbeat base; the consumer watches producers 0x701..0x77F.
-pub(crate) const COB_HEARTBEAT: u16 = 0x700;
-
 /// Operating mode of the controller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
 pub enum Mode {

@@ -23,16 +23,14 @@
 
 use core::cell::RefCell;
 
+use canopen_slave::RxFilter;
 use cortex_m::interrupt::Mutex;
 use handwheel_core::BitRate;
 use sim_io::slcan::{CanFrame, SlcanPort};
 use stm32f1xx_hal::pac::{self, interrupt, Interrupt};
 
 use super::usart::{UsartRx, UsartTx};
-use crate::can::{
-    CanStats, Frame, Mode, TxQueue, COB_HEARTBEAT, COB_NMT, COB_SDO_RX, COB_SYNC, RX_QUEUE_LEN,
-    TX_QUEUE_LEN,
-};
+use crate::can::{CanStats, Frame, Mode, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
 
 /// Bytes the queue from the USART1 interrupt to `can_rx0` holds, plus one. A few SLCAN
 /// lines (a frame line is at most 22 bytes); `can_rx0` empties it after every line, and a
@@ -109,28 +107,19 @@ fn USART1() {
 pub struct Controller {
     link: SlcanLink,
     slcan: SlcanPort,
-    node_id: u8,
+    filter: RxFilter,
 }
 
-/// Starts the link for `node_id`'s acceptance filter. The bit rate means nothing on a serial
-/// line (SLCAN's `S` commands are accepted and ignored); only [`Mode::Normal`] exists here
-/// (loopback is an on-target test mode of the board's bxCAN).
-pub fn start(link: SlcanLink, _bit_rate: BitRate, node_id: u8, mode: Mode) -> Controller {
+/// Starts the link with `filter` as its acceptance filter. The bit rate means nothing on a
+/// serial line (SLCAN's `S` commands are accepted and ignored); only [`Mode::Normal`] exists
+/// here (loopback is an on-target test mode of the board's bxCAN).
+pub fn start(link: SlcanLink, _bit_rate: BitRate, filter: RxFilter, mode: Mode) -> Controller {
     defmt::debug_assert!(mode == Mode::Normal);
     Controller {
         link,
         slcan: SlcanPort::new(),
-        node_id,
+        filter,
     }
-}
-
-/// The frames the board's bxCAN filters let through (`can::set_filters`): NMT, SYNC, this
-/// node's SDO requests and every heartbeat 0x700..0x77F.
-fn accepted(id: u16, node_id: u8) -> bool {
-    id == COB_NMT
-        || id == COB_SYNC
-        || id == COB_SDO_RX + u16::from(node_id & 0x7F)
-        || id & 0x780 == COB_HEARTBEAT
 }
 
 /// Milliseconds since boot, for SLCAN time stamps (`Z1`): the SysTick monotonic's count.
@@ -205,7 +194,8 @@ impl CanPort {
             c.link.tx.write_all(outcome.reply);
             let frame = outcome
                 .frame
-                .filter(|f| accepted(f.id, c.node_id))
+                // What the board's bxCAN filter banks pass (`can::set_filters`).
+                .filter(|f| c.filter.accepts(f.id))
                 .and_then(|f| Frame::new(f.id, f.payload()).ok());
             if let Some(frame) = frame {
                 if rx.enqueue(frame).is_ok() {
@@ -219,6 +209,12 @@ impl CanPort {
         // The host may just have opened the channel: send what waited for it.
         self.pump();
         lost
+    }
+
+    /// Replaces the acceptance filter (the device's identifiers changed: 0x1005, or a new
+    /// node-ID).
+    pub fn set_rx_filter(&mut self, filter: RxFilter) {
+        self.controller.filter = filter;
     }
 
     /// The SCE interrupt: never raised on the serial link.

@@ -4,7 +4,10 @@
 
 use crate::bus::{self, BusEvent};
 use crate::emcy::{self, Emcy, EmcyError};
-use crate::frame::{cob, Frame, FrameSink, NodeId, COB_INVALID};
+use crate::filter::RxFilter;
+use crate::frame::{
+    check_cob_id_write, cob, Frame, FrameSink, NodeId, COB_INVALID, MAX_STANDARD_ID,
+};
 use crate::heartbeat::Heartbeat;
 use crate::indicators::ErrorIndication;
 use crate::nmt::{NmtCommand, NmtState};
@@ -33,6 +36,12 @@ pub trait Application {
 
     /// A monitored node's heartbeat timed out (once per loss).
     fn on_heartbeat_lost(&mut self, _node_id: u8) {}
+
+    /// No consumed heartbeat is in timeout any more: every lost node was heard again, or
+    /// its entry was reconfigured, or communication was reset. Called once per recovery,
+    /// after the [`Application::on_heartbeat_lost`] calls it ends. Until then, an
+    /// application that must not act without its master should refuse to (0x08000022).
+    fn on_heartbeat_restored(&mut self) {}
 
     /// NMT reset node: put application state back to power-on values. Stored application
     /// parameters, if any, follow through [`Application::restore_application`].
@@ -128,6 +137,8 @@ struct Inner<S> {
     storage: S,
     tx_refused: u16,
     tpdo_errors: u16,
+    /// The application was told of a heartbeat loss and not yet of the recovery.
+    heartbeat_lost: bool,
 }
 
 impl<S: Storage> Device<S> {
@@ -147,6 +158,7 @@ impl<S: Storage> Device<S> {
                 storage,
                 tx_refused: 0,
                 tpdo_errors: 0,
+                heartbeat_lost: false,
             },
         }
     }
@@ -191,11 +203,16 @@ impl<S: Storage> Device<S> {
         } else if (cob::HEARTBEAT + 1..=cob::HEARTBEAT + 127).contains(&id) {
             if frame.dlc() == 1 {
                 // The range check above makes this fit 7 bits.
-                self.inner.on_heartbeat(now, (id - cob::HEARTBEAT) as u8);
+                // The recovery of a lost node is noticed by `settle_heartbeat` below.
+                self.inner
+                    .heartbeat
+                    .on_heartbeat(now, (id - cob::HEARTBEAT) as u8);
             }
         } else if self.inner.sync.is_sync(frame) {
             self.inner.on_sync(now, app, tx);
         }
+        // A heartbeat, or an SDO write of 0x1016, may have ended a loss.
+        self.inner.settle_heartbeat(app);
     }
 
     /// Time-driven work: SDO timeout, heartbeat consumers and producer, TPDO event timers
@@ -219,6 +236,7 @@ impl<S: Storage> Device<S> {
                 [lost, 0, 0, 0, 0],
                 transmit,
             );
+            self.inner.heartbeat_lost = true;
             app.on_heartbeat_lost(lost);
         }
         if self.inner.heartbeat.beat_due(now) {
@@ -395,7 +413,19 @@ impl<S: Storage> Device<S> {
         data: &[u8],
         app: &mut dyn Application,
     ) -> Result<(), SdoAbort> {
-        self.inner.write_object(now, index, sub, data, app)
+        let written = self.inner.write_object(now, index, sub, data, app);
+        self.inner.settle_heartbeat(app);
+        written
+    }
+
+    /// The identifiers the device handles now (NMT, SYNC as 0x1005 says, this node's SDO
+    /// requests, heartbeats). The firmware reprograms its acceptance filter whenever this
+    /// changes, e.g. after a write of 0x1005 or a reset of communication.
+    #[must_use]
+    pub fn rx_filter(&self) -> RxFilter {
+        // 0x1005 is checked to carry an 11-bit identifier; the mask keeps the cast exact.
+        let sync = (self.inner.sync.cob_id() & u32::from(MAX_STANDARD_ID)) as u16;
+        RxFilter::with_sync(self.inner.node, sync)
     }
 
     /// The parameter storage.
@@ -498,6 +528,8 @@ impl<S: Storage> Device<S> {
         let bootup = Frame::from_parts(self.inner.node.cob_id(cob::HEARTBEAT), [0; 8], 1);
         self.inner.emit(tx, bootup);
         self.inner.heartbeat.restart(now);
+        // The consumers start over (waiting for a first heartbeat): no loss is pending.
+        self.inner.settle_heartbeat(app);
         self.set_state(now, NmtState::PreOperational, app, tx);
     }
 }
@@ -519,12 +551,18 @@ impl<S: Storage> Inner<S> {
         self.emit(tx, frame);
     }
 
-    fn on_heartbeat(&mut self, now: Instant, node: u8) {
-        // The 0x8130 error clears once every lost node is heard again.
-        if self.heartbeat.on_heartbeat(now, node) && !self.heartbeat.any_lost() {
-            let transmit = self.state.communicating();
-            self.emcy.clear(emcy::code::HEARTBEAT, transmit);
+    /// Ends a reported heartbeat loss once no consumer is in timeout any more: clears
+    /// EMCY 0x8130 and tells the application. The one place where a loss ends, whatever
+    /// ended it (the node's heartbeat, a rewrite of 0x1016, a reset of communication).
+    fn settle_heartbeat(&mut self, app: &mut dyn Application) {
+        if !self.heartbeat_lost || self.heartbeat.any_lost() {
+            return;
         }
+        self.heartbeat_lost = false;
+        debug!("heartbeat consumers healthy again");
+        let transmit = self.state.communicating();
+        self.emcy.clear(emcy::code::HEARTBEAT, transmit);
+        app.on_heartbeat_restored();
     }
 
     fn on_sync(&mut self, now: Instant, app: &mut dyn Application, tx: &mut dyn FrameSink) {
@@ -700,20 +738,36 @@ impl<S: Storage> Inner<S> {
         app: &dyn Application,
     ) -> Result<(), SdoAbort> {
         match index {
-            0x1003 | 0x1014 | 0x1015 => self.emcy.write(index, sub, value),
-            0x1005 => self.sync.write(value),
+            // COB-IDs: the object's own rules, then uniqueness within the node.
+            0x1014 => {
+                check_cob_id_write(self.emcy.cob_id(), value)?;
+                self.claim_cob_id(CobUser::Emcy, value)?;
+                self.emcy.set(index, value);
+                Ok(())
+            }
+            0x1003 | 0x1015 => self.emcy.write(index, sub, value),
+            0x1005 => {
+                SyncConsumer::check(value)?;
+                self.claim_cob_id(CobUser::Sync, value)?;
+                self.sync.set(value);
+                Ok(())
+            }
             0x1010 => self.store(sub, value, app),
             0x1011 => self.restore_defaults(sub, value),
-            0x1016 => self.heartbeat.write_consumer(sub, value),
+            0x1016 => self.heartbeat.write_consumer(sub, value, self.node),
             0x1017 => {
                 // Typed U16 in the table, so the truncation is lossless.
                 self.heartbeat.set_producer(value as u16, now);
                 Ok(())
             }
             0x1800..=0x19FF => {
+                let n = index - 0x1800;
+                if sub == 1 {
+                    check_cob_id_write(self.tpdo(n)?.cob_id(), value)?;
+                    self.claim_cob_id(CobUser::Tpdo(n), value)?;
+                }
                 let operational = self.state == NmtState::Operational;
-                self.tpdo_mut(index - 0x1800)?
-                    .write_comm(sub, value, now, operational)
+                self.tpdo_mut(n)?.write_comm(sub, value, now, operational)
             }
             0x1A00..=0x1BFF => {
                 let od = self.od;
@@ -765,6 +819,37 @@ impl<S: Storage> Inner<S> {
         }
     }
 
+    /// Refuses (0x06040043) a COB-ID that another object of this node already uses, so
+    /// that no frame of ours goes out where the network expects another kind (feed
+    /// records read as emergencies, a TPDO taken for SYNC). `value` is the raw COB-ID
+    /// entry of `user`, already checked for format and restricted identifiers; an entry
+    /// with bit 31 set claims nothing, except SYNC, which is always received.
+    fn claim_cob_id(&self, user: CobUser, value: u32) -> Result<(), SdoAbort> {
+        // Slot by slot: SYNC (bit 31 means nothing to a consumer), EMCY, the TPDOs.
+        let mut owners = [self.sync.cob_id() & !COB_INVALID, self.emcy.cob_id(), 0, 0];
+        for (slot, t) in owners.iter_mut().skip(2).zip(&self.tpdos) {
+            *slot = t.cob_id();
+        }
+        let mine = match user {
+            CobUser::Sync => 0,
+            CobUser::Emcy => 1,
+            CobUser::Tpdo(n) => 2 + usize::from(n),
+        };
+        let value = if mine == 0 {
+            value & !COB_INVALID
+        } else {
+            value
+        };
+        let clash = value & COB_INVALID == 0
+            && owners.iter().enumerate().any(|(slot, &raw)| {
+                slot != mine && raw & COB_INVALID == 0 && (raw ^ value) & 0x7FF == 0
+            });
+        if clash {
+            return Err(SdoAbort::ParameterIncompatible);
+        }
+        Ok(())
+    }
+
     fn tpdo(&self, n: u16) -> Result<&Tpdo, SdoAbort> {
         self.tpdos.get(usize::from(n)).ok_or(SdoAbort::NoObject)
     }
@@ -801,6 +886,19 @@ impl<S: Storage> Inner<S> {
         blob.store(&mut self.storage)
             .map_err(|_| SdoAbort::Hardware)
     }
+}
+
+/// The configurable objects of this node that own a COB-ID (`claim_cob_id` has a slot for
+/// each: SYNC, EMCY and two TPDOs).
+const _: () = assert!(TPDOS == 2);
+
+/// The configurable objects of this node that own a COB-ID.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum CobUser {
+    Sync,
+    Emcy,
+    /// TPDO number minus one.
+    Tpdo(u16),
 }
 
 /// Blob sections selected by sub-index 1 (all), 2 (communication), 3 (application).

@@ -1,7 +1,7 @@
 //! Emergency producer (CiA 301 7.2.7): error register 0x1001, pre-defined error field
 //! 0x1003, COB-ID 0x1014 and inhibit time 0x1015.
 
-use crate::frame::{check_cob_id_write, COB_INVALID, MAX_STANDARD_ID};
+use crate::frame::{COB_INVALID, MAX_STANDARD_ID};
 use crate::sdo::SdoAbort;
 use crate::time::Instant;
 use heapless::Vec;
@@ -198,6 +198,11 @@ impl Emcy {
         (!self.queue.is_empty()).then_some(self.hold_until)
     }
 
+    /// The raw 0x1014 entry.
+    pub(crate) const fn cob_id(&self) -> u32 {
+        self.cob_id
+    }
+
     /// Reads 0x1003, 0x1014 or 0x1015.
     pub(crate) fn read(&self, index: u16, sub: u8) -> Result<u32, SdoAbort> {
         match (index, sub) {
@@ -214,15 +219,12 @@ impl Emcy {
         }
     }
 
-    /// Checked write of 0x1003:00 (only 0, clearing the history), 0x1014 or 0x1015.
+    /// Checked write of 0x1003:00 (only 0, clearing the history) or 0x1015. 0x1014 is the
+    /// engine's to check (its COB-ID must also be unique within the node), then `set`.
     pub(crate) fn write(&mut self, index: u16, sub: u8, v: u32) -> Result<(), SdoAbort> {
         match (index, sub) {
             (0x1003, 0) if v != 0 => return Err(SdoAbort::InvalidValue),
             (0x1003, 0) => self.history_len = 0,
-            (0x1014, _) => {
-                check_cob_id_write(self.cob_id, v)?;
-                self.cob_id = v;
-            }
             _ => self.set(index, v),
         }
         Ok(())

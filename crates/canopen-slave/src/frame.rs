@@ -167,7 +167,7 @@ pub(crate) const COB_EXTENDED: u32 = 1 << 29;
 
 /// COB-IDs that CiA 301 reserves for NMT, SYNC/EMCY of others, SDO, heartbeat and LSS;
 /// configuring a PDO or EMCY onto one of them would break the network.
-const fn is_restricted(can_id: u32) -> bool {
+pub(crate) const fn is_restricted(can_id: u32) -> bool {
     matches!(
         can_id,
         0x000..=0x07F | 0x101..=0x180 | 0x581..=0x5FF | 0x601..=0x67F | 0x6E0..=0x6FF | 0x701..=0x7FF

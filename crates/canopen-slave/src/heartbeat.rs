@@ -1,5 +1,6 @@
 //! Heartbeat producer (0x1017) and consumer (0x1016), CiA 301 7.2.8.3.2.
 
+use crate::frame::NodeId;
 use crate::sdo::SdoAbort;
 use crate::time::{earliest, Instant};
 
@@ -108,18 +109,36 @@ impl Heartbeat {
             .ok_or(SdoAbort::NoSubIndex)
     }
 
-    /// Checked write of consumer entry `sub`: the same node may not be monitored twice.
-    pub(crate) fn write_consumer(&mut self, sub: u8, param: u32) -> Result<(), SdoAbort> {
+    /// Checked write of consumer entry `sub` on the node `own` (CiA 301 7.5.2.23).
+    ///
+    /// Refused with 0x06090030: reserved bits 31..24 set, a node-ID above 127, node-ID 0
+    /// with a non-zero time (an entry is disabled by time 0, not by an unreachable node),
+    /// and this node's own ID (it cannot hear its own heartbeat, so the entry would never
+    /// arm). Refused with 0x06040043: a second enabled entry for a node already monitored.
+    pub(crate) fn write_consumer(
+        &mut self,
+        sub: u8,
+        param: u32,
+        own: NodeId,
+    ) -> Result<(), SdoAbort> {
         let i = usize::from(sub)
             .checked_sub(1)
+            .filter(|&i| i < CONSUMERS)
             .ok_or(SdoAbort::NoSubIndex)?;
         let new = Consumer {
             param,
             monitor: Monitor::Waiting,
         };
-        let clash = self.consumers.iter().enumerate().any(|(j, c)| {
-            j != i && new.time_ms() != 0 && c.time_ms() != 0 && c.node() == new.node()
-        });
+        let node = new.node();
+        let reserved = param & 0xFF00_0000 != 0;
+        if reserved || node > 127 || (node == 0 && new.time_ms() != 0) || node == own.get() {
+            return Err(SdoAbort::InvalidValue);
+        }
+        let clash = self
+            .consumers
+            .iter()
+            .enumerate()
+            .any(|(j, c)| j != i && new.time_ms() != 0 && c.time_ms() != 0 && c.node() == node);
         if clash {
             return Err(SdoAbort::ParameterIncompatible);
         }
@@ -140,17 +159,14 @@ impl Heartbeat {
         }
     }
 
-    /// A heartbeat (or boot-up) of `node` arrived: (re)arm its entries. Returns whether a
-    /// node that had been reported lost is back.
-    pub(crate) fn on_heartbeat(&mut self, now: Instant, node: u8) -> bool {
-        let mut recovered = false;
+    /// A heartbeat (or boot-up) of `node` arrived: (re)arm its entries, which also ends a
+    /// loss of that node.
+    pub(crate) fn on_heartbeat(&mut self, now: Instant, node: u8) {
         for c in &mut self.consumers {
             if c.enabled() && c.node() == node {
-                recovered |= c.monitor == Monitor::Lost;
                 c.monitor = Monitor::Active(now.after_ms(c.time_ms()));
             }
         }
-        recovered
     }
 
     /// The next entry whose deadline has passed, marked lost; `None` when there is none.

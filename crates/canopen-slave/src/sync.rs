@@ -1,6 +1,6 @@
 //! SYNC consumer (0x1005), CiA 301 7.2.5. The device never produces SYNC.
 
-use crate::frame::{Frame, COB_EXTENDED, MAX_STANDARD_ID};
+use crate::frame::{is_restricted, Frame, COB_EXTENDED, MAX_STANDARD_ID};
 use crate::sdo::SdoAbort;
 
 /// 0x1005 bit 30: this node generates SYNC.
@@ -24,13 +24,15 @@ impl SyncConsumer {
         self.cob_id
     }
 
-    /// Checked write of 0x1005: a consumer-only device refuses to become the SYNC producer
-    /// and has no 29-bit identifiers.
-    pub(crate) fn write(&mut self, v: u32) -> Result<(), SdoAbort> {
-        if v & (SYNC_PRODUCER | COB_EXTENDED) != 0 || v & 0x1FFF_F800 != 0 {
+    /// Validates a write of 0x1005: a consumer-only device refuses to become the SYNC
+    /// producer and has no 29-bit identifiers, and SYNC may not sit on an identifier that
+    /// CiA 301 reserves (NMT, SDO, heartbeat, LSS): those frames would be taken for SYNC.
+    pub(crate) fn check(v: u32) -> Result<(), SdoAbort> {
+        let can_id = v & u32::from(MAX_STANDARD_ID);
+        if v & (SYNC_PRODUCER | COB_EXTENDED) != 0 || v & 0x1FFF_F800 != 0 || is_restricted(can_id)
+        {
             return Err(SdoAbort::InvalidValue);
         }
-        self.cob_id = v;
         Ok(())
     }
 

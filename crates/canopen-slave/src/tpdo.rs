@@ -1,7 +1,7 @@
 //! Transmit PDOs: communication (0x1800+n) and mapping (0x1A00+n) parameters and the
 //! transmission-type timing rules of CiA 301 7.2.2.
 
-use crate::frame::{check_cob_id_write, COB_INVALID, MAX_STANDARD_ID};
+use crate::frame::{COB_INVALID, MAX_STANDARD_ID};
 use crate::od::{Od, OdEntry};
 use crate::sdo::SdoAbort;
 use crate::time::Instant;
@@ -75,6 +75,11 @@ impl Tpdo {
         self.transmission_type >= 254
     }
 
+    /// The raw 0x1800+n:01 entry.
+    pub(crate) const fn cob_id(&self) -> u32 {
+        self.cob_id
+    }
+
     /// CAN-ID to send on.
     pub(crate) fn can_id(&self) -> u16 {
         (self.cob_id & u32::from(MAX_STANDARD_ID)) as u16
@@ -98,7 +103,8 @@ impl Tpdo {
         }
     }
 
-    /// Checked write of 0x1800+n.
+    /// Checked write of 0x1800+n. The COB-ID (sub 1) is the engine's to check first
+    /// (`check_cob_id_write`, and uniqueness within the node, which needs every object).
     pub(crate) fn write_comm(
         &mut self,
         sub: u8,
@@ -107,7 +113,7 @@ impl Tpdo {
         operational: bool,
     ) -> Result<(), SdoAbort> {
         match sub {
-            1 => check_cob_id_write(self.cob_id, v)?,
+            1 => {}
             // 241..=251 are reserved; 252/253 (RTR only) are not supported.
             2 if matches!(v, 241..=253) => return Err(SdoAbort::InvalidValue),
             // CiA 301: the inhibit time may not change while the PDO exists.

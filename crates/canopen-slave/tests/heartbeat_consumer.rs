@@ -95,3 +95,77 @@ fn loss_in_stopped_is_recorded_without_emcy() {
     b.poll_at(ms(300));
     assert_eq!(b.take(), vec![], "no late EMCY after leaving Stopped");
 }
+
+#[test]
+fn invalid_consumer_entries_are_refused_with_cia_301_codes() {
+    let mut b = Bench::new();
+    b.download_u32(0x1016, 1, 0x0007_0064).unwrap();
+    // (entry, abort): reserved bits, node-IDs 0 (with a time), above 127, and our own.
+    let cases = [
+        (0x0107_0064, 0x0609_0030),
+        (0x8000_0000, 0x0609_0030),
+        (0x0000_0064, 0x0609_0030),
+        (0x0080_0064, 0x0609_0030),
+        (0x00FF_0001, 0x0609_0030),
+        (0x00FF_0000, 0x0609_0030),
+        (u32::from(NODE) << 16 | 0x64, 0x0609_0030),
+        (u32::from(NODE) << 16, 0x0609_0030),
+        // Node 7 is monitored by sub 1 already.
+        (0x0007_00C8, 0x0604_0043),
+    ];
+    for (entry, code) in cases {
+        assert_eq!(b.download_u32(0x1016, 2, entry), Err(code), "{entry:#010x}");
+        assert_eq!(
+            b.upload_u32(0x1016, 2),
+            0,
+            "{entry:#010x} left sub 2 unchanged"
+        );
+    }
+    assert_eq!(b.upload_u32(0x1016, 1), 0x0007_0064);
+    // What stays valid: a disabled entry (time 0, or all zero) and another node.
+    for entry in [0x0000_0000, 0x0009_0000, 0x007F_FFFF, 0x0001_0001] {
+        assert_eq!(b.download_u32(0x1016, 2, entry), Ok(()), "{entry:#010x}");
+        assert_eq!(b.upload_u32(0x1016, 2), entry);
+    }
+}
+
+/// The application's view of a loss: `on_heartbeat_lost` once, then
+/// `on_heartbeat_restored` once every lost node is back, whatever ends the loss.
+#[test]
+fn restored_hook_ends_every_loss_once() {
+    let mut b = Bench::new();
+    b.download(0x1017, 0, &0u16.to_le_bytes()).unwrap();
+    b.download_u32(0x1016, 1, 0x0007_0064).unwrap();
+    b.download_u32(0x1016, 2, 0x0009_0064).unwrap();
+    b.rx_at(ms(0), frame(0x707, &[0x05]));
+    b.rx_at(ms(0), frame(0x709, &[0x05]));
+    b.poll_at(ms(100));
+    assert_eq!(b.app.lost, vec![7, 9]);
+    assert_eq!(b.app.restored_heartbeats, 0);
+    // One node back is not enough.
+    b.rx_at(ms(150), frame(0x707, &[0x05]));
+    assert_eq!(b.app.restored_heartbeats, 0);
+    assert_eq!(b.dev.error_register(), 0x11);
+    b.rx_at(ms(160), frame(0x709, &[0x05]));
+    assert_eq!(b.app.restored_heartbeats, 1);
+    assert_eq!(b.dev.error_register(), 0);
+    // A second loss, ended by the master disabling the entry instead of coming back.
+    b.poll_at(ms(300));
+    assert_eq!(b.app.lost, vec![7, 9, 7, 9]);
+    b.take();
+    b.download_u32(0x1016, 1, 0).unwrap();
+    assert_eq!(b.app.restored_heartbeats, 1, "node 9 is still lost");
+    b.download_u32(0x1016, 2, 0x0009_0000).unwrap();
+    assert_eq!(b.app.restored_heartbeats, 2);
+    assert_eq!(b.dev.error_register(), 0);
+    // A third, ended by reset communication (the consumers start over).
+    b.take();
+    b.download_u32(0x1016, 1, 0x0007_0064).unwrap();
+    b.rx_at(ms(400), frame(0x707, &[0x05]));
+    b.poll_at(ms(500));
+    assert_eq!(b.app.lost.len(), 5);
+    b.take();
+    b.nmt(0x82, NODE);
+    assert_eq!(b.app.restored_heartbeats, 3);
+    assert_eq!(b.dev.error_register(), 0);
+}

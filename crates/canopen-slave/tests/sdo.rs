@@ -453,9 +453,9 @@ fn rejected_writes_leave_the_dictionary_unchanged() {
         req(0x23, 0x1005, 0, [0x80, 0, 0, 0x40]),
         req(0x23, 0x1014, 0, [0x86, 0, 0, 0]),
         req(0x2F, 0x2300, 0, [7, 0, 0, 0]),
-        req(0x23, 0x1016, 1, [0x64, 0, 0x80, 0]),
+        req(0x23, 0x1016, 1, [0x64, 0, 0x20, 0]),
     ];
-    b.download_u32(0x1016, 2, 0x0080_0064).unwrap();
+    b.download_u32(0x1016, 2, 0x0020_0064).unwrap();
     let before_consumer = b.snapshot();
     assert_ne!(before, before_consumer);
     for request in bad {

@@ -93,6 +93,9 @@ pub struct FeedApp {
     pub(crate) step_byte: u8,
     /// Something in the feed record changed: TPDO1 is due.
     pub(crate) feed_due: bool,
+    /// A consumed heartbeat is in timeout: feed may not be enabled until the engine reports
+    /// every monitored node back.
+    pub(crate) master_lost: bool,
 }
 
 impl FeedApp {
@@ -105,6 +108,7 @@ impl FeedApp {
             step_in_flight: None,
             step_byte: 0,
             feed_due: false,
+            master_lost: false,
         }
     }
 }
@@ -166,7 +170,9 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
             (FEED_ENABLE, 0) => {
                 // Feed only runs while PDOs flow: enabling in Pre-operational would let the
                 // position move unseen and jump at the next start.
-                if byte == 1 && self.app.nmt != NmtState::Operational {
+                // Nor while a master we monitor is silent: a wheel enabled by a write that
+                // arrives while the master is lost would move an axis nobody supervises.
+                if byte == 1 && (self.app.nmt != NmtState::Operational || self.app.master_lost) {
                     return Err(SdoAbort::DeviceState);
                 }
                 let changed = self.wheel.with_wheel(|w| w.feed.set_enabled(byte == 1));
@@ -194,13 +200,21 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     }
 
     fn on_heartbeat_lost(&mut self, _node_id: u8) {
+        self.app.master_lost = true;
         self.stop(StopReason::MasterLost);
     }
 
+    fn on_heartbeat_restored(&mut self) {
+        // Feed stays off (status bit 3 stays set) until the master enables it again.
+        self.app.master_lost = false;
+    }
+
     fn on_reset_application(&mut self) {
-        let nmt = self.app.nmt;
+        let (nmt, master_lost) = (self.app.nmt, self.app.master_lost);
         *self.app = FeedApp::new();
+        // Engine state, not application state: the engine ends the loss itself.
         self.app.nmt = nmt;
+        self.app.master_lost = master_lost;
         self.wheel.with_wheel(|w| {
             let levels = w.decoder.levels();
             let selection = w.feed.selection();

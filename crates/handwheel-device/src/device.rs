@@ -2,7 +2,7 @@
 //! that runs between engine calls.
 
 use canopen_slave::{
-    Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, Storage,
+    Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, RxFilter, Storage,
 };
 use handwheel_core::{FeedStatus, Selection, WheelAccess};
 
@@ -101,6 +101,12 @@ impl<S: Storage> HandwheelDevice<S> {
             _ if feed_pending => Some(Instant::ZERO),
             other => other,
         }
+    }
+
+    /// The identifiers the device handles now; the firmware reprograms its acceptance
+    /// filter when this changes (a write of 0x1005, a reset of communication).
+    pub fn rx_filter(&self) -> RxFilter {
+        self.engine.rx_filter()
     }
 
     /// NMT state.

@@ -308,6 +308,51 @@ fn master_heartbeat_loss_stops_feed_with_emcy_8130() {
     assert_eq!(b.read_u32(0x6004, 0), 2);
 }
 
+/// Issue 12.1: while the monitored master stays silent, feed cannot be switched back on,
+/// the wheel moves nothing, and the record keeps saying why.
+#[test]
+fn feed_cannot_be_enabled_while_the_master_is_lost() {
+    let mut b = Bench::operational_enabled(Axis::X, Multiplier::X1);
+    b.sdo_write(0x1016, 1, &(0x0001_00C8u32).to_le_bytes())
+        .unwrap();
+    b.receive(0x701, &[0x05]);
+    b.advance_ms(250);
+    assert_eq!(b.read_u32(0x2000, 0), 0, "the loss disabled feed");
+    assert_eq!(b.read_u32(0x1001, 0), 0x11);
+    // A write from somewhere else on the bus, the master still silent.
+    assert_eq!(b.sdo_write(0x2000, 0, &[1]), Err(0x0800_0022));
+    b.take();
+    b.turn(4);
+    b.advance_ms(50);
+    assert_eq!(b.read_u32(0x6004, 0), 0, "no feed while the master is lost");
+    assert_eq!(b.read_u32(0x2000, 0), 0);
+    let status = b.read_u32(0x2030, 0) as u8;
+    assert_ne!(
+        status & FeedStatus::MASTER_LOST.bits(),
+        0,
+        "bit 3 still says why"
+    );
+    assert_eq!(status & FeedStatus::ENABLED.bits(), 0);
+    assert!(b
+        .take_id(TPDO1)
+        .iter()
+        .all(|s| record(s).0 == 0 && record(s).3 & FeedStatus::MASTER_LOST.bits() != 0));
+    assert_eq!(b.read_u32(0x1001, 0), 0x11);
+    // Disabling stays allowed, and the master's return makes enabling possible again.
+    b.sdo_write(0x2000, 0, &[0]).unwrap();
+    b.receive(0x701, &[0x05]);
+    assert_eq!(b.read_u32(0x1001, 0), 0);
+    b.sdo_write(0x2000, 0, &[1]).unwrap();
+    let status = b.read_u32(0x2030, 0) as u8;
+    assert_eq!(
+        status,
+        FeedStatus::ENABLED.bits(),
+        "bit 3 clears with the new enable"
+    );
+    b.turn(2);
+    assert_eq!(b.read_u32(0x6004, 0), 2);
+}
+
 #[test]
 fn decoder_parameters_are_checked_and_applied() {
     let mut b = Bench::operational_enabled(Axis::X, Multiplier::X1);

@@ -84,6 +84,8 @@ pub struct TestApp {
     pub buttons: u8,
     pub states: Vec<NmtState>,
     pub lost: Vec<u8>,
+    /// Calls of `on_heartbeat_restored`.
+    pub restored_heartbeats: u32,
     pub resets: u32,
     pub tpdo_sent: Vec<u8>,
     /// TPDOs the application withdraws when they are about to go out.
@@ -135,6 +137,10 @@ impl Application for TestApp {
 
     fn on_heartbeat_lost(&mut self, node_id: u8) {
         self.lost.push(node_id);
+    }
+
+    fn on_heartbeat_restored(&mut self) {
+        self.restored_heartbeats += 1;
     }
 
     fn on_reset_application(&mut self) {

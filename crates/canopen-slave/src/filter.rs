@@ -1,0 +1,83 @@
+//! The identifiers the device listens to, for the CAN controller's acceptance filter.
+//!
+//! Which frames the engine wants depends on configuration a master can change (0x1005 moves
+//! SYNC) and on the node-ID, so the filter is derived from the engine, not written into the
+//! driver: the firmware compares [`Device::rx_filter`](crate::Device::rx_filter) after each
+//! round and reprograms the controller when it changed.
+
+use crate::frame::{cob, NodeId, MAX_STANDARD_ID};
+
+/// The set of identifiers the engine handles; every other frame may be dropped in hardware.
+///
+/// NMT (0x000), SYNC (0x1005, 0x080 by default), this node's SDO requests (0x600 + node-ID)
+/// and every heartbeat 0x700..=0x77F (the consumer picks its producers itself, so a change
+/// of 0x1016 needs no new filter).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RxFilter {
+    sync: u16,
+    sdo_request: u16,
+}
+
+impl RxFilter {
+    /// The filter of a node at its defaults: SYNC on 0x080.
+    pub const fn new(node: NodeId) -> Self {
+        Self::with_sync(node, cob::SYNC)
+    }
+
+    /// The filter of a node whose SYNC is on `sync` (11 bits; higher bits are ignored).
+    pub const fn with_sync(node: NodeId, sync: u16) -> Self {
+        Self {
+            sync: sync & MAX_STANDARD_ID,
+            sdo_request: node.cob_id(cob::SDO_RX),
+        }
+    }
+
+    /// The SYNC identifier.
+    pub const fn sync(&self) -> u16 {
+        self.sync
+    }
+
+    /// This node's SDO request identifier.
+    pub const fn sdo_request(&self) -> u16 {
+        self.sdo_request
+    }
+
+    /// The NMT identifier (always 0x000).
+    pub const fn nmt(&self) -> u16 {
+        cob::NMT
+    }
+
+    /// Base and mask of the heartbeat range: `id & mask == base` for 0x700..=0x77F.
+    pub const fn heartbeats(&self) -> (u16, u16) {
+        (cob::HEARTBEAT, 0x780)
+    }
+
+    /// Whether a data frame with identifier `id` is one the engine handles.
+    pub const fn accepts(&self, id: u16) -> bool {
+        let (base, mask) = self.heartbeats();
+        id == self.nmt() || id == self.sync || id == self.sdo_request || id & mask == base
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_filter_is_the_predefined_connection_set() {
+        let f = RxFilter::new(NodeId::new(16).unwrap());
+        for id in 0..=MAX_STANDARD_ID {
+            let expected = matches!(id, 0x000 | 0x080 | 0x610 | 0x700..=0x77F);
+            assert_eq!(f.accepts(id), expected, "{id:#05x}");
+        }
+    }
+
+    #[test]
+    fn moved_sync_replaces_the_default() {
+        let f = RxFilter::with_sync(NodeId::new(1).unwrap(), 0x081);
+        assert!(f.accepts(0x081));
+        assert!(!f.accepts(0x080));
+        assert_eq!((f.sync(), f.sdo_request()), (0x081, 0x601));
+    }
+}
