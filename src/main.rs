@@ -269,6 +269,10 @@ mod app {
         let mut next_led = Periodic::new(start_ms, LED_PERIOD_MS);
         loop {
             cx.local.watchdog.feed();
+            // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
+            // receiving above it), so that a test can overrun the receive queue.
+            #[cfg(feature = "qemu")]
+            stall(handwheel_firmware::qemu::sim::take_stall_ms());
             let deadline = device.next_deadline();
             let now = cx.local.clock.now(Mono::now().ticks());
             let wake_at = wake_time(cx.local.supervision, now, deadline)
@@ -369,6 +373,19 @@ mod app {
             None => max_ms,
         };
         Mono::now() + sleep_ms.millis()
+    }
+
+    /// Busy for `ms` at this task's priority: what a CAN side that falls behind looks like.
+    #[cfg(feature = "qemu")]
+    fn stall(ms: u16) {
+        if ms == 0 {
+            return;
+        }
+        defmt::info!("stalling the CAN side for {=u16} ms (stimulus)", ms);
+        let until = Mono::now() + u32::from(ms).millis();
+        while Mono::now() < until {
+            core::hint::spin_loop();
+        }
     }
 
     /// The monotonic's instant of tick `ms`.

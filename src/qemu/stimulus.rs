@@ -92,6 +92,7 @@ fn apply(command: Command) -> Result<(), StimError> {
         Command::Ab(bits) => edge(AbLevels::from_bits(bits)),
         Command::Axis(axis) => sim::set_axis_mask(axis.active_mask()),
         Command::Mult(multiplier) => sim::set_multiplier_mask(multiplier.active_mask()),
+        Command::Stall(ms) => sim::request_stall(ms),
     }
     Ok(())
 }

@@ -207,3 +207,24 @@ def test_random_frames_on_every_identifier_leave_the_node_healthy(rig):
         _healthy(rig)
     except AssertionError as e:
         raise AssertionError(f"seed {seed}: {e}")
+
+
+def test_receive_overrun_raises_emcy_8110_and_the_node_recovers(rig):
+    """A CAN side that falls behind (the stimulus `stall` holds it busy while the receive
+    interrupts keep queueing) loses frames past the 15-frame receive queue: EMCY 0x8110,
+    recorded in 0x1003, and nothing else breaks."""
+    rig.nmt_and_heartbeat(NMT_START, OPERATIONAL)
+    mark = rig.frames.mark()
+    rig.stim.cmd("stall 600")
+    time.sleep(0.1)  # the task's next round (at most 5 ms away) starts the stall
+    for i in range(40):
+        # Heartbeats of unmonitored nodes: accepted by the filter, ignored by the engine.
+        rig.network.send_message(0x77F, bytes([0x05]))
+    emcy = rig.frames.wait_id(EMCY, since=mark, timeout=5)
+    assert emcy.data == bytes([0x10, 0x81, 0x11, 0, 0, 0, 0, 0]), emcy
+    reset = rig.frames.wait_id(EMCY, bytes(8), since=emcy.seq + 1)
+    assert reset.seq > emcy.seq
+    assert rig.read(0x1001) == 0, "an event: over once reported"
+    assert rig.read(0x1003, 1) & 0xFFFF == 0x8110
+    assert "stalling the CAN side for 600 ms" in rig.qemu.log()
+    _healthy(rig)

@@ -434,3 +434,33 @@ fn an_event_timer_on_tpdo2_never_repeats_a_step() {
     let bytes: Vec<u8> = b.take_id(TPDO2).iter().map(|s| s.data[0]).collect();
     assert_eq!(bytes, [0x09], "one step, never repeated");
 }
+
+/// The position is an I32 that wraps: across the wrap every record still differs from the
+/// previous one by exactly the motion, taken as a wrapping difference, as a host applies it.
+#[test]
+fn position_wraps_and_the_host_difference_stays_exact() {
+    let mut b = Bench::operational_enabled(Axis::Y, Multiplier::X100);
+    // A long spin delivered at once: 21 474 836 detents x 100 = i32::MAX - 47.
+    let _ = b.wheel.feed.add_detents(21_474_836);
+    b.device.feed_changed();
+    b.advance_ms(5);
+    let start = record(b.take_id(TPDO1).last().expect("a record")).0;
+    assert_eq!(start, i32::MAX - 47);
+    let mut host = start;
+    let mut applied: i64 = 0;
+    for (detents, expected) in [
+        (1, i32::MIN + 52),
+        (2, i32::MIN + 252),
+        (-4, i32::MAX - 147),
+    ] {
+        b.turn(detents);
+        b.advance_ms(5);
+        for r in b.take_id(TPDO1).iter().map(record) {
+            applied += i64::from(r.0.wrapping_sub(host));
+            host = r.0;
+        }
+        assert_eq!(host, expected, "after {detents}");
+    }
+    assert_eq!(applied, -100, "1 + 2 - 4 detents at x100");
+    assert_eq!(b.read_u32(0x6004, 0) as i32, i32::MAX - 147);
+}

@@ -10,6 +10,7 @@
 //! | `ab <0..3>` | set the A/B levels directly: bit 0 = A, bit 1 = B (chatter, illegal jumps) |
 //! | `axis <off\|x\|y\|z\|w\|v>` | make that axis line active (only it), or none |
 //! | `mult <1\|10\|100>` | make that multiplier line active (only it) |
+//! | `stall <ms>` | hold the CAN-side task busy for `ms` (1..=[`STALL_LIMIT_MS`]) from its next round: the interrupts keep receiving, so a burst overruns the receive queue as on a board whose CAN side falls behind |
 //!
 //! The firmware answers every line with exactly one reply: [`OK`] once the command has been
 //! applied, or `err <reason>` ([`render`]). Selector commands only set the simulated lines;
@@ -24,6 +25,10 @@ pub const MAX_LINE: usize = 32;
 /// wheel; enough for any test, and small enough that one command cannot keep the emulated
 /// CPU busy for long.
 pub const TURN_LIMIT: i32 = 10_000;
+
+/// Longest `stall`: long enough to overrun the receive queue with any burst, short enough
+/// to stay far from every timeout a test uses.
+pub const STALL_LIMIT_MS: i32 = 2_000;
 
 /// Reply to an applied command.
 pub const OK: &[u8] = b"ok\n";
@@ -95,6 +100,8 @@ pub enum Command {
     Axis(AxisLine),
     /// `mult ...`.
     Mult(MultLine),
+    /// `stall <ms>`: the CAN side stops for that long.
+    Stall(u16),
 }
 
 /// Why a line was not applied; its [`StimError::reason`] is the text after `err `.
@@ -208,7 +215,7 @@ pub fn parse(line: &[u8]) -> Result<Command, StimError> {
     let mut words = words(line);
     let keyword = words.next().ok_or(StimError::Empty)?;
     let is = |name: &[u8]| keyword.eq_ignore_ascii_case(name);
-    let known = is(b"turn") || is(b"ab") || is(b"axis") || is(b"mult");
+    let known = is(b"turn") || is(b"ab") || is(b"axis") || is(b"mult") || is(b"stall");
     if !known {
         return Err(StimError::UnknownCommand);
     }
@@ -224,6 +231,13 @@ pub fn parse(line: &[u8]) -> Result<Command, StimError> {
         u8::try_from(levels)
             .map(Command::Ab)
             .map_err(|_| StimError::OutOfRange)
+    } else if is(b"stall") {
+        let ms = number(arg, STALL_LIMIT_MS)?;
+        u16::try_from(ms)
+            .ok()
+            .filter(|&ms| ms > 0)
+            .map(Command::Stall)
+            .ok_or(StimError::OutOfRange)
     } else if is(b"axis") {
         let axis = [
             (&b"off"[..], AxisLine::Off),
@@ -334,6 +348,23 @@ mod tests {
         assert_eq!(parse(b"ab b"), Err(StimError::BadNumber));
         assert_eq!(parse(b"ab"), Err(StimError::MissingArgument));
         assert_eq!(parse(b"ab 1 1"), Err(StimError::ExtraArgument));
+    }
+
+    #[test]
+    fn stall() {
+        assert_eq!(parse(b"stall 1"), Ok(Command::Stall(1)));
+        assert_eq!(parse(b"STALL 500"), Ok(Command::Stall(500)));
+        assert_eq!(parse(b"stall 2000"), Ok(Command::Stall(2000)));
+        for (line, err) in [
+            (&b"stall 0"[..], StimError::OutOfRange),
+            (b"stall -5", StimError::OutOfRange),
+            (b"stall 2001", StimError::OutOfRange),
+            (b"stall", StimError::MissingArgument),
+            (b"stall 1 2", StimError::ExtraArgument),
+            (b"stall ms", StimError::BadNumber),
+        ] {
+            assert_eq!(parse(line), Err(err), "{line:?}");
+        }
     }
 
     #[test]
