@@ -51,9 +51,9 @@ mod app {
     use canopen_slave::{
         indicators as indicator_leds, sleep_ms, Instant, NodeId, Periodic, RxFilter, WideClock,
     };
-    use defmt::info;
+    use defmt::{debug, info};
     use handwheel_core::{
-        DecoderConfig, Handwheel, Selector, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
+        DecoderConfig, Handwheel, Selector, Standstill, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
     };
     use handwheel_device::HandwheelDevice;
     use handwheel_firmware::{
@@ -234,7 +234,8 @@ mod app {
     ///
     /// Each round feeds the watchdog, so if this loop stops (a hung lock, a dead executor),
     /// the MCU resets. It sleeps until an interrupt raises an event, the device's next
-    /// deadline, the next selector sample (every 5 ms) or the next LED update (every 50 ms).
+    /// deadline, the next selector sample (every 5 ms, which also times the wheel's
+    /// standstill) or the next LED update (every 50 ms).
     /// Sampling the switches and driving the LEDs here rather than in tasks of their own
     /// costs nothing in latency (they are 5 and 50 ms periodic, far slower than a round) and
     /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The device
@@ -267,6 +268,10 @@ mod app {
         let start_ms = Mono::now().ticks();
         let mut next_sample = Periodic::new(start_ms, SAMPLE_PERIOD_MS);
         let mut next_led = Periodic::new(start_ms, LED_PERIOD_MS);
+        // Where the wheel comes to rest is learnt here, not in `wheel_edge`: a still wheel
+        // makes no edges, and the edge handler has no cycles for a clock. The selector
+        // period is fine enough against the 500 ms standstill time.
+        let mut standstill = Standstill::new();
         loop {
             cx.local.watchdog.feed();
             // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
@@ -285,6 +290,11 @@ mod app {
             let ticks = Mono::now().ticks();
             let now = cx.local.clock.now(ticks);
             let selection = if next_sample.is_due(ticks) {
+                // One short lock: a few comparisons, and at most once per standstill a
+                // settle, which is constant time too.
+                if wheel.with_wheel(|w| standstill.sample(ticks, &mut w.decoder)) {
+                    debug!("wheel: rest learnt at standstill");
+                }
                 let (axis, multiplier) = cx.local.selectors.read();
                 cx.local.selector.sample(axis, multiplier)
             } else {

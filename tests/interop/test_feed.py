@@ -1,5 +1,7 @@
 """Feed scenarios driven through the stimulus port, asserted on what the master receives."""
 
+import time
+
 import pytest
 
 from conftest import (
@@ -22,6 +24,10 @@ IGNORED_MOTION = 0x10
 
 # Quadrature levels, bit 0 = A, bit 1 = B; forward is A leading B: 0 -> 1 -> 3 -> 2 -> 0.
 FORWARD = [1, 3, 2, 0]
+
+# The firmware learns where the wheel rests once it has been still this long
+# (handwheel_core::STANDSTILL_MS), plus a margin for the 5 ms sampling and the emulator.
+STANDSTILL_S = 0.5 + 0.3
 
 
 def records(rig, since):
@@ -104,6 +110,26 @@ def test_chatter_nets_zero(rig):
     assert rig.read(0x2020, 2) == 0, "no illegal transition"
     assert rig.read_signed(0x6004) == 0
     assert all(r[0] == 0 for r in records(rig, mark)), "never any feed"
+
+
+def test_rest_learnt_at_standstill_keeps_reversals_whole(rig):
+    """Issue 12, item 5: the wheel is moved half a detent (00 -> 01 -> 11) and stays there;
+    `turn` then counts whole detents from 11. Every turn, reversals and single-detent jogs
+    included, must move the feed by exactly its detents (it used to give 5, -4, 2, -2, 0, 0)."""
+    rig.feed_on("x")
+    rig.stim.ab(FORWARD[0])
+    rig.stim.ab(FORWARD[1])
+    # The wheel is at rest at 11 from here on: longer than the standstill time, so the
+    # firmware takes 11 as the rest.
+    time.sleep(STANDSTILL_S)
+    assert rig.read_signed(0x6004) == 0, "half a detent is no motion"
+    for detents, position in zip([5, -5, 3, -3, 1, -1], [5, 0, 3, 0, 1, 0]):
+        mark = rig.frames.mark()
+        rig.stim.turn(detents)  # replies after its last edge has been decoded
+        rig.wait_position(position, since=mark)  # the CAN side has caught up
+        assert rig.read_signed(0x6004) == position, f"after turn {detents}"
+    assert rig.read_signed(0x2020, 1) == 2, "raw count: the half detent, the turns net zero"
+    assert rig.read(0x2020, 2) == 0, "no illegal transition"
 
 
 def test_illegal_jumps_are_counted_with_emcy(rig):

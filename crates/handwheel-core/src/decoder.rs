@@ -10,15 +10,54 @@
 //! on its edge produces +1, -1, +1, -1 ... and nets to zero, unlike the paper's
 //! rising-edge-of-B scheme which turns the same chatter into motion.
 //!
-//! Counts become detents with hysteresis: a detent is reported when the count has moved a
-//! full detent (`counts_per_detent` counts) past the point of the last report, in either
-//! direction. After a report, the opposite report needs a full detent of travel back, so a
-//! wheel shaking around the point where a detent was reported emits nothing more. The anchor
-//! is the position at start-up; an untouched wheel rests on a detent, so reports line up with
-//! the detents. With one count per detent no hysteresis is possible without swallowing real
-//! motion: every count is a detent.
+//! # Detents are reported at the wheel's rest levels
 //!
-//! Cost per edge: one table lookup, two additions, two comparisons. No loops, no division.
+//! A detent wheel can only come to rest at its detents, and at a detent its A/B levels are
+//! always the same (with 4 counts per detent) or one of two opposite pairs (2 counts: a rest
+//! and the levels two counts away) or anything (1 count). The decoder keeps those *rest
+//! levels* as a 4-bit mask and reports motion only when the wheel arrives at one of them: the
+//! count travelled since the previous arrival (`delta`) is then 0 (it went out and came back)
+//! or a whole detent either way. A detent is reported when `|delta| >= cpd / 2 + 1`, so:
+//!
+//! - chatter anywhere, including on the edge that leads into a rest state, nets to zero: a
+//!   chattering edge next to a rest completes the detent on its first arrival (one edge
+//!   early, if the wheel then goes on), and every further arrival there has `delta` 0;
+//! - a reversal costs nothing: going back from a rest state to the previous one is a whole
+//!   detent of travel, reported as such. An earlier version reported after a full detent
+//!   past the last report point instead; when the wheel's rest was not at that point's phase
+//!   (it started mid-detent, or was moved half a detent), every reversal lost a detent and
+//!   single-detent jogs reported nothing (issue 12, item 5);
+//! - `delta` is always even with 2 or 4 counts per detent; an illegal jump between two
+//!   arrivals shifts the levels by two counts without counting, so with 4 counts per detent
+//!   the next arrival can see `delta` = +-2 (half a detent of known travel: never turned into
+//!   motion) or +-6 (one detent reported, not two). An illegal jump that lands on rest levels
+//!   is not an arrival: the wheel's true position is unknown there, and resynchronising on it
+//!   would turn the jump's unknown half detent into motion on the way back. Left alone,
+//!   turning back over the same ground nets zero, as the wheel did.
+//!
+//! # Where the rest levels come from
+//!
+//! An untouched wheel rests on a detent, so the levels read at start-up are the rest;
+//! [`QuadratureDecoder::configure`] takes the present levels as the rest. A wheel that comes
+//! to rest anywhere else (the levels were read mid-detent at start-up, or the wheel was
+//! nudged by half a detent and its detent spring did not take it back, as the QEMU stimulus
+//! line can do) teaches the decoder its true rest through [`QuadratureDecoder::settle`]: the
+//! CAN side calls it through [`Standstill`](crate::Standstill) once the levels have not
+//! changed for [`STANDSTILL_MS`](crate::STANDSTILL_MS). Settling never reports a detent, so
+//! it never moves an axis.
+//!
+//! Its accepted cost: a detent wheel held still mid-detent for at least the standstill time
+//! (a hand holding it against its spring) has that position learnt as its rest. Finishing
+//! that detent then reports nothing, and until the wheel next stands still at a true detent,
+//! which becomes the rest again, the feed is either level with the wheel or that one detent
+//! short of it (a reversal in between catches it up, the next turn the held way falls behind
+//! again). So the hold can lose that one detent, never gain one.
+//!
+//! With one count per detent every level is a rest state and every count is a detent: no
+//! hysteresis is possible without swallowing real motion.
+//!
+//! Cost per edge: one table lookup, a mask test, two additions and two comparisons. No
+//! loops, no division.
 
 /// The two channel levels as read from the port: bit 0 = A, bit 1 = B.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -179,21 +218,47 @@ impl EdgeOutcome {
 pub struct QuadratureDecoder {
     previous: AbLevels,
     count: i32,
-    /// Counts since the last reported detent; always strictly inside `(-cpd, cpd)`.
-    residual: i8,
-    counts_per_detent: i8,
+    /// The count at the last legal arrival at a rest state (or where the rest was set).
+    last_rest: i32,
+    /// Bit `i` set: levels with bits `i` are a rest state (see the module docs).
+    rest_mask: u8,
+    /// `cpd / 2 + 1`: the smallest travel between two arrivals that is a detent. Kept here so
+    /// that `update` needs no division.
+    threshold: i32,
+    counts_per_detent: CountsPerDetent,
     invert: bool,
     illegal: u32,
 }
 
+/// The rest states for `cpd` counts per detent when the wheel rests at `rest`.
+const fn rest_mask(cpd: CountsPerDetent, rest: AbLevels) -> u8 {
+    let bits = rest.bits();
+    match cpd {
+        CountsPerDetent::One => 0b1111,
+        // The opposite levels (both channels flipped) are two counts away either way.
+        CountsPerDetent::Two => (1 << bits) | (1 << (bits ^ 0b11)),
+        CountsPerDetent::Four => 1 << bits,
+    }
+}
+
+/// The travel between two arrivals at rest states that counts as a detent: more than half a
+/// detent. Legal motion only ever gives 0 or a whole detent; the margin matters after an
+/// illegal jump (see the module docs).
+const fn threshold(cpd: CountsPerDetent) -> i32 {
+    (cpd.get() / 2 + 1) as i32
+}
+
 impl QuadratureDecoder {
-    /// A decoder whose first comparison is against `initial`, the levels read at start-up.
+    /// A decoder whose first comparison is against `initial`, the levels read at start-up,
+    /// which are taken as the wheel's rest (an untouched wheel rests on a detent).
     pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
         Self {
             previous: initial,
             count: 0,
-            residual: 0,
-            counts_per_detent: config.counts_per_detent.get() as i8,
+            last_rest: 0,
+            rest_mask: rest_mask(config.counts_per_detent, initial),
+            threshold: threshold(config.counts_per_detent),
+            counts_per_detent: config.counts_per_detent,
             invert: config.invert,
             illegal: 0,
         }
@@ -204,9 +269,11 @@ impl QuadratureDecoder {
     pub fn update(&mut self, levels: AbLevels) -> EdgeOutcome {
         let transition = Transition::between(self.previous, levels);
         self.previous = levels;
-        let step: i8 = match transition {
+        let step: i32 = match transition {
             Transition::Stay => return EdgeOutcome::Idle,
             Transition::Illegal => {
+                // Neither the count nor the last arrival moves: the jump's direction is
+                // unknown, and landing on rest levels this way is not an arrival.
                 self.illegal = self.illegal.wrapping_add(1);
                 return EdgeOutcome::Illegal;
             }
@@ -214,32 +281,51 @@ impl QuadratureDecoder {
             Transition::Reverse => -1,
         };
         let step = if self.invert { -step } else { step };
-        self.count = self.count.wrapping_add(i32::from(step));
-        self.residual += step;
-        if self.residual >= self.counts_per_detent {
-            self.residual -= self.counts_per_detent;
+        self.count = self.count.wrapping_add(step);
+        if !self.is_rest(levels) {
+            return EdgeOutcome::Counted;
+        }
+        let delta = self.count.wrapping_sub(self.last_rest);
+        self.last_rest = self.count;
+        if delta >= self.threshold {
             EdgeOutcome::DetentForward
-        } else if self.residual <= -self.counts_per_detent {
-            self.residual += self.counts_per_detent;
+        } else if delta <= self.threshold.wrapping_neg() {
             EdgeOutcome::DetentReverse
         } else {
             EdgeOutcome::Counted
         }
     }
 
-    /// Changes counts-per-detent and direction. The partial detent in progress is dropped so
-    /// the new setting starts from the wheel's present position.
+    /// The wheel has been still at its present levels for the standstill time
+    /// ([`Standstill`](crate::Standstill) decides when). If those levels are not a rest
+    /// state, the wheel evidently rests there: they become the rest, and the travel since
+    /// the last arrival is dropped. Returns whether the rest changed.
+    ///
+    /// Never reports a detent, so settling never moves an axis. Settling mid-detent (the
+    /// wheel held against its spring) can lose the detent being turned, never gain one: see
+    /// the module docs.
+    pub fn settle(&mut self) -> bool {
+        if self.is_rest(self.previous) {
+            return false;
+        }
+        self.rest_here();
+        true
+    }
+
+    /// Changes counts-per-detent and direction. The present levels become the rest and the
+    /// partial detent in progress is dropped, so the new setting starts from the wheel's
+    /// present position.
     pub fn configure(&mut self, config: DecoderConfig) {
-        self.counts_per_detent = config.counts_per_detent.get() as i8;
+        self.counts_per_detent = config.counts_per_detent;
+        self.threshold = threshold(config.counts_per_detent);
         self.invert = config.invert;
-        self.residual = 0;
+        self.rest_here();
     }
 
     /// The present settings.
     pub fn config(&self) -> DecoderConfig {
         DecoderConfig {
-            counts_per_detent: CountsPerDetent::from_u8(self.counts_per_detent as u8)
-                .unwrap_or_default(),
+            counts_per_detent: self.counts_per_detent,
             invert: self.invert,
         }
     }
@@ -254,14 +340,31 @@ impl QuadratureDecoder {
         self.illegal
     }
 
-    /// Counts since the last reported detent, in `(-counts_per_detent, counts_per_detent)`.
-    pub const fn residual(&self) -> i8 {
-        self.residual
+    /// Counts since the last arrival at a rest state (or since the rest was set), wrapping.
+    /// Without illegal jumps it stays inside `(-counts_per_detent, counts_per_detent)`; an
+    /// illegal jump can carry the wheel past a rest state without an arrival, so then it is
+    /// not bounded.
+    pub const fn since_rest(&self) -> i32 {
+        self.count.wrapping_sub(self.last_rest)
     }
 
     /// The last levels seen.
     pub const fn levels(&self) -> AbLevels {
         self.previous
+    }
+
+    /// Whether `levels` are a rest state.
+    #[inline]
+    const fn is_rest(&self, levels: AbLevels) -> bool {
+        // The bits are masked on construction; masking again lets the compiler see that the
+        // shift cannot overflow, so the ISR has no overflow check in a checked build.
+        (self.rest_mask >> (levels.bits() & 0b11)) & 1 != 0
+    }
+
+    /// The present levels become the rest; the present count is the last arrival.
+    fn rest_here(&mut self) {
+        self.rest_mask = rest_mask(self.counts_per_detent, self.previous);
+        self.last_rest = self.count;
     }
 }
 
@@ -284,6 +387,21 @@ mod tests {
             },
             AbLevels::from_bits(0),
         )
+    }
+
+    /// `counts` legal edges from `levels` (negative: in reverse), leaving `levels` where the
+    /// wheel ends; returns the detents reported on the way.
+    fn walk(d: &mut QuadratureDecoder, levels: &mut AbLevels, counts: i32) -> i32 {
+        let mut detents = 0;
+        for _ in 0..counts.unsigned_abs() {
+            *levels = if counts > 0 {
+                levels.next_forward()
+            } else {
+                levels.next_reverse()
+            };
+            detents += d.update(*levels).detents();
+        }
+        detents
     }
 
     #[test]
@@ -344,7 +462,7 @@ mod tests {
             ]
         );
         assert_eq!(d.count(), 4);
-        assert_eq!(d.residual(), 0);
+        assert_eq!(d.since_rest(), 0);
     }
 
     #[test]
@@ -383,13 +501,53 @@ mod tests {
     }
 
     #[test]
-    fn illegal_jump_is_counted_not_guessed_and_resynchronises() {
+    fn illegal_jump_is_counted_not_guessed() {
         let mut d = decoder(CountsPerDetent::Four, false);
         assert_eq!(d.update(AbLevels::from_bits(3)), EdgeOutcome::Illegal);
         assert_eq!((d.count(), d.illegal_transitions()), (0, 1));
         // Decoding continues from the new levels: 11 -> 10 is forward.
         assert_eq!(d.update(AbLevels::from_bits(2)), EdgeOutcome::Counted);
         assert_eq!(d.count(), 1);
+        // Arriving at the rest (00) after two known counts: half a detent, never motion.
+        assert_eq!(d.update(AbLevels::from_bits(0)), EdgeOutcome::Counted);
+        assert_eq!((d.count(), d.since_rest()), (2, 0));
+    }
+
+    #[test]
+    fn illegal_jump_onto_the_rest_does_not_resynchronise() {
+        let mut d = decoder(CountsPerDetent::Four, false);
+        let mut levels = AbLevels::from_bits(0);
+        // Half a detent forward (00 -> 01 -> 11), then the edge to 10 is missed and the
+        // ISR sees 00: the wheel probably completed the detent, but that is not known.
+        assert_eq!(walk(&mut d, &mut levels, 2), 0);
+        assert_eq!(d.update(AbLevels::from_bits(0)), EdgeOutcome::Illegal);
+        levels = AbLevels::from_bits(0);
+        assert_eq!((d.count(), d.since_rest()), (2, 2), "no arrival, no resync");
+        // The wheel turns back one detent: it is back where it started, and so is the feed.
+        assert_eq!(walk(&mut d, &mut levels, -4), 0);
+        assert_eq!((d.count(), d.since_rest()), (-2, 0));
+        // Whole detents count again from there.
+        assert_eq!(walk(&mut d, &mut levels, 4), 1);
+        assert_eq!(walk(&mut d, &mut levels, -8), -2);
+    }
+
+    #[test]
+    fn six_counts_between_arrivals_are_one_detent() {
+        let mut d = decoder(CountsPerDetent::Four, false);
+        let mut levels = AbLevels::from_bits(0);
+        assert_eq!(walk(&mut d, &mut levels, 3), 0);
+        // 10 -> 01 skips the rest (00) without an arrival.
+        assert_eq!(d.update(AbLevels::from_bits(1)), EdgeOutcome::Illegal);
+        let outcomes = [3, 2, 0].map(|bits| d.update(AbLevels::from_bits(bits)));
+        assert_eq!(
+            outcomes,
+            [
+                EdgeOutcome::Counted,
+                EdgeOutcome::Counted,
+                EdgeOutcome::DetentForward
+            ]
+        );
+        assert_eq!((d.count(), d.since_rest()), (6, 0));
     }
 
     #[test]
@@ -412,18 +570,129 @@ mod tests {
     }
 
     #[test]
+    fn chatter_at_rest_never_reports() {
+        for cpd in [CountsPerDetent::Two, CountsPerDetent::Four] {
+            for start in ALL {
+                for invert in [false, true] {
+                    let mut d = QuadratureDecoder::new(
+                        DecoderConfig {
+                            counts_per_detent: cpd,
+                            invert,
+                        },
+                        start,
+                    );
+                    let mut levels = start;
+                    // At the start-up rest and at the rest one detent on.
+                    for _ in 0..2 {
+                        for edge in [levels.next_forward(), levels.next_reverse()] {
+                            for _ in 0..20 {
+                                assert_eq!(d.update(edge), EdgeOutcome::Counted);
+                                assert_eq!(d.update(levels), EdgeOutcome::Counted);
+                            }
+                        }
+                        assert_eq!(d.since_rest(), 0);
+                        let before = d.count();
+                        let detents = walk(&mut d, &mut levels, i32::from(cpd.get()));
+                        assert_eq!(detents, if invert { -1 } else { 1 }, "{cpd:?} {start:?}");
+                        assert_eq!(d.count() - before, detents * i32::from(cpd.get()));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Issue 12, item 5, at the decoder: the wheel starts at 00 and is moved half a detent
+    /// (01, then 11), where it stays; whole detents are then turned from 11.
+    #[test]
+    fn rest_learnt_at_standstill_keeps_reversals_whole() {
+        const TURNS: [i32; 6] = [5, -5, 3, -3, 1, -1];
+        let play = |settle: bool| {
+            let mut d = decoder(CountsPerDetent::Four, false);
+            assert_eq!(d.update(AbLevels::from_bits(1)), EdgeOutcome::Counted);
+            assert_eq!(d.update(AbLevels::from_bits(3)), EdgeOutcome::Counted);
+            if settle {
+                assert!(d.settle(), "11 is not the start-up rest");
+                assert_eq!((d.count(), d.since_rest()), (2, 0));
+            }
+            let mut levels = AbLevels::from_bits(3);
+            TURNS.map(|detents| {
+                let reported = walk(&mut d, &mut levels, detents * 4);
+                assert_eq!(levels, AbLevels::from_bits(3), "turns end where they start");
+                reported
+            })
+        };
+        assert_eq!(play(true), TURNS);
+        // Without the standstill the rest stays at 00, half a detent off: every reversal
+        // and every single-detent jog loses one, as the issue reports.
+        assert_eq!(play(false), [5, -4, 2, -2, 0, 0]);
+    }
+
+    #[test]
+    fn settle_at_a_rest_state_changes_nothing() {
+        for cpd in [
+            CountsPerDetent::One,
+            CountsPerDetent::Two,
+            CountsPerDetent::Four,
+        ] {
+            let mut d = decoder(cpd, false);
+            let mut levels = AbLevels::from_bits(0);
+            assert!(!d.settle(), "{cpd:?}: the start-up levels are the rest");
+            assert_eq!(walk(&mut d, &mut levels, 4), 4 / i32::from(cpd.get()));
+            assert!(!d.settle(), "{cpd:?}: one cycle on");
+            // Two counts on: a rest state for 1 and 2 counts per detent only.
+            assert_eq!(walk(&mut d, &mut levels, 2), 2 / i32::from(cpd.get()));
+            assert_eq!(d.settle(), cpd == CountsPerDetent::Four, "{cpd:?}");
+            assert!(!d.settle(), "{cpd:?}: settled once");
+            assert_eq!((d.count(), d.since_rest()), (6, 0));
+        }
+    }
+
+    #[test]
+    fn settle_mid_detent_costs_at_most_that_detent() {
+        let mut d = decoder(CountsPerDetent::Four, false);
+        let mut levels = AbLevels::from_bits(0);
+        // A detent is turned with a long pause three counts in (at 10), which is learnt as
+        // the rest without reporting anything.
+        assert_eq!(walk(&mut d, &mut levels, 3), 0);
+        assert!(d.settle());
+        assert_eq!((d.count(), d.since_rest()), (3, 0));
+        // Finishing that detent reports nothing: the feed is one detent behind the wheel.
+        assert_eq!(walk(&mut d, &mut levels, 1), 0);
+        // While the learnt rest is off, whole detents are reported one edge early (at 10),
+        // so the feed stays one detent behind going forward and catches up on a reversal.
+        assert_eq!(walk(&mut d, &mut levels, 4), 1);
+        assert_eq!(walk(&mut d, &mut levels, -4), 0);
+        assert_eq!(walk(&mut d, &mut levels, 4), 0, "behind again");
+        // The wheel stands still at its true detent (00): that becomes the rest, and the
+        // feed stays one detent behind for good: that detent was lost, none was gained.
+        assert_eq!(levels, AbLevels::from_bits(0));
+        assert!(d.settle());
+        assert_eq!(walk(&mut d, &mut levels, 8), 2);
+        assert_eq!(walk(&mut d, &mut levels, -4), -1);
+        assert_eq!(walk(&mut d, &mut levels, 4), 1);
+        assert_eq!(d.count(), 16);
+    }
+
+    #[test]
     fn reconfigure_drops_partial_detent() {
         let mut d = decoder(CountsPerDetent::Four, false);
-        let _ = d.update(AbLevels::from_bits(1));
-        assert_eq!(d.residual(), 1);
+        let mut levels = AbLevels::from_bits(0);
+        assert_eq!(walk(&mut d, &mut levels, 1), 0);
+        assert_eq!(d.since_rest(), 1);
         let cfg = DecoderConfig {
             counts_per_detent: CountsPerDetent::Two,
             invert: true,
         };
         d.configure(cfg);
         assert_eq!(d.config(), cfg);
-        assert_eq!(d.residual(), 0);
+        assert_eq!(d.since_rest(), 0);
         assert_eq!(d.count(), 1);
+        // The present levels (01) are the rest now, and with 2 counts per detent so are the
+        // opposite ones (10): two edges forward (inverted: back) are one detent.
+        assert!(!d.settle());
+        assert_eq!(walk(&mut d, &mut levels, 2), -1);
+        assert_eq!(levels, AbLevels::from_bits(2));
+        assert_eq!((d.count(), d.since_rest()), (-1, 0));
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! moves pin levels and frames in and out of these types:
 //!
 //! - [`decoder`]: A/B quadrature to counts and detents, from the levels read in the EXTI ISR.
+//! - [`standstill`]: notices a wheel at rest, so that the decoder learns its rest levels.
 //! - [`selector`]: debounced 5-position axis switch and 3-position multiplier switch.
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
@@ -17,6 +18,7 @@ pub mod bittiming;
 pub mod decoder;
 pub mod pdo;
 pub mod selector;
+pub mod standstill;
 pub mod wheel;
 
 pub use accumulator::{FeedAccumulator, StopReason, UnitStep, DEFAULT_STEP_BACKLOG};
@@ -28,4 +30,5 @@ pub use pdo::{CounterStride, FeedRecord, FeedRecordError, FeedStatus, UnitStepEn
 pub use selector::{
     Axis, Debouncer, Multiplier, Selection, Selector, SelectorLines, DEFAULT_DEBOUNCE_SAMPLES,
 };
+pub use standstill::{Standstill, STANDSTILL_MS};
 pub use wheel::{Handwheel, WheelAccess};
