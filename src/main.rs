@@ -261,8 +261,9 @@ mod app {
         let device = cx.local.device;
         let mut wheel = SharedWheel(cx.shared.wheel);
         let mut tx = TxSink(cx.shared.can);
+        // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
+        // the sampling duty is due immediately).
         device.start(now, &mut wheel, &mut tx);
-        follow_rx_filter(device, cx.local.rx_filter, &mut tx.0);
         // Sampling and LED duties: due at once, then every period; a late round is not caught
         // up in a burst (the debouncer counts samples).
         let start_ms = Mono::now().ticks();

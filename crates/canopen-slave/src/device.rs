@@ -737,18 +737,13 @@ impl<S: Storage> Inner<S> {
         value: u32,
         app: &dyn Application,
     ) -> Result<(), SdoAbort> {
+        if let Some(slot) = cob_slot(index, sub) {
+            self.check_cob_id(slot, value)?;
+        }
         match index {
-            // COB-IDs: the object's own rules, then uniqueness within the node.
-            0x1014 => {
-                check_cob_id_write(self.emcy.cob_id(), value)?;
-                self.claim_cob_id(CobUser::Emcy, value)?;
-                self.emcy.set(index, value);
-                Ok(())
-            }
-            0x1003 | 0x1015 => self.emcy.write(index, sub, value),
+            // 0x1014 is checked above; `Emcy::write` only stores it.
+            0x1003 | 0x1014 | 0x1015 => self.emcy.write(index, sub, value),
             0x1005 => {
-                SyncConsumer::check(value)?;
-                self.claim_cob_id(CobUser::Sync, value)?;
                 self.sync.set(value);
                 Ok(())
             }
@@ -761,13 +756,10 @@ impl<S: Storage> Inner<S> {
                 Ok(())
             }
             0x1800..=0x19FF => {
-                let n = index - 0x1800;
-                if sub == 1 {
-                    check_cob_id_write(self.tpdo(n)?.cob_id(), value)?;
-                    self.claim_cob_id(CobUser::Tpdo(n), value)?;
-                }
+                // Sub 1, the COB-ID, is checked above.
                 let operational = self.state == NmtState::Operational;
-                self.tpdo_mut(n)?.write_comm(sub, value, now, operational)
+                self.tpdo_mut(index - 0x1800)?
+                    .write_comm(sub, value, now, operational)
             }
             0x1A00..=0x1BFF => {
                 let od = self.od;
@@ -819,30 +811,27 @@ impl<S: Storage> Inner<S> {
         }
     }
 
-    /// Refuses (0x06040043) a COB-ID that another object of this node already uses, so
-    /// that no frame of ours goes out where the network expects another kind (feed
-    /// records read as emergencies, a TPDO taken for SYNC). `value` is the raw COB-ID
-    /// entry of `user`, already checked for format and restricted identifiers; an entry
-    /// with bit 31 set claims nothing, except SYNC, which is always received.
-    fn claim_cob_id(&self, user: CobUser, value: u32) -> Result<(), SdoAbort> {
-        // Slot by slot: SYNC (bit 31 means nothing to a consumer), EMCY, the TPDOs.
+    /// Checks a write of the COB-ID in `slot` (see [`cob_slot`]): first the object's own
+    /// rules (format, restricted identifiers, no change of CAN-ID while valid: 0x06090030),
+    /// then that no other object of this node uses it (0x06040043), so that no frame of ours
+    /// goes out where the network expects another kind (feed records read as emergencies, a
+    /// TPDO taken for SYNC). An entry with bit 31 set claims nothing, except SYNC, which is
+    /// always received (bit 31 means nothing to a consumer).
+    fn check_cob_id(&self, slot: usize, value: u32) -> Result<(), SdoAbort> {
         let mut owners = [self.sync.cob_id() & !COB_INVALID, self.emcy.cob_id(), 0, 0];
-        for (slot, t) in owners.iter_mut().skip(2).zip(&self.tpdos) {
-            *slot = t.cob_id();
+        for (owner, t) in owners.iter_mut().skip(2).zip(&self.tpdos) {
+            *owner = t.cob_id();
         }
-        let mine = match user {
-            CobUser::Sync => 0,
-            CobUser::Emcy => 1,
-            CobUser::Tpdo(n) => 2 + usize::from(n),
-        };
-        let value = if mine == 0 {
+        let value = if slot == SYNC_SLOT {
+            SyncConsumer::check(value)?;
             value & !COB_INVALID
         } else {
+            check_cob_id_write(owners.get(slot).copied().unwrap_or(0), value)?;
             value
         };
         let clash = value & COB_INVALID == 0
-            && owners.iter().enumerate().any(|(slot, &raw)| {
-                slot != mine && raw & COB_INVALID == 0 && (raw ^ value) & 0x7FF == 0
+            && owners.iter().enumerate().any(|(other, &raw)| {
+                other != slot && raw & COB_INVALID == 0 && (raw ^ value) & 0x7FF == 0
             });
         if clash {
             return Err(SdoAbort::ParameterIncompatible);
@@ -888,17 +877,19 @@ impl<S: Storage> Inner<S> {
     }
 }
 
-/// The configurable objects of this node that own a COB-ID (`claim_cob_id` has a slot for
-/// each: SYNC, EMCY and two TPDOs).
+/// `check_cob_id` keeps one slot per COB-ID entry: SYNC, EMCY and the two TPDOs.
+const SYNC_SLOT: usize = 0;
 const _: () = assert!(TPDOS == 2);
 
-/// The configurable objects of this node that own a COB-ID.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum CobUser {
-    Sync,
-    Emcy,
-    /// TPDO number minus one.
-    Tpdo(u16),
+/// The slot of a COB-ID entry, `None` for every other object.
+fn cob_slot(index: u16, sub: u8) -> Option<usize> {
+    match (index, sub) {
+        (0x1005, _) => Some(SYNC_SLOT),
+        (0x1014, _) => Some(1),
+        (0x1800, 1) => Some(2),
+        (0x1801, 1) => Some(3),
+        _ => None,
+    }
 }
 
 /// Blob sections selected by sub-index 1 (all), 2 (communication), 3 (application).
