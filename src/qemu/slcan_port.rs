@@ -17,7 +17,8 @@
 //! - the transmit mailboxes: USART1 itself. Frames wait in the same FIFO transmit queue and
 //!   are written out (encoded by `sim_io::slcan`) while the SLCAN channel is open. It powers
 //!   up open, because QEMU drops the host's opening `O` when it arrives before `init` has
-//!   enabled USART1: the boot-up frame goes out at boot, and the master reads it from the
+//!   enabled USART1: the boot-up frame goes out at boot (after
+//!   [`BOOT_UP_DELAY_MS`](super::board::BOOT_UP_DELAY_MS)), and the master reads it from the
 //!   socket when it listens. After the host's `C` frames stay queued until `O`, as a CAN
 //!   controller keeps retrying a frame that nobody acknowledges;
 //! - the error state: a serial link has no error counters: always error-active, and the SCE

@@ -46,9 +46,10 @@
 //! would keep the boot-up frame (and everything after it) queued for good. Powered up open,
 //! the device's frames go into the socket from boot on and the host reads them when it
 //! listens. pyserial's `socket://` handler does discard what is already in the socket, once,
-//! right after connecting; the first device byte comes later, after QEMU has set up the
-//! board and the firmware has run its `init` (6 ms or more after the connection, measured),
-//! but a host that is descheduled in between for that long loses the boot-up.
+//! right after connecting, so the firmware must not send that early: QEMU setting up the
+//! board and the firmware's `init` take only some 6 ms, a descheduled host can take longer,
+//! and the QEMU board therefore holds the boot-up back a little longer
+//! (`BOOT_UP_DELAY_MS` in the firmware's `qemu::board`).
 //!
 //! Otherwise the Lawicel states hold. After `C` the device's frames wait:
 //! [`SlcanPort::encode`] returns `None` and the firmware keeps them queued, the way a CAN
