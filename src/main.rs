@@ -257,6 +257,11 @@ mod app {
         shared = [wheel, can]
     )]
     async fn canopen(cx: canopen::Context) {
+        // QEMU: the boot-up must not reach the master's socket before pyserial's flush on
+        // connecting (see `BOOT_UP_DELAY_MS`). Shorter than the watchdog timeout, though
+        // QEMU's watchdog is only a stand-in.
+        #[cfg(feature = "qemu")]
+        Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
         let now = cx.local.clock.now(Mono::now().ticks());
         let device = cx.local.device;
         let mut wheel = SharedWheel(cx.shared.wheel);

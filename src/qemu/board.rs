@@ -22,6 +22,16 @@ use super::{
 /// to, so the monotonic must be started with this rate for real-time milliseconds.
 pub const SYSCLK_HZ: u32 = 24_000_000;
 
+/// How long after power-on the `canopen` task waits before starting the CANopen device,
+/// whose first act is the boot-up frame. QEMU starts the CPU when the master connects, and
+/// the SLCAN channel is open from power-on, so without a wait the boot-up goes out some 6 ms
+/// after the connection. pyserial's `socket://` open discards what is already in the socket
+/// just after connecting; a master that is descheduled for those few ms in between (seen in
+/// about 1 of 150 connections on a busy 2-core machine) loses the boot-up. The wait makes
+/// that margin 100 ms longer. Bytes from the host meanwhile are received and answered (USART1
+/// is enabled in `init`), and its frames wait in the receive queue.
+pub const BOOT_UP_DELAY_MS: u32 = 100;
+
 /// USART1 carrying the CAN link (SLCAN), the QEMU stand-in for the bxCAN instance.
 pub type CanInstance = SlcanLink;
 

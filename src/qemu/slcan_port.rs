@@ -15,9 +15,12 @@
 //!   into the receive queue for `canopen`, after the same acceptance filter as the board's
 //!   bxCAN (NMT, SYNC, this node's SDO requests, heartbeats);
 //! - the transmit mailboxes: USART1 itself. Frames wait in the same FIFO transmit queue and
-//!   are written out (encoded by `sim_io::slcan`) as soon as the host has opened the channel
-//!   (`O`); until then they stay queued, as a CAN controller keeps retrying a frame that
-//!   nobody acknowledges, so the boot-up frame is the first one the master sees;
+//!   are written out (encoded by `sim_io::slcan`) while the SLCAN channel is open. It powers
+//!   up open, because QEMU drops the host's opening `O` when it arrives before `init` has
+//!   enabled USART1: the boot-up frame goes out at boot (after
+//!   [`BOOT_UP_DELAY_MS`](super::board::BOOT_UP_DELAY_MS)), and the master reads it from the
+//!   socket when it listens. After the host's `C` frames stay queued until `O`, as a CAN
+//!   controller keeps retrying a frame that nobody acknowledges;
 //! - the error state: a serial link has no error counters: always error-active, and the SCE
 //!   interrupt never comes.
 
@@ -117,7 +120,7 @@ pub fn start(link: SlcanLink, _bit_rate: BitRate, filter: RxFilter, mode: Mode) 
     defmt::debug_assert!(mode == Mode::Normal);
     Controller {
         link,
-        slcan: SlcanPort::new(),
+        slcan: SlcanPort::new_open(),
         filter,
     }
 }
@@ -167,7 +170,7 @@ impl CanPort {
         while let Some(next) = self.queue.front() {
             // Engine frames are always valid 11-bit frames, so this always succeeds.
             if let Some(frame) = CanFrame::new(next.id(), next.data()) {
-                // `None` while the host has not opened the channel: keep the frame queued.
+                // `None` while the host has closed the channel (`C`): keep the frame queued.
                 let Some(line) = c.slcan.encode(&frame, now_ms()) else {
                     break;
                 };

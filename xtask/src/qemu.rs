@@ -16,8 +16,9 @@
 //!   throw-away connect, but retry its real connection while it is refused.
 //! - QEMU's STM32 USART model drops received bytes while the USART is not enabled (CR1 UE
 //!   and RE): the first bytes a client sends right after connecting (python-can's `O\r`)
-//!   can be lost because the firmware has not enabled USART1 yet. The harness re-sends `O`
-//!   until it sees the boot-up frame.
+//!   can be lost because the firmware has not enabled USART1 yet. So the firmware's SLCAN
+//!   channel powers up open (`sim_io::slcan::SlcanPort::new_open`) and no client re-sends
+//!   `O`.
 //! - `-nographic` alone puts QEMU's monitor on stdio: its banner (`QEMU 7.2.22 monitor -
 //!   type 'help' ...`, `(qemu)`) would be mixed into the defmt stream on stdout.
 //!   `-monitor none` keeps stdout for semihosting only.

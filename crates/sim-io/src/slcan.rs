@@ -36,14 +36,28 @@
 //! | `T` / `R` | open, not listen-only | `Z\r`; parsed, never forwarded (the handwheel uses 11-bit ids only) |
 //! | anything else, malformed, or too long | any | `\a` |
 //!
-//! # The bus is "open" only after `O`
+//! # Power-on state
 //!
-//! Frames from the host are forwarded only while the channel is open. Frames from the device
-//! must reach the host only while it is open too: [`SlcanPort::encode`] returns `None`
-//! before that, and the firmware keeps such frames queued, the way a CAN controller keeps
-//! retrying a frame that no other node acknowledges. This matters at start-up: pyserial's
-//! `socket://` handler discards whatever is already waiting in the socket when it connects,
-//! so a boot-up frame sent before the host's `O` would be lost.
+//! A Lawicel adapter powers up closed and forwards nothing until the host sends `O`;
+//! [`SlcanPort::new`] behaves that way. The QEMU board uses [`SlcanPort::new_open`], which
+//! powers up open, because there the `O` is often lost: QEMU starts the CPU when the host
+//! connects, python-can writes `O` right after connecting, and QEMU's USART model drops every
+//! byte that arrives before the firmware has enabled the USART. A port waiting for that `O`
+//! would keep the boot-up frame (and everything after it) queued for good. Powered up open,
+//! the device's frames go into the socket from boot on and the host reads them when it
+//! listens. pyserial's `socket://` handler does discard what is already in the socket, once,
+//! right after connecting, so the firmware must not send that early: QEMU setting up the
+//! board and the firmware's `init` take only some 6 ms, a descheduled host can take longer,
+//! and the QEMU board therefore holds the boot-up back a little longer
+//! (`BOOT_UP_DELAY_MS` in the firmware's `qemu::board`).
+//!
+//! Otherwise the Lawicel states hold. After `C` the device's frames wait:
+//! [`SlcanPort::encode`] returns `None` and the firmware keeps them queued, the way a CAN
+//! controller keeps retrying a frame that no other node acknowledges, until `O` or `L`
+//! opens the channel again. The host's frames are forwarded only while it is open (not
+//! listen-only). So python-can's `bitrate=` sequence `C`, `Sn`, `O` works whether QEMU
+//! dropped all of it, none of it, or its beginning (bytes are lost only before the USART
+//! is enabled, so whatever arrives ends with the `O`).
 
 use crate::line::{Line, LineAssembler};
 
@@ -325,9 +339,10 @@ pub fn parse(line: &[u8]) -> Result<Command, ParseError> {
 /// State of the SLCAN channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Channel {
-    /// After reset and `C`: no frames either way; configuration commands accepted.
+    /// After [`SlcanPort::new`] and `C`: no frames either way; configuration commands
+    /// accepted.
     Closed,
-    /// After `O`: frames both ways.
+    /// After [`SlcanPort::new_open`] and `O`: frames both ways.
     Open,
     /// After `L`: frames to the host only; the host's frames are refused.
     ListenOnly,
@@ -414,13 +429,24 @@ impl Default for SlcanPort {
 }
 
 impl SlcanPort {
-    /// A closed channel without time stamps. A `\n` after the `\r` (a terminal's `\r\n`)
-    /// is ignored.
+    /// A closed channel without time stamps, as a Lawicel adapter powers up: nothing is
+    /// forwarded either way until the host sends `O` (or `L`). A `\n` after the `\r` (a
+    /// terminal's `\r\n`) is ignored.
     pub const fn new() -> Self {
         Self {
             lines: LineAssembler::new(b'\r', Some(b'\n')),
             channel: Channel::Closed,
             timestamps: false,
+        }
+    }
+
+    /// An open channel without time stamps: like [`SlcanPort::new`] followed by `O`. For a
+    /// link whose host may lose its opening `O` (QEMU's USART before the firmware enables
+    /// it; see the module documentation).
+    pub const fn new_open() -> Self {
+        Self {
+            channel: Channel::Open,
+            ..Self::new()
         }
     }
 
@@ -511,8 +537,10 @@ impl SlcanPort {
         Some(encode_frame(frame, ts))
     }
 
-    /// Back to the power-on state (closed, no time stamps, no partial line): for a host
-    /// that disconnected.
+    /// Closed, no time stamps, no partial line, as [`SlcanPort::new`] starts: for a host
+    /// that disconnected. Closed even after [`SlcanPort::new_open`]: the USART is running
+    /// by then, so the next host's `O` arrives, and until it does the device's frames wait
+    /// instead of going into a socket whose new client may discard them on connecting.
     pub fn reset(&mut self) {
         *self = Self::new();
     }
@@ -562,6 +590,77 @@ mod tests {
         assert_eq!(enc.as_bytes(), b"t710100\r");
         assert_eq!(run(&mut p, b"C\r"), (b"\r".to_vec(), vec![]));
         assert!(!p.is_open());
+    }
+
+    #[test]
+    fn powered_open_port_sends_the_boot_up_before_any_command() {
+        let mut p = SlcanPort::new_open();
+        assert_eq!(p.channel(), Channel::Open);
+        assert!(!p.timestamps());
+        // The boot-up frame goes out although the host has not said a word.
+        let enc = p.encode(&frame(0x710, &[0x00]), 0).unwrap();
+        assert_eq!(enc.as_bytes(), b"t710100\r");
+        // The host's frames are forwarded without an `O` as well.
+        assert_eq!(
+            run(&mut p, b"t00020110\r"),
+            (b"z\r".to_vec(), vec![frame(0x000, &[0x01, 0x10])])
+        );
+        // An `O` that did get through changes nothing.
+        assert_eq!(run(&mut p, b"O\r").0, b"\r");
+        assert_eq!(p.channel(), Channel::Open);
+    }
+
+    #[test]
+    fn powered_open_port_holds_frames_after_close_until_reopened() {
+        let mut p = SlcanPort::new_open();
+        let boot_up = frame(0x710, &[0x00]);
+        assert_eq!(run(&mut p, b"C\r"), (b"\r".to_vec(), vec![]));
+        assert_eq!(p.encode(&boot_up, 0), None, "closed: keep it queued");
+        assert_eq!(
+            run(&mut p, b"t0000\r").0,
+            b"\x07",
+            "host frames refused too"
+        );
+        assert_eq!(run(&mut p, b"O\r").0, b"\r");
+        assert_eq!(p.encode(&boot_up, 0).unwrap().as_bytes(), b"t710100\r");
+        // Listen-only reopens for the device's frames, not for the host's.
+        run(&mut p, b"C\rL\r");
+        assert_eq!(p.encode(&boot_up, 0).unwrap().as_bytes(), b"t710100\r");
+        assert_eq!(run(&mut p, b"t0000\r").0, b"\x07");
+    }
+
+    #[test]
+    fn powered_open_port_keeps_lawicel_configuration_rules() {
+        let mut p = SlcanPort::new_open();
+        // Bit rate, BTR and time stamps are refused while open, as after `O`.
+        assert_eq!(run(&mut p, b"S6\rs0014\rZ1\r").0, b"\x07\x07\x07");
+        assert_eq!(run(&mut p, b"F\r").0, b"F00\r");
+        assert_eq!(run(&mut p, b"C\rZ1\rO\r").0, b"\r\r\r");
+        assert!(p.timestamps() && p.is_open());
+        // `reset` is for a host that disconnected: closed, so the next host's `O` decides.
+        p.reset();
+        assert_eq!((p.channel(), p.timestamps()), (Channel::Closed, false));
+    }
+
+    #[test]
+    fn python_can_bitrate_sequence_from_the_open_state_with_any_prefix_lost() {
+        // bitrate=500000: `C`, `S6`, the empty FD data rate code, `O`. QEMU loses the bytes
+        // that arrive before the firmware enables the USART, so the port sees a suffix of
+        // this; from the open power-on state every suffix leaves the channel open.
+        let sequence = b"C\rS6\r\rO\r";
+        let mut p = SlcanPort::new_open();
+        assert_eq!(run(&mut p, sequence), (b"\r\r\r\r".to_vec(), vec![]));
+        assert_eq!(p.channel(), Channel::Open);
+        for lost in 0..=sequence.len() {
+            let mut p = SlcanPort::new_open();
+            let (replies, frames) = run(&mut p, &sequence[lost..]);
+            assert_eq!(p.channel(), Channel::Open, "first {lost} bytes lost");
+            assert!(frames.is_empty());
+            assert!(
+                p.encode(&frame(0x710, &[0x00]), 0).is_some(),
+                "first {lost} bytes lost: {replies:?}"
+            );
+        }
     }
 
     #[test]

@@ -59,6 +59,21 @@ proptest! {
     }
 
     #[test]
+    fn powered_open_is_the_same_as_new_then_open(input in stream()) {
+        let mut powered = SlcanPort::new_open();
+        let mut opened = SlcanPort::new();
+        for &b in b"O\r" {
+            opened.push(b);
+        }
+        let probe = CanFrame::new(0x710, &[0]).unwrap();
+        for &b in &input {
+            prop_assert_eq!(powered.push(b), opened.push(b));
+            prop_assert_eq!(powered.channel(), opened.channel());
+            prop_assert_eq!(powered.encode(&probe, 0), opened.encode(&probe, 0));
+        }
+    }
+
+    #[test]
     fn stimulus_answers_every_line_exactly_once(input in stream()) {
         let mut port = StimulusPort::new();
         let mut replies = 0;
