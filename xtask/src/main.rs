@@ -39,6 +39,7 @@ tasks:
                                         tcp:127.0.0.1:P (waits for the client), stimulus on
                                         tcp:127.0.0.1:Q, decoded defmt log on stderr
   interop [pytest args]                 only the interop suite (venv, QEMU variant, pytest)
+  host [pytest args]                    only the LinuxCNC component's unit and property tests
   demo [--script]                       the handwheel in QEMU with a live python-canopen master
   bench                                 1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
@@ -53,6 +54,7 @@ fn main() -> ExitCode {
         Some("fw") => firmware_build(),
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
         Some("interop") => interop(rest),
+        Some("host") => host_tests(rest),
         Some("demo") => demo(rest),
         Some("bench") => bench(),
         _ => {
@@ -73,6 +75,7 @@ fn test() -> Result<(), String> {
     let started = Instant::now();
     cargo(&["fmt", "--all", "--", "--check"])?;
     cargo(&["test", "--locked"])?;
+    host_tests(&[])?;
     cargo(&[
         "clippy",
         "--locked",
@@ -338,6 +341,19 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     } else {
         Err(format!("the interop suite failed ({status})"))
     }
+}
+
+/// The host component's unit and property tests (`host/tests`) in `target/host-venv`, made
+/// from the pinned `host/requirements.txt`.
+fn host_tests(pytest_args: &[String]) -> Result<(), String> {
+    let root = workspace_root();
+    let python = pyenv::ensure_from(
+        &root.join(pyenv::HOST_REQUIREMENTS),
+        &target_dir().join("host-venv"),
+    )?;
+    let extra: Vec<&str> = pytest_args.iter().map(String::as_str).collect();
+    pyenv::run(&mut pyenv::host_pytest(&root, &python, &extra))
+        .map_err(|e| format!("the component's unit tests failed: {e}"))
 }
 
 /// `cargo xtask demo [--script]`: prepares everything, then becomes the demo's master
