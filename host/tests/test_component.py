@@ -155,3 +155,18 @@ def test_component_on_a_virtual_bus(tmp_path):
         dev.close()
     assert not thread.is_alive()
     assert made["comp"].exited
+
+
+def test_readme_pin_table_is_the_components():
+    readme = ROOT / "README.md"
+    if not readme.exists():
+        pytest.skip("not in the repository")
+    text = readme.read_text()
+    section = text[text.index("## Use with LinuxCNC"):]
+    section = section[:section.index("\n## ", 5)]
+    rows = {line.split("|")[1].strip().strip("`"): (line.split("|")[2].strip(),
+                                                     line.split("|")[3].strip())
+            for line in section.splitlines() if line.startswith("| `N.")}
+    expected = {"N." + n.replace("{L}", "L"): (t, d) for n, t, d, _ in core.AXIS_PINS}
+    expected.update({"N." + n: (t, d) for n, t, d, _ in core.COMPONENT_PINS})
+    assert rows == expected
