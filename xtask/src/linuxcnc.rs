@@ -48,12 +48,45 @@ pub fn prepare(root: &Path, target_dir: &Path) -> Result<Setup, String> {
             "{SYSTEM_PYTHON} not found: LinuxCNC's Python modules need Debian's python3"
         ));
     }
-    let venv = target_dir.join("linuxcnc-venv");
+    let (python, mut component) = component_venv(root, &target_dir.join("linuxcnc-venv"))?;
+    let user = if host::is_root() {
+        ensure_user()?;
+        if !user_can_run(&component) {
+            // The clone sits below a folder closed to others (a private home, a mktemp
+            // folder): give LinuxCNC's user a venv of its own, in its home.
+            let home = user_home()?;
+            eprintln!(
+                "xtask: `{USER}` cannot reach {}; installing the component for it in {}",
+                component.display(),
+                home.display()
+            );
+            component = component_venv(root, &home.join("linuxcnc-venv"))?.1;
+            if !user_can_run(&component) {
+                return Err(format!(
+                    "the user `{USER}` that runs LinuxCNC cannot run {}",
+                    component.display()
+                ));
+            }
+        }
+        Some(USER)
+    } else {
+        None
+    };
+    Ok(Setup {
+        python,
+        component,
+        user,
+    })
+}
+
+/// The venv at `venv` with the pinned requirements and the component from `host/`;
+/// returns its interpreter and the component's console script.
+fn component_venv(root: &Path, venv: &Path) -> Result<(PathBuf, PathBuf), String> {
     let python = pyenv::ensure_with(
-        base,
+        Path::new(SYSTEM_PYTHON),
         &["--system-site-packages"],
         &root.join(pyenv::HOST_REQUIREMENTS),
-        &venv,
+        venv,
     )?;
     // The dependencies are pinned and installed above; setuptools comes with the venv.
     pyenv::run(
@@ -75,22 +108,11 @@ pub fn prepare(root: &Path, target_dir: &Path) -> Result<Setup, String> {
     if !component.is_file() {
         return Err(format!("{} was not installed", component.display()));
     }
-    let user = if host::is_root() {
-        ensure_user(root, &component)?;
-        Some(USER)
-    } else {
-        None
-    };
-    Ok(Setup {
-        python,
-        component,
-        user,
-    })
+    Ok((python, component))
 }
 
-/// Creates [`USER`] when missing and checks that it can run the component and read the
-/// sim configuration (every folder above them must be open to others).
-fn ensure_user(root: &Path, component: &Path) -> Result<(), String> {
+/// Creates [`USER`] when missing.
+fn ensure_user() -> Result<(), String> {
     let exists = Command::new("id")
         .args(["-u", USER])
         .output()
@@ -105,26 +127,31 @@ fn ensure_user(root: &Path, component: &Path) -> Result<(), String> {
             USER,
         ]))?;
     }
-    let sim = root.join("host/linuxcnc/sim/handwheel-display");
-    let check = format!(
-        "test -x '{}' && test -x '{}'",
-        component.display(),
-        sim.display()
-    );
-    let ok = Command::new("su")
+    Ok(())
+}
+
+/// Whether [`USER`] can run `component` (every folder above it open to it). The sim
+/// configuration needs no such check: `sim_machine.py` copies it to a folder of that user.
+fn user_can_run(component: &Path) -> bool {
+    let check = format!("test -x '{}'", component.display());
+    Command::new("su")
         .args([USER, "-s", "/bin/sh", "-c", &check])
         .status()
         .map(|s| s.success())
-        .unwrap_or(false);
-    if ok {
-        Ok(())
-    } else {
-        Err(format!(
-            "the user `{USER}` that runs LinuxCNC cannot run {} or read {}: the folders \
-             above the repository must be readable by others (chmod o+rx), or clone it \
-             elsewhere",
-            component.display(),
-            sim.display()
-        ))
-    }
+        .unwrap_or(false)
+}
+
+/// [`USER`]'s home folder, from the password database.
+fn user_home() -> Result<PathBuf, String> {
+    let out = Command::new("getent")
+        .args(["passwd", USER])
+        .output()
+        .map_err(|e| format!("getent passwd {USER}: {e}"))?;
+    let line = String::from_utf8_lossy(&out.stdout);
+    line.trim_end()
+        .split(':')
+        .nth(5)
+        .filter(|home| !home.is_empty())
+        .map(PathBuf::from)
+        .ok_or_else(|| format!("no home folder for `{USER}` in the password database"))
 }
