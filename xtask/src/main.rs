@@ -6,6 +6,7 @@
 
 mod footprint;
 mod host;
+mod linuxcnc;
 mod machine_bench;
 mod pyenv;
 mod qemu;
@@ -39,6 +40,10 @@ tasks:
                                         tcp:127.0.0.1:P (waits for the client), stimulus on
                                         tcp:127.0.0.1:Q, decoded defmt log on stderr
   interop [pytest args]                 only the interop suite (venv, QEMU variant, pytest)
+  host [pytest args]                    only the LinuxCNC component's unit and property tests
+  linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the QEMU handwheel in the
+                                        terminal: DRO, machine state, wheel from the keyboard
+  linuxcnc-test [pytest args]           only the LinuxCNC suite (component in LinuxCNC 2.9)
   demo [--script]                       the handwheel in QEMU with a live python-canopen master
   bench                                 1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
@@ -53,6 +58,9 @@ fn main() -> ExitCode {
         Some("fw") => firmware_build(),
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
         Some("interop") => interop(rest),
+        Some("host") => host_tests(rest),
+        Some("linuxcnc") => linuxcnc_console(rest),
+        Some("linuxcnc-test") => linuxcnc_suite(rest),
         Some("demo") => demo(rest),
         Some("bench") => bench(),
         _ => {
@@ -73,6 +81,7 @@ fn test() -> Result<(), String> {
     let started = Instant::now();
     cargo(&["fmt", "--all", "--", "--check"])?;
     cargo(&["test", "--locked"])?;
+    host_tests(&[])?;
     cargo(&[
         "clippy",
         "--locked",
@@ -161,6 +170,7 @@ fn test() -> Result<(), String> {
         started.elapsed().as_secs_f64()
     );
     interop(&[])?;
+    linuxcnc_suite(&[])?;
     eprintln!(
         "xtask: all checks passed in {:.0} s",
         started.elapsed().as_secs_f64()
@@ -338,6 +348,58 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     } else {
         Err(format!("the interop suite failed ({status})"))
     }
+}
+
+/// The host component's unit and property tests (`host/tests`) in `target/host-venv`, made
+/// from the pinned `host/requirements.txt`.
+fn host_tests(pytest_args: &[String]) -> Result<(), String> {
+    let root = workspace_root();
+    let python = pyenv::ensure_from(
+        &root.join(pyenv::HOST_REQUIREMENTS),
+        &target_dir().join("host-venv"),
+    )?;
+    let extra: Vec<&str> = pytest_args.iter().map(String::as_str).collect();
+    pyenv::run(&mut pyenv::host_pytest(&root, &python, &extra))
+        .map_err(|e| format!("the component's unit tests failed: {e}"))
+}
+
+/// The LinuxCNC suite (`tests/linuxcnc`): the QEMU handwheel and the component in the real
+/// LinuxCNC 2.9, set up by [`linuxcnc::prepare`].
+fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
+    let started = Instant::now();
+    Emulator::prepare()?;
+    let root = workspace_root();
+    let setup = linuxcnc::prepare(&root, &target_dir())?;
+    let mut pytest = Command::new(&setup.python);
+    pytest
+        .args(["-m", "pytest", linuxcnc::SUITE])
+        .args(pytest_args)
+        .current_dir(&root);
+    setup.apply(&mut pytest);
+    let result = pyenv::run(&mut pytest);
+    eprintln!(
+        "xtask: LinuxCNC suite took {:.0} s",
+        started.elapsed().as_secs_f64()
+    );
+    result.map_err(|e| format!("the LinuxCNC suite failed: {e}"))
+}
+
+/// `cargo xtask linuxcnc [--script]`: prepares, then becomes the console
+/// (`host/linuxcnc/console.py`), which starts QEMU and LinuxCNC itself.
+fn linuxcnc_console(args: &[String]) -> Result<(), String> {
+    Emulator::prepare()?;
+    let root = workspace_root();
+    let setup = linuxcnc::prepare(&root, &target_dir())?;
+    let mut command = Command::new(&setup.python);
+    command
+        .arg(root.join(linuxcnc::CONSOLE))
+        .args(args)
+        .current_dir(&root)
+        .env("HANDWHEEL_LOG_DIR", target_dir().join("linuxcnc"));
+    setup.apply(&mut command);
+    eprintln!("xtask: {command:?}");
+    let error = command.exec();
+    Err(format!("cannot run {}: {error}", setup.python.display()))
 }
 
 /// `cargo xtask demo [--script]`: prepares everything, then becomes the demo's master

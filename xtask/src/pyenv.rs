@@ -16,6 +16,10 @@ use crate::host;
 pub const REQUIREMENTS: &str = "tests/interop/requirements.txt";
 /// The suite, relative to the workspace root.
 pub const SUITE: &str = "tests/interop";
+/// The host component's pinned requirements (its dependencies and its tests').
+pub const HOST_REQUIREMENTS: &str = "host/requirements.txt";
+/// The host component's package folder (pyproject.toml, its unit tests).
+pub const HOST_PACKAGE: &str = "host";
 /// Stamp file inside the venv.
 const STAMP: &str = "requirements.stamp";
 
@@ -58,7 +62,7 @@ fn interpreter_version(python: &Path) -> String {
 }
 
 /// The base interpreter: `$PYTHON` if set, else `python3` on PATH (installed as root).
-fn base_python() -> Result<PathBuf, String> {
+pub fn base_python() -> Result<PathBuf, String> {
     if let Some(p) = std::env::var_os("PYTHON") {
         return Ok(PathBuf::from(p));
     }
@@ -87,10 +91,28 @@ pub fn ensure(root: &Path, venv: &Path) -> Result<PathBuf, String> {
 /// Creates or refreshes the venv at `venv` from the pinned `requirements` file; returns the
 /// venv's interpreter. Does nothing when the stamp matches.
 pub fn ensure_from(requirements: &Path, venv: &Path) -> Result<PathBuf, String> {
+    ensure_with(&base_python()?, &[], requirements, venv)
+}
+
+/// Like [`ensure_from`], with the base interpreter `base` and extra `venv_options` (such as
+/// `--system-site-packages`, which then become part of the stamp).
+pub fn ensure_with(
+    base: &Path,
+    venv_options: &[&str],
+    requirements: &Path,
+    venv: &Path,
+) -> Result<PathBuf, String> {
     let pinned = std::fs::read(requirements)
         .map_err(|e| format!("cannot read {}: {e}", requirements.display()))?;
-    let base = base_python()?;
-    let version = interpreter_version(&base);
+    let base = base.to_path_buf();
+    let version = [
+        interpreter_version(&base),
+        base.display().to_string(),
+        venv_options.join(" "),
+    ]
+    .join(" ")
+    .trim_end()
+    .to_string();
     let stamp = format!("{:016x} {version}\n", fnv1a(&[&pinned, version.as_bytes()]));
     let python = venv_python(venv);
     let stamp_path = venv.join(STAMP);
@@ -102,6 +124,7 @@ pub fn ensure_from(requirements: &Path, venv: &Path) -> Result<PathBuf, String> 
     let make = |python: &Path| {
         run(Command::new(python)
             .args(["-m", "venv", "--clear"])
+            .args(venv_options)
             .arg(venv))
     };
     if let Err(first) = make(&base) {
@@ -129,6 +152,16 @@ pub fn ensure_from(requirements: &Path, venv: &Path) -> Result<PathBuf, String> 
     std::fs::write(&stamp_path, stamp)
         .map_err(|e| format!("cannot write {}: {e}", stamp_path.display()))?;
     Ok(python)
+}
+
+/// `python -m pytest <extra>` in `host/`: the component's unit and property tests (its
+/// pyproject puts `src` on the path).
+pub fn host_pytest(root: &Path, python: &Path, extra: &[&str]) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.args(["-m", "pytest"])
+        .args(extra)
+        .current_dir(root.join(HOST_PACKAGE));
+    cmd
 }
 
 /// `python -m pytest tests/interop <extra>` from the workspace root.

@@ -1,0 +1,209 @@
+#!/usr/bin/env python3
+"""`cargo xtask linuxcnc`: LinuxCNC's sim XYZ mill driven by the QEMU handwheel, in the
+terminal.
+
+Starts the firmware's QEMU variant (`cargo xtask qemu`), then LinuxCNC with the sim machine
+of `sim/` (as HANDWHEEL_LINUXCNC_USER when set) whose HAL loads the component
+(HANDWHEEL_COMPONENT) on QEMU's SLCAN port, exactly as a machine would on `can0`. Its
+headless display switches the machine on and homes it; this console shows LinuxCNC's DRO,
+the machine state and the handwheel as the component sees it, and turns the wheel from the
+keyboard through QEMU's stimulus port:
+
+    right/up, left/down   one detent forward / back      PgUp / PgDn   ten
+    x y z w v, 0          axis (0: none)                  1 2 3         x1 x10 x100
+    m                     machine on / off                q, Ctrl-C     quit
+
+`--script` runs a short checked tour instead (exit status 1 if LinuxCNC's position is wrong).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import select
+import shutil
+import sys
+import tempfile
+import termios
+import time
+import tty
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+sys.path.insert(0, str(HERE))
+
+from sim_machine import SimMachine  # noqa: E402
+
+
+def load_rig():
+    """The interop suite's emulator and stimulus classes."""
+    spec = importlib.util.spec_from_file_location("interop_rig", ROOT / "tests/interop/conftest.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+STATES = {1: "E-stop", 2: "off", 3: "off", 4: "ON"}
+ARROWS = {b"\x1b[A": 1, b"\x1b[C": 1, b"\x1b[B": -1, b"\x1b[D": -1, b"\x1b[5~": 10,
+          b"\x1b[6~": -10, b"\x1bOA": 1, b"\x1bOC": 1, b"\x1bOB": -1, b"\x1bOD": -1}
+HELP = ("keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10, x y z w v axis, 0 none,\n"
+        "       1 2 3 = x1 x10 x100, m machine on/off, q quit")
+
+
+def view(status: dict, last: str) -> list:
+    p = status["pins"]
+    x, y, z = status["pos"]
+    axis = p.get("axis") or 0
+    homed = "homed" if all(status["homed"]) else "not homed"
+    return [
+        f"LinuxCNC  machine {STATES.get(status['task_state'], status['task_state'])}, {homed},"
+        f" {'teleop' if status['teleop'] else 'joint'} mode",
+        f"  DRO     X {x:10.4f}   Y {y:10.4f}   Z {z:10.4f}  mm",
+        f"handwheel {'connected' if p.get('connected') else 'NOT connected'}, "
+        f"axis {' XYZWV'[axis] if 0 <= axis <= 5 else '?'} x{p.get('multiplier')}, "
+        f"feed {'on' if p.get('feed-enabled') else 'off'}, enable pin "
+        f"{'on' if p.get('enable') else 'off'}, position {p.get('position')}",
+        f"          EMCY 0x{(p.get('emcy-code') or 0):04X}, records lost {p.get('records-lost')},"
+        f" bad frames {p.get('frames-bad')}",
+        f"last      {last}",
+    ]
+
+
+def split_keys(data: bytes) -> list:
+    keys, i = [], 0
+    while i < len(data):
+        for seq in ARROWS:
+            if data.startswith(seq, i):
+                keys.append(seq)
+                i += len(seq)
+                break
+        else:
+            keys.append(data[i:i + 1])
+            i += 1
+    return keys
+
+
+def interactive(cnc: SimMachine, stim) -> None:
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    tty.setcbreak(fd)
+    out = sys.stdout
+    drawn, last = 0, "-"
+    try:
+        out.write("\x1b[?25l" + HELP + "\n")
+        while True:
+            width = shutil.get_terminal_size().columns - 1
+            lines = [line[:width] for line in view(cnc.must("status"), last)]
+            if drawn:
+                out.write(f"\x1b[{drawn}F")
+            for line in lines:
+                out.write("\x1b[2K" + line + "\n")
+            out.flush()
+            drawn = len(lines)
+            ready, _, _ = select.select([fd], [], [], 0.1)
+            if not ready:
+                continue
+            for key in split_keys(os.read(fd, 64)):
+                k = key.lower()
+                if k == b"q":
+                    return
+                if key in ARROWS:
+                    command = f"turn {ARROWS[key]:+d}"
+                elif k in (b"x", b"y", b"z", b"w", b"v"):
+                    command = f"axis {k.decode()}"
+                elif k == b"0":
+                    command = "axis off"
+                elif k in (b"1", b"2", b"3"):
+                    command = f"mult {10 ** (int(k) - 1)}"
+                elif k == b"m":
+                    on = cnc.must("status")["task_state"] == 4
+                    reply = cnc.call("off" if on else "on")
+                    last = f"machine {'off' if on else 'on'}: {'ok' if reply['ok'] else reply}"
+                    continue
+                else:
+                    continue
+                last = f"{command}: {stim.send(command)}"
+    finally:
+        out.write("\x1b[?25h")
+        out.flush()
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
+def wait_status(cnc: SimMachine, pred, timeout: float, what: str) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        s = cnc.must("status")
+        if pred(s):
+            return s
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"no {what} in {timeout} s: {s}")
+        time.sleep(0.05)
+
+
+def script(cnc: SimMachine, stim) -> bool:
+    """Select, turn, check LinuxCNC's DRO after each step."""
+    ok = True
+    expected = [0.0, 0.0, 0.0]
+    start = wait_status(cnc, lambda s: s["pins"]["feed-enabled"], 30, "feed on")["pos"]
+    expected = list(start)
+    for axis, mult, detents in [("x", 1, 5), ("x", 10, -3), ("y", 100, 2), ("z", 10, 7)]:
+        stim.send(f"axis {axis}")
+        stim.send(f"mult {mult}")
+        L = "xyz".index(axis)
+        wait_status(cnc, lambda s: s["pins"][f"axis.{axis}.jog-enable"]
+                    and s["pins"]["multiplier"] == mult, 10, f"{axis} x{mult}")
+        stim.send(f"turn {detents}")
+        expected[L] += detents * mult * 0.001
+        try:
+            s = wait_status(cnc, lambda s: all(abs(a - b) < 1e-6
+                                               for a, b in zip(s["pos"], expected)), 10, "position")
+            result = "ok"
+        except RuntimeError:
+            s, result, ok = cnc.must("status"), "WRONG", False
+        print(f"{axis.upper()} x{mult:<3} turn {detents:+d}: " + view(s, result)[1].strip()
+              + f"  ({result})", flush=True)
+    return ok
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--script", action="store_true", help="a checked tour, then exit")
+    args = p.parse_args()
+    component = os.environ.get("HANDWHEEL_COMPONENT") or str(
+        Path(sys.executable).parent / "canopen-handwheel")
+    user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
+    rig = load_rig()
+    logs = Path(os.environ.get("HANDWHEEL_LOG_DIR") or tempfile.mkdtemp(prefix="handwheel-"))
+    logs.mkdir(parents=True, exist_ok=True)
+    qemu = rig.Qemu(logs / "qemu.log")
+    cnc = stim = None
+    try:
+        print(f"starting QEMU and LinuxCNC (logs in {logs}) ...", flush=True)
+        cnc = SimMachine(component, f"socket://127.0.0.1:{qemu.can_port}", logs / "linuxcnc.log",
+                         user=user, auto_on=True)
+        cnc.connect()
+        stim = rig.Stimulus(qemu.stim_port, qemu)
+        if args.script:
+            return 0 if script(cnc, stim) else 1
+        interactive(cnc, stim)
+        return 0
+    except KeyboardInterrupt:
+        return 0
+    except Exception as e:
+        print(f"linuxcnc console: {e}", file=sys.stderr)
+        if cnc is not None:
+            print(cnc.tail(30), file=sys.stderr)
+        return 1
+    finally:
+        if stim is not None:
+            stim.close()
+        if cnc is not None:
+            cnc.stop()
+        qemu.stop()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,199 @@
+"""Properties of the component's decisions over generated frame streams (hypothesis)."""
+
+from hypothesis import assume, given, settings, strategies as st
+
+from canopen_handwheel import core
+from canopen_handwheel.core import Config, Core, wrap_s32
+
+NODE = 16
+TPDO1, EMCY, HB = 0x180 + NODE, 0x080 + NODE, 0x700 + NODE
+T = 0.1
+S32 = st.integers(-(2**31), 2**31 - 1)
+
+
+def rec(position, axis, mult, status, seq) -> bytes:
+    return (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, seq & 0xFF])
+
+
+# One step of a hostile stream: (kind, ...).
+record_step = st.tuples(
+    st.just("record"),
+    S32,  # position
+    st.one_of(st.integers(0, 5), st.integers(0, 255)),  # axis byte, sometimes unknown
+    st.sampled_from([1, 10, 100, 7]),
+    st.integers(0, 255),  # status
+    st.integers(0, 255),  # sequence
+    st.floats(0, 0.5),  # time since the last step
+)
+step = st.one_of(
+    record_step,
+    record_step,
+    st.tuples(st.just("hb"), st.sampled_from([0x00, 0x04, 0x05, 0x7F, 0x85]), st.floats(0, 0.2)),
+    st.tuples(st.just("emcy"), st.binary(min_size=0, max_size=9), st.floats(0, 0.2)),
+    st.tuples(st.just("raw"), st.sampled_from([TPDO1, EMCY, HB, 0x000, 0x181, 0x590]),
+              st.binary(min_size=0, max_size=9), st.floats(0, 0.2)),
+    st.tuples(st.just("enable"), st.booleans()),
+    st.tuples(st.just("tick"), st.floats(0, 1.0)),
+    st.tuples(st.just("done"), st.booleans(), st.sampled_from([None, core.ABORT_DEVICE_STATE])),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from(["xyzwv", "xyz", "x", "zx"]), st.lists(step, max_size=60))
+def test_any_stream_is_safe(axes, steps):
+    """Whatever arrives: no exception; counts move only on an enabled record naming their
+    axis that continues the previous record's selection with nothing in between; at most
+    one jog-enable, only for the selected axis, only with `enable` and fresh enabled
+    records; every pin in its HAL range."""
+    c = Core(Config(axes=axes))
+    t = 0.0
+    prev = None  # previous TPDO1 record processed (decoded), None after an interruption
+    for s in steps:
+        before = dict(c.counts)
+        kind = s[0]
+        moved_ok = set()
+        if kind == "record":
+            _, pos, axis, mult, status, seq, dt = s
+            t += dt
+            c.tick(t)
+            stale = not c.fresh
+            new = core.Record(pos, axis, mult, status, seq)
+            continues = (
+                prev is not None
+                and not stale
+                and prev.selection == new.selection
+                and new.enabled
+                and prev.axis <= 5
+                and new.axis <= 5
+            )
+            if continues and 1 <= axis <= len(axes):
+                moved_ok = {axes[axis - 1]}
+            c.frame(TPDO1, rec(pos, axis, mult, status, seq), t)
+            prev = new
+        elif kind == "hb":
+            t += s[2]
+            c.frame(HB, bytes([s[1]]), t)
+            if s[1] & 0x7F == 0:
+                prev = None
+        elif kind == "emcy":
+            t += s[2]
+            c.frame(EMCY, s[1], t)
+        elif kind == "raw":
+            t += s[3]
+            c.frame(s[1], s[2], t)
+            if s[1] == TPDO1 and len(s[2]) == 8:
+                moved_ok = set(axes)  # arbitrary bytes: the record steps check this
+                prev = core.Record.decode(s[2])
+            if s[1] == HB and len(s[2]) == 1 and s[2][0] & 0x7F == 0:
+                prev = None
+        elif kind == "enable":
+            c.set_enable(s[1])
+        elif kind == "tick":
+            t += s[1]
+            c.tick(t)
+        elif kind == "done":
+            a = c.next_action(t)
+            if a is not None:
+                c.done(a, s[1], s[2], t)
+        for L in axes:
+            if c.counts[L] != before[L]:
+                assert L in moved_ok, (s, L, before, c.counts)
+        p = c.pins()
+        on = [L for L in axes if p.jog_enable[L]]
+        assert len(on) <= 1
+        if on:
+            assert c.enable and p.connected and p.feed_enabled and p.select[on[0]]
+            assert c.state in (None, core.OPERATIONAL)
+        for v in list(p.jog_counts.values()) + [p.position, p.records_lost, p.frames_bad,
+                                                  p.axis, p.multiplier, p.state]:
+            assert -(2**31) <= v < 2**31
+        assert 0 <= p.emcy_code <= 0xFFFF
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(1, 5),
+    S32,
+    st.lists(st.tuples(st.integers(-5000, 5000), st.booleans()), min_size=1, max_size=200),
+)
+def test_lost_records_cost_nothing(axis, start, moves):
+    """One selection, a record every event-timer period, any of them lost but never two in
+    a row (three periods of silence are a disconnect): the axis gets exactly the wrapping
+    distance between the first and the last record received, and the lost ones are
+    counted."""
+    assume(max_run_of_losses(moves) < 2)
+    c = Core(Config())
+    t = 0.0
+    seq = 0
+    pos = start
+    c.frame(TPDO1, rec(pos, axis, 10, core.STATUS_ENABLED, seq), t)
+    last_received, lost, lost_seen = pos, 0, 0
+    for delta, received in moves:
+        pos = wrap_s32(pos + delta)
+        seq += 1
+        t += T
+        if received:
+            c.frame(TPDO1, rec(pos, axis, 10, core.STATUS_ENABLED, seq), t)
+            last_received, lost_seen = pos, lost
+        else:
+            lost += 1
+            c.tick(t)
+    letter = "xyzwv"[axis - 1]
+    assert c.counts[letter] == wrap_s32(last_received - start)
+    assert c.pins().records_lost == lost_seen  # a gap shows with the next record
+
+
+def max_run_of_losses(moves):
+    run = best = 0
+    for _, received in moves:
+        run = 0 if received else run + 1
+        best = max(best, run)
+    return best
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(step, max_size=40), st.floats(0.001, 5))
+def test_silence_disconnects(steps, extra):
+    """After any stream, three event-timer periods without a record: not connected, no
+    jog-enable, no selection."""
+    c = Core(Config())
+    t = 0.0
+    last_record = None
+    for s in steps:
+        if s[0] == "record":
+            _, pos, axis, mult, status, seq, dt = s
+            t += dt
+            c.frame(TPDO1, rec(pos, axis, mult, status, seq), t)
+            last_record = t
+        elif s[0] == "enable":
+            c.set_enable(s[1])
+    if last_record is None:
+        assert not c.pins().connected
+        return
+    c.tick(last_record + 3 * T + extra)
+    p = c.pins()
+    assert not p.connected and not p.feed_enabled
+    assert not any(p.jog_enable.values()) and not any(p.select.values())
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(-1000, 1000), min_size=2, max_size=50), st.integers(1, 5))
+def test_bootup_anywhere_never_becomes_motion(moves, where):
+    """A device reset (boot-up, position back to 0) in the middle of a stream: the first
+    record after it is a baseline, so the axis gets the moves before and after it only."""
+    c = Core(Config())
+    t = 0.0
+    pos = 12345
+    c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, 0), t)
+    expected = 0
+    cut = where % len(moves)
+    for i, delta in enumerate(moves):
+        t += 0.05
+        if i == cut:
+            c.frame(HB, b"\x00", t)
+            pos = 0
+            c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, 0), t)
+        pos = wrap_s32(pos + delta)
+        expected += delta
+        c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, i + 1), t + 0.01)
+    assert c.counts["x"] == expected
