@@ -4,21 +4,16 @@ QEMU's SLCAN line takes one client. The hub is that client and listens on a port
 where any number of python-can `slcan` clients (`socket://127.0.0.1:<port>`) connect: every
 frame from the device goes to all of them, every frame from a client to the device and to
 the other clients, as on a bus. Channel commands from clients (`O`, `C`, `S8`, ...) are
-answered `\\r` locally and not passed on; the hub opens the device's channel itself.
+answered `\\r` locally and not passed on: the device's channel is open from its power-on.
 """
 
 from __future__ import annotations
 
 import select
 import socket
-import sys
 import threading
 import time
-from pathlib import Path
 from typing import List
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-from canopen_handwheel import compat  # noqa: E402
 
 FRAME_COMMANDS = b"tTrR"
 
@@ -32,7 +27,6 @@ class SlcanHub:
         self.server.bind(("127.0.0.1", 0))
         self.server.listen(8)
         self.port = self.server.getsockname()[1]
-        self.heard = threading.Event()
         self._stop = threading.Event()
         self._clients: List[socket.socket] = []
         self._buffers = {}
@@ -73,9 +67,7 @@ class SlcanHub:
 
     def _pump(self, up: socket.socket) -> None:
         up_buf = b""
-        reopen = compat.ReopenUntilHeard(lambda: up.sendall(b"O\r"))
         while not self._stop.is_set():
-            reopen.poll(time.monotonic(), self.heard.is_set())
             readable, _, _ = select.select([up, self.server] + self._clients, [], [], 0.05)
             for s in readable:
                 if s is self.server:
@@ -92,7 +84,6 @@ class SlcanHub:
                     for line in lines:
                         line = line.lstrip(b"\x07")
                         if line[:1] and line[:1] in FRAME_COMMANDS:
-                            self.heard.set()
                             self._send_all(line + b"\r", exclude=None)
                 else:
                     self._from_client(s, up)

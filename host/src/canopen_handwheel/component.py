@@ -22,7 +22,7 @@ import time
 from importlib import resources
 from typing import Callable, Optional
 
-from . import compat, core
+from . import core
 
 NMT_START = 0x01
 
@@ -163,14 +163,6 @@ class Link:
         self.network.listeners.append(Feed())
         self.node = self.network.add_node(args.node, args.eds or default_eds())
         self.network.connect()
-        self.heard = False
-        self.reopen = (
-            compat.ReopenUntilHeard(self._send_open) if args.interface == "slcan" else None
-        )
-
-    def _send_open(self) -> None:
-        with self.network.send_lock:
-            self.bus.open()
 
     def send(self, cob_id: int, data: bytes) -> None:
         self.network.send_message(cob_id, data)
@@ -288,8 +280,6 @@ def run(args: argparse.Namespace, hal_module=None, stop: Optional[threading.Even
             while event is not None:
                 if event[0] == "frame":
                     _, cob_id, data, t = event
-                    if link is not None:
-                        link.heard = True
                     c.frame(cob_id, data, t)
                 elif event[0] == "done":
                     _, action, ok, abort = event
@@ -303,8 +293,6 @@ def run(args: argparse.Namespace, hal_module=None, stop: Optional[threading.Even
             c.tick(now)
             if link is not None:
                 try:
-                    if link.reopen is not None:
-                        link.reopen.poll(now, link.heard)
                     if now >= next_heartbeat:
                         link.send(0x700 + cfg.master, bytes([core.OPERATIONAL]))
                         next_heartbeat = now + cfg.heartbeat_period
