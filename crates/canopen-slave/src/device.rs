@@ -10,6 +10,7 @@ use crate::frame::{
 };
 use crate::heartbeat::Heartbeat;
 use crate::indicators::ErrorIndication;
+use crate::lss::{self, LssAction, LssAddress, LssSlave};
 use crate::nmt::{NmtCommand, NmtState};
 use crate::od::{Od, OdEntry, Value};
 use crate::sdo::{ObjectAccess, SdoAbort, SdoServer};
@@ -71,8 +72,14 @@ pub trait Application {
 /// Run-time configuration of the device.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Config {
-    /// Our node-ID.
-    pub node_id: NodeId,
+    /// Our node-ID at power-on; `None`: unconfigured (CiA 305 node-ID 0xFF), the node sends
+    /// no boot-up and answers only LSS until a master gives it a node-ID.
+    pub node_id: Option<NodeId>,
+    /// The CAN bit rate in force, as a CiA 301 bit-timing table index (0 = 1 Mbit/s), for
+    /// LSS; [`lss::DEFAULT_BIT_TIMINGS`] by default.
+    pub bit_timing: u8,
+    /// Bit `i` set: the firmware can run at table index `i` (LSS configure bit timing).
+    pub bit_timings: u16,
     /// 0x1018:04, e.g. a hash of the MCU's unique ID.
     pub serial_number: u32,
     /// An unfinished segmented SDO transfer is aborted (0x05040000) after this long.
@@ -80,10 +87,17 @@ pub struct Config {
 }
 
 impl Config {
-    /// Serial number 0, SDO timeout 1 s.
+    /// Serial number 0, SDO timeout 1 s, 1 Mbit/s.
     pub const fn new(node_id: NodeId) -> Self {
+        Self::with_node(Some(node_id))
+    }
+
+    /// [`Config::new`] for a node that may be unconfigured (`None`).
+    pub const fn with_node(node_id: Option<NodeId>) -> Self {
         Self {
             node_id,
+            bit_timing: 0,
+            bit_timings: lss::DEFAULT_BIT_TIMINGS,
             serial_number: 0,
             sdo_timeout_ms: 1000,
         }
@@ -119,6 +133,8 @@ enum Boot {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Device<S> {
     sdo: SdoServer,
+    /// LSS (CiA 305): it also owns the node-ID the next reset of communication activates.
+    lss: LssSlave,
     inner: Inner<S>,
 }
 
@@ -127,7 +143,8 @@ pub struct Device<S> {
 #[derive(Clone, Debug, PartialEq)]
 struct Inner<S> {
     od: Od,
-    node: NodeId,
+    /// The active node-ID; `None` while unconfigured (the NMT state is then Initialising).
+    node: Option<NodeId>,
     serial: u32,
     state: NmtState,
     heartbeat: Heartbeat,
@@ -144,8 +161,24 @@ struct Inner<S> {
 impl<S: Storage> Device<S> {
     /// A device in `Initialising`; nothing happens on the bus before [`Device::start`].
     pub fn new(config: Config, od: Od, storage: S) -> Self {
+        let identity = |sub| match od.find(0x1018, sub).map(|e| e.value()) {
+            Ok(Value::Const(v)) => v,
+            _ => 0,
+        };
+        let address = LssAddress {
+            vendor_id: identity(1),
+            product_code: identity(2),
+            revision: identity(3),
+            serial: config.serial_number,
+        };
         Self {
             sdo: SdoServer::new(config.sdo_timeout_ms),
+            lss: LssSlave::new(
+                address,
+                config.node_id,
+                config.bit_timing,
+                config.bit_timings,
+            ),
             inner: Inner {
                 od,
                 node: config.node_id,
@@ -177,11 +210,17 @@ impl<S: Storage> Device<S> {
         app: &mut dyn Application,
         tx: &mut dyn FrameSink,
     ) {
-        let state = self.inner.state;
-        if state == NmtState::Initialising {
+        if frame.id() == lss::LSS_REQUEST {
+            self.on_lss(now, frame, app, tx);
             return;
         }
-        let node = self.inner.node;
+        let state = self.inner.state;
+        // An unconfigured node stays in Initialising: it answers LSS only.
+        let (NmtState::PreOperational | NmtState::Operational | NmtState::Stopped, Some(node)) =
+            (state, self.inner.node)
+        else {
+            return;
+        };
         let id = frame.id();
         if id == cob::NMT {
             if let Some(cmd) = NmtCommand::parse(frame, node) {
@@ -218,10 +257,12 @@ impl<S: Storage> Device<S> {
     /// Time-driven work: SDO timeout, heartbeat consumers and producer, TPDO event timers
     /// and inhibit times, queued EMCYs. Call it at [`Device::next_deadline`] at the latest.
     pub fn poll(&mut self, now: Instant, app: &mut dyn Application, tx: &mut dyn FrameSink) {
+        let Some(node) = self.inner.node else {
+            return;
+        };
         if self.inner.state == NmtState::Initialising {
             return;
         }
-        let node = self.inner.node;
         if let Some(abort) = self.sdo.poll(now) {
             self.inner
                 .emit(tx, Frame::from_parts(node.cob_id(cob::SDO_TX), abort, 8));
@@ -252,9 +293,10 @@ impl<S: Storage> Device<S> {
     pub fn next_deadline(&self) -> Option<Instant> {
         let inner = &self.inner;
         if inner.state == NmtState::Initialising {
-            return None;
+            return self.lss.deadline();
         }
         let mut next = earliest(self.sdo.deadline(), inner.heartbeat.deadline());
+        next = earliest(next, self.lss.deadline());
         if inner.state == NmtState::Operational {
             for t in &inner.tpdos {
                 next = earliest(next, t.deadline());
@@ -358,9 +400,23 @@ impl<S: Storage> Device<S> {
         self.inner.state
     }
 
-    /// Our node-ID.
-    pub fn node_id(&self) -> NodeId {
+    /// Our node-ID; `None` while unconfigured.
+    pub fn node_id(&self) -> Option<NodeId> {
         self.inner.node
+    }
+
+    /// The LSS slave: state, pending node-ID and bit timing.
+    pub fn lss(&self) -> &LssSlave {
+        &self.lss
+    }
+
+    /// After "activate bit timing" and its switch delay: the CiA 301 bit-timing table index
+    /// the firmware must switch its CAN controller to now (once). Call it after `poll`;
+    /// [`Device::next_deadline`] includes the moment.
+    pub fn take_bit_timing_switch(&mut self, now: Instant) -> Option<u8> {
+        let index = self.lss.take_bit_timing_switch(now)?;
+        info!("LSS: switching to bit timing {=u8}", index);
+        Some(index)
     }
 
     /// 0x1001.
@@ -425,7 +481,10 @@ impl<S: Storage> Device<S> {
     pub fn rx_filter(&self) -> RxFilter {
         // 0x1005 is checked to carry an 11-bit identifier; the mask keeps the cast exact.
         let sync = (self.inner.sync.cob_id() & u32::from(MAX_STANDARD_ID)) as u16;
-        RxFilter::with_sync(self.inner.node, sync)
+        match self.inner.node {
+            Some(node) => RxFilter::with_sync(node, sync),
+            None => RxFilter::unconfigured(),
+        }
     }
 
     /// The parameter storage.
@@ -436,6 +495,27 @@ impl<S: Storage> Device<S> {
     /// The parameter storage, mutably.
     pub fn storage_mut(&mut self) -> &mut S {
         &mut self.inner.storage
+    }
+
+    /// An LSS request: the answer, and a reset of communication when an unconfigured node
+    /// was given a node-ID.
+    fn on_lss(
+        &mut self,
+        now: Instant,
+        frame: &Frame,
+        app: &mut dyn Application,
+        tx: &mut dyn FrameSink,
+    ) {
+        let active = self.inner.node;
+        let (reply, action) = self
+            .lss
+            .on_frame(now, frame, active, &mut self.inner.storage);
+        if let Some(reply) = reply {
+            self.inner.emit(tx, reply);
+        }
+        if action == LssAction::ResetCommunication {
+            self.boot(now, Boot::ResetCommunication, app, tx);
+        }
     }
 
     fn on_nmt(
@@ -509,6 +589,12 @@ impl<S: Storage> Device<S> {
     ) {
         self.set_state(now, NmtState::Initialising, app, tx);
         self.sdo.reset();
+        // Every initialisation activates the LSS node-ID (at power-on, the configured one).
+        self.inner.node = self.lss.pending_node_id();
+        let Some(node) = self.inner.node else {
+            info!("unconfigured (node-ID 0xFF): LSS only");
+            return;
+        };
         let blob = Blob::load(&mut self.inner.storage);
         if kind == Boot::ResetNode {
             self.inner.emcy.reset();
@@ -525,7 +611,7 @@ impl<S: Storage> Device<S> {
                 self.inner.set_param(now, index, sub, value);
             }
         }
-        let bootup = Frame::from_parts(self.inner.node.cob_id(cob::HEARTBEAT), [0; 8], 1);
+        let bootup = Frame::from_parts(node.cob_id(cob::HEARTBEAT), [0; 8], 1);
         self.inner.emit(tx, bootup);
         self.inner.heartbeat.restart(now);
         // The consumers start over (waiting for a first heartbeat): no loss is pending.
@@ -546,7 +632,10 @@ impl<S: Storage> Inner<S> {
     }
 
     fn send_heartbeat(&mut self, tx: &mut dyn FrameSink) {
-        let id = self.node.cob_id(cob::HEARTBEAT);
+        let Some(node) = self.node else {
+            return;
+        };
+        let id = node.cob_id(cob::HEARTBEAT);
         let frame = Frame::from_parts(id, [self.state.heartbeat_byte(), 0, 0, 0, 0, 0, 0, 0], 1);
         self.emit(tx, frame);
     }
@@ -749,7 +838,10 @@ impl<S: Storage> Inner<S> {
             }
             0x1010 => self.store(sub, value, app),
             0x1011 => self.restore_defaults(sub, value),
-            0x1016 => self.heartbeat.write_consumer(sub, value, self.node),
+            0x1016 => match self.node {
+                Some(own) => self.heartbeat.write_consumer(sub, value, own),
+                None => Err(SdoAbort::DeviceState),
+            },
             0x1017 => {
                 // Typed U16 in the table, so the truncation is lossless.
                 self.heartbeat.set_producer(value as u16, now);
@@ -799,7 +891,7 @@ impl<S: Storage> Inner<S> {
         self.tpdos = [const { Tpdo::new() }; TPDOS];
         self.emcy.set(0x1014, COB_INVALID);
         self.emcy.set(0x1015, 0);
-        let node = u32::from(self.node.get());
+        let node = u32::from(self.node.map_or(0, NodeId::get));
         for e in self.od.entries() {
             match e.value() {
                 Value::Comm(v) => self.set_param(now, e.index(), e.sub(), v),

@@ -6,12 +6,14 @@
 //! round and reprograms the controller when it changed.
 
 use crate::frame::{cob, NodeId, MAX_STANDARD_ID};
+use crate::lss::LSS_REQUEST;
 
 /// The set of identifiers the engine handles; every other frame may be dropped in hardware.
 ///
-/// NMT (0x000), SYNC (0x1005, 0x080 by default), this node's SDO requests (0x600 + node-ID)
-/// and every heartbeat 0x700..=0x77F (the consumer picks its producers itself, so a change
-/// of 0x1016 needs no new filter).
+/// NMT (0x000), SYNC (0x1005, 0x080 by default), this node's SDO requests (0x600 + node-ID),
+/// every heartbeat 0x700..=0x77F (the consumer picks its producers itself, so a change
+/// of 0x1016 needs no new filter) and LSS requests (0x7E5). An unconfigured node
+/// ([`RxFilter::unconfigured`]) has no SYNC and no SDO: NMT, heartbeats and LSS only.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RxFilter {
@@ -23,6 +25,16 @@ impl RxFilter {
     /// The filter of a node at its defaults: SYNC on 0x080.
     pub const fn new(node: NodeId) -> Self {
         Self::with_sync(node, cob::SYNC)
+    }
+
+    /// The filter of an unconfigured node (CiA 305 node-ID 0xFF). Its [`RxFilter::sync`] and
+    /// [`RxFilter::sdo_request`] repeat identifiers that are in the filter anyway (NMT and
+    /// LSS), so that a port can program the same four list entries in every case.
+    pub const fn unconfigured() -> Self {
+        Self {
+            sync: cob::NMT,
+            sdo_request: LSS_REQUEST,
+        }
     }
 
     /// The filter of a node whose SYNC is on `sync` (11 bits; higher bits are ignored).
@@ -48,6 +60,11 @@ impl RxFilter {
         cob::NMT
     }
 
+    /// The LSS request identifier (always 0x7E5).
+    pub const fn lss(&self) -> u16 {
+        LSS_REQUEST
+    }
+
     /// Base and mask of the heartbeat range: `id & mask == base` for 0x700..=0x77F.
     pub const fn heartbeats(&self) -> (u16, u16) {
         (cob::HEARTBEAT, 0x780)
@@ -56,7 +73,11 @@ impl RxFilter {
     /// Whether a data frame with identifier `id` is one the engine handles.
     pub const fn accepts(&self, id: u16) -> bool {
         let (base, mask) = self.heartbeats();
-        id == self.nmt() || id == self.sync || id == self.sdo_request || id & mask == base
+        id == self.nmt()
+            || id == self.sync
+            || id == self.sdo_request
+            || id == LSS_REQUEST
+            || id & mask == base
     }
 }
 
@@ -68,7 +89,7 @@ mod tests {
     fn default_filter_is_the_predefined_connection_set() {
         let f = RxFilter::new(NodeId::new(16).unwrap());
         for id in 0..=MAX_STANDARD_ID {
-            let expected = matches!(id, 0x000 | 0x080 | 0x610 | 0x700..=0x77F);
+            let expected = matches!(id, 0x000 | 0x080 | 0x610 | 0x700..=0x77F | 0x7E5);
             assert_eq!(f.accepts(id), expected, "{id:#05x}");
         }
     }
@@ -79,5 +100,14 @@ mod tests {
         assert!(f.accepts(0x081));
         assert!(!f.accepts(0x080));
         assert_eq!((f.sync(), f.sdo_request()), (0x081, 0x601));
+    }
+
+    #[test]
+    fn unconfigured_node_hears_nmt_heartbeats_and_lss_only() {
+        let f = RxFilter::unconfigured();
+        for id in 0..=MAX_STANDARD_ID {
+            let expected = matches!(id, 0x000 | 0x700..=0x77F | 0x7E5);
+            assert_eq!(f.accepts(id), expected, "{id:#05x}");
+        }
     }
 }

@@ -8,7 +8,8 @@
 //! Supported: NMT slave, SDO server (expedited and segmented), heartbeat producer and two
 //! consumers, SYNC consumer, two TPDOs (event-driven and synchronous) with dynamic mapping,
 //! EMCY producer with error history, store/restore of parameters, CiA 303-3 indicators, the
-//! CAN controller's error states as EMCYs and LED codes ([`bus`]), and helpers to drive the
+//! CAN controller's error states as EMCYs and LED codes ([`bus`]), the LSS slave of CiA 305
+//! ([`lss`]: node-ID and bit timing over the bus, fastscan, unconfigured nodes), and helpers to drive the
 //! engine from a 32-bit millisecond tick ([`WideClock`], [`sleep_ms`], [`Periodic`]).
 //!
 //! ```
@@ -83,6 +84,7 @@ pub mod frame;
 pub mod heartbeat;
 pub mod identity;
 pub mod indicators;
+pub mod lss;
 pub mod nmt;
 pub mod od;
 pub mod sdo;
@@ -98,6 +100,7 @@ pub use filter::RxFilter;
 pub use frame::{Frame, FrameError, FrameSink, InvalidNodeId, NodeId, SinkFull};
 pub use identity::{CommDefaults, Identity, TpdoDefaults};
 pub use indicators::{indicators, ErrorIndication, Pattern};
+pub use lss::{LssAddress, LssSlave, LssState};
 pub use nmt::{NmtCommand, NmtState};
 pub use od::{standard_objects, Access, DataType, Od, OdEntry, OdError, Value, STANDARD_OBJECTS};
 pub use sdo::SdoAbort;

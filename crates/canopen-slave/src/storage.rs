@@ -80,6 +80,8 @@ pub const BLOB_MAX: usize = APP_OFFSET + APP_MAX + 2;
 pub enum StorageError {
     /// The medium could not be written (flash error, blob too large).
     WriteFailed,
+    /// The storage does not keep this kind of data (LSS node settings).
+    Unsupported,
 }
 
 /// Non-volatile memory for one parameter blob, implemented by the firmware.
@@ -88,6 +90,15 @@ pub trait Storage {
     fn load(&mut self, buf: &mut [u8]) -> usize;
     /// Replaces the stored blob; an empty `blob` erases it.
     fn store(&mut self, blob: &[u8]) -> Result<(), StorageError>;
+
+    /// LSS "store configuration" (CiA 305): keeps `node_id` (1..=127, or
+    /// [`UNCONFIGURED`](crate::lss::UNCONFIGURED)) and the bit-timing table index
+    /// `bit_timing` (CiA 301 table, 0 = 1 Mbit/s ... 8 = 10 kbit/s) for the next power-on.
+    /// Where they go (e.g. beside the blob on the same flash page) is the firmware's choice.
+    /// The default keeps nothing: the LSS master is told "store configuration not supported".
+    fn store_node(&mut self, _node_id: u8, _bit_timing: u8) -> Result<(), StorageError> {
+        Err(StorageError::Unsupported)
+    }
 }
 
 /// A [`Storage`] in RAM: for tests, and for boards that keep parameters only until power
@@ -97,6 +108,7 @@ pub struct MemoryStorage {
     data: [u8; BLOB_MAX],
     len: usize,
     writes: u32,
+    node: Option<(u8, u8)>,
 }
 
 impl MemoryStorage {
@@ -106,7 +118,13 @@ impl MemoryStorage {
             data: [0; BLOB_MAX],
             len: 0,
             writes: 0,
+            node: None,
         }
+    }
+
+    /// Node-ID and bit-timing index of the last LSS "store configuration", if any.
+    pub const fn node(&self) -> Option<(u8, u8)> {
+        self.node
     }
 
     /// The stored bytes.
@@ -148,6 +166,11 @@ impl Storage for MemoryStorage {
         dst.copy_from_slice(blob);
         self.len = blob.len();
         self.writes = self.writes.wrapping_add(1);
+        Ok(())
+    }
+
+    fn store_node(&mut self, node_id: u8, bit_timing: u8) -> Result<(), StorageError> {
+        self.node = Some((node_id, bit_timing));
         Ok(())
     }
 }

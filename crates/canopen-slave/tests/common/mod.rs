@@ -218,11 +218,9 @@ pub struct Bench {
 impl Bench {
     /// Not started.
     pub fn new_unstarted(storage: MemoryStorage) -> Self {
-        let config = Config {
-            node_id: NodeId::new(NODE).unwrap(),
-            serial_number: 0xDEAD_BEEF,
-            sdo_timeout_ms: 1000,
-        };
+        let mut config = Config::new(NodeId::new(NODE).unwrap());
+        config.serial_number = 0xDEAD_BEEF;
+        config.sdo_timeout_ms = 1000;
         Self {
             dev: Device::new(config, OD, storage),
             app: TestApp::default(),
