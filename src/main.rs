@@ -49,7 +49,7 @@ mod app {
     use super::{Mono, EVENTS};
 
     use canopen_slave::{
-        indicators as indicator_leds, sleep_ms, Instant, NodeId, Periodic, RxFilter, WideClock,
+        indicators as indicator_leds, sleep_ms, Instant, Periodic, RxFilter, WideClock,
     };
     use defmt::{debug, info};
     use handwheel_core::{
@@ -61,7 +61,7 @@ mod app {
         can::{self, bus::BusState, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
         events::EventSet,
         node_config,
-        storage::{DeviceStorage, NodeSettings},
+        storage::DeviceStorage,
         supervision::Supervision,
         wheel::SharedWheel,
     };
@@ -82,12 +82,6 @@ mod app {
     const SELECTOR: Selector = match Selector::new(DEFAULT_DEBOUNCE_SAMPLES) {
         Some(selector) => selector,
         None => panic!("the default debounce count is valid"),
-    };
-
-    /// The factory node-ID, as a checked `NodeId`.
-    const DEFAULT_NODE_ID: NodeId = match NodeId::new(NodeSettings::DEFAULT.node_id) {
-        Ok(id) => id,
-        Err(_) => panic!("the default node-ID is valid"),
     };
 
     /// The CANopen handwheel with its parameter page.
@@ -134,15 +128,22 @@ mod app {
             board.reset_cause,
             serial
         );
-        // `node_config` only yields node-IDs 1..=127 (`NodeSettings::from_parts` checks
-        // stored ones), so the fallback is never taken.
-        let node_id = NodeId::new(settings.node_id).unwrap_or(DEFAULT_NODE_ID);
-        let device =
-            HandwheelDevice::new(node_id, serial, DeviceStorage::new(board.storage, settings));
+        // `node_config` yields node-IDs 1..=127, or 0xFF stored by LSS: unconfigured (`None`),
+        // the device then answers LSS only.
+        let node_id = settings.node();
+        let device = HandwheelDevice::with_settings(
+            node_id,
+            settings.bit_rate,
+            serial,
+            DeviceStorage::new(board.storage, settings),
+        );
 
         // The defaults' filter; `canopen` reprograms it once the device has loaded stored
         // parameters (a stored 0x1005) and whenever a master moves an identifier.
-        let filter = RxFilter::new(node_id);
+        let filter = match node_id {
+            Some(node_id) => RxFilter::new(node_id),
+            None => RxFilter::unconfigured(),
+        };
         let can = can::start(board.can, settings.bit_rate, filter, Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         let wheel = Handwheel::new(DecoderConfig::default(), board.wheel.levels());
@@ -322,6 +323,10 @@ mod app {
             }
             supervise(cx.local.supervision, device, &mut wheel, &mut tx.0);
             device.poll(now, &mut wheel, &mut tx);
+            if let Some(rate) = device.take_bit_rate_switch(now) {
+                info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
+                tx.0.lock(|can| can.set_bit_rate(rate));
+            }
             follow_rx_filter(device, cx.local.rx_filter, &mut tx.0);
             if next_led.is_due(ticks) {
                 let bus_error = cx.local.supervision.bus_state().indication();

@@ -64,7 +64,8 @@ pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: M
 /// Programs the acceptance filters to pass exactly what `filter` accepts; everything else
 /// is dropped in hardware.
 ///
-/// Bank 0 lists NMT, SYNC (wherever 0x1005 put it) and our SDO request; bank 1 passes every
+/// Bank 0 lists NMT, SYNC (wherever 0x1005 put it), our SDO request and LSS (0x7E5); an
+/// unconfigured node's filter repeats NMT and LSS in the SYNC and SDO entries. Bank 1 passes every
 /// heartbeat (0x700..0x77F) for the heartbeat consumer, which picks its producers itself.
 /// Data frames only: RTR is not served. Reprogramming while running (RM0008 24.7.4: the
 /// banks are deactivated in filter init mode) can miss a frame that arrives in those few
@@ -83,8 +84,8 @@ pub fn set_filters(can: &mut Bxcan, filter: RxFilter) {
             data(filter.nmt()),
             data(filter.sync()),
             data(filter.sdo_request()),
-            // A list bank holds four entries; the fourth repeats NMT.
-            data(filter.nmt()),
+            // LSS requests (CiA 305), for node-ID and bit-rate configuration.
+            data(filter.lss()),
         ],
     );
     filters.enable_bank(1, Fifo::Fifo0, [heartbeats, heartbeats]);
@@ -187,6 +188,13 @@ impl CanPort {
     /// new node-ID).
     pub fn set_rx_filter(&mut self, filter: RxFilter) {
         set_filters(&mut self.can, filter);
+    }
+
+    /// Switches to `rate` (LSS activate bit timing, after its switch delay): the controller
+    /// goes through initialisation mode, keeping filters and interrupts, and rejoins after
+    /// 11 recessive bits at the new rate.
+    pub fn set_bit_rate(&mut self, rate: BitRate) {
+        self.can.modify_config().set_bit_timing(btr(rate)).enable();
     }
 
     /// Counters since start-up.

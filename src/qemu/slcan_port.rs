@@ -220,6 +220,9 @@ impl CanPort {
         self.controller.filter = filter;
     }
 
+    /// LSS activate bit timing: a serial line has no bit rate, so nothing changes.
+    pub fn set_bit_rate(&mut self, _rate: BitRate) {}
+
     /// The SCE interrupt: never raised on the serial link.
     pub fn on_status_change(&mut self) {}
 

@@ -34,6 +34,8 @@ impl Default for RamStorage {
 /// The CANopen engine's storage on the QEMU board.
 pub struct DeviceStorage {
     ram: MemoryStorage,
+    /// Node-ID and bit rate of the last LSS "store configuration".
+    node: Option<NodeSettings>,
 }
 
 impl DeviceStorage {
@@ -42,13 +44,29 @@ impl DeviceStorage {
     pub fn new(_memory: RamStorage, _settings: NodeSettings) -> Self {
         Self {
             ram: MemoryStorage::new(),
+            node: None,
         }
     }
 }
 
 impl Storage for DeviceStorage {
+    /// Called at every initialisation (NMT reset node or communication), the QEMU board's
+    /// "boot": the stored node settings are reported here, as the board's boot line reports
+    /// them after a power-on.
     fn load(&mut self, buf: &mut [u8]) -> usize {
+        if let Some(settings) = self.node {
+            defmt::info!("stored node settings: {} (LSS, RAM)", settings);
+        }
         self.ram.load(buf)
+    }
+
+    fn store_node(&mut self, node_id: u8, bit_timing: u8) -> Result<(), StorageError> {
+        let settings = handwheel_device::node_config::bit_rate_from_lss(bit_timing)
+            .and_then(|rate| NodeSettings::from_parts(node_id, rate.code()))
+            .ok_or(StorageError::Unsupported)?;
+        defmt::info!("LSS stored {} (no bit rate on the serial line)", settings);
+        self.node = Some(settings);
+        Ok(())
     }
 
     fn store(&mut self, blob: &[u8]) -> Result<(), StorageError> {

@@ -222,6 +222,35 @@ impl canopen_slave::Storage for DeviceStorage {
         }
     }
 
+    /// LSS "store configuration": the same record with the new node-ID and bit rate and the
+    /// blob stored now (if any), so that 0x1010 and LSS share one page and one layout.
+    fn store_node(
+        &mut self,
+        node_id: u8,
+        bit_timing: u8,
+    ) -> Result<(), canopen_slave::StorageError> {
+        let settings = handwheel_device::node_config::bit_rate_from_lss(bit_timing)
+            .and_then(|rate| NodeSettings::from_parts(node_id, rate.code()))
+            .ok_or(canopen_slave::StorageError::Unsupported)?;
+        let mut blob = [0u8; super::BLOB_MAX];
+        let len = match self.flash.load() {
+            Some(stored) => {
+                let len = stored.blob.len().min(blob.len());
+                blob[..len].copy_from_slice(&stored.blob[..len]);
+                len
+            }
+            None => 0,
+        };
+        self.flash.store(settings, &blob[..len]).map_err(|error| {
+            defmt::warn!("LSS store failed: {}", error);
+            canopen_slave::StorageError::WriteFailed
+        })?;
+        // A later 0x1010 store keeps these settings in the record.
+        self.settings = settings;
+        defmt::info!("LSS stored {} (the next power-on uses it)", settings);
+        Ok(())
+    }
+
     fn store(&mut self, blob: &[u8]) -> Result<(), canopen_slave::StorageError> {
         let result = if blob.is_empty() {
             self.flash.erase()

@@ -4,9 +4,10 @@
 use canopen_slave::{
     Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, RxFilter, Storage,
 };
-use handwheel_core::{FeedStatus, Selection, WheelAccess};
+use handwheel_core::{BitRate, FeedStatus, Selection, WheelAccess};
 
 use crate::app::{AppContext, FeedApp};
+use crate::node_config::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
 use crate::od::OD;
 
 /// EMCY code raised while an illegal quadrature transition is latched in the feed status
@@ -27,8 +28,21 @@ pub struct HandwheelDevice<S> {
 impl<S: Storage> HandwheelDevice<S> {
     /// A device in Initialising; nothing is sent before [`HandwheelDevice::start`].
     pub fn new(node_id: NodeId, serial_number: u32, storage: S) -> Self {
-        let mut config = Config::new(node_id);
+        Self::with_settings(Some(node_id), BitRate::Kbit1000, serial_number, storage)
+    }
+
+    /// [`HandwheelDevice::new`] for the firmware: `node_id` `None` starts unconfigured
+    /// (LSS only), `bit_rate` is the rate in force, for LSS.
+    pub fn with_settings(
+        node_id: Option<NodeId>,
+        bit_rate: BitRate,
+        serial_number: u32,
+        storage: S,
+    ) -> Self {
+        let mut config = Config::with_node(node_id);
         config.serial_number = serial_number;
+        config.bit_timing = lss_bit_timing(bit_rate);
+        config.bit_timings = LSS_BIT_TIMINGS;
         Self {
             engine: Device::new(config, OD, storage),
             app: FeedApp::new(),
@@ -101,6 +115,14 @@ impl<S: Storage> HandwheelDevice<S> {
             _ if feed_pending => Some(Instant::ZERO),
             other => other,
         }
+    }
+
+    /// After LSS "activate bit timing" and its switch delay: the bit rate to switch the CAN
+    /// controller to now (once). Call after `poll`.
+    pub fn take_bit_rate_switch(&mut self, now: Instant) -> Option<BitRate> {
+        self.engine
+            .take_bit_timing_switch(now)
+            .and_then(bit_rate_from_lss)
     }
 
     /// The identifiers the device handles now; the firmware reprograms its acceptance

@@ -6,13 +6,45 @@
 //! - switches 6-8: bit-rate code, binary, switch 6 = 1 ... switch 8 = 4
 //!   (0 = 1000, 1 = 800, 2 = 500, 3 = 250, 4 = 125, 5 = 50, 6 = 20, 7 = 10 kbit/s).
 //!
-//! All switches off: node-ID and bit rate as stored with 0x1010, or node-ID 16 at 1 Mbit/s
-//! when nothing is stored. Node-ID switches off but a bit-rate switch on: the stored (or
-//! default) node-ID at the switched bit rate.
+//! All switches off: node-ID and bit rate as stored with 0x1010 or LSS "store
+//! configuration" (one record, the same page), or node-ID 16 at 1 Mbit/s when nothing is
+//! stored. Node-ID switches off but a bit-rate switch on: the stored (or default) node-ID at
+//! the switched bit rate. Any node-ID switch on: the switch wins over a stored node-ID, as
+//! over every stored value. A stored node-ID 0xFF (LSS "unconfigured") is used like any
+//! stored one: the node then waits for an LSS master.
+//!
+//! LSS works on top at run time whatever the switch says: a node-ID configured by LSS takes
+//! effect at the next NMT reset (communication or node) and lasts until power-off, and a
+//! stored one at the next power-on unless the DIP switch overrides it.
+//!
+//! LSS speaks CiA 301's bit-timing table (index 0-8, 5 = 100 kbit/s); the DIP code and the
+//! record use `handwheel-core`'s 8-rate table without 100 kbit/s: [`lss_bit_timing`] and
+//! [`bit_rate_from_lss`] convert.
 
 use handwheel_core::BitRate;
 
 use crate::record::NodeSettings;
+
+/// The LSS bit-timing table indices the firmware supports: all but 5 (100 kbit/s).
+pub const LSS_BIT_TIMINGS: u16 = 0x01DF;
+
+/// The CiA 301 / 305 bit-timing table index of `rate`.
+pub const fn lss_bit_timing(rate: BitRate) -> u8 {
+    match rate.code() {
+        code @ 0..=4 => code,
+        code => code + 1,
+    }
+}
+
+/// The bit rate of CiA 301 / 305 bit-timing table index `index`; `None` for 5 (100 kbit/s)
+/// and indices beyond the table.
+pub const fn bit_rate_from_lss(index: u8) -> Option<BitRate> {
+    match index {
+        0..=4 => Some(BitRate::from_code(index)),
+        6..=8 => Some(BitRate::from_code(index - 1)),
+        _ => None,
+    }
+}
 
 /// Where the settings in force came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

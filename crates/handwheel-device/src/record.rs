@@ -5,7 +5,7 @@
 //! ```text
 //! offset  size  field
 //! 0       4     magic "HWP1" (0x31505748 little-endian)
-//! 4       1     node-ID, 1..=127
+//! 4       1     node-ID, 1..=127, or 0xFF: unconfigured (LSS, CiA 305)
 //! 5       1     bit-rate code, 0..=7 (handwheel-core's BitRate table)
 //! 6       2     blob length n, little-endian, at most BLOB_MAX
 //! 8       n     the device's parameter blob (heartbeat, PDO configuration, ...), opaque here
@@ -30,7 +30,8 @@ pub const RECORD_MAX: usize = HEADER + BLOB_MAX + CRC_LEN;
 /// Node-ID and bit rate: what the firmware itself needs before the CAN controller starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NodeSettings {
-    /// CANopen node-ID, 1..=127.
+    /// CANopen node-ID, 1..=127, or 0xFF ([`canopen_slave::lss::UNCONFIGURED`]): the node
+    /// waits for an LSS master to give it one.
     pub node_id: u8,
     /// CAN bit rate.
     pub bit_rate: BitRate,
@@ -43,16 +44,27 @@ impl NodeSettings {
         bit_rate: BitRate::Kbit1000,
     };
 
-    /// `None` unless `node_id` is a valid CANopen node-ID (1..=127) and `code` a bit-rate
-    /// code (0..=7).
+    /// `None` unless `node_id` is a valid CANopen node-ID (1..=127) or 0xFF (unconfigured)
+    /// and `code` a bit-rate code (0..=7).
     pub const fn from_parts(node_id: u8, code: u8) -> Option<Self> {
-        if node_id == 0 || node_id > 127 || code > 7 {
+        let valid_id = matches!(node_id, 1..=127 | canopen_slave::lss::UNCONFIGURED);
+        if !valid_id || code > 7 {
             return None;
         }
         Some(Self {
             node_id,
             bit_rate: BitRate::from_code(code),
         })
+    }
+}
+
+impl NodeSettings {
+    /// The node-ID as the engine takes it: `None` when unconfigured (0xFF).
+    pub const fn node(&self) -> Option<canopen_slave::NodeId> {
+        match canopen_slave::NodeId::new(self.node_id) {
+            Ok(id) => Some(id),
+            Err(_) => None,
+        }
     }
 }
 

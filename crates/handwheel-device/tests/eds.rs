@@ -217,3 +217,22 @@ fn eds_limits_are_the_limits_the_device_enforces() {
     }
     assert!(checked >= 5, "only {checked} limited objects");
 }
+
+/// `LSS_Supported=1` is a promise: the device answers LSS (CiA 305) with the identity of
+/// 0x1018 as its LSS address.
+#[test]
+fn eds_lss_support_is_true() {
+    let info = &sections()["DeviceInfo"];
+    assert_eq!(info.get("LSS_Supported").map(String::as_str), Some("1"));
+    let mut b = Bench::new();
+    b.take();
+    b.receive(0x7E5, &[0x04, 1, 0, 0, 0, 0, 0, 0]);
+    b.receive(0x7E5, &[0x5A, 0, 0, 0, 0, 0, 0, 0]);
+    let vendor = b.read_u32(0x1018, 1).to_le_bytes();
+    let answers = b.take_id(0x7E4);
+    assert_eq!(answers.len(), 1);
+    assert_eq!(
+        &answers[0].data[..],
+        &[0x5A, vendor[0], vendor[1], vendor[2], vendor[3], 0, 0, 0][..]
+    );
+}

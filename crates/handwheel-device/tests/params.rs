@@ -63,13 +63,43 @@ fn an_erased_or_short_page_holds_nothing() {
 
 #[test]
 fn a_record_with_a_valid_crc_but_impossible_settings_is_refused() {
-    for (node_id, code) in [(0u8, 0u8), (128, 0), (255, 0), (16, 8)] {
+    for (node_id, code) in [(0u8, 0u8), (128, 0), (254, 0), (16, 8)] {
         let mut bytes = encoded(SETTINGS, &[]);
         bytes[4] = node_id;
         bytes[5] = code;
         let crc = crc32(&bytes[..8]).to_le_bytes();
         bytes[8..12].copy_from_slice(&crc);
         assert_eq!(decode(&bytes), None, "node {node_id} code {code}");
+    }
+}
+
+#[test]
+fn an_unconfigured_node_id_is_stored_as_0xff() {
+    let unconfigured = NodeSettings::from_parts(0xFF, 3).unwrap();
+    assert_eq!(unconfigured.node(), None);
+    let bytes = encoded(unconfigured, &[7]);
+    assert_eq!(bytes[4], 0xFF);
+    assert_eq!(decode(&bytes), Some((unconfigured, &[7u8][..])));
+    assert_eq!(SETTINGS.node().map(|n| n.get()), Some(SETTINGS.node_id));
+}
+
+#[test]
+fn lss_bit_timing_indices_map_onto_the_dip_table() {
+    use handwheel_device::node_config::{bit_rate_from_lss, lss_bit_timing};
+    let kbit = [1000, 800, 500, 250, 125, 0, 50, 20, 10];
+    for (index, &k) in kbit.iter().enumerate() {
+        let index = index as u8;
+        match bit_rate_from_lss(index) {
+            Some(rate) => {
+                assert_eq!(rate.kbit_per_second(), k);
+                assert_eq!(lss_bit_timing(rate), index);
+            }
+            None => assert_eq!(index, 5),
+        }
+    }
+    assert_eq!(bit_rate_from_lss(9), None);
+    for rate in BitRate::ALL {
+        assert_eq!(bit_rate_from_lss(lss_bit_timing(rate)), Some(rate));
     }
 }
 
