@@ -57,7 +57,14 @@ def test_pdo_02_scan_tpdo_communication_parameters(dut):
 def _rtr_case(rig, state_command, state):
     cob = rig.read(0x1800, 1)
     if cob & RTR_NOT_ALLOWED:
-        pytest.skip("TPDO1 COB-ID bit 30 set: no RTR allowed (the tool skips then)")
+        # The device serves no RTR, so bit 30 must stay set on every TPDO, even after a
+        # master writes it clear.
+        for index in (0x1800, 0x1801):
+            value = rig.read(index, 1)
+            assert value & RTR_NOT_ALLOWED
+            rig.write(index, 1, value & ~RTR_NOT_ALLOWED, 4)
+            assert rig.read(index, 1) == value
+        pytest.skip("TPDO COB-IDs say 'no RTR allowed' (bit 30, checked; the tool skips then)")
     # Bit 30 clear claims RTR is allowed: a remote frame must then be answered. No event
     # timer, so that only the RTR can bring a frame.
     rig.write(0x1800, 5, 0, 2)
@@ -69,14 +76,6 @@ def _rtr_case(rig, state_command, state):
     rig.frames.wait_id(cob & 0x7FF, since=mark, timeout=0.5)
 
 
-RTR_XFAIL = pytest.mark.xfail(
-    strict=True,
-    reason="TPDO COB-IDs have bit 30 clear (RTR allowed) but the device ignores remote "
-    "frames: the COB-ID should say 'no RTR' (not fixed before the deadline)",
-)
-
-
-@RTR_XFAIL
 def test_pdo_03_rtr_on_tpdo_in_operational(dut):
     _rtr_case(dut, 0x01, OPERATIONAL)
 
@@ -152,13 +151,9 @@ def test_pdo_08_tpdo_sync_start_value(dut):
     pytest.skip("no SYNC counter (0x1019 absent) and no sub 6 (SYNC start value) in 0x1800")
 
 
-@RTR_XFAIL
 def test_pdo_09_rtr_on_tpdo_in_stopped(dut):
     # In Stopped no PDO may be sent even on RTR; the tool only runs this where RTR is allowed.
-    cob = dut.read(0x1800, 1)
-    if cob & RTR_NOT_ALLOWED:
-        pytest.skip("TPDO1 COB-ID bit 30 set: no RTR allowed (the tool skips then)")
-    raise AssertionError("COB-ID claims RTR allowed; the device does not serve RTR")
+    _rtr_case(dut, NMT_STOP, STOPPED)
 
 
 def _all_tpdos(rig, transmission_type, event_timer=None):
@@ -224,7 +219,6 @@ def test_pdo_14_tpdos_sync_start_value(dut):
     pytest.skip("no SYNC counter (0x1019 absent) and no SYNC start value (0x1800:6)")
 
 
-@RTR_XFAIL
 def test_pdo_15_request_tpdo_by_rtr(dut):
     _rtr_case(dut, 0x01, OPERATIONAL)
 
