@@ -2,8 +2,6 @@
 docs/CONFORMANCE.md): boot-up, the NMT states with the heartbeat (no node guarding), PDO and
 SDO per state, and every NMT transition."""
 
-import time
-
 import canopen
 import pytest
 
@@ -75,7 +73,8 @@ def test_transition_01_reset_node_and_reset_communication(dut):
             if to_state is not None:
                 state = OPERATIONAL if to_state == NMT_START else STOPPED
                 dut.nmt_and_heartbeat(to_state, state)
-            dut.write(0x1017, 0, 0, 2) if to_state != NMT_STOP else None
+            if to_state != NMT_STOP:  # Stopped serves no SDO
+                dut.write(0x1017, 0, 0, 2)
             reset_to_bootup(dut, reset)
             assert dut.read(0x1017) == 1000
             beats(dut, PRE_OPERATIONAL, n=1)

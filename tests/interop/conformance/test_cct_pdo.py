@@ -309,17 +309,12 @@ def _remap_tpdo1(rig, entries):
     cob = rig.read(0x1800, 1)
     rig.write(0x1800, 1, cob | INVALID, 4)
     rig.write(0x1A00, 0, 0, 1)
-    try:
-        for i, entry in enumerate(entries, 1):
-            reply = sdo_raw(rig, req(0x23, 0x1A00, i, entry.to_bytes(4, "little")))
-            if reply[0] == 0x80:
-                return abort_of(reply)
-        reply = sdo_raw(rig, req(0x2F, 0x1A00, 0, bytes([len(entries)])))
+    for i, entry in enumerate(entries, 1):
+        reply = sdo_raw(rig, req(0x23, 0x1A00, i, entry.to_bytes(4, "little")))
         if reply[0] == 0x80:
             return abort_of(reply)
-        return None
-    finally:
-        pass
+    reply = sdo_raw(rig, req(0x2F, 0x1A00, 0, bytes([len(entries)])))
+    return abort_of(reply) if reply[0] == 0x80 else None
 
 
 def test_pdo_30_map_input_object_to_tpdo(dut):
