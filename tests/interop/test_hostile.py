@@ -123,6 +123,9 @@ def test_invalid_heartbeat_consumer_entries_are_refused(rig):
     assert rig.read(0x1016, 2) == 0
 
 
+NO_RTR = 0x40000000
+
+
 def test_cob_id_collisions_are_refused(rig):
     emcy = 0x080 + 16
     # TPDO2 onto this node's EMCY.
@@ -135,8 +138,8 @@ def test_cob_id_collisions_are_refused(rig):
     assert rig.write_abort(0x1014, 0, u32(0x0A0)) == INCOMPATIBLE
     assert rig.read(0x1014) == INVALID_BIT | emcy
     # Feed records never went out on an EMCY identifier.
-    assert rig.read(0x1800, 1) == 0x0A0
-    assert rig.read(0x1801, 1) == INVALID_BIT | 0x290
+    assert rig.read(0x1800, 1) == NO_RTR | 0x0A0  # TPDO COB-IDs read "no RTR" (bit 30)
+    assert rig.read(0x1801, 1) == NO_RTR | INVALID_BIT | 0x290
 
 
 def _healthy(rig) -> None:
@@ -144,7 +147,7 @@ def _healthy(rig) -> None:
     rig.qemu.check_alive()
     mark = rig.nmt(NMT_RESET_NODE)
     rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
-    assert rig.read(0x1000) == 0x00000196
+    assert rig.read(0x1000) == 0
     assert rig.read(0x1017) == 1000
     beat = rig.frames.mark()
     rig.frames.wait_id(HEARTBEAT, bytes([PRE_OPERATIONAL]), since=beat, timeout=3)

@@ -79,7 +79,7 @@ def test_remapping_tpdo1_by_the_cia_procedure(rig):
     # python-canopen's save(): COB-ID invalid, parameters, sub0 = 0, entries, sub0 = n,
     # COB-ID valid again: the CiA 301 procedure.
     feed.save()
-    assert rig.read(0x1800, 1) == TPDO1, "valid again"
+    assert rig.read(0x1800, 1) == 0x40000000 | TPDO1, "valid again (bit 30: no RTR)"
     assert rig.read(0x1A00, 0) == 2
     assert rig.read(0x1A00, 1) == 0x20100108
     assert rig.read(0x1A00, 2) == 0x60040020

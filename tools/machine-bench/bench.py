@@ -280,7 +280,7 @@ def run(elf: str) -> Results:
         raise ScenarioError(f"feed records do not follow the wheel: {[str(f) for f in feed[:4]]}")
 
     requests = [
-        ("upload 0x1000 (device type)", sdo_upload(0x1000, 0), sdo_value(0x1000, 0, 0x196, 4)),
+        ("upload 0x1000 (device type)", sdo_upload(0x1000, 0), sdo_value(0x1000, 0, 0, 4)),
         ("upload 0x1018:01 (vendor ID)", sdo_upload(0x1018, 1), sdo_value(0x1018, 1, 0, 4)),
         ("upload 0x2031 (feed sequence)", sdo_upload(0x2031, 0), None),
         ("upload 0x6004 (position)", sdo_upload(0x6004, 0), None),

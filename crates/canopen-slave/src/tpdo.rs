@@ -8,6 +8,8 @@ use crate::time::Instant;
 
 /// Number of transmit PDOs.
 pub const TPDOS: usize = 2;
+/// COB-ID bit 30: no RTR allowed on this PDO.
+pub const NO_RTR: u32 = 1 << 30;
 /// Most objects one PDO maps.
 pub const MAX_MAPPED: usize = 8;
 
@@ -95,7 +97,8 @@ impl Tpdo {
     /// Reads 0x1800+n.
     pub(crate) fn read_comm(&self, sub: u8) -> Result<u32, SdoAbort> {
         match sub {
-            1 => Ok(self.cob_id),
+            // Bit 30 reads 1 ("no RTR allowed"): remote frames are not served (CiA 301).
+            1 => Ok(self.cob_id | NO_RTR),
             2 => Ok(self.transmission_type.into()),
             3 => Ok(self.inhibit_100us.into()),
             5 => Ok(self.event_timer_ms.into()),

@@ -6,6 +6,8 @@ use canopen_slave::RxFilter;
 use common::*;
 
 const INVALID: u32 = 0x8000_0000;
+/// TPDO COB-IDs read with bit 30 set: RTR is not served.
+const NO_RTR: u32 = 0x4000_0000;
 const INCOMPATIBLE: u32 = 0x0604_0043;
 const INVALID_VALUE: u32 = 0x0609_0030;
 
@@ -25,7 +27,7 @@ fn a_tpdo_may_not_take_our_emcy_or_sync_identifier() {
         b.download_u32(0x1801, 1, u32::from(EMCY)),
         Err(INCOMPATIBLE)
     );
-    assert_eq!(b.upload_u32(0x1801, 1), INVALID | u32::from(EMCY));
+    assert_eq!(b.upload_u32(0x1801, 1), NO_RTR | INVALID | u32::from(EMCY));
     // Onto SYNC, or onto the other TPDO.
     assert_eq!(b.download_u32(0x1801, 1, 0x080), Err(INCOMPATIBLE));
     assert_eq!(
@@ -34,7 +36,7 @@ fn a_tpdo_may_not_take_our_emcy_or_sync_identifier() {
     );
     // A free identifier is fine.
     b.download_u32(0x1801, 1, 0x1F0).unwrap();
-    assert_eq!(b.upload_u32(0x1801, 1), 0x1F0);
+    assert_eq!(b.upload_u32(0x1801, 1), NO_RTR | 0x1F0);
 }
 
 #[test]
@@ -103,4 +105,19 @@ fn moved_sync_is_received_on_its_new_identifier_only() {
     // Reset communication brings the default back, and the filter with it.
     b.nmt(0x82, NODE);
     assert_eq!(b.dev.rx_filter(), RxFilter::new(node));
+}
+
+#[test]
+fn tpdo_cob_ids_say_no_rtr_whatever_is_written() {
+    // The engine serves no remote frames, so bit 30 ("no RTR allowed", CiA 301) reads 1 on
+    // every TPDO, from the defaults and after a master writes it clear.
+    let mut b = Bench::new();
+    for index in [0x1800u16, 0x1801] {
+        let cob = b.upload_u32(index, 1);
+        assert_eq!(cob & NO_RTR, NO_RTR, "{index:#06x} default");
+        b.download_u32(index, 1, cob & !NO_RTR).unwrap();
+        assert_eq!(b.upload_u32(index, 1), cob);
+        b.download_u32(index, 1, INVALID | (cob & 0x7FF)).unwrap();
+        assert_eq!(b.upload_u32(index, 1), NO_RTR | INVALID | (cob & 0x7FF));
+    }
 }

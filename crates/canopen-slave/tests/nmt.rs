@@ -109,7 +109,7 @@ fn reset_communication_restores_defaults_and_boots_up() {
         assert_eq!(b.dev.nmt_state(), NmtState::PreOperational);
         assert_eq!(b.upload_u32(0x1017, 0), 1000);
         assert_eq!(b.upload_u32(0x1016, 1), 0);
-        assert_eq!(b.upload_u32(0x1800, 1), 0x185);
+        assert_eq!(b.upload_u32(0x1800, 1), 0x4000_0185);
         assert_eq!(b.upload_u32(0x1800, 3), 20);
         assert_eq!(b.upload_u32(0x1005, 0), 0x80);
         // The application is not reset by a communication reset.

@@ -475,8 +475,8 @@ fn identity_objects() {
     assert_eq!(b.upload_u32(0x1018, 4), 0xDEAD_BEEF);
     assert_eq!(b.upload_u32(0x1014, 0), 0x85);
     assert_eq!(b.upload_u32(0x1005, 0), 0x80);
-    assert_eq!(b.upload_u32(0x1800, 1), 0x185);
-    assert_eq!(b.upload_u32(0x1801, 1), 0x285);
+    assert_eq!(b.upload_u32(0x1800, 1), 0x4000_0185);
+    assert_eq!(b.upload_u32(0x1801, 1), 0x4000_0285);
     assert_eq!(b.upload_u32(0x1800, 0), 5);
     assert_eq!(b.upload_u32(0x1A00, 0), 2);
     assert_eq!(b.upload_u32(0x1A00, 1), 0x6004_0020);

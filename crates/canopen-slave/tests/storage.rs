@@ -31,7 +31,7 @@ fn assert_customised(b: &mut Bench) {
     assert_eq!(b.upload_u32(0x1016, 1), 0x0007_0064);
     assert_eq!(b.upload_u32(0x1800, 5), 50);
     assert_eq!(b.upload_u32(0x1015, 0), 7);
-    assert_eq!(b.upload_u32(0x1801, 1), 0x8000_0285);
+    assert_eq!(b.upload_u32(0x1801, 1), 0xC000_0285);
     assert_eq!(b.upload_u32(0x1A01, 0), 1);
     assert_eq!(b.upload_u32(0x1A01, 1), 0x6004_0020);
 }
@@ -41,7 +41,7 @@ fn assert_defaults(b: &mut Bench) {
     assert_eq!(b.upload_u32(0x1016, 1), 0);
     assert_eq!(b.upload_u32(0x1800, 5), 100);
     assert_eq!(b.upload_u32(0x1015, 0), 0);
-    assert_eq!(b.upload_u32(0x1801, 1), 0x285);
+    assert_eq!(b.upload_u32(0x1801, 1), 0x4000_0285);
     assert_eq!(b.upload_u32(0x1A01, 1), 0x6005_0008);
 }
 

@@ -25,7 +25,9 @@ pub const UNIT_STEP: u16 = 0x2032;
 /// Feed diagnostics: sub 1 ignored detents (U32 ro), sub 2 dropped unit steps (U32 ro),
 /// sub 3 unit-step backlog bound (U16 rw, 1..1000).
 pub const FEED_DIAGNOSTICS: u16 = 0x2040;
-/// CiA 406 position value: the cumulative feed position (I32 ro, mappable).
+/// Position value: the cumulative feed position (I32 ro, mappable). The index is the one CiA 406
+/// gives an encoder's position, kept so that TPDO1's mapping (0x60040020) stays the same; the
+/// device claims no profile (0x1000 = 0, see docs/CONFORMANCE.md).
 pub const POSITION_VALUE: u16 = 0x6004;
 
 /// Largest settable unit-step backlog: 1000 steps are 2 s of run-on at the default pacing,
@@ -51,8 +53,9 @@ pub const UNIT_STEP_MAPPING: [u32; 1] = [map(UNIT_STEP, 0, 8)];
 
 /// What the device says it is.
 pub const IDENTITY: Identity = Identity {
-    // CiA 406 (encoders) in the low word; no additional information.
-    device_type: 0x0000_0196,
+    // No device profile (CiA 301 generic device): the handwheel is not a CiA 406 encoder
+    // (no preset, operating parameters, alarms, ...); see docs/CONFORMANCE.md.
+    device_type: 0,
     vendor_id: 0,
     product_code: 1,
     revision: 1,

@@ -1,0 +1,109 @@
+"""CCT cases OD 01-09 against the handwheel (see docs/CONFORMANCE.md)."""
+
+import pytest
+from canopen.objectdictionary import ODVariable
+
+from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
+
+RUNTIME_VALUES = {(0x1018, 4)}  # serial number from the MCU
+
+
+def variables(rig, low, high):
+    for obj in rig.node.object_dictionary.values():
+        if not low <= obj.index <= high:
+            continue
+        if isinstance(obj, ODVariable):
+            yield obj
+        else:
+            yield from obj.values()
+
+
+def readable(var):
+    return var.access_type in ("ro", "rw", "rwr", "rww", "const")
+
+
+SIZES = {0x1: 1, 0x2: 1, 0x3: 2, 0x4: 4, 0x5: 1, 0x6: 2, 0x7: 4}
+
+
+def test_od_01_communication_objects_by_access_type(dut):
+    for var in variables(dut, 0x1000, 0x1FFF):
+        reply = sdo_raw(dut, req(0x40, var.index, var.subindex))
+        if reply[0] == 0x80:  # only an empty error history may refuse
+            assert (var.index, abort_of(reply)) == (0x1003, 0x08000024), var.name
+        else:
+            assert readable(var)
+
+
+def test_od_02_communication_objects_against_eds_defaults(dut):
+    for var in variables(dut, 0x1000, 0x1FFF):
+        if var.default is None or (var.index, var.subindex) in RUNTIME_VALUES:
+            continue
+        if var.index == 0x1003 and var.subindex > 0:
+            continue  # empty history: abort 0x08000024 (OD 01)
+        assert var.decode_raw(dut.node.sdo.upload(var.index, var.subindex)) == var.default, (
+            f"{var.index:#06x}:{var.subindex}")
+
+
+def test_od_03_write_to_read_only_objects(dut):
+    for var in variables(dut, 0x1000, 0x9FFF):
+        if var.access_type not in ("ro", "const"):
+            continue
+        size = SIZES.get(var.data_type, 4)
+        command = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
+        code = abort_of(sdo_raw(dut, req(command, var.index, var.subindex, bytes(size))))
+        assert code in (0x06010000, 0x06010002, 0x08000000), f"{var.index:#06x}:{var.subindex}"
+
+
+def test_od_04_read_write_only_objects(dut):
+    assert not [v for v in variables(dut, 0x1000, 0x9FFF) if v.access_type == "wo"]
+    pytest.skip("no write-only object in the dictionary")
+
+
+def test_od_05_sub_index_255(dut):
+    for obj in dut.node.object_dictionary.values():
+        assert abort_of(sdo_raw(dut, req(0x40, obj.index, 0xFF))) in (0x06090011, 0x08000000)
+    pytest.skip("no object has sub-index 255 (every read aborts 0x06090011, checked)")
+
+
+def test_od_06_value_limits_of_rw_objects(dut):
+    checked = 0
+    for var in variables(dut, 0x1000, 0x9FFF):
+        if var.access_type not in ("rw", "rwr", "rww") or var.index in (0x1A00, 0x1A01):
+            continue
+        size = len(dut.node.sdo.upload(var.index, var.subindex))
+        for value, codes in ((var.min, (0x06090030, 0x06090032)),
+                             (var.max, (0x06090030, 0x06090031))):
+            if value is None:
+                continue
+            bad = value - 1 if codes[1] == 0x06090032 else value + 1
+            if bad < 0 or bad >= 1 << (8 * size):
+                continue
+            command = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
+            code = abort_of(sdo_raw(dut, req(command, var.index, var.subindex,
+                                             bad.to_bytes(size, "little"))))
+            assert code in codes + (0x08000000,), f"{var.index:#06x}:{var.subindex} = {bad}"
+            checked += 1
+    assert checked >= 5
+
+
+def test_od_07_application_objects_by_access_type(dut):
+    for var in variables(dut, 0x2000, 0x9FFF):
+        assert readable(var)
+        dut.node.sdo.upload(var.index, var.subindex)
+
+
+def test_od_08_application_objects_against_eds_defaults(dut):
+    for var in variables(dut, 0x2000, 0x9FFF):
+        if var.default is None:
+            continue
+        assert var.decode_raw(dut.node.sdo.upload(var.index, var.subindex)) == var.default, (
+            f"{var.index:#06x}:{var.subindex}")
+
+
+def test_od_09_rw_application_objects_written_back(dut):
+    for var in variables(dut, 0x2000, 0x9FFF):
+        if var.access_type != "rw":
+            continue
+        raw = dut.node.sdo.upload(var.index, var.subindex)
+        dut.node.sdo.download(var.index, var.subindex, raw)
+        assert dut.node.sdo.upload(var.index, var.subindex) == raw
