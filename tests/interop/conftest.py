@@ -9,6 +9,7 @@ README.md in this folder for what the suite assumes of the firmware.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 import re
 import shlex
 import signal
@@ -513,9 +514,10 @@ def qemu(request, tmp_path) -> Iterator[Qemu]:
             print(f"--- last lines of {q.log_path} ---\n{tail}")
 
 
-@pytest.fixture
-def rig(qemu: Qemu) -> Iterator[Rig]:
-    """A booted handwheel in Pre-operational; the boot-up frame is the first recorded."""
+@contextmanager
+def open_rig(qemu: Qemu) -> Iterator[Rig]:
+    """The master's side of a booted handwheel on `qemu`: bus, network with the node,
+    recorder, stimulus client; the boot-up frame is the first recorded. Closed on exit."""
     bus = _connect_bus(qemu)
     frames = FrameRecorder()
     network = canopen.Network(bus)
@@ -537,6 +539,13 @@ def rig(qemu: Qemu) -> Iterator[Rig]:
             network.disconnect()  # stops the notifier, sends `C`, closes the socket
         except Exception as e:  # a crashed emulator must not hide the test's own failure
             print(f"network.disconnect(): {e!r}")
+
+
+@pytest.fixture
+def rig(qemu: Qemu) -> Iterator[Rig]:
+    """A booted handwheel in Pre-operational; the boot-up frame is the first recorded."""
+    with open_rig(qemu) as r:
+        yield r
 
 
 @pytest.fixture

@@ -90,18 +90,8 @@ fn component_venv(root: &Path, venv: &Path) -> Result<(PathBuf, PathBuf), String
     )?;
     // The dependencies are pinned and installed above; setuptools comes with the venv.
     pyenv::run(
-        Command::new(&python)
-            .args([
-                "-m",
-                "pip",
-                "install",
-                "--disable-pip-version-check",
-                "--no-input",
-                "--quiet",
-                "--no-deps",
-                "--no-build-isolation",
-                "--force-reinstall",
-            ])
+        pyenv::pip_install(&python)
+            .args(["--no-deps", "--no-build-isolation", "--force-reinstall"])
             .arg(root.join(pyenv::HOST_PACKAGE)),
     )?;
     let component = venv.join("bin").join("canopen-handwheel");

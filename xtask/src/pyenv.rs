@@ -138,20 +138,25 @@ pub fn ensure_with(
         host::apt_install(&["python3-venv"])?;
         make(&base)?;
     }
-    run(Command::new(&python)
-        .args([
-            "-m",
-            "pip",
-            "install",
-            "--disable-pip-version-check",
-            "--no-input",
-            "--quiet",
-            "-r",
-        ])
-        .arg(requirements))?;
+    run(pip_install(&python).arg("-r").arg(requirements))?;
     std::fs::write(&stamp_path, stamp)
         .map_err(|e| format!("cannot write {}: {e}", stamp_path.display()))?;
     Ok(python)
+}
+
+/// `python -m pip install` with the options every install here uses (quiet, no prompts);
+/// the caller adds what to install.
+pub fn pip_install(python: &Path) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.args([
+        "-m",
+        "pip",
+        "install",
+        "--disable-pip-version-check",
+        "--no-input",
+        "--quiet",
+    ]);
+    cmd
 }
 
 /// `python -m pytest <extra>` in `host/`: the component's unit and property tests (its

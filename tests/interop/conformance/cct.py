@@ -9,23 +9,18 @@ from __future__ import annotations
 
 import time
 
-import canopen
 import pytest
 
 from conftest import (
     BOOTUP,
-    EDS,
     HEARTBEAT,
     NMT_RESET_NODE,
-    NODE_ID,
     SDO_RX,
     SDO_TX,
     SDO_TIMEOUT,
-    FrameRecorder,
     Qemu,
     Rig,
-    Stimulus,
-    _connect_bus,
+    open_rig,
 )
 
 
@@ -45,26 +40,10 @@ def abort_of(reply: bytes) -> int:
 @pytest.fixture(scope="module")
 def shared_rig(tmp_path_factory):
     qemu = Qemu(tmp_path_factory.mktemp("cct") / "qemu.log")
-    bus = network = stim = None
     try:
-        bus = _connect_bus(qemu)
-        frames = FrameRecorder()
-        network = canopen.Network(bus)
-        network.listeners.append(frames)
-        network.add_node(NODE_ID, str(EDS))
-        network.connect()
-        frames.wait_id(HEARTBEAT, bytes([BOOTUP]))
-        network[NODE_ID].sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT
-        stim = Stimulus(qemu.stim_port, qemu)
-        yield Rig(qemu, bus, network, frames, stim)
+        with open_rig(qemu) as rig:
+            yield rig
     finally:
-        if stim is not None:
-            stim.close()
-        if network is not None:
-            try:
-                network.disconnect()
-            except Exception as e:
-                print(f"network.disconnect(): {e!r}")
         qemu.stop()
 
 
