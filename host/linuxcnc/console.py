@@ -37,18 +37,27 @@ sys.path.insert(0, str(HERE))
 from sim_machine import SimMachine  # noqa: E402
 
 
-def load_rig():
-    """The interop suite's emulator and stimulus classes."""
-    spec = importlib.util.spec_from_file_location("interop_rig", ROOT / "tests/interop/conftest.py")
+def load(name: str, path: Path):
+    """A module of the repository by its path (the interop rig, the demo's key map)."""
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
 
 
+def load_rig():
+    """The interop suite's emulator and stimulus classes."""
+    return load("interop_rig", ROOT / "tests/interop/conftest.py")
+
+
+# The keyboard is read as `cargo xtask demo` reads it: the same keys, one decoder.
+_demo = load("handwheel_demo", ROOT / "tools/demo.py")
+ARROWS = _demo.ARROWS
+split_keys = _demo.split_keys
+
+
 STATES = {1: "E-stop", 2: "off", 3: "off", 4: "ON"}
-ARROWS = {b"\x1b[A": 1, b"\x1b[C": 1, b"\x1b[B": -1, b"\x1b[D": -1, b"\x1b[5~": 10,
-          b"\x1b[6~": -10, b"\x1bOA": 1, b"\x1bOC": 1, b"\x1bOB": -1, b"\x1bOD": -1}
 HELP = ("keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10, x y z w v axis, 0 none,\n"
         "       1 2 3 = x1 x10 x100, m machine on/off, q quit")
 
@@ -70,20 +79,6 @@ def view(status: dict, last: str) -> list:
         f" bad frames {p.get('frames-bad')}",
         f"last      {last}",
     ]
-
-
-def split_keys(data: bytes) -> list:
-    keys, i = [], 0
-    while i < len(data):
-        for seq in ARROWS:
-            if data.startswith(seq, i):
-                keys.append(seq)
-                i += len(seq)
-                break
-        else:
-            keys.append(data[i:i + 1])
-            i += 1
-    return keys
 
 
 def interactive(cnc: SimMachine, stim) -> None:

@@ -27,11 +27,14 @@ def test_shipped_eds_is_the_repository_one():
 
 def test_defaults_and_option_errors(capsys):
     a = component.parse_args([])
-    assert (a.interface, a.channel, a.node, a.name, a.axes, a.scale, a.master_node) == (
-        "socketcan", "can0", 16, "handwheel", "xyzwv", 0.001, 1)
+    assert (a.interface, a.channel, a.node, a.name, a.scale) == (
+        "socketcan", "can0", 16, "handwheel", 0.001)
     cfg = component.config_from(a)
+    assert (cfg.axes, cfg.master) == ("xyzwv", 1)
     assert cfg.consumer_timeout_ms == 500 and cfg.stale_after == pytest.approx(0.3)
-    for bad in (["--master-node", "16"], ["--axes", "xq"], ["--node", "0"]):
+    for bad in (["--master-node", "16"], ["--axes", "xq"], ["--node", "0"],
+                ["--scale", "0"], ["--scale", "nan"], ["--scale", "inf"],
+                ["--heartbeat-ms", "5"], ["--event-timer-ms", "70000"]):
         with pytest.raises(SystemExit):
             component.parse_args(bad)
 

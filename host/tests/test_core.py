@@ -317,6 +317,21 @@ def test_options():
             core.resolve_master(node, master)
 
 
+def test_make_config_checks_every_option():
+    cfg = core.make_config(16, None, "XZ", -0.01, 100, 200)
+    assert (cfg.master, cfg.axes, cfg.scale) == (1, "xz", -0.01)
+    assert (cfg.heartbeat_period, cfg.consumer_timeout_ms) == (0.2, 1000)
+    assert cfg.stale_after == pytest.approx(0.3)
+    for kwargs in [dict(scale=0.0), dict(scale=float("nan")), dict(scale=float("-inf")),
+                   dict(heartbeat_ms=9), dict(heartbeat_ms=10001), dict(event_timer_ms=9),
+                   dict(event_timer_ms=60001), dict(axes="xx"), dict(master=16)]:
+        args = dict(node=16, master=None, axes="xyz", scale=0.001, event_timer_ms=100,
+                    heartbeat_ms=100)
+        args.update(kwargs)
+        with pytest.raises(ValueError):
+            core.make_config(**args)
+
+
 def test_pin_table():
     names = [n for n, _, _ in core.pin_table("xz")]
     assert "axis.x.jog-counts" in names and "halui.axis.z.select" in names

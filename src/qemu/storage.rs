@@ -61,9 +61,8 @@ impl Storage for DeviceStorage {
     }
 
     fn store_node(&mut self, node_id: u8, bit_timing: u8) -> Result<(), StorageError> {
-        let settings = handwheel_device::node_config::bit_rate_from_lss(bit_timing)
-            .and_then(|rate| NodeSettings::from_parts(node_id, rate.code()))
-            .ok_or(StorageError::Unsupported)?;
+        let settings =
+            NodeSettings::from_lss(node_id, bit_timing).ok_or(StorageError::Unsupported)?;
         defmt::info!("LSS stored {} (no bit rate on the serial line)", settings);
         self.node = Some(settings);
         Ok(())

@@ -229,8 +229,7 @@ impl canopen_slave::Storage for DeviceStorage {
         node_id: u8,
         bit_timing: u8,
     ) -> Result<(), canopen_slave::StorageError> {
-        let settings = handwheel_device::node_config::bit_rate_from_lss(bit_timing)
-            .and_then(|rate| NodeSettings::from_parts(node_id, rate.code()))
+        let settings = NodeSettings::from_lss(node_id, bit_timing)
             .ok_or(canopen_slave::StorageError::Unsupported)?;
         let mut blob = [0u8; super::BLOB_MAX];
         let len = match self.flash.load() {

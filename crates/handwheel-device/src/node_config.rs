@@ -25,8 +25,19 @@ use handwheel_core::BitRate;
 
 use crate::record::NodeSettings;
 
-/// The LSS bit-timing table indices the firmware supports: all but 5 (100 kbit/s).
-pub const LSS_BIT_TIMINGS: u16 = 0x01DF;
+/// The LSS bit-timing table indices the firmware supports (bit `i` for index `i`): exactly
+/// those [`bit_rate_from_lss`] maps to a rate, so all of 0-8 but 5 (100 kbit/s).
+pub const LSS_BIT_TIMINGS: u16 = {
+    let mut mask = 0u16;
+    let mut index = 0;
+    while index < 16 {
+        if bit_rate_from_lss(index).is_some() {
+            mask |= 1 << index;
+        }
+        index += 1;
+    }
+    mask
+};
 
 /// The CiA 301 / 305 bit-timing table index of `rate`.
 pub const fn lss_bit_timing(rate: BitRate) -> u8 {

@@ -59,6 +59,16 @@ impl NodeSettings {
 }
 
 impl NodeSettings {
+    /// What LSS "store configuration" hands over: a node-ID (or 0xFF) and a CiA 301 / 305
+    /// bit-timing table index. `None` for an index the firmware cannot run at or a node-ID
+    /// a record cannot hold; the LSS answer is then "not supported".
+    pub const fn from_lss(node_id: u8, bit_timing: u8) -> Option<Self> {
+        match crate::node_config::bit_rate_from_lss(bit_timing) {
+            Some(rate) => Self::from_parts(node_id, rate.code()),
+            None => None,
+        }
+    }
+
     /// The node-ID as the engine takes it: `None` when unconfigured (0xFF).
     pub const fn node(&self) -> Option<canopen_slave::NodeId> {
         match canopen_slave::NodeId::new(self.node_id) {

@@ -101,6 +101,27 @@ fn lss_bit_timing_indices_map_onto_the_dip_table() {
     for rate in BitRate::ALL {
         assert_eq!(bit_rate_from_lss(lss_bit_timing(rate)), Some(rate));
     }
+    // What the device tells its LSS slave it supports: 0-8 without 5.
+    assert_eq!(
+        handwheel_device::node_config::LSS_BIT_TIMINGS,
+        0b1_1101_1111
+    );
+}
+
+#[test]
+fn lss_store_configuration_settings() {
+    use handwheel_device::record::NodeSettings;
+    let s = NodeSettings::from_lss(5, 2).unwrap();
+    assert_eq!((s.node_id, s.bit_rate), (5, BitRate::Kbit500));
+    assert_eq!(NodeSettings::from_lss(0xFF, 0).unwrap().node(), None);
+    assert_eq!(
+        NodeSettings::from_lss(5, 5),
+        None,
+        "100 kbit/s is not in the DIP table"
+    );
+    assert_eq!(NodeSettings::from_lss(5, 9), None);
+    assert_eq!(NodeSettings::from_lss(0, 0), None);
+    assert_eq!(NodeSettings::from_lss(128, 0), None);
 }
 
 #[test]

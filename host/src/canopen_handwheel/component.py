@@ -64,27 +64,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                    "periods means disconnected")
     args = p.parse_args(argv)
     try:
-        args.axes = core.parse_axes(args.axes)
-        args.master_node = core.resolve_master(args.node, args.master_node)
+        args.config = core.make_config(args.node, args.master_node, args.axes, args.scale,
+                                       args.event_timer_ms, args.heartbeat_ms)
     except ValueError as e:
         p.error(str(e))
-    if not 10 <= args.heartbeat_ms <= 10000:
-        p.error("--heartbeat-ms must be 10..10000")
-    if not 10 <= args.event_timer_ms <= 60000:
-        p.error("--event-timer-ms must be 10..60000")
     return args
 
 
 def config_from(args: argparse.Namespace) -> core.Config:
-    return core.Config(
-        node=args.node,
-        master=args.master_node,
-        axes=args.axes,
-        scale=args.scale,
-        event_timer=args.event_timer_ms / 1000,
-        heartbeat_period=args.heartbeat_ms / 1000,
-        consumer_timeout_ms=min(5 * args.heartbeat_ms, 0xFFFF),
-    )
+    return args.config
 
 
 class HalPins:

@@ -36,6 +36,7 @@ Rules (the README's "Use with LinuxCNC" section states them for machine builders
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
@@ -105,6 +106,28 @@ def consumer_plan(entries: Dict[int, int], master: int, timeout_ms: int) -> Tupl
         if entries[sub] & 0xFFFF == 0:
             return sub, value
     return 1, value
+
+
+def make_config(node: int, master: Optional[int], axes: str, scale: float,
+                event_timer_ms: int, heartbeat_ms: int) -> "Config":
+    """The component's settings from its options, every one checked (`ValueError` says
+    which is wrong). The device is told to allow five of the component's heartbeat periods
+    (0x1016), so one late beat never stops the wheel."""
+    if not (math.isfinite(scale) and scale != 0):
+        raise ValueError(f"--scale {scale}: a finite, non-zero number of machine units")
+    if not 10 <= heartbeat_ms <= 10000:
+        raise ValueError("--heartbeat-ms must be 10..10000")
+    if not 10 <= event_timer_ms <= 60000:
+        raise ValueError("--event-timer-ms must be 10..60000")
+    return Config(
+        node=node,
+        master=resolve_master(node, master),
+        axes=parse_axes(axes),
+        scale=scale,
+        event_timer=event_timer_ms / 1000,
+        heartbeat_period=heartbeat_ms / 1000,
+        consumer_timeout_ms=5 * heartbeat_ms,
+    )
 
 
 @dataclass(frozen=True)
