@@ -13,8 +13,8 @@
 //! here.
 
 use handwheel_core::{
-    AbLevels, Axis, CounterStride, DecoderConfig, FeedRecord, Handwheel, Selection, UnitStep,
-    UnitStepEncoder,
+    AbLevels, Axis, CounterStride, DecoderConfig, FeedRecord, LinkedWheel, LocalEdge, Selection,
+    UnitStep, UnitStepEncoder, WheelAccess,
 };
 
 use crate::bus::Bus;
@@ -142,7 +142,7 @@ fn paper(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
 
 /// This project's unit-step mode: the real decoder and bounded backlog, paced by inhibit.
 struct CompatDevice {
-    wheel: Handwheel,
+    wheel: LinkedWheel<LocalEdge>,
     encoder: UnitStepEncoder,
     next_allowed: f64,
     frames: Vec<Sent>,
@@ -151,7 +151,7 @@ struct CompatDevice {
 impl CompatDevice {
     fn pump(&mut self, until: f64, bus: &mut Bus) {
         while self.next_allowed <= until {
-            let Some(step) = self.wheel.feed.take_unit_step() else {
+            let Some(step) = self.wheel.with_wheel(|w| w.feed.take_unit_step()) else {
                 break;
             };
             let at = self.next_allowed;
@@ -163,10 +163,12 @@ impl CompatDevice {
 }
 
 fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
-    let mut wheel = Handwheel::new(DecoderConfig::default(), AbLevels::from_bits(0));
-    let _ = wheel.feed.set_unit_step_mode(true);
-    let _ = wheel.feed.set_selection(selected(trace));
-    let _ = wheel.feed.set_enabled(true);
+    let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
+    wheel.with_wheel(|w| {
+        let _ = w.feed.set_unit_step_mode(true);
+        let _ = w.feed.set_selection(selected(trace));
+        let _ = w.feed.set_enabled(true);
+    });
     let mut device = CompatDevice {
         wheel,
         encoder: UnitStepEncoder::new(CounterStride::One),
@@ -187,7 +189,7 @@ fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
 /// This project's default: TPDO1 with the feed record, event-driven with inhibit time and
 /// event timer, as `canopen-slave` schedules it.
 struct RecordDevice {
-    wheel: Handwheel,
+    wheel: LinkedWheel<LocalEdge>,
     sequence: u8,
     pending: bool,
     inhibit_end: f64,
@@ -197,11 +199,12 @@ struct RecordDevice {
 
 impl RecordDevice {
     fn emit(&mut self, at: f64, bus: &mut Bus) {
+        let feed = self.wheel.feed();
         let record = FeedRecord {
-            position: self.wheel.feed.position(),
-            axis: self.wheel.feed.selection().axis,
-            multiplier: self.wheel.feed.selection().multiplier,
-            status: self.wheel.feed.status(),
+            position: feed.position(),
+            axis: feed.selection().axis,
+            multiplier: feed.selection().multiplier,
+            status: feed.status(),
             sequence: self.sequence,
         };
         self.sequence = self.sequence.wrapping_add(1);
@@ -229,7 +232,8 @@ impl RecordDevice {
 
     fn edge(&mut self, t: f64, levels: AbLevels, bus: &mut Bus) {
         self.timers(t, bus);
-        if self.wheel.on_edge(levels) && !self.pending {
+        let _ = self.wheel.on_edge(levels);
+        if self.wheel.take_feed_change() && !self.pending {
             self.pending = true;
             // The event is at `t`: an inhibit time that ran out earlier does not date it.
             self.inhibit_end = self.inhibit_end.max(t);
@@ -239,9 +243,11 @@ impl RecordDevice {
 }
 
 fn record(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
-    let mut wheel = Handwheel::new(DecoderConfig::default(), AbLevels::from_bits(0));
-    let _ = wheel.feed.set_selection(selected(trace));
-    let _ = wheel.feed.set_enabled(true);
+    let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
+    wheel.with_wheel(|w| {
+        let _ = w.feed.set_selection(selected(trace));
+        let _ = w.feed.set_enabled(true);
+    });
     let mut device = RecordDevice {
         wheel,
         sequence: 0,

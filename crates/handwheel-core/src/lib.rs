@@ -4,11 +4,12 @@
 //! moves pin levels and frames in and out of these types:
 //!
 //! - [`decoder`]: A/B quadrature to counts and detents, from the levels read in the EXTI ISR.
+//! - [`edge`]: the edge interrupt's own state and its lock-free channel to the CAN side.
 //! - [`standstill`]: notices a wheel at rest, so that the decoder learns its rest levels.
 //! - [`selector`]: debounced 5-position axis switch and 3-position multiplier switch.
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
-//! - [`wheel`]: decoder and accumulator together, the one resource the EXTI task locks.
+//! - [`wheel`]: the CAN side's wheel: a view of the edge's decoder and the accumulator.
 //! - [`pdo`]: the 8-byte feed record and the paper's 1-byte unit-step format.
 //! - [`bittiming`]: bxCAN `BTR` values for the CiA bit-rate table.
 #![no_std]
@@ -16,6 +17,7 @@
 pub mod accumulator;
 pub mod bittiming;
 pub mod decoder;
+pub mod edge;
 pub mod pdo;
 pub mod selector;
 pub mod standstill;
@@ -26,9 +28,10 @@ pub use bittiming::{BitRate, BitTiming, BitTimingError};
 pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
 };
+pub use edge::{EdgeChannel, EdgeDecoder, EdgeLink, EdgeSnapshot, LocalEdge};
 pub use pdo::{CounterStride, FeedRecord, FeedRecordError, FeedStatus, UnitStepEncoder};
 pub use selector::{
     Axis, Debouncer, Multiplier, Selection, Selector, SelectorLines, DEFAULT_DEBOUNCE_SAMPLES,
 };
-pub use standstill::{Standstill, STANDSTILL_MS};
-pub use wheel::{Handwheel, WheelAccess};
+pub use standstill::{Settle, Standstill, STANDSTILL_MS};
+pub use wheel::{DecoderView, Handwheel, LinkedWheel, WheelAccess};

@@ -9,6 +9,39 @@
 //! short lock, through this type.
 
 use crate::decoder::{AbLevels, QuadratureDecoder};
+use crate::wheel::DecoderView;
+
+/// A decoder that [`Standstill`] can watch and settle: the edge's own
+/// [`QuadratureDecoder`], or the CAN side's [`DecoderView`] of it.
+pub trait Settle {
+    /// Levels, count and illegal transitions: a change in any of them is motion.
+    fn motion_marks(&self) -> (AbLevels, i32, u32);
+    /// Takes the present levels as the rest if they are not one. Returns whether the rest
+    /// changed, or for a view whether a settle was asked of the edge.
+    fn settle(&mut self) -> bool;
+}
+
+impl Settle for QuadratureDecoder {
+    fn motion_marks(&self) -> (AbLevels, i32, u32) {
+        (self.levels(), self.count(), self.illegal_transitions())
+    }
+
+    fn settle(&mut self) -> bool {
+        QuadratureDecoder::settle(self)
+    }
+}
+
+impl Settle for DecoderView {
+    fn motion_marks(&self) -> (AbLevels, i32, u32) {
+        let s = self.snapshot();
+        (s.levels, s.count, s.illegal)
+    }
+
+    fn settle(&mut self) -> bool {
+        self.request_settle();
+        true
+    }
+}
 
 /// How long the wheel must be still before its levels count as its rest, in ms.
 ///
@@ -28,16 +61,17 @@ struct Snapshot {
 }
 
 impl Snapshot {
-    const fn of(decoder: &QuadratureDecoder) -> Self {
+    fn of(decoder: &impl Settle) -> Self {
+        let (levels, count, illegal) = decoder.motion_marks();
         Self {
-            levels: decoder.levels(),
-            count: decoder.count(),
-            illegal: decoder.illegal_transitions(),
+            levels,
+            count,
+            illegal,
         }
     }
 }
 
-/// Calls [`QuadratureDecoder::settle`] once the wheel has been still for [`STANDSTILL_MS`],
+/// Calls [`Settle::settle`] once the wheel has been still for [`STANDSTILL_MS`],
 /// once per standstill.
 #[derive(Clone, Debug)]
 pub struct Standstill {
@@ -59,12 +93,12 @@ impl Standstill {
         }
     }
 
-    /// One periodic sample at `now_ms` (a wrapping millisecond clock). Returns `true` when
-    /// this sample settled the decoder on new rest levels.
+    /// One periodic sample at `now_ms` (a wrapping millisecond clock). Returns what
+    /// [`Settle::settle`] returned when this sample called it, else `false`.
     ///
     /// The standstill is timed from the first sample that saw the wheel as it is now, so the
     /// sampling period adds at most one period to [`STANDSTILL_MS`].
-    pub fn sample(&mut self, now_ms: u32, decoder: &mut QuadratureDecoder) -> bool {
+    pub fn sample(&mut self, now_ms: u32, decoder: &mut impl Settle) -> bool {
         let now = Snapshot::of(decoder);
         if self.last != Some(now) {
             self.last = Some(now);

@@ -1,96 +1,340 @@
-//! The decoder and the accumulator as one resource.
+//! The CAN side's half of the wheel: a view of the edge task's decoder and the feed
+//! accumulator, which belongs to the CAN side alone.
 //!
-//! The EXTI task (highest priority) and the CAN side share exactly this struct. Keeping both
-//! halves together makes the ISR one call under one lock, and lets the CAN side read the raw
-//! count, the error count and the feed consistently.
+//! The edge interrupt owns the decoder ([`edge`](crate::edge)); the CAN side reaches the
+//! wheel only through [`WheelAccess`], whose implementation on the MCU and on the host is the
+//! same [`LinkedWheel`] over a different [`EdgeLink`]: the firmware's pends the edge's
+//! interrupt, the host's ([`LocalEdge`]) runs the edge code in place.
 
 use crate::accumulator::FeedAccumulator;
-use crate::decoder::{AbLevels, DecoderConfig, EdgeOutcome, QuadratureDecoder};
+use crate::decoder::{AbLevels, DecoderConfig};
+use crate::edge::{EdgeLink, EdgeSnapshot, LocalEdge, SettingsWord};
 
-/// Decoder plus accumulator.
+/// The CAN side's view of the edge's decoder: the last snapshot, the settings it asked for,
+/// and the bases that a reset of the application moves (0x2020 counts from there).
+#[derive(Clone, Debug)]
+pub struct DecoderView {
+    snapshot: EdgeSnapshot,
+    config: DecoderConfig,
+    configured: u32,
+    count_base: i32,
+    illegal_base: u32,
+    rests_learnt: u32,
+    /// Commands not yet posted to the channel.
+    settings_pending: bool,
+    settle_pending: Option<u32>,
+}
+
+impl DecoderView {
+    const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
+        Self {
+            snapshot: EdgeSnapshot {
+                edges: 0,
+                count: 0,
+                detents: 0,
+                illegal: 0,
+                levels: initial,
+            },
+            config,
+            configured: 0,
+            count_base: 0,
+            illegal_base: 0,
+            rests_learnt: 0,
+            settings_pending: false,
+            settle_pending: None,
+        }
+    }
+
+    /// Changes counts-per-detent and direction; the edge takes the present levels as the rest
+    /// (see
+    /// [`QuadratureDecoder::configure`](crate::QuadratureDecoder::configure)).
+    pub fn configure(&mut self, config: DecoderConfig) {
+        self.config = config;
+        self.configured = self.configured.wrapping_add(1);
+        self.settings_pending = true;
+    }
+
+    /// [`DecoderView::configure`], and the count and the illegal transitions start from 0.
+    pub fn reset(&mut self, config: DecoderConfig) {
+        self.count_base = self.snapshot.count;
+        self.illegal_base = self.snapshot.illegal;
+        self.configure(config);
+    }
+
+    /// The settings asked for.
+    pub fn config(&self) -> DecoderConfig {
+        self.config
+    }
+
+    /// Signed counts since start-up or the last reset, inversion applied, wrapping (object
+    /// 0x2020 sub 1).
+    pub fn count(&self) -> i32 {
+        self.snapshot.count.wrapping_sub(self.count_base)
+    }
+
+    /// Illegal transitions since start-up or the last reset, wrapping (0x2020 sub 2).
+    pub fn illegal_transitions(&self) -> u32 {
+        self.snapshot.illegal.wrapping_sub(self.illegal_base)
+    }
+
+    /// The last levels the edge read.
+    pub fn levels(&self) -> AbLevels {
+        self.snapshot.levels
+    }
+
+    /// Settles at standstill that moved the rest.
+    pub fn rests_learnt(&self) -> u32 {
+        self.rests_learnt
+    }
+
+    /// The last snapshot.
+    pub fn snapshot(&self) -> EdgeSnapshot {
+        self.snapshot
+    }
+
+    /// Asks the edge to settle on its present levels unless the wheel moved since this
+    /// view's snapshot (see [`QuadratureDecoder::settle`](crate::QuadratureDecoder::settle)).
+    pub fn request_settle(&mut self) {
+        self.settle_pending = Some(self.snapshot.edges);
+    }
+}
+
+/// The CAN side's half of the wheel, reached through
+/// [`WheelAccess`](crate::WheelAccess): a view of the edge's decoder and the feed
+/// accumulator, which belongs to the CAN side alone.
 #[derive(Clone, Debug)]
 pub struct Handwheel {
-    /// Quadrature decoder (object 0x2020).
-    pub decoder: QuadratureDecoder,
+    /// The edge's decoder (object 0x2020).
+    pub decoder: DecoderView,
     /// Feed accumulator (objects 0x2000, 0x2001, 0x2010, 0x2030, 0x6004).
     pub feed: FeedAccumulator,
 }
 
-impl Handwheel {
-    /// A wheel at rest on `initial` levels, feed disabled.
-    pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
-        Self {
-            decoder: QuadratureDecoder::new(config, initial),
-            feed: FeedAccumulator::new(),
-        }
-    }
-
-    /// One EXTI edge. Returns `true` when a feed frame is due (position or status changed).
-    #[inline]
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn on_edge(&mut self, levels: AbLevels) -> bool {
-        match self.decoder.update(levels) {
-            EdgeOutcome::Idle | EdgeOutcome::Counted => false,
-            EdgeOutcome::Illegal => self.feed.note_encoder_error(),
-            detent => self.feed.add_detents(detent.detents()),
-        }
-    }
-}
-
-/// Short, exclusive access to the shared [`Handwheel`].
+/// [`Handwheel`] joined to its edge task over an [`EdgeLink`].
 ///
-/// The CAN side reaches the wheel only through this, one object access at a time, so on the
-/// target each access is its own short RTIC lock and the EXTI task is never held off for a
-/// whole frame's processing. On the host a plain `Handwheel` is its own access.
-pub trait WheelAccess {
-    /// Runs `f` with the wheel locked.
-    fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R;
+/// Every access first takes the edge's new detents and illegal transitions into the
+/// accumulator (in the order of the CAN side's calls: motion before a change of selection or
+/// enable belongs to the old one), then runs the access, then posts the decoder commands it
+/// made.
+#[derive(Debug)]
+pub struct LinkedWheel<L> {
+    link: L,
+    wheel: Handwheel,
+    feed_changed: bool,
 }
 
-impl WheelAccess for Handwheel {
-    fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
-        f(self)
+impl<L: EdgeLink> LinkedWheel<L> {
+    /// The CAN side of a wheel whose edge task started at `initial` levels with `config`.
+    pub fn new(link: L, config: DecoderConfig, initial: AbLevels) -> Self {
+        Self {
+            link,
+            wheel: Handwheel {
+                decoder: DecoderView::new(config, initial),
+                feed: FeedAccumulator::new(),
+            },
+            feed_changed: false,
+        }
     }
+
+    /// The feed accumulator, with the edge's publications taken in.
+    pub fn feed(&mut self) -> &FeedAccumulator {
+        self.sync();
+        &self.wheel.feed
+    }
+
+    /// The link, for the edge itself on the host.
+    pub fn link_mut(&mut self) -> &mut L {
+        &mut self.link
+    }
+
+    /// Takes the edge's publications since the last call into the accumulator.
+    fn sync(&mut self) {
+        let channel = self.link.channel();
+        let now = channel.snapshot();
+        let view = &mut self.wheel.decoder;
+        view.rests_learnt = channel.rests_learnt();
+        let detents = now.detents.wrapping_sub(view.snapshot.detents);
+        let errors = now.illegal != view.snapshot.illegal;
+        view.snapshot = now;
+        let feed = &mut self.wheel.feed;
+        // Motion and errors commute in the accumulator: their order within one sync does not
+        // matter.
+        let moved = feed.add_detents(detents);
+        let flagged = errors && feed.note_encoder_error();
+        self.feed_changed |= moved | flagged;
+    }
+
+    /// Posts what the last access asked of the decoder, and kicks the edge to apply it.
+    fn post(&mut self) {
+        let view = &mut self.wheel.decoder;
+        let settings = core::mem::take(&mut view.settings_pending)
+            .then(|| SettingsWord::new(view.config, view.configured));
+        let settle = view.settle_pending.take();
+        if settings.is_none() && settle.is_none() {
+            return;
+        }
+        let channel = self.link.channel();
+        if let Some(word) = settings {
+            channel.post_settings(word);
+        }
+        if let Some(edges) = settle {
+            channel.post_settle(edges);
+        }
+        self.link.kick();
+    }
+}
+
+impl LinkedWheel<LocalEdge> {
+    /// A wheel run on the host: edge task and CAN side in one value.
+    pub fn local(config: DecoderConfig, initial: AbLevels) -> Self {
+        Self::new(LocalEdge::new(config, initial), config, initial)
+    }
+
+    /// One edge interrupt that reads `levels`; `true` when it would pend the CAN side's
+    /// wake-up.
+    #[must_use = "a detent the CAN side is not told of waits for its next round"]
+    pub fn on_edge(&mut self, levels: AbLevels) -> bool {
+        self.link.on_edge(levels)
+    }
+}
+
+impl<L: EdgeLink> WheelAccess for LinkedWheel<L> {
+    fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+        self.sync();
+        let result = f(&mut self.wheel);
+        self.post();
+        result
+    }
+
+    fn take_feed_change(&mut self) -> bool {
+        self.sync();
+        core::mem::take(&mut self.feed_changed)
+    }
+}
+
+/// Access to the CAN side's [`Handwheel`].
+///
+/// Each access first takes in what the edge task published since the last one, so the
+/// accumulator sees motion in the order of the CAN side's own calls.
+pub trait WheelAccess {
+    /// Runs `f` on the wheel.
+    fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R;
+
+    /// Whether what a feed record carries (position, status) changed since the last call.
+    #[must_use = "a changed feed needs a TPDO"]
+    fn take_feed_change(&mut self) -> bool;
 }
 
 impl<W: WheelAccess + ?Sized> WheelAccess for &mut W {
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
         (**self).with_wheel(f)
     }
+
+    fn take_feed_change(&mut self) -> bool {
+        (**self).take_feed_change()
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pdo::FeedStatus;
-    use crate::selector::{Axis, Multiplier, Selection};
+    use crate::decoder::CountsPerDetent;
+    use crate::{Axis, Multiplier, Selection};
+
+    const START: AbLevels = AbLevels::from_bits(0);
+
+    fn enabled_wheel() -> LinkedWheel<LocalEdge> {
+        let mut wheel = LinkedWheel::local(DecoderConfig::default(), START);
+        wheel.with_wheel(|w| {
+            let _ = w.feed.set_enabled(true);
+            let _ = w.feed.set_selection(Selection {
+                axis: Some(Axis::X),
+                multiplier: Multiplier::X10,
+            });
+        });
+        wheel
+    }
 
     #[test]
     fn edges_become_feed_only_at_detents() {
-        let mut wheel = Handwheel::new(DecoderConfig::default(), AbLevels::from_bits(0));
-        let _ = wheel.feed.set_enabled(true);
-        let _ = wheel.feed.set_selection(Selection {
-            axis: Some(Axis::X),
-            multiplier: Multiplier::X10,
-        });
-        let mut levels = AbLevels::from_bits(0);
+        let mut wheel = enabled_wheel();
+        let mut levels = START;
         let mut due = [false; 8];
         for d in &mut due {
             levels = levels.next_forward();
             *d = wheel.on_edge(levels);
         }
         assert_eq!(due, [false, false, false, true, false, false, false, true]);
-        assert_eq!(wheel.feed.position(), 20);
-        assert_eq!(wheel.decoder.count(), 8);
+        assert!(wheel.take_feed_change());
+        assert!(!wheel.take_feed_change(), "taken once");
+        assert_eq!(wheel.with_wheel(|w| w.feed.position()), 20);
+        assert_eq!(wheel.with_wheel(|w| w.decoder.count()), 8);
     }
 
     #[test]
     fn illegal_jump_sets_status_once() {
-        let mut wheel = Handwheel::new(DecoderConfig::default(), AbLevels::from_bits(0));
+        let mut wheel = enabled_wheel();
         assert!(wheel.on_edge(AbLevels::from_bits(3)));
-        assert!(!wheel.on_edge(AbLevels::from_bits(0)));
-        assert_eq!(wheel.decoder.illegal_transitions(), 2);
-        assert!(wheel.feed.status().contains(FeedStatus::ENCODER_ERROR));
-        assert_eq!(wheel.feed.position(), 0);
+        assert!(wheel.take_feed_change());
+        assert!(wheel.on_edge(AbLevels::from_bits(0)));
+        assert!(!wheel.take_feed_change(), "the status was already latched");
+        wheel.with_wheel(|w| {
+            assert_eq!(w.decoder.illegal_transitions(), 2);
+            assert!(w.feed.status().contains(crate::FeedStatus::ENCODER_ERROR));
+            assert_eq!(w.feed.position(), 0);
+        });
+    }
+
+    #[test]
+    fn settings_reach_the_edge_and_reset_rebases_the_counters() {
+        let mut wheel = enabled_wheel();
+        let two = DecoderConfig {
+            counts_per_detent: CountsPerDetent::Two,
+            invert: true,
+        };
+        wheel.with_wheel(|w| w.decoder.configure(two));
+        // Two counts forward with inversion: one detent in reverse.
+        let _ = wheel.on_edge(START.next_forward());
+        let _ = wheel.on_edge(START.next_forward().next_forward());
+        wheel.with_wheel(|w| {
+            assert_eq!(w.feed.position(), -10);
+            assert_eq!(w.decoder.count(), -2);
+            w.decoder.reset(DecoderConfig::default());
+            assert_eq!(w.decoder.count(), 0);
+        });
+        // Back by four counts at 4 per detent, not inverted: one detent back.
+        let mut levels = START.next_forward().next_forward();
+        for _ in 0..4 {
+            levels = levels.next_reverse();
+            let _ = wheel.on_edge(levels);
+        }
+        wheel.with_wheel(|w| {
+            assert_eq!(w.feed.position(), -20);
+            assert_eq!(w.decoder.count(), -4);
+        });
+    }
+
+    #[test]
+    fn settle_applies_only_if_nothing_moved_since_the_snapshot() {
+        let mut wheel = enabled_wheel();
+        // Half a detent: off the rest.
+        let mut levels = START.next_forward().next_forward();
+        let _ = wheel.on_edge(START.next_forward());
+        let _ = wheel.on_edge(levels);
+        // The CAN side decides on a snapshot, the wheel moves before the request lands.
+        let view_edges = wheel.with_wheel(|w| w.decoder.snapshot().edges);
+        assert_eq!(view_edges, 2);
+        levels = levels.next_forward();
+        let _ = wheel.link_mut().on_edge(levels);
+        wheel.link_mut().channel.post_settle(view_edges);
+        wheel.link_mut().kick();
+        assert_eq!(
+            wheel.link_mut().channel.rests_learnt(),
+            0,
+            "moved: no settle"
+        );
+        // Asked with the present snapshot, it settles.
+        wheel.with_wheel(|w| w.decoder.request_settle());
+        assert_eq!(wheel.with_wheel(|w| w.decoder.rests_learnt()), 1);
     }
 }

@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, Handwheel, StopReason, UnitStep,
-    UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedAccumulator, Handwheel, StopReason,
+    UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
 };
 
 use crate::od::{
@@ -216,9 +216,9 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         self.app.nmt = nmt;
         self.app.master_lost = master_lost;
         self.wheel.with_wheel(|w| {
-            let levels = w.decoder.levels();
             let selection = w.feed.selection();
-            *w = Handwheel::new(WheelParameters::DEFAULT.decoder, levels);
+            w.decoder.reset(WheelParameters::DEFAULT.decoder);
+            w.feed = FeedAccumulator::new();
             // The selector is hardware state, not application state: it survives the reset.
             let _ = w.feed.set_selection(selection);
         });

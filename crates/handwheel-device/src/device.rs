@@ -80,8 +80,9 @@ impl<S: Storage> HandwheelDevice<S> {
         self.service(wheel);
     }
 
-    /// Time-driven work; call at [`HandwheelDevice::next_deadline`] at the latest, and after
-    /// [`HandwheelDevice::feed_changed`] or [`HandwheelDevice::set_selection`].
+    /// Time-driven work, and the wheel's new motion: call at
+    /// [`HandwheelDevice::next_deadline`] at the latest, after the edge task reported motion,
+    /// and after [`HandwheelDevice::set_selection`].
     pub fn poll(&mut self, now: Instant, wheel: &mut impl WheelAccess, tx: &mut dyn FrameSink) {
         self.service(wheel);
         let mut ctx = AppContext {
@@ -90,11 +91,6 @@ impl<S: Storage> HandwheelDevice<S> {
         };
         self.engine.poll(now, &mut ctx, tx);
         self.service(wheel);
-    }
-
-    /// The EXTI task reported a change of the feed record (a detent, a status bit).
-    pub fn feed_changed(&mut self) {
-        self.app.feed_due = true;
     }
 
     /// The debounced selector changed.
@@ -156,6 +152,7 @@ impl<S: Storage> HandwheelDevice<S> {
     /// step, and keeps the encoder EMCY in step with the feed status.
     fn service(&mut self, wheel: &mut impl WheelAccess) {
         let operational = self.engine.nmt_state() == NmtState::Operational;
+        self.app.feed_due |= wheel.take_feed_change();
         if self.app.feed_due {
             self.app.feed_due = false;
             // Outside Operational the request is dropped by design: entering Operational

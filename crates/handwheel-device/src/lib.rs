@@ -1,8 +1,9 @@
 //! The CANopen CNC handwheel as a device: the `canopen-slave` engine bound to
 //! `handwheel-core`'s wheel through the handwheel's object dictionary.
 //!
-//! Host-tested and hardware-free; the firmware creates one [`HandwheelDevice`], shares a
-//! [`handwheel_core::Handwheel`] with its EXTI task and moves frames and time in and out.
+//! Host-tested and hardware-free; the firmware creates one [`HandwheelDevice`], gives it the
+//! CAN side's [`handwheel_core::LinkedWheel`] (the edge task owns the decoder) and moves
+//! frames and time in and out.
 //!
 //! Safety behaviour lives here and in `handwheel-core`, not in the firmware:
 //! - feed can only be enabled (0x2000 = 1) in Operational (abort 0x08000022 otherwise);

@@ -97,23 +97,23 @@ proptest! {
         b.take();
         for e in &evs {
             let operational = b.device.nmt_state() == canopen_slave::NmtState::Operational;
-            let enabled = b.wheel.feed.enabled();
-            let position = b.wheel.feed.position();
+            let enabled = b.wheel.feed().enabled();
+            let position = b.wheel.feed().position();
             apply(&mut b, e);
             let now_operational = b.device.nmt_state() == canopen_slave::NmtState::Operational;
             prop_assert!(
-                !b.wheel.feed.enabled() || now_operational,
+                !b.wheel.feed().enabled() || now_operational,
                 "enabled outside Operational after {:?}", e
             );
             // Reset node restarts the application: position 0 after a boot-up, which a host
             // takes as a new baseline. Anything else must not move a disabled feed.
             let reset = matches!(e, Event::Nmt(0x81));
-            if !enabled && !b.wheel.feed.enabled() && !reset {
-                prop_assert_eq!(b.wheel.feed.position(), position, "moved while disabled: {:?}", e);
+            if !enabled && !b.wheel.feed().enabled() && !reset {
+                prop_assert_eq!(b.wheel.feed().position(), position, "moved while disabled: {:?}", e);
             }
             for f in b.take() {
                 if f.id == EMCY && f.data[..2] == [0x30, 0x81] {
-                    prop_assert!(!b.wheel.feed.enabled(), "master lost but feed enabled");
+                    prop_assert!(!b.wheel.feed().enabled(), "master lost but feed enabled");
                 }
                 if f.id == TPDO1 || f.id == TPDO2 {
                     prop_assert!(operational || now_operational, "PDO outside Operational: {:?}", e);
@@ -126,7 +126,7 @@ proptest! {
                 if f.id == TPDO2 {
                     let (step, _) = handwheel_core::UnitStepEncoder::decode(f.data[0])
                         .expect("valid axis field");
-                    prop_assert_eq!(b.wheel.feed.selection().axis, Some(step.axis), "step for another axis: {:?}", e);
+                    prop_assert_eq!(b.wheel.feed().selection().axis, Some(step.axis), "step for another axis: {:?}", e);
                 }
             }
         }
