@@ -13,7 +13,10 @@
 //!   `storage::record`).
 //! - [`events`]: interrupt-to-task wake-ups.
 //! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
-//! - [`wheel`]: the CAN side's locked access to the shared wheel.
+//! - [`edge`]: the wheel's edge interrupt, outside RTIC, and the CAN side's link to it.
+//! - [`priority`]: the interrupt priorities the firmware programs itself.
+//!
+//! Module `cs` is the image's critical section: BASEPRI up to the CAN side, never the wheel.
 //!
 //! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
 //! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' 1 KiB
@@ -39,15 +42,20 @@ pub mod board;
 #[cfg(feature = "qemu")]
 pub use qemu::board;
 pub mod can;
+mod cs;
+pub mod edge;
 pub mod events;
 mod mem;
 pub use handwheel_device::node_config;
 mod panic;
 #[cfg(feature = "qemu")]
 pub mod qemu;
+pub mod priority;
 pub mod storage;
 pub mod supervision;
-pub mod wheel;
+
+/// The STM32F103's peripheral access crate.
+pub use stm32f1::stm32f103 as pac;
 
 /// The serial number for 0x1018:4: CRC-32 of the 96-bit unique ID's 12 bytes, so that it
 /// spreads over all 32 bits and stays the same for the life of the chip.

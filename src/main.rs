@@ -2,24 +2,32 @@
 //!
 //! | task | runs on | priority | shares |
 //! |---|---|---|---|
-//! | `wheel_edge` | EXTI9_5 (wheel A/B, both edges) | 4 | `wheel` |
-//! | `feed_due` | TIM2 vector, pended by `wheel_edge` | 3 | - |
+//! | edge (not an RTIC task: `handwheel_firmware::edge`) | EXTI9_5 (wheel A/B, both edges) | 4 | atomics only |
+//! | edge kick (same module) | TIM4 vector, pended by `canopen` | 4 | the edge's decoder, at its priority |
+//! | `feed_due` | TIM2 vector, pended by the edge | 3 | - |
 //! | `can_rx0` | USB_LP_CAN_RX0 | 3 | `can` |
 //! | `can_tx` | USB_HP_CAN_TX | 3 | `can` |
 //! | `can_sce` | CAN_SCE | 3 | `can` |
+//! | SysTick (the monotonic) | SysTick | 3 | its timer queue, in critical sections |
 //! | `canopen` | software (TIM3 dispatcher) | 2 | `device`, `wheel`, `can` |
 //! | `idle` | thread mode | 0 | - |
 //!
-//! The wheel's edges preempt everything: an edge is only known by the levels read after it,
-//! so a late read merges two edges into an illegal jump. Nothing else is urgent on that scale.
+//! The wheel's edges preempt everything, and nothing ever masks them: an edge is only known
+//! by the levels read after it, so a late read merges two edges into an illegal jump. The
+//! edge interrupt owns its decoder and reaches the CAN side through lock-free atomics
+//! (`handwheel_core::edge`), so it is no RTIC task and no RTIC lock or critical section
+//! reaches its priority (the critical section masks by BASEPRI up to priority 3: `src/cs.rs`).
 //! The CAN interrupts come next because the receive FIFO holds only three frames and the
 //! mailboxes only three; they only move frames between hardware and queues. Everything that
 //! touches the CANopen device runs in one task, `canopen` (priority 2), which also samples
-//! the selector switches and drives the LEDs: the device is that task's local resource and
-//! needs no lock, and nothing on the CAN side ever preempts another part of it.
+//! the selector switches and drives the LEDs: the device and the CAN side's half of the wheel
+//! are that task's local resources and need no lock, and nothing on the CAN side ever
+//! preempts another part of it.
 //!
-//! SysTick (the monotonic) keeps its reset priority, above all tasks: its handler is a
-//! counter increment and a timer-queue check, and it must not miss a tick.
+//! SysTick (the monotonic) runs at priority 3, not at its reset priority above everything:
+//! its timer queue is guarded by critical sections, which must mask it. A tick is a counter
+//! increment and a queue check; it waits at most for one CAN interrupt or one critical
+//! section, far less than its 1 ms period, so no tick is missed.
 //!
 //! The QEMU variant (`--features qemu`) is this same application, task for task, over the
 //! QEMU board layer (`handwheel_firmware::qemu`): there `can_rx0` is pended by the USART1
@@ -44,29 +52,34 @@ defmt::timestamp!("{=u32:ms}", Mono::now().ticks());
 /// Interrupt-to-`canopen` wake-ups.
 static EVENTS: Events = Events::new();
 
-#[rtic::app(device = stm32f1xx_hal::pac, dispatchers = [TIM3])]
+#[rtic::app(device = handwheel_firmware::pac, dispatchers = [TIM3])]
 mod app {
     use super::{Mono, EVENTS};
 
     use canopen_slave::{
         indicators as indicator_leds, sleep_ms, Instant, Periodic, RxFilter, WideClock,
     };
+    use cortex_m::peripheral::scb::SystemHandler;
     use defmt::{debug, info};
     use handwheel_core::{
-        DecoderConfig, Handwheel, Selector, Standstill, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
+        DecoderConfig, LinkedWheel, Selector, Standstill, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
     };
     use handwheel_device::HandwheelDevice;
     use handwheel_firmware::{
-        board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
+        board::{self, Leds, Selectors, SYSCLK_HZ},
         can::{self, bus::BusState, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
+        edge::{self, PendedEdge},
         events::EventSet,
-        node_config,
+        node_config, priority,
         storage::DeviceStorage,
         supervision::Supervision,
-        wheel::SharedWheel,
     };
     use rtic::Mutex;
     use rtic_monotonics::systick::prelude::*;
+
+    // The literals of the task attributes below and the levels the firmware programs itself
+    // (`priority`) must agree: the edge above the CAN side, the critical section at it.
+    const _: () = assert!(priority::WHEEL == 4 && priority::CAN == 3);
 
     /// Selector sampling period (4 stable samples = 20 ms debounce).
     const SAMPLE_PERIOD_MS: u32 = 5;
@@ -86,12 +99,11 @@ mod app {
 
     /// The CANopen handwheel with its parameter page.
     type Device = HandwheelDevice<DeviceStorage>;
+    /// The CAN side's half of the wheel, linked to the edge interrupt.
+    type Wheel = LinkedWheel<PendedEdge>;
 
     #[shared]
     struct Shared {
-        /// Decoder and feed accumulator: written by every edge, read and configured by the
-        /// CAN side.
-        wheel: Handwheel,
         /// bxCAN and its transmit queue.
         can: CanPort,
     }
@@ -100,9 +112,10 @@ mod app {
     struct Local {
         /// The CANopen device: only `canopen` touches it.
         device: Device,
+        /// The accumulator and the view of the edge's decoder: only `canopen` touches them.
+        wheel: Wheel,
         /// The acceptance filter the CAN port has now.
         rx_filter: RxFilter,
-        wheel_inputs: WheelInputs,
         rx_producer: RxProducer,
         rx_consumer: RxConsumer,
         selectors: Selectors,
@@ -112,8 +125,15 @@ mod app {
 
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]
     fn init(cx: init::Context) -> (Shared, Local) {
+        let mut core = cx.core;
         let mut board = board::init(cx.device);
-        Mono::start(cx.core.SYST, SYSCLK_HZ);
+        Mono::start(core.SYST, SYSCLK_HZ);
+        // SAFETY: SysTick's level is what the critical section masks (see the table above);
+        // no RTIC lock depends on it, as it is no RTIC task.
+        unsafe {
+            core.SCB
+                .set_priority(SystemHandler::SysTick, priority::hardware(priority::CAN))
+        };
 
         let stored = board.storage.load().map(|s| s.settings);
         let (settings, source) = node_config::select(board.dip, stored);
@@ -146,7 +166,11 @@ mod app {
         };
         let can = can::start(board.can, settings.bit_rate, filter, Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
-        let wheel = Handwheel::new(DecoderConfig::default(), board.wheel.levels());
+        let config = DecoderConfig::default();
+        let wheel = match edge::start(board.wheel, config, &mut core.NVIC) {
+            Some(link) => LinkedWheel::new(link, config),
+            None => unreachable!("init runs once"),
+        };
 
         board.watchdog.start(WATCHDOG_MS);
         // The first spawn of a task cannot fail. Were it ever to, nothing would feed the
@@ -155,13 +179,12 @@ mod app {
 
         (
             Shared {
-                wheel,
                 can: CanPort::new(can),
             },
             Local {
                 device,
+                wheel,
                 rx_filter: filter,
-                wheel_inputs: board.wheel,
                 rx_producer,
                 rx_consumer,
                 selectors: board.selectors,
@@ -180,24 +203,11 @@ mod app {
         }
     }
 
-    /// One wheel edge: acknowledge, read A and B in one port read, decode.
-    ///
-    /// The highest priority, so the wheel's lock is free here and nothing delays the read
-    /// beyond SysTick. The CAN side's locks of `wheel` hold this task off for at most one
-    /// short object access. When a detent (or a status change) makes a feed frame due, it
-    /// only pends `feed_due`: one store to the NVIC instead of waking the async task from
-    /// here, which would cost this handler more than the decoding itself.
-    #[task(binds = EXTI9_5, priority = 4, local = [wheel_inputs], shared = [wheel])]
-    fn wheel_edge(mut cx: wheel_edge::Context) {
-        let levels = cx.local.wheel_inputs.acknowledge_edge();
-        if cx.shared.wheel.lock(|wheel| wheel.on_edge(levels)) {
-            rtic::pend(stm32f1xx_hal::pac::Interrupt::TIM2);
-        }
-    }
-
     /// Wakes `canopen` for a feed frame. Runs on TIM2's vector (the timer itself is unused),
-    /// pended by `wheel_edge`; below the wheel's priority, so an edge preempts it, and above
-    /// `canopen`'s, so the wake-up is immediate. Several edges before it runs cost one wake.
+    /// pended by the edge interrupt, which thus costs one NVIC store instead of a wake-up
+    /// (a critical section the edge must not enter); below the wheel's priority, so an edge
+    /// preempts it, and above `canopen`'s, so the wake-up is immediate. Several edges before
+    /// it runs cost one wake.
     #[task(binds = TIM2, priority = 3)]
     fn feed_due(_: feed_due::Context) {
         EVENTS.raise(EventSet::FEED_DUE);
@@ -246,6 +256,7 @@ mod app {
         priority = 2,
         local = [
             device,
+            wheel,
             rx_filter,
             rx_consumer,
             watchdog,
@@ -255,7 +266,7 @@ mod app {
             supervision: Supervision = Supervision::new(),
             clock: WideClock = WideClock::new(),
         ],
-        shared = [wheel, can]
+        shared = [can]
     )]
     async fn canopen(cx: canopen::Context) {
         // QEMU: the boot-up must not reach the master's socket before pyserial's flush on
@@ -265,18 +276,18 @@ mod app {
         Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
         let now = cx.local.clock.now(Mono::now().ticks());
         let device = cx.local.device;
-        let mut wheel = SharedWheel(cx.shared.wheel);
+        let wheel = cx.local.wheel;
         let mut tx = TxSink(cx.shared.can);
         // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
         // the sampling duty is due immediately).
-        device.start(now, &mut wheel, &mut tx);
+        device.start(now, wheel, &mut tx);
         // Sampling and LED duties: due at once, then every period; a late round is not caught
         // up in a burst (the debouncer counts samples).
         let start_ms = Mono::now().ticks();
         let mut next_sample = Periodic::new(start_ms, SAMPLE_PERIOD_MS);
         let mut next_led = Periodic::new(start_ms, LED_PERIOD_MS);
-        // Where the wheel comes to rest is learnt here, not in `wheel_edge`: a still wheel
-        // makes no edges, and the edge handler has no cycles for a clock. The selector
+        // Where the wheel comes to rest is learnt here, not in the edge interrupt: a still
+        // wheel makes no edges, and the edge handler has no cycles for a clock. The selector
         // period is fine enough against the 500 ms standstill time.
         let mut standstill = Standstill::new();
         loop {
@@ -290,16 +301,19 @@ mod app {
             let wake_at = wake_time(cx.local.supervision, now, deadline)
                 .min(mono_at(next_sample.next_ms()))
                 .min(mono_at(next_led.next_ms()));
-            let events = match Mono::timeout_at(wake_at, EVENTS.wait()).await {
+            let _events = match Mono::timeout_at(wake_at, EVENTS.wait()).await {
                 Ok(events) => events,
                 Err(_timeout) => EVENTS.take(),
             };
             let ticks = Mono::now().ticks();
             let now = cx.local.clock.now(ticks);
             let selection = if next_sample.is_due(ticks) {
-                // One short lock: a few comparisons, and at most once per standstill a
-                // settle, which is constant time too.
-                if wheel.with_wheel(|w| standstill.sample(ticks, &mut w.decoder)) {
+                // At most once per standstill a settle request, which the edge applies at
+                // once (its interrupt is kicked) if the wheel has not moved since.
+                let learnt = wheel.with_wheel(|w| w.decoder.rests_learnt());
+                if wheel.with_wheel(|w| standstill.sample(ticks, &mut w.decoder))
+                    && wheel.with_wheel(|w| w.decoder.rests_learnt()) != learnt
+                {
                     debug!("wheel: rest learnt at standstill");
                 }
                 let (axis, multiplier) = cx.local.selectors.read();
@@ -308,7 +322,7 @@ mod app {
                 None
             };
             while let Some(frame) = cx.local.rx_consumer.dequeue() {
-                device.on_frame(now, &frame, &mut wheel, &mut tx);
+                device.on_frame(now, &frame, wheel, &mut tx);
             }
             if let Some(selection) = selection {
                 info!(
@@ -316,13 +330,11 @@ mod app {
                     handwheel_core::Axis::option_value(selection.axis),
                     selection.multiplier.factor()
                 );
-                device.set_selection(selection, &mut wheel);
+                device.set_selection(selection, wheel);
             }
-            if events.contains(EventSet::FEED_DUE) {
-                device.feed_changed();
-            }
-            supervise(cx.local.supervision, device, &mut wheel, &mut tx.0);
-            device.poll(now, &mut wheel, &mut tx);
+            // `FEED_DUE` only woke this round: `poll` takes the edge's news in.
+            supervise(cx.local.supervision, device, wheel, &mut tx.0);
+            device.poll(now, wheel, &mut tx);
             if let Some(rate) = device.take_bit_rate_switch(now) {
                 info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
                 tx.0.lock(|can| can.set_bit_rate(rate));

@@ -12,7 +12,7 @@ use handwheel_firmware as _;
 
 fn btr_register() -> u32 {
     // SAFETY: a read of CAN_BTR, which has no side effects.
-    unsafe { (*stm32f1xx_hal::pac::CAN::ptr()).btr().read().bits() }
+    unsafe { (*handwheel_firmware::pac::CAN::ptr()).btr().read().bits() }
 }
 
 #[defmt_test::tests]
@@ -22,7 +22,7 @@ mod tests {
     use handwheel_core::{BitRate, BitTiming};
     use handwheel_firmware::board::{self, CanInstance, APB1_HZ};
     use handwheel_firmware::can::{self, Mode, BTR_TABLE};
-    use stm32f1xx_hal::pac;
+    use handwheel_firmware::pac;
 
     /// Timing and mode bits of CAN_BTR (SJW, TS2, TS1, BRP; LBKM, SILM).
     const TIMING_MASK: u32 = 0x037F_03FF;

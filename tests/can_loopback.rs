@@ -8,7 +8,7 @@ use defmt_rtt as _;
 use handwheel_firmware as _;
 
 use handwheel_firmware::can::{CanPort, Frame, RxQueue};
-use stm32f1xx_hal::pac;
+use handwheel_firmware::pac;
 
 /// Sends `frames` through the queue and collects what comes back, pumping the queue the
 /// way the TX interrupt does.
@@ -57,7 +57,7 @@ mod tests {
     use handwheel_core::BitRate;
     use handwheel_firmware::board;
     use handwheel_firmware::can::{self, CanPort, Frame, Mode, RxQueue, RX_QUEUE_LEN};
-    use stm32f1xx_hal::pac;
+    use handwheel_firmware::pac;
 
     const NODE_ID: u8 = 16;
 

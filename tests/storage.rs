@@ -15,8 +15,7 @@ mod tests {
     use handwheel_firmware::storage::{
         FlashStorage, NodeSettings, StoreError, BLOB_MAX, PAGE_OFFSET,
     };
-    use stm32f1xx_hal::flash::{FlashSize, SectorSize};
-    use stm32f1xx_hal::pac;
+    use handwheel_firmware::pac;
 
     struct State {
         storage: Option<FlashStorage>,
@@ -93,12 +92,28 @@ mod tests {
         );
         // Program the first blob half-word (0xFFFF) to 0x0000: allowed without an erase,
         // and the CRC no longer matches.
-        let mut parts = defmt::unwrap!(state.storage.take()).free();
-        let mut writer = parts.writer(SectorSize::Sz1K, FlashSize::Sz64K);
-        defmt::unwrap!(writer.write(PAGE_OFFSET + 8, &[0, 0]).ok());
-        state.storage = Some(FlashStorage::new(parts));
+        let flash = defmt::unwrap!(state.storage.take()).free();
+        super::program_half_word(&flash, PAGE_OFFSET + 8, 0x0000);
+        state.storage = Some(FlashStorage::new(flash));
         defmt::assert!(defmt::unwrap!(state.storage.as_mut()).load().is_none());
         // Leave the board with nothing stored: it boots with its defaults.
         defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).erase());
     }
+}
+
+/// Programs one half-word at `offset` from the start of flash, independently of
+/// `FlashStorage` (RM0008 3.3.3: unlock, PG, a half-word write, BSY, lock).
+fn program_half_word(flash: &handwheel_firmware::pac::FLASH, offset: u32, value: u16) {
+    // SAFETY (keys): the documented unlock sequence, in order.
+    for key in [0x4567_0123, 0xCDEF_89AB] {
+        flash.keyr().write(|w| unsafe { w.key().bits(key) });
+    }
+    flash.cr().modify(|_, w| w.pg().set_bit());
+    let at = (0x0800_0000 + offset) as *mut u16;
+    // SAFETY: `at` is a half-word inside the parameter page, which no code or data uses,
+    // and PG is set: the write programs it.
+    unsafe { core::ptr::write_volatile(at, value) };
+    cortex_m::asm::nop();
+    while flash.sr().read().bsy().bit_is_set() {}
+    flash.cr().modify(|_, w| w.pg().clear_bit().lock().set_bit());
 }

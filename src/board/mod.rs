@@ -9,14 +9,7 @@ pub mod pins;
 pub mod watchdog;
 
 use handwheel_core::AbLevels;
-use stm32f1xx_hal::{
-    can::Can,
-    flash,
-    gpio::Floating,
-    pac::{self, gpioa::RegisterBlock as Port},
-    prelude::*,
-    rcc::{self, Rcc},
-};
+use crate::pac::{self, gpioa::RegisterBlock as Port};
 
 use crate::storage::FlashStorage;
 use pins::{PortConfig, WHEEL_A_BIT, WHEEL_B_BIT, WHEEL_EXTI_LINES};
@@ -29,9 +22,30 @@ pub const SYSCLK_HZ: u32 = 72_000_000;
 /// APB1 clock, the bxCAN kernel clock that the bit timing table is computed for.
 pub const APB1_HZ: u32 = 36_000_000;
 
-/// The bxCAN peripheral, ready for `bxcan::Can::builder`. Its pins (PB8/PB9, remap 2) are
-/// set up by [`init`] with the rest of the pin map, so the HAL gets none.
-pub type CanInstance = Can<pac::CAN, Floating>;
+/// bxCAN, clocked and out of reset, ready for `bxcan::Can::builder`. Its pins (PB8/PB9,
+/// remap 2) are set up by [`init`] with the rest of the pin map.
+pub struct CanInstance {
+    _can: pac::CAN,
+    /// Held, never used: USB shares its packet SRAM with bxCAN (RM0008 24.1), so the two
+    /// must not run together.
+    _usb: pac::USB,
+}
+
+// SAFETY: the register block of bxCAN on this part is at CAN's address (RM0008 3.3, memory
+// map) with the layout of RM0008 24.9, which `bxcan::RegisterBlock` models; owning
+// `pac::CAN` makes `CanInstance` the one handle to it.
+unsafe impl bxcan::Instance for CanInstance {
+    const REGISTERS: *mut bxcan::RegisterBlock = pac::CAN::PTR as *mut _;
+}
+
+// SAFETY: the STM32F103 has one bxCAN (no CAN2 sharing the banks), which owns all 14 filter
+// banks (RM0008 24.7.4).
+unsafe impl bxcan::FilterOwner for CanInstance {
+    const NUM_FILTER_BANKS: u8 = 14;
+}
+
+// SAFETY: the single bxCAN of the STM32F103 is a master instance (it has the filter banks).
+unsafe impl bxcan::MasterInstance for CanInstance {}
 
 /// Everything `init` sets up for the application.
 pub struct Board {
@@ -57,20 +71,9 @@ pub struct Board {
 
 /// Brings up clocks and pins. Takes the device peripherals that RTIC's `init` hands over.
 pub fn init(dp: pac::Peripherals) -> Board {
-    let mut flash = dp.FLASH.constrain();
-    let mut rcc = dp.RCC.freeze(
-        rcc::Config::hse(HSE_HZ.Hz())
-            .sysclk(SYSCLK_HZ.Hz())
-            .hclk(SYSCLK_HZ.Hz())
-            .pclk1(APB1_HZ.Hz())
-            .pclk2(SYSCLK_HZ.Hz()),
-        &mut flash.acr,
-    );
-    // The bit timing table and the SysTick rate assume these exact clocks.
-    defmt::assert_eq!(rcc.clocks.sysclk().raw(), SYSCLK_HZ);
-    defmt::assert_eq!(rcc.clocks.pclk1().raw(), APB1_HZ);
-
-    let reset_cause = ResetCause::take(&mut rcc);
+    let rcc = dp.RCC;
+    start_clocks(&rcc, &dp.FLASH);
+    let reset_cause = ResetCause::take(&rcc);
     rcc.apb2enr().modify(|_, w| {
         w.afioen()
             .set_bit()
@@ -108,8 +111,14 @@ pub fn init(dp: pac::Peripherals) -> Board {
     cortex_m::asm::delay(SYSCLK_HZ / 10_000);
     let dip = pins::dip_from_port(dp.GPIOB.idr().read().bits());
 
-    // The USB peripheral is consumed because it shares its packet SRAM with bxCAN.
-    let can = Can::new_loopback(dp.CAN, dp.USB, &mut rcc);
+    // bxCAN's clock on, and a reset pulse so that it starts from its reset values.
+    rcc.apb1enr().modify(|_, w| w.canen().set_bit());
+    rcc.apb1rstr().modify(|_, w| w.canrst().set_bit());
+    rcc.apb1rstr().modify(|_, w| w.canrst().clear_bit());
+    let can = CanInstance {
+        _can: dp.CAN,
+        _usb: dp.USB,
+    };
 
     let watchdog = Watchdog::new(dp.IWDG, &dp.DBGMCU);
 
@@ -122,11 +131,36 @@ pub fn init(dp: pac::Peripherals) -> Board {
             port_c: dp.GPIOC,
         },
         can,
-        storage: FlashStorage::new(flash),
+        storage: FlashStorage::new(dp.FLASH),
         watchdog,
         reset_cause,
         unique_id: unique_id(),
     }
+}
+
+/// 72 MHz from the 8 MHz crystal: HSE, PLL x9, AHB /1, APB1 /2 (36 MHz, its maximum and the
+/// bxCAN clock the bit timing table assumes), APB2 /1, and the two flash wait states with the
+/// prefetch buffer that 48-72 MHz need (RM0008 7.3.1-7.3.2 for RCC, 3.3.3 for FLASH_ACR).
+fn start_clocks(rcc: &pac::RCC, flash: &pac::FLASH) {
+    const _: () = assert!(HSE_HZ * 9 == SYSCLK_HZ && SYSCLK_HZ / 2 == APB1_HZ);
+    rcc.cr().modify(|_, w| w.hseon().set_bit());
+    while rcc.cr().read().hserdy().bit_is_clear() {}
+    // Wait states before the clock rises.
+    // SAFETY: LATENCY = 2 is the documented setting for 48 < SYSCLK <= 72 MHz.
+    flash
+        .acr()
+        .modify(|_, w| unsafe { w.latency().bits(2) }.prftbe().set_bit());
+    rcc.cfgr().modify(|_, w| {
+        w.pllsrc().set_bit(); // HSE, undivided (PLLXTPRE stays 0)
+        w.pllmul().mul9();
+        w.hpre().div1();
+        w.ppre1().div2();
+        w.ppre2().div1()
+    });
+    rcc.cr().modify(|_, w| w.pllon().set_bit());
+    while rcc.cr().read().pllrdy().bit_is_clear() {}
+    rcc.cfgr().modify(|_, w| w.sw().pll());
+    while !rcc.cfgr().read().sws().is_pll() {}
 }
 
 /// Applies `config` to `port`: output levels first, so that an output starts at its level,
@@ -232,7 +266,7 @@ pub enum ResetCause {
 
 impl ResetCause {
     /// Reads the reset flags and clears them for the next boot.
-    fn take(rcc: &mut Rcc) -> Self {
+    fn take(rcc: &pac::RCC) -> Self {
         let csr = rcc.csr().read();
         let cause = if csr.iwdgrstf().bit_is_set() {
             Self::IndependentWatchdog
@@ -267,6 +301,3 @@ pub fn unique_id() -> [u32; 3] {
         unsafe { core::ptr::read_volatile(base.add(word)) }
     })
 }
-
-/// Re-export for the storage module: the constrained flash peripheral.
-pub type FlashParts = flash::Parts;

@@ -3,7 +3,7 @@
 //! The HAL's driver searches prescaler and reload at run time with 64-bit arithmetic, which
 //! links a 64-bit division into the image (about 1 KiB) for a value known at build time.
 
-use stm32f1xx_hal::pac::{DBGMCU, IWDG};
+use crate::pac::{DBGMCU, IWDG};
 
 /// The watchdog's clock, the LSI RC oscillator: 40 kHz typical (30-60 kHz over temperature
 /// and parts, so the real timeout lies between 0.67 and 1.33 times the nominal one).

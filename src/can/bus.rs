@@ -11,7 +11,7 @@
 //! [`RECOVERY_POLL_MS`] while the controller is not error-active.
 
 #[cfg(not(feature = "qemu"))]
-use stm32f1xx_hal::pac;
+use crate::pac;
 
 pub use canopen_slave::bus::{BusEvent, BusState};
 

@@ -4,11 +4,7 @@
 
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
-use stm32f1xx_hal::{
-    pac::{self, Interrupt, NVIC_PRIO_BITS},
-    prelude::*,
-    rcc,
-};
+use crate::pac::{self, Interrupt, NVIC_PRIO_BITS};
 
 use super::{
     sim,
@@ -67,11 +63,9 @@ pub struct Board {
 /// Sets the clock to HSI only, enables both USARTs and their interrupts. Takes the device
 /// peripherals that RTIC's `init` hands over; runs with interrupts disabled (RTIC's `init`).
 pub fn init(dp: pac::Peripherals) -> Board {
-    // HSI (the reset clock) without PLL: the HAL's setup waits for nothing then. (Waiting for
-    // HSE or PLL ready would hang: QEMU's RCC is a stub that reads 0.) The clocks it reports
-    // are not used; SysTick runs at `SYSCLK_HZ` in QEMU.
-    let mut flash = dp.FLASH.constrain();
-    let _rcc = dp.RCC.freeze(rcc::Config::hsi(), &mut flash.acr);
+    // The reset clock (HSI, no PLL) stays: nothing to set up, and waiting for HSE or PLL
+    // ready would hang (QEMU's RCC is a stub that reads 0). SysTick runs at `SYSCLK_HZ` in
+    // QEMU.
 
     // Both USARTs at once: QEMU drops bytes that arrive before UE and RE are set.
     // SAFETY: the second USART1 handle goes to the transmitting half only, which writes DR's

@@ -30,7 +30,7 @@ use canopen_slave::RxFilter;
 use cortex_m::interrupt::Mutex;
 use handwheel_core::BitRate;
 use sim_io::slcan::{CanFrame, SlcanPort};
-use stm32f1xx_hal::pac::{self, interrupt, Interrupt};
+use crate::pac::{self, interrupt, Interrupt};
 
 use super::usart::{UsartRx, UsartTx};
 use crate::can::{CanStats, Frame, Mode, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};

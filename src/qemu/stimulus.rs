@@ -23,7 +23,7 @@ use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
 use sim_io::stimulus::{self, Command, StimError, StimulusPort};
-use stm32f1xx_hal::pac::{self, interrupt, Interrupt};
+use crate::pac::{self, interrupt, Interrupt};
 
 use super::{sim, usart::Usart};
 

@@ -6,7 +6,7 @@
 
 use core::ops::Deref;
 
-use stm32f1xx_hal::pac::usart1::RegisterBlock;
+use crate::pac::usart1::RegisterBlock;
 
 /// One USART, owned, both directions.
 pub struct Usart<U> {

@@ -8,7 +8,7 @@
 //! into the image; this page has one fixed address, so there is nothing to check at run
 //! time.
 
-use stm32f1xx_hal::{flash, pac};
+use crate::pac;
 
 use super::{record, NodeSettings, Stored, RECORD_MAX};
 
@@ -43,12 +43,12 @@ pub enum StoreError {
 pub struct FlashStorage {
     /// Owned, so that nothing else reaches the flash controller; its registers are used
     /// through [`Unlocked`].
-    flash: flash::Parts,
+    flash: pac::FLASH,
 }
 
 impl FlashStorage {
     /// Takes the flash controller (after the clock setup used its ACR).
-    pub fn new(flash: flash::Parts) -> Self {
+    pub fn new(flash: pac::FLASH) -> Self {
         Self { flash }
     }
 
@@ -80,7 +80,7 @@ impl FlashStorage {
     }
 
     /// Gives the flash controller back (tests use it to damage a record on purpose).
-    pub fn free(self) -> flash::Parts {
+    pub fn free(self) -> pac::FLASH {
         self.flash
     }
 
@@ -114,7 +114,7 @@ impl FlashStorage {
 /// The flash controller between unlock and lock; dropping it locks it again.
 struct Unlocked<'a> {
     regs: &'a pac::flash::RegisterBlock,
-    _owner: &'a mut flash::Parts,
+    _owner: &'a mut pac::FLASH,
 }
 
 impl Unlocked<'_> {

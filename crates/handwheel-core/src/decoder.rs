@@ -144,6 +144,29 @@ const TRANSITIONS: [Transition; 16] = [
     X, R, F, S, // from 11 (A and B)
 ];
 
+/// A step-table entry for an illegal transition (the others are 0, +1 and -1).
+const ILLEGAL_STEP: i8 = 2;
+
+/// [`TRANSITIONS`] as signed steps in the counting direction, so that the edge needs one
+/// lookup and no test of the inversion: index 0 counts A-leading-B forward, index 1 backward.
+static STEPS: [[i8; 16]; 2] = [steps(false), steps(true)];
+
+const fn steps(invert: bool) -> [i8; 16] {
+    let mut table = [0; 16];
+    let mut i = 0;
+    while i < 16 {
+        let forward = if invert { -1 } else { 1 };
+        table[i] = match TRANSITIONS[i] {
+            Transition::Stay => 0,
+            Transition::Forward => forward,
+            Transition::Reverse => -forward,
+            Transition::Illegal => ILLEGAL_STEP,
+        };
+        i += 1;
+    }
+    table
+}
+
 /// Counts per detent of the wheel: one full quadrature cycle (4) on a typical 100-detent MPG.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[repr(u8)]
@@ -216,6 +239,8 @@ impl EdgeOutcome {
 /// task shares with the CAN side.
 #[derive(Clone, Debug)]
 pub struct QuadratureDecoder {
+    /// [`STEPS`] for the counting direction: one lookup per edge, no test of `invert`.
+    steps: &'static [i8; 16],
     previous: AbLevels,
     count: i32,
     /// The count at the last legal arrival at a rest state (or where the rest was set).
@@ -253,6 +278,7 @@ impl QuadratureDecoder {
     /// which are taken as the wheel's rest (an untouched wheel rests on a detent).
     pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
         Self {
+            steps: &STEPS[config.invert as usize],
             previous: initial,
             count: 0,
             last_rest: 0,
@@ -267,21 +293,23 @@ impl QuadratureDecoder {
     /// Feeds the levels read after an edge interrupt. Constant time; runs in the ISR.
     #[inline]
     pub fn update(&mut self, levels: AbLevels) -> EdgeOutcome {
-        let transition = Transition::between(self.previous, levels);
+        // Both levels are masked to 2 bits on construction; the masks let the compiler see
+        // it too, so the ISR has no bounds check.
+        let index = (((self.previous.0 << 2) | levels.0) & 0xF) as usize;
         self.previous = levels;
-        let step: i32 = match transition {
-            Transition::Stay => return EdgeOutcome::Idle,
-            Transition::Illegal => {
-                // Neither the count nor the last arrival moves: the jump's direction is
-                // unknown, and landing on rest levels this way is not an arrival.
-                self.illegal = self.illegal.wrapping_add(1);
-                return EdgeOutcome::Illegal;
-            }
-            Transition::Forward => 1,
-            Transition::Reverse => -1,
-        };
-        let step = if self.invert { -step } else { step };
-        self.count = self.count.wrapping_add(step);
+        let step = self.steps[index];
+        if step == 0 {
+            return EdgeOutcome::Idle;
+        }
+        if step == ILLEGAL_STEP {
+            // Rare: keep the legal path the straight one.
+            core::hint::cold_path();
+            // Neither the count nor the last arrival moves: the jump's direction is unknown,
+            // and landing on rest levels this way is not an arrival.
+            self.illegal = self.illegal.wrapping_add(1);
+            return EdgeOutcome::Illegal;
+        }
+        self.count = self.count.wrapping_add(i32::from(step));
         if !self.is_rest(levels) {
             return EdgeOutcome::Counted;
         }
@@ -319,6 +347,7 @@ impl QuadratureDecoder {
         self.counts_per_detent = config.counts_per_detent;
         self.threshold = threshold(config.counts_per_detent);
         self.invert = config.invert;
+        self.steps = &STEPS[config.invert as usize];
         self.rest_here();
     }
 

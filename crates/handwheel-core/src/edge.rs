@@ -5,14 +5,14 @@
 //! critical section. What the rest of the firmware needs crosses an [`EdgeChannel`]:
 //!
 //! - **edge to CAN side**: after every edge that changed something, the edge publishes its
-//!   counters (count, detents, illegal transitions, levels) and then bumps a sequence number.
+//!   counters (count, detents, illegal transitions) and then bumps a sequence number.
 //!   [`EdgeChannel::snapshot`] reads the sequence, the counters and the sequence again, and
 //!   retries if it changed: the classic sequence lock, reduced to what a single core needs.
 //! - **CAN side to edge**: the decoder's settings and a request to settle at standstill, as
-//!   whole words, announced by a generation number. The edge compares the generation with the
-//!   last it applied (one load and one comparison per edge) and reads the words only when it
-//!   changed. The CAN side makes the edge look at once by pending its interrupt
-//!   ([`EdgeLink::kick`]).
+//!   whole words, announced by a generation number, applied by [`EdgeDecoder::on_kick`]
+//!   when the CAN side kicks the edge task ([`EdgeLink::kick`]). On the MCU the kick is a
+//!   second interrupt at the edge's priority, so an edge never spends a cycle on commands and
+//!   the two never preempt each other: the decoder still has one owner at a time.
 //!
 //! # Why a torn read cannot happen
 //!
@@ -25,10 +25,11 @@
 //!   it read belongs to the same publication. If they differ, it reads again; an edge can
 //!   only make it retry, and at most once per edge, so it ends as soon as the wheel leaves
 //!   the CAN side one uninterrupted read (far faster than any wheel can turn).
-//! - A command word is one atomic word: the edge sees it before or after a CAN-side store,
-//!   never half of it. The generation is stored after the words it announces; an edge that
-//!   runs between the two sees the new words with the old generation, ignores them, and
-//!   applies them at the kick that follows the generation store.
+//! - A command word is one atomic word: the edge task sees it before or after a CAN-side
+//!   store, never half of it. The generation is stored after the words it announces; a kick
+//!   that runs between the two (an earlier one, still pending) sees the new words with the
+//!   old generation, ignores them, and the kick that follows the generation store applies
+//!   them.
 //!
 //! Every word is an atomic with relaxed ordering: on the Cortex-M3 a plain load or store,
 //! no barrier and no exclusive access. The order of the snapshot's reads is fixed for the
@@ -37,7 +38,7 @@
 //! orderings would not be enough; the host tests run the protocol the way the MCU does, with
 //! the writer preempting the reader at every possible point: see the tests below.)
 
-use core::sync::atomic::{compiler_fence, AtomicI32, AtomicU32, AtomicU8, Ordering};
+use core::sync::atomic::{compiler_fence, AtomicI32, AtomicU32, Ordering};
 
 use crate::decoder::{AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder};
 
@@ -55,8 +56,6 @@ pub struct EdgeSnapshot {
     pub detents: i32,
     /// Illegal transitions, wrapping.
     pub illegal: u32,
-    /// The last levels read.
-    pub levels: AbLevels,
 }
 
 /// The settings word: counts per detent (bits 0-2), inversion (bit 3), and above them how
@@ -88,7 +87,6 @@ pub struct EdgeChannel {
     count: AtomicI32,
     detents: AtomicI32,
     illegal: AtomicU32,
-    levels: AtomicU8,
     /// Settles that moved the rest: a diagnostic counter on its own, outside the sequence.
     rests_learnt: AtomicU32,
     // Written by the CAN side only.
@@ -98,18 +96,24 @@ pub struct EdgeChannel {
     settle_at: AtomicU32,
 }
 
+impl Default for EdgeChannel {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl EdgeChannel {
-    /// The channel of a wheel that starts at `initial` levels with `config`.
-    pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
+    /// A channel with nothing published and nothing asked.
+    pub const fn new() -> Self {
         Self {
             edges: AtomicU32::new(0),
             count: AtomicI32::new(0),
             detents: AtomicI32::new(0),
             illegal: AtomicU32::new(0),
-            levels: AtomicU8::new(initial.bits()),
             rests_learnt: AtomicU32::new(0),
             generation: AtomicU32::new(0),
-            settings: AtomicU32::new(SettingsWord::new(config, 0).0),
+            // No valid settings (counts per detent 0): nothing for the edge to apply.
+            settings: AtomicU32::new(0),
             settle_at: AtomicU32::new(0),
         }
     }
@@ -133,8 +137,6 @@ impl EdgeChannel {
             let detents = self.detents.load(RELAXED);
             preempt();
             let illegal = self.illegal.load(RELAXED);
-            preempt();
-            let levels = AbLevels::from_bits(self.levels.load(RELAXED));
             compiler_fence(Ordering::SeqCst);
             preempt();
             if self.edges.load(RELAXED) == before {
@@ -143,7 +145,6 @@ impl EdgeChannel {
                     count,
                     detents,
                     illegal,
-                    levels,
                 };
             }
         }
@@ -174,46 +175,39 @@ impl EdgeChannel {
     }
 }
 
-/// The edge interrupt's own state: the decoder and what it last took from the CAN side.
+/// The edge task's own state: the decoder and what it last took from the CAN side. Its
+/// sequence number and detent total live in the channel only, which it alone writes.
 #[derive(Clone, Debug)]
 pub struct EdgeDecoder {
     decoder: QuadratureDecoder,
-    edges: u32,
-    detents: i32,
     generation: u32,
     settings: u32,
     settle_at: Option<u32>,
 }
 
 impl EdgeDecoder {
-    /// A decoder at rest on `initial`; pair it with `EdgeChannel::new(config, initial)`.
-    pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
+    /// A decoder at rest on `initial`, the levels read at start-up, for a fresh `channel`.
+    pub fn new(config: DecoderConfig, initial: AbLevels, channel: &EdgeChannel) -> Self {
         Self {
             decoder: QuadratureDecoder::new(config, initial),
-            edges: 0,
-            detents: 0,
-            generation: 0,
-            settings: SettingsWord::new(config, 0).0,
+            generation: channel.generation.load(RELAXED),
+            settings: channel.settings.load(RELAXED),
             settle_at: None,
         }
     }
 
-    /// One run of the edge interrupt with the levels it read. Returns `true` when the CAN
-    /// side has feed to look at (a detent, an illegal transition).
+    /// One edge interrupt with the levels it read. Returns `true` when the CAN side has
+    /// feed to look at (a detent, an illegal transition).
     ///
-    /// Constant time on the path of an edge; commands from the CAN side take the cold path.
+    /// Constant time, no loop, no lock; commands wait for [`EdgeDecoder::on_kick`].
     #[inline]
     #[must_use = "a detent the CAN side is not told of waits for its next round"]
     pub fn on_edge(&mut self, levels: AbLevels, channel: &EdgeChannel) -> bool {
-        if channel.generation.load(RELAXED) != self.generation {
-            self.apply_commands(channel);
-        }
         let outcome = self.decoder.update(levels);
         if outcome == EdgeOutcome::Idle {
             return false;
         }
         channel.count.store(self.decoder.count(), RELAXED);
-        channel.levels.store(levels.bits(), RELAXED);
         let due = match outcome {
             EdgeOutcome::Illegal => {
                 channel
@@ -222,23 +216,27 @@ impl EdgeDecoder {
                 true
             }
             EdgeOutcome::DetentForward | EdgeOutcome::DetentReverse => {
-                self.detents = self.detents.wrapping_add(outcome.detents());
-                channel.detents.store(self.detents, RELAXED);
+                let detents = channel.detents.load(RELAXED).wrapping_add(outcome.detents());
+                channel.detents.store(detents, RELAXED);
                 true
             }
             EdgeOutcome::Idle | EdgeOutcome::Counted => false,
         };
-        self.edges = self.edges.wrapping_add(1);
-        channel.edges.store(self.edges, RELAXED);
+        // Last: this store is what makes the counters above one publication.
+        let edges = channel.edges.load(RELAXED).wrapping_add(1);
+        channel.edges.store(edges, RELAXED);
         due
     }
 
-    /// The CAN side announced new words: apply the settings if they changed, settle if asked
-    /// and nothing moved since.
-    #[cold]
-    #[inline(never)]
-    fn apply_commands(&mut self, channel: &EdgeChannel) {
-        self.generation = channel.generation.load(RELAXED);
+    /// The CAN side kicked: apply the settings if they changed, settle if asked and no edge
+    /// changed anything since the CAN side looked. Must not run while [`EdgeDecoder::on_edge`]
+    /// runs (on the MCU: an interrupt at the edge's priority).
+    pub fn on_kick(&mut self, channel: &EdgeChannel) {
+        let generation = channel.generation.load(RELAXED);
+        if generation == self.generation {
+            return;
+        }
+        self.generation = generation;
         let settings = channel.settings.load(RELAXED);
         if settings != self.settings {
             self.settings = settings;
@@ -250,7 +248,7 @@ impl EdgeDecoder {
         let settle_at = channel.settle_at.load(RELAXED);
         if self.settle_at != Some(settle_at) {
             self.settle_at = Some(settle_at);
-            if settle_at == self.edges && self.decoder.settle() {
+            if settle_at == channel.edges.load(RELAXED) && self.decoder.settle() {
                 let learnt = channel.rests_learnt.load(RELAXED).wrapping_add(1);
                 channel.rests_learnt.store(learnt, RELAXED);
             }
@@ -262,34 +260,34 @@ impl EdgeDecoder {
 pub trait EdgeLink {
     /// The channel shared with the edge task.
     fn channel(&self) -> &EdgeChannel;
-    /// Makes the edge task run as soon as the CAN side lets it (on the MCU: pends its
-    /// interrupt, which preempts the CAN side at once).
+    /// Makes the edge task apply the posted commands ([`EdgeDecoder::on_kick`]) as soon as
+    /// the CAN side lets it (on the MCU: pends the kick interrupt, which preempts the CAN
+    /// side at once).
     fn kick(&mut self);
 }
 
-/// The edge task and its channel in one value, run synchronously: a kick runs the edge with
-/// the present levels, as the pended interrupt would. For host tests, benches and models.
+/// The edge task and its channel in one value, run synchronously: a kick runs
+/// [`EdgeDecoder::on_kick`] at once, as the pended interrupt would. For host tests, benches
+/// and models.
 #[derive(Debug)]
 pub struct LocalEdge {
     edge: EdgeDecoder,
     pub(crate) channel: EdgeChannel,
-    levels: AbLevels,
 }
 
 impl LocalEdge {
     /// A wheel at rest on `initial`.
-    pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
+    pub fn new(config: DecoderConfig, initial: AbLevels) -> Self {
+        let channel = EdgeChannel::new();
         Self {
-            edge: EdgeDecoder::new(config, initial),
-            channel: EdgeChannel::new(config, initial),
-            levels: initial,
+            edge: EdgeDecoder::new(config, initial, &channel),
+            channel,
         }
     }
 
     /// One edge interrupt that reads `levels`.
     #[must_use = "a detent the CAN side is not told of waits for its next round"]
     pub fn on_edge(&mut self, levels: AbLevels) -> bool {
-        self.levels = levels;
         self.edge.on_edge(levels, &self.channel)
     }
 }
@@ -300,8 +298,7 @@ impl EdgeLink for LocalEdge {
     }
 
     fn kick(&mut self) {
-        // The interrupt finds the levels it already had: commands only.
-        let _ = self.edge.on_edge(self.levels, &self.channel);
+        self.edge.on_kick(&self.channel);
     }
 }
 
@@ -322,7 +319,7 @@ mod tests {
         use std::vec;
 
         // Loads per pass of the reader; the schedules cover two passes.
-        const LOADS: u32 = 6;
+        const LOADS: u32 = 5;
         const POINTS: u32 = 2 * LOADS;
         // Forward steps with an illegal jump and back now and then: every field changes.
         fn levels_at(i: u32) -> AbLevels {
@@ -334,8 +331,9 @@ mod tests {
 
         let mut schedules = 0u32;
         for schedule in 0..3u32.pow(POINTS) {
-            let channel = EdgeChannel::new(DecoderConfig::default(), START);
-            let edge = RefCell::new((EdgeDecoder::new(DecoderConfig::default(), START), 0u32));
+            let channel = EdgeChannel::new();
+            let decoder = EdgeDecoder::new(DecoderConfig::default(), START, &channel);
+            let edge = RefCell::new((decoder, 0u32));
             let published = RefCell::new(vec![channel.snapshot()]);
             let run_edge = || {
                 let (decoder, i) = &mut *edge.borrow_mut();
@@ -364,7 +362,7 @@ mod tests {
             );
             schedules += 1;
         }
-        assert_eq!(schedules, 531_441);
+        assert_eq!(schedules, 59_049);
     }
 
     #[test]

@@ -8,22 +8,27 @@
 //! anyway: the CAN side samples the wheel on its 5 ms selector period instead, under one
 //! short lock, through this type.
 
-use crate::decoder::{AbLevels, QuadratureDecoder};
+use crate::decoder::QuadratureDecoder;
 use crate::wheel::DecoderView;
 
 /// A decoder that [`Standstill`] can watch and settle: the edge's own
 /// [`QuadratureDecoder`], or the CAN side's [`DecoderView`] of it.
 pub trait Settle {
-    /// Levels, count and illegal transitions: a change in any of them is motion.
-    fn motion_marks(&self) -> (AbLevels, i32, u32);
+    /// Marks of motion: a change in any of them is motion (levels or the edge sequence,
+    /// count, illegal transitions).
+    fn motion_marks(&self) -> [u32; 3];
     /// Takes the present levels as the rest if they are not one. Returns whether the rest
     /// changed, or for a view whether a settle was asked of the edge.
     fn settle(&mut self) -> bool;
 }
 
 impl Settle for QuadratureDecoder {
-    fn motion_marks(&self) -> (AbLevels, i32, u32) {
-        (self.levels(), self.count(), self.illegal_transitions())
+    fn motion_marks(&self) -> [u32; 3] {
+        [
+            self.levels().bits().into(),
+            self.count() as u32,
+            self.illegal_transitions(),
+        ]
     }
 
     fn settle(&mut self) -> bool {
@@ -32,9 +37,9 @@ impl Settle for QuadratureDecoder {
 }
 
 impl Settle for DecoderView {
-    fn motion_marks(&self) -> (AbLevels, i32, u32) {
+    fn motion_marks(&self) -> [u32; 3] {
         let s = self.snapshot();
-        (s.levels, s.count, s.illegal)
+        [s.edges, s.count as u32, s.illegal]
     }
 
     fn settle(&mut self) -> bool {
@@ -50,26 +55,11 @@ impl Settle for DecoderView {
 /// operator's pause between two jogs, which is when the rest has to be right.
 pub const STANDSTILL_MS: u32 = 500;
 
-/// What a sample of the wheel compares: any change in any of them is motion.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Snapshot {
-    levels: AbLevels,
-    /// Catches a whole cycle turned between two samples (same levels, other count).
-    count: i32,
-    /// Catches an illegal jump and back between two samples (same levels and count).
-    illegal: u32,
-}
-
-impl Snapshot {
-    fn of(decoder: &impl Settle) -> Self {
-        let (levels, count, illegal) = decoder.motion_marks();
-        Self {
-            levels,
-            count,
-            illegal,
-        }
-    }
-}
+/// What a sample of the wheel compares: any change in any mark is motion. The levels (or
+/// the edge sequence) catch a turn between two samples; the count catches a whole cycle
+/// turned (same levels); the illegal transitions catch a jump and back (same levels and
+/// count).
+type Snapshot = [u32; 3];
 
 /// Calls [`Settle::settle`] once the wheel has been still for [`STANDSTILL_MS`],
 /// once per standstill.
@@ -99,7 +89,7 @@ impl Standstill {
     /// The standstill is timed from the first sample that saw the wheel as it is now, so the
     /// sampling period adds at most one period to [`STANDSTILL_MS`].
     pub fn sample(&mut self, now_ms: u32, decoder: &mut impl Settle) -> bool {
-        let now = Snapshot::of(decoder);
+        let now = decoder.motion_marks();
         if self.last != Some(now) {
             self.last = Some(now);
             self.since_ms = now_ms;
@@ -125,7 +115,7 @@ impl Default for Standstill {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::decoder::{CountsPerDetent, DecoderConfig, EdgeOutcome};
+    use crate::decoder::{AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome};
 
     const PERIOD_MS: u32 = 5;
 

@@ -26,14 +26,13 @@ pub struct DecoderView {
 }
 
 impl DecoderView {
-    const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
+    const fn new(config: DecoderConfig) -> Self {
         Self {
             snapshot: EdgeSnapshot {
                 edges: 0,
                 count: 0,
                 detents: 0,
                 illegal: 0,
-                levels: initial,
             },
             config,
             configured: 0,
@@ -75,11 +74,6 @@ impl DecoderView {
     /// Illegal transitions since start-up or the last reset, wrapping (0x2020 sub 2).
     pub fn illegal_transitions(&self) -> u32 {
         self.snapshot.illegal.wrapping_sub(self.illegal_base)
-    }
-
-    /// The last levels the edge read.
-    pub fn levels(&self) -> AbLevels {
-        self.snapshot.levels
     }
 
     /// Settles at standstill that moved the rest.
@@ -124,12 +118,12 @@ pub struct LinkedWheel<L> {
 }
 
 impl<L: EdgeLink> LinkedWheel<L> {
-    /// The CAN side of a wheel whose edge task started at `initial` levels with `config`.
-    pub fn new(link: L, config: DecoderConfig, initial: AbLevels) -> Self {
+    /// The CAN side of a wheel whose edge task started with `config`.
+    pub fn new(link: L, config: DecoderConfig) -> Self {
         Self {
             link,
             wheel: Handwheel {
-                decoder: DecoderView::new(config, initial),
+                decoder: DecoderView::new(config),
                 feed: FeedAccumulator::new(),
             },
             feed_changed: false,
@@ -187,7 +181,7 @@ impl<L: EdgeLink> LinkedWheel<L> {
 impl LinkedWheel<LocalEdge> {
     /// A wheel run on the host: edge task and CAN side in one value.
     pub fn local(config: DecoderConfig, initial: AbLevels) -> Self {
-        Self::new(LocalEdge::new(config, initial), config, initial)
+        Self::new(LocalEdge::new(config, initial), config)
     }
 
     /// One edge interrupt that reads `levels`; `true` when it would pend the CAN side's
