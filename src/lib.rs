@@ -48,9 +48,9 @@ pub mod events;
 mod mem;
 pub use handwheel_device::node_config;
 mod panic;
+pub mod priority;
 #[cfg(feature = "qemu")]
 pub mod qemu;
-pub mod priority;
 pub mod storage;
 pub mod supervision;
 

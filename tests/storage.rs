@@ -12,10 +12,10 @@ use handwheel_firmware as _;
 mod tests {
     use handwheel_core::BitRate;
     use handwheel_firmware::board;
+    use handwheel_firmware::pac;
     use handwheel_firmware::storage::{
         FlashStorage, NodeSettings, StoreError, BLOB_MAX, PAGE_OFFSET,
     };
-    use handwheel_firmware::pac;
 
     struct State {
         storage: Option<FlashStorage>,
@@ -115,5 +115,7 @@ fn program_half_word(flash: &handwheel_firmware::pac::FLASH, offset: u32, value:
     unsafe { core::ptr::write_volatile(at, value) };
     cortex_m::asm::nop();
     while flash.sr().read().bsy().bit_is_set() {}
-    flash.cr().modify(|_, w| w.pg().clear_bit().lock().set_bit());
+    flash
+        .cr()
+        .modify(|_, w| w.pg().clear_bit().lock().set_bit());
 }

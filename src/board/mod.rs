@@ -8,8 +8,8 @@
 pub mod pins;
 pub mod watchdog;
 
-use handwheel_core::AbLevels;
 use crate::pac::{self, gpioa::RegisterBlock as Port};
+use handwheel_core::AbLevels;
 
 use crate::storage::FlashStorage;
 use pins::{PortConfig, WHEEL_A_BIT, WHEEL_B_BIT, WHEEL_EXTI_LINES};

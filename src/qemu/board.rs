@@ -2,9 +2,9 @@
 //! hardware the emulator does not model. Same names as the STM32F103 board module, so the
 //! RTIC application uses either unchanged.
 
+use crate::pac::{self, Interrupt, NVIC_PRIO_BITS};
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
-use crate::pac::{self, Interrupt, NVIC_PRIO_BITS};
 
 use super::{
     sim,

@@ -26,11 +26,11 @@
 
 use core::cell::RefCell;
 
+use crate::pac::{self, interrupt, Interrupt};
 use canopen_slave::RxFilter;
 use cortex_m::interrupt::Mutex;
 use handwheel_core::BitRate;
 use sim_io::slcan::{CanFrame, SlcanPort};
-use crate::pac::{self, interrupt, Interrupt};
 
 use super::usart::{UsartRx, UsartTx};
 use crate::can::{CanStats, Frame, Mode, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};

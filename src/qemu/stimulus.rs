@@ -19,11 +19,11 @@
 
 use core::cell::RefCell;
 
+use crate::pac::{self, interrupt, Interrupt};
 use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
 use sim_io::stimulus::{self, Command, StimError, StimulusPort};
-use crate::pac::{self, interrupt, Interrupt};
 
 use super::{sim, usart::Usart};
 

@@ -216,7 +216,10 @@ impl EdgeDecoder {
                 true
             }
             EdgeOutcome::DetentForward | EdgeOutcome::DetentReverse => {
-                let detents = channel.detents.load(RELAXED).wrapping_add(outcome.detents());
+                let detents = channel
+                    .detents
+                    .load(RELAXED)
+                    .wrapping_add(outcome.detents());
                 channel.detents.store(detents, RELAXED);
                 true
             }
