@@ -12,8 +12,12 @@ Every executed instruction goes through `cycles.CycleCounter`; every handler cal
 an `Invocation` with its instruction count, cycle estimate and stack depth. Nested
 preemption is not emulated: a handler pended by another runs after it. Stack depths are
 measured per handler from its own frame, so the worst case is composed from them (see
-`bench.py`). After every MSR/CPS in a handler the machine also checks whether PRIMASK or
-BASEPRI now hold off a chosen interrupt (`mask_priority`) and keeps the longest such stretch.
+`bench.py`). After every MSR/CPS in a handler the machine also checks, for each priority
+level of interest (`mask_levels`), whether PRIMASK or BASEPRI now hold off an interrupt of
+that level, and keeps the longest such stretch per level (`longest_masks`). Reads of chosen
+peripheral registers (`watch_reads`) are marked in the invocation with the cycles up to
+and including the reading instruction, so that a handler's latency to its port read can be
+composed.
 """
 
 from __future__ import annotations
@@ -107,6 +111,8 @@ class Invocation:
     mix: dict[str, int] = field(default_factory=dict)
     # (address, cycles charged) per executed instruction, for traced exceptions.
     trace: list[tuple[int, int]] | None = None
+    # Watched register address -> cycles of the handler up to its first read, inclusive.
+    reads: dict[int, int] = field(default_factory=dict)
 
 
 def readable(symbol: str) -> str:
@@ -246,13 +252,18 @@ class Machine:
         self.lowest_sp = self.stack_top
         # Exceptions whose invocations record every instruction (`Invocation.trace`).
         self.traced: set[int] = set()
-        # Masking: the hardware priority an interrupt of interest has (EXTI9_5's, set by
-        # the caller); the longest stretch of a handler during which PRIMASK or BASEPRI held
-        # it off is kept in `longest_mask` as (cycles, instructions, handler, address).
-        self.mask_priority: int | None = None
-        self.longest_mask = (0, 0, "", 0)
-        self._mask_start: tuple[int, int, int] | None = None
+        # Masking: the hardware priorities of interest (set by the caller); per level, the
+        # longest stretch of a handler during which PRIMASK or BASEPRI held an interrupt of
+        # that priority off, as (cycles, instructions, handler, address of the instruction
+        # that started it).
+        self.mask_levels: tuple[int, ...] = ()
+        self.longest_masks: dict[int, tuple[int, int, str, int]] = {}
+        self._mask_starts: dict[int, tuple[int, int, int]] = {}
         self._check_mask = False
+        # Peripheral registers whose first read per invocation is marked (`Invocation.reads`).
+        self.watch_reads: set[int] = set()
+        # Code addresses whose executions are counted (a function's entry: its calls).
+        self.pc_counts: dict[int, int] = {}
         uc.hook_add(UC_HOOK_CODE, self._on_code)
         uc.hook_add(
             UC_HOOK_MEM_READ, self._on_flash_read, begin=FLASH_BASE, end=FLASH_BASE + FLASH_SIZE - 1
@@ -261,7 +272,10 @@ class Machine:
     # -- memory-mapped I/O -----------------------------------------------------------------
 
     def _mmio_read(self, _uc, offset, size, _user):
-        return self.periph.read(stm32.PERIPH_BASE + offset, size)
+        address = stm32.PERIPH_BASE + offset
+        if address in self.watch_reads and self.current is not None:
+            self.current.reads.setdefault(address, self.counter.cycles)
+        return self.periph.read(address, size)
 
     def _mmio_write(self, _uc, offset, size, value, _user):
         self.periph.write(stm32.PERIPH_BASE + offset, size, value)
@@ -333,6 +347,8 @@ class Machine:
         if entry is None:
             entry = self._timing(address, size)
         timing, conditional, idle = entry
+        if address in self.pc_counts:
+            self.pc_counts[address] += 1
         if idle and self.current is None:
             self.idle_address = address
             uc.emu_stop()
@@ -356,28 +372,32 @@ class Machine:
         self._check_sp = timing.writes_sp
         self._check_mask = timing.kind == cycles.SYSTEM and self.current is not None
 
-    def _masked(self) -> bool:
-        if self.mask_priority is None:
-            return False
+    def masks(self, level: int) -> bool:
+        """Whether PRIMASK or BASEPRI now hold off an interrupt of hardware priority `level`."""
         if self.uc.reg_read(UC_ARM_REG_PRIMASK) & 1:
             return True
         basepri = self.uc.reg_read(UC_ARM_REG_BASEPRI) & 0xFF
-        return basepri != 0 and basepri <= self.mask_priority
+        return basepri != 0 and basepri <= level
 
     def _update_mask(self, address: int) -> None:
         """Called after a system instruction (MSR, CPS) ran: did masking start or end?"""
-        masked = self._masked()
-        if masked and self._mask_start is None:
-            self._mask_start = (self.counter.instructions, self.counter.cycles, address)
-        elif not masked and self._mask_start is not None:
-            self._close_mask()
+        for level in self.mask_levels:
+            masked = self.masks(level)
+            if masked and level not in self._mask_starts:
+                self._mask_starts[level] = (
+                    self.counter.instructions,
+                    self.counter.cycles,
+                    address,
+                )
+            elif not masked and level in self._mask_starts:
+                self._close_mask(level)
 
-    def _close_mask(self) -> None:
-        instructions, start_cycles, address = self._mask_start
-        self._mask_start = None
+    def _close_mask(self, level: int) -> None:
+        instructions, start_cycles, address = self._mask_starts.pop(level)
         length = self.counter.cycles - start_cycles
-        if length > self.longest_mask[0] and self.current is not None:
-            self.longest_mask = (
+        longest = self.longest_masks.get(level, (0, 0, "", 0))
+        if length > longest[0] and self.current is not None:
+            self.longest_masks[level] = (
                 length,
                 self.counter.instructions - instructions,
                 f"{self.current.name} (during: {self.current.label})",
@@ -451,7 +471,7 @@ class Machine:
         self.min_sp = frame_sp
         self._check_sp = False
         self._check_mask = False
-        self._mask_start = None
+        self._mask_starts = {}
         self._trace = [] if exception in self.traced else None
         try:
             self._run(self.image.vectors[exception], MAGIC_RETURN)
@@ -461,8 +481,8 @@ class Machine:
             if uc.reg_read(UC_ARM_REG_SP) != frame_sp:
                 raise RuntimeError(f"{name} returned with a different SP")
         finally:
-            if self._mask_start is not None:
-                self._close_mask()
+            for level in list(self._mask_starts):
+                self._close_mask(level)
             self.current = None
         invocation.instructions = self.counter.instructions
         invocation.cycles = self.counter.cycles

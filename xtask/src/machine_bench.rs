@@ -4,8 +4,9 @@
 //!
 //! The Python side runs in its own venv (`target/machine-bench-venv`, from
 //! `tools/machine-bench/requirements.txt`), first its unit tests, then the benchmark. The
-//! benchmark prints the CPU figures itself and writes the stack figures to a small
-//! tab-separated file that this module parses, prints and checks against the stack budget.
+//! benchmark prints the CPU figures itself and writes the stack figures and the wheel edge's
+//! two limits (its worst cycles, its worst latency to the port read) to a small tab-separated
+//! file that this module parses, prints and checks against the budgets.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -39,9 +40,18 @@ pub struct Level {
     pub handlers: Vec<String>,
 }
 
-/// The stack figures the benchmark measured.
+/// Worst cycles of one wheel edge, exception entry and exit included, at zero wait states.
+pub const EDGE_CYCLES_LIMIT: u32 = 100;
+/// Worst cycles from a wheel edge to its port read: 5 us at 72 MHz.
+pub const EDGE_LATENCY_LIMIT: u32 = 5 * 72;
+
+/// The stack and edge figures the benchmark measured.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct StackReport {
+pub struct MachineReport {
+    /// Worst cycles of one wheel edge (EXTI9_5), entry and exit included.
+    pub edge_cycles: u32,
+    /// Worst cycles from a wheel edge to its port read, over every scenario.
+    pub edge_latency: u32,
     /// Deepest thread-mode use (init, idle).
     pub thread: u32,
     /// Each preemption level, most urgent first.
@@ -64,11 +74,13 @@ fn number(field: Option<&str>, line: &str) -> Result<u32, String> {
         .ok_or_else(|| format!("bad number in stack report line `{line}`"))
 }
 
-impl StackReport {
+impl MachineReport {
     /// Parses the benchmark's report: `key<TAB>value` lines, `level` lines with priority,
     /// deepest handler, depth and the comma-separated handlers of the level.
     pub fn parse(text: &str) -> Result<Self, String> {
-        let mut report = StackReport {
+        let mut report = MachineReport {
+            edge_cycles: 0,
+            edge_latency: 0,
             thread: 0,
             levels: Vec::new(),
             frame: 0,
@@ -114,14 +126,16 @@ impl StackReport {
                 "lowest" => &mut report.lowest,
                 "painted" => &mut report.painted,
                 "region" => &mut report.region,
+                "edge" => &mut report.edge_cycles,
+                "latency" => &mut report.edge_latency,
                 other => return Err(format!("unknown key `{other}` in the stack report")),
             };
             *slot = value;
             seen.push(key.to_string());
         }
-        for key in ["thread", "frame", "total", "region"] {
+        for key in ["thread", "frame", "total", "region", "edge", "latency"] {
             if !seen.iter().any(|k| k == key) {
-                return Err(format!("the stack report has no `{key}` line"));
+                return Err(format!("the machine report has no `{key}` line"));
             }
         }
         if report.levels.is_empty() {
@@ -185,6 +199,36 @@ impl StackReport {
         out
     }
 
+    /// The wheel edge's two figures against their limits, for the console.
+    pub fn render_edge(&self) -> String {
+        format!(
+            "xtask: wheel edge: worst {} cycles (limit {EDGE_CYCLES_LIMIT}), worst latency to \
+             its port read {} cycles = {:.2} us at 72 MHz (limit {EDGE_LATENCY_LIMIT} cycles)\n",
+            self.edge_cycles,
+            self.edge_latency,
+            f64::from(self.edge_latency) / 72.0
+        )
+    }
+
+    /// Errors when a wheel edge costs more than [`EDGE_CYCLES_LIMIT`] or can wait longer than
+    /// [`EDGE_LATENCY_LIMIT`] for its port read.
+    pub fn check_edge(&self) -> Result<(), String> {
+        if self.edge_cycles > EDGE_CYCLES_LIMIT {
+            return Err(format!(
+                "a wheel edge costs {} cycles, over the {EDGE_CYCLES_LIMIT}-cycle limit",
+                self.edge_cycles
+            ));
+        }
+        if self.edge_latency > EDGE_LATENCY_LIMIT {
+            return Err(format!(
+                "a wheel edge can wait {} cycles for its port read, over the \
+                 {EDGE_LATENCY_LIMIT}-cycle (5 us) limit",
+                self.edge_latency
+            ));
+        }
+        Ok(())
+    }
+
     /// Errors when the worst case is over `budget` or the stack region, or when the painted
     /// stack contradicts the SP measurement (a write below the lowest SP seen).
     pub fn check(&self, budget: u32) -> Result<(), String> {
@@ -213,7 +257,12 @@ impl StackReport {
 
 /// Runs the benchmark's unit tests and the benchmark on `elf`; returns the stack figures.
 /// `quiet` prints a one-line CPU summary instead of the full report.
-pub fn run(root: &Path, target_dir: &Path, elf: &Path, quiet: bool) -> Result<StackReport, String> {
+pub fn run(
+    root: &Path,
+    target_dir: &Path,
+    elf: &Path,
+    quiet: bool,
+) -> Result<MachineReport, String> {
     let python = pyenv::ensure_from(&root.join(REQUIREMENTS), &venv_dir(target_dir))?;
     let mut unit = Command::new(&python);
     unit.args([
@@ -246,7 +295,7 @@ pub fn run(root: &Path, target_dir: &Path, elf: &Path, quiet: bool) -> Result<St
     pyenv::run(&mut bench)?;
     let text = std::fs::read_to_string(&report_path)
         .map_err(|e| format!("cannot read {}: {e}", report_path.display()))?;
-    StackReport::parse(&text)
+    MachineReport::parse(&text)
 }
 
 #[cfg(test)]
@@ -263,11 +312,13 @@ mod tests {
         total\t3148\n\
         lowest\t1504\n\
         painted\t1244\n\
-        region\t18172\n";
+        region\t18172\n\
+        edge\t96\n\
+        latency\t151\n";
 
     #[test]
     fn parses_the_benchmark_report() {
-        let report = StackReport::parse(SAMPLE).unwrap();
+        let report = MachineReport::parse(SAMPLE).unwrap();
         assert_eq!(report.thread, 1152);
         assert_eq!(report.levels.len(), 5);
         assert_eq!(
@@ -288,12 +339,31 @@ mod tests {
         assert_eq!(report.lowest, 1504);
         assert_eq!(report.painted, 1244);
         assert_eq!(report.region, 18172);
+        assert_eq!((report.edge_cycles, report.edge_latency), (96, 151));
+    }
+
+    #[test]
+    fn checks_the_edge_limits() {
+        let report = MachineReport::parse(SAMPLE).unwrap();
+        assert_eq!(report.check_edge(), Ok(()));
+        let mut slow = report.clone();
+        slow.edge_cycles = 101;
+        assert!(slow.check_edge().unwrap_err().contains("101 cycles"));
+        let mut late = report.clone();
+        late.edge_latency = 360;
+        assert_eq!(late.check_edge(), Ok(()));
+        late.edge_latency = 361;
+        assert!(late.check_edge().unwrap_err().contains("361 cycles"));
+        let no_latency = SAMPLE.replace("latency\t151\n", "");
+        assert!(MachineReport::parse(&no_latency)
+            .unwrap_err()
+            .contains("latency"));
     }
 
     #[test]
     fn rejects_a_total_that_is_not_the_sum() {
         let text = SAMPLE.replace("total\t3148", "total\t3000");
-        let error = StackReport::parse(&text).unwrap_err();
+        let error = MachineReport::parse(&text).unwrap_err();
         assert!(error.contains("3000"), "{error}");
         assert!(error.contains("3148"), "{error}");
     }
@@ -301,25 +371,25 @@ mod tests {
     #[test]
     fn rejects_missing_and_unknown_lines() {
         let no_region = SAMPLE.replace("region\t18172\n", "");
-        assert!(StackReport::parse(&no_region)
+        assert!(MachineReport::parse(&no_region)
             .unwrap_err()
             .contains("region"));
         let unknown = format!("{SAMPLE}heap\t12\n");
-        assert!(StackReport::parse(&unknown).unwrap_err().contains("heap"));
+        assert!(MachineReport::parse(&unknown).unwrap_err().contains("heap"));
         let no_levels: String = SAMPLE
             .lines()
             .filter(|l| !l.starts_with("level"))
             .map(|l| format!("{l}\n"))
             .collect::<String>()
             .replace("total\t3148", "total\t1152");
-        assert!(StackReport::parse(&no_levels)
+        assert!(MachineReport::parse(&no_levels)
             .unwrap_err()
             .contains("no preemption level"));
     }
 
     #[test]
     fn checks_the_budget_and_the_paint() {
-        let report = StackReport::parse(SAMPLE).unwrap();
+        let report = MachineReport::parse(SAMPLE).unwrap();
         assert_eq!(report.check(4096), Ok(()));
         assert_eq!(report.check(3148), Ok(()));
         let over = report.check(3147).unwrap_err();
@@ -334,7 +404,7 @@ mod tests {
 
     #[test]
     fn renders_levels_and_headroom() {
-        let text = StackReport::parse(SAMPLE).unwrap().render(4096);
+        let text = MachineReport::parse(SAMPLE).unwrap().render(4096);
         assert!(text.contains("reset priority"), "{text}");
         assert!(text.contains("priority 4"), "{text}");
         assert!(text.contains("priority 1"), "{text}");

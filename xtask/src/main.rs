@@ -135,7 +135,8 @@ fn test() -> Result<(), String> {
         .concat(),
     )?;
     firmware_build()?;
-    // The release machine code in the emulator: CPU figures in one line, the stack checked.
+    // The release machine code in the emulator: CPU figures in one line, the stack and the
+    // wheel edge's cycles and latency checked.
     stack_check(&machine_bench(true)?)?;
     // The on-target suites (defmt-test) cannot run here, but they must build.
     cargo(&[
@@ -203,7 +204,7 @@ fn bench() -> Result<(), String> {
 
 /// Runs the machine benchmark on the release ELF (built already): the full CPU report, or
 /// with `quiet` a one-line summary. Returns the stack figures.
-fn machine_bench(quiet: bool) -> Result<machine_bench::StackReport, String> {
+fn machine_bench(quiet: bool) -> Result<machine_bench::MachineReport, String> {
     machine_bench::run(
         &workspace_root(),
         &target_dir(),
@@ -213,9 +214,12 @@ fn machine_bench(quiet: bool) -> Result<machine_bench::StackReport, String> {
 }
 
 /// Prints the worst-case stack with its headroom; fails above [`STACK_BUDGET`].
-fn stack_check(stack: &machine_bench::StackReport) -> Result<(), String> {
-    eprint!("{}", stack.render(STACK_BUDGET));
-    stack.check(STACK_BUDGET)
+/// The stack budget and the wheel edge's limits, from the machine benchmark's report.
+fn stack_check(report: &machine_bench::MachineReport) -> Result<(), String> {
+    eprint!("{}", report.render(STACK_BUDGET));
+    eprint!("{}", report.render_edge());
+    report.check(STACK_BUDGET)?;
+    report.check_edge()
 }
 
 /// Worst-case stack budget of the release firmware, checked by the machine benchmark (thread
