@@ -41,10 +41,10 @@ struct Edge {
     task: UnsafeCell<MaybeUninit<EdgeTask>>,
 }
 
-// SAFETY: the channel is atomics. `start` writes the slot once, guarded by `STARTED`, before it unmasks EXTI9_5 and
-// the kick; from then on only those two handlers reach it, both at `priority::WHEEL`, and an
-// exception never preempts one of its own priority, so there is never more than one
-// reference to the contents.
+// SAFETY: the channel is atomics. `start` writes the task once, guarded by `STARTED`, before
+// it unmasks EXTI9_5 and the kick; from then on only those two handlers reach it, both at
+// `priority::WHEEL`, and an exception never preempts one of its own priority, so there is
+// never more than one reference to the task.
 unsafe impl Sync for Edge {}
 
 static EDGE: Edge = Edge {
@@ -77,7 +77,7 @@ pub fn start(inputs: WheelInputs, config: DecoderConfig, nvic: &mut NVIC) -> Opt
 }
 
 /// One wheel edge: acknowledge, read A and B in one port read, decode, publish; pend
-/// `feed_due` after a detent or an illegal transition.
+/// `feed_due` after a detent.
 #[interrupt]
 fn EXTI9_5() {
     // SAFETY: the handler runs only once `start` has filled the slot and unmasked it, and

@@ -31,9 +31,10 @@
 //!
 //! The QEMU variant (`--features qemu`) is this same application, task for task, over the
 //! QEMU board layer (`handwheel_firmware::qemu`): there `can_rx0` is pended by the USART1
-//! interrupt that carries SLCAN from the host, and `wheel_edge` by the USART2 interrupt that
-//! carries stimulus commands. Those two handlers belong to the board layer, outside this
-//! app, at priority 3, and share nothing with it but lock-free queues and atomics.
+//! interrupt that carries SLCAN from the host, and the edge interrupt by the USART2
+//! interrupt that carries stimulus commands. Those two handlers belong to the board layer,
+//! outside this app, at priority 3, and share nothing with it but lock-free queues and
+//! atomics.
 #![no_std]
 #![no_main]
 

@@ -10,8 +10,8 @@
 //! with the app but the simulated lines ([`sim`](super::sim)), which are atomics.
 //!
 //! A wheel edge is made the way the board sees one: the new A/B levels go to the simulated
-//! port and the EXTI9_5 interrupt is pended, so the shipping `wheel_edge` task reads and
-//! decodes them. It has the highest priority, so it runs at once (after the `isb`, which
+//! port and the EXTI9_5 interrupt is pended, so the shipping edge handler (`edge::EXTI9_5`)
+//! reads and decodes them. It has the highest priority, so it runs at once (after the `isb`, which
 //! keeps back-to-back pends from merging); each edge is handled before the next is made, and
 //! `turn` replies after its last edge. Selector commands only set the lines: the `selector`
 //! task's own sampling and debouncing decide when the selection changes (4 samples, 5 ms

@@ -196,8 +196,10 @@ impl EdgeDecoder {
         }
     }
 
-    /// One edge interrupt with the levels it read. Returns `true` when the CAN side has
-    /// feed to look at (a detent, an illegal transition).
+    /// One edge interrupt with the levels it read. Returns `true` after a detent: the CAN side
+    /// has feed to send. Illegal transitions wake nobody: a noisy encoder must not turn into
+    /// a wake-up (and a log line) per edge; the CAN side finds them at its next round, at
+    /// most one selector period (5 ms) later.
     ///
     /// Constant time, no loop, no lock; commands wait for [`EdgeDecoder::on_kick`].
     #[inline]
@@ -213,7 +215,7 @@ impl EdgeDecoder {
                 channel
                     .illegal
                     .store(self.decoder.illegal_transitions(), RELAXED);
-                true
+                false
             }
             EdgeOutcome::DetentForward | EdgeOutcome::DetentReverse => {
                 let detents = channel
