@@ -16,19 +16,19 @@ use crate::wheel::DecoderView;
 pub trait Settle {
     /// Marks of motion: a change in any of them is motion (levels or the edge sequence,
     /// count, illegal transitions).
-    fn motion_marks(&self) -> [u32; 3];
+    fn motion_marks(&self) -> (u32, u32, u32);
     /// Takes the present levels as the rest if they are not one. Returns whether the rest
     /// changed, or for a view whether a settle was asked of the edge.
     fn settle(&mut self) -> bool;
 }
 
 impl Settle for QuadratureDecoder {
-    fn motion_marks(&self) -> [u32; 3] {
-        [
+    fn motion_marks(&self) -> (u32, u32, u32) {
+        (
             self.levels().bits().into(),
             self.count() as u32,
             self.illegal_transitions(),
-        ]
+        )
     }
 
     fn settle(&mut self) -> bool {
@@ -37,9 +37,9 @@ impl Settle for QuadratureDecoder {
 }
 
 impl Settle for DecoderView {
-    fn motion_marks(&self) -> [u32; 3] {
+    fn motion_marks(&self) -> (u32, u32, u32) {
         let s = self.snapshot();
-        [s.edges, s.count as u32, s.illegal]
+        (s.edges, s.count as u32, s.illegal)
     }
 
     fn settle(&mut self) -> bool {
@@ -59,7 +59,8 @@ pub const STANDSTILL_MS: u32 = 500;
 /// the edge sequence) catch a turn between two samples; the count catches a whole cycle
 /// turned (same levels); the illegal transitions catch a jump and back (same levels and
 /// count).
-type Snapshot = [u32; 3];
+/// (A tuple, not an array: comparing it needs no `memcmp` in the image.)
+type Snapshot = (u32, u32, u32);
 
 /// Calls [`Settle::settle`] once the wheel has been still for [`STANDSTILL_MS`],
 /// once per standstill.

@@ -141,7 +141,9 @@ impl<L: EdgeLink> LinkedWheel<L> {
         &mut self.link
     }
 
-    /// Takes the edge's publications since the last call into the accumulator.
+    /// Takes the edge's publications since the last call into the accumulator. Out of line:
+    /// every access runs it, and one copy is smaller than one per call site.
+    #[inline(never)]
     fn sync(&mut self) {
         let channel = self.link.channel();
         let now = channel.snapshot();
@@ -159,6 +161,7 @@ impl<L: EdgeLink> LinkedWheel<L> {
     }
 
     /// Posts what the last access asked of the decoder, and kicks the edge to apply it.
+    #[inline(never)]
     fn post(&mut self) {
         let view = &mut self.wheel.decoder;
         let settings = core::mem::take(&mut view.settings_pending)
