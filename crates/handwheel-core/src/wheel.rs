@@ -271,7 +271,10 @@ mod tests {
     #[test]
     fn illegal_jump_sets_status_once() {
         let mut wheel = enabled_wheel();
-        assert!(!wheel.on_edge(AbLevels::from_bits(3)), "no wake-up for an illegal jump");
+        assert!(
+            !wheel.on_edge(AbLevels::from_bits(3)),
+            "no wake-up for an illegal jump"
+        );
         assert!(wheel.take_feed_change(), "but the status changed");
         assert!(!wheel.on_edge(AbLevels::from_bits(0)));
         assert!(!wheel.take_feed_change(), "the status was already latched");
