@@ -157,20 +157,31 @@ impl EdgeChannel {
 
     /// CAN side: new settings; the edge applies them at its next run.
     pub(crate) fn post_settings(&self, word: SettingsWord) {
-        self.settings.store(word.0, RELAXED);
-        self.announce();
+        self.post_settings_preempted(word, || {});
     }
 
     /// CAN side: settle if no edge changed anything since publication `edges`.
     pub(crate) fn post_settle(&self, edges: u32) {
         self.settle_at.store(edges, RELAXED);
-        self.announce();
+        self.announce(|| {});
     }
 
-    fn announce(&self) {
+    /// [`EdgeChannel::post_settings`] with `preempt` called before each of its accesses:
+    /// the points where the kick interrupt can run. The tests run it there.
+    #[inline(always)]
+    fn post_settings_preempted(&self, word: SettingsWord, mut preempt: impl FnMut()) {
+        preempt();
+        self.settings.store(word.0, RELAXED);
+        self.announce(preempt);
+    }
+
+    #[inline(always)]
+    fn announce(&self, mut preempt: impl FnMut()) {
         // After the word it announces (see the module docs).
         compiler_fence(Ordering::SeqCst);
+        preempt();
         let next = self.generation.load(RELAXED).wrapping_add(1);
+        preempt();
         self.generation.store(next, RELAXED);
     }
 }
@@ -368,6 +379,42 @@ mod tests {
             schedules += 1;
         }
         assert_eq!(schedules, 59_049);
+    }
+
+    /// Two settings posted one after the other, with the kick interrupt running (or not)
+    /// before every access of either post, then the kick that follows the last post: the
+    /// edge always ends with the last settings, applied once each time they were new.
+    #[test]
+    fn posted_settings_survive_any_preemption() {
+        use core::cell::RefCell;
+
+        let first = DecoderConfig {
+            counts_per_detent: CountsPerDetent::Two,
+            invert: true,
+        };
+        let last = DecoderConfig {
+            counts_per_detent: CountsPerDetent::One,
+            invert: false,
+        };
+        // Three access points per post.
+        for schedule in 0..(1u32 << 6) {
+            let channel = EdgeChannel::new();
+            let edge = RefCell::new(EdgeDecoder::new(DecoderConfig::default(), START, &channel));
+            let mut point = 0;
+            let mut preempt = || {
+                if schedule & (1 << point) != 0 {
+                    edge.borrow_mut().on_kick(&channel);
+                }
+                point += 1;
+            };
+            channel.post_settings_preempted(SettingsWord::new(first, 1), &mut preempt);
+            channel.post_settings_preempted(SettingsWord::new(last, 2), &mut preempt);
+            let mut edge = edge.into_inner();
+            edge.on_kick(&channel);
+            assert_eq!(edge.decoder.config(), last, "schedule {schedule:#08b}");
+            assert_eq!(edge.settings, SettingsWord::new(last, 2).0);
+            assert_eq!(edge.generation, channel.generation.load(RELAXED));
+        }
     }
 
     #[test]
