@@ -14,8 +14,8 @@
 //! - the unit-step backlog is bounded: steps beyond the bound are dropped and flagged, so
 //!   run-on after the wheel stops can never exceed `bound x pacing`.
 
-use crate::pdo::FeedStatus;
-use crate::selector::{Axis, Multiplier, Selection};
+use crate::feed::{FeedStatus, UnitStep};
+use crate::selector::{Multiplier, Selection};
 
 /// Default bound of the unit-step backlog.
 ///
@@ -32,15 +32,6 @@ pub enum StopReason {
     MasterLost,
     /// The device left Operational (NMT stop, pre-operational or reset).
     NotOperational,
-}
-
-/// One unit step of the paper's format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct UnitStep {
-    /// The axis the step is for.
-    pub axis: Axis,
-    /// `true` = forward (positive).
-    pub forward: bool,
 }
 
 /// The feed accumulator.
@@ -270,6 +261,7 @@ impl FeedAccumulator {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::selector::Axis;
 
     fn active(axis: Axis, multiplier: Multiplier) -> FeedAccumulator {
         let mut acc = FeedAccumulator::new();

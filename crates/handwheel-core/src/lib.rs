@@ -7,6 +7,7 @@
 //! - [`edge`]: the edge interrupt's own state and its lock-free channel to the CAN side.
 //! - [`standstill`]: notices a wheel at rest, so that the decoder learns its rest levels.
 //! - [`selector`]: debounced 5-position axis switch and 3-position multiplier switch.
+//! - [`feed`]: the feed status bits and the unit step, shared by the two below.
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
 //! - [`wheel`]: the CAN side's wheel: a view of the edge's decoder and the accumulator.
@@ -18,18 +19,20 @@ pub mod accumulator;
 pub mod bittiming;
 pub mod decoder;
 pub mod edge;
+pub mod feed;
 pub mod pdo;
 pub mod selector;
 pub mod standstill;
 pub mod wheel;
 
-pub use accumulator::{FeedAccumulator, StopReason, UnitStep, DEFAULT_STEP_BACKLOG};
+pub use accumulator::{FeedAccumulator, StopReason, DEFAULT_STEP_BACKLOG};
 pub use bittiming::{BitRate, BitTiming, BitTimingError};
 pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
 };
 pub use edge::{EdgeChannel, EdgeDecoder, EdgeLink, EdgeSnapshot, LocalEdge};
-pub use pdo::{CounterStride, FeedRecord, FeedRecordError, FeedStatus, UnitStepEncoder};
+pub use feed::{FeedStatus, UnitStep};
+pub use pdo::{CounterStride, FeedRecord, FeedRecordError, UnitStepEncoder};
 pub use selector::{
     Axis, Debouncer, Multiplier, Selection, Selector, SelectorLines, DEFAULT_DEBOUNCE_SAMPLES,
 };

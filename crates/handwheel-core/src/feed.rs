@@ -1,0 +1,101 @@
+//! The feed's vocabulary, shared by the accumulator that produces it and the PDO encodings
+//! that carry it: the status bits and the unit step.
+
+use crate::selector::Axis;
+
+/// Status bits of the feed record (object 0x2030).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
+pub struct FeedStatus(u8);
+
+impl FeedStatus {
+    /// Feed is enabled (0x2000 = 1 and not stopped since).
+    pub const ENABLED: Self = Self(1 << 0);
+    /// An illegal quadrature transition (missed edge) happened in this epoch.
+    pub const ENCODER_ERROR: Self = Self(1 << 1);
+    /// Unit steps were dropped at the backlog bound in this epoch.
+    pub const STEPS_DROPPED: Self = Self(1 << 2);
+    /// The feed was stopped because the master's heartbeat was lost; cleared by enabling.
+    pub const MASTER_LOST: Self = Self(1 << 3);
+    /// The wheel was turned while disabled or without an axis in this epoch.
+    pub const IGNORED_MOTION: Self = Self(1 << 4);
+
+    const DEFINED: u8 = 0b1_1111;
+
+    /// No bit set.
+    pub const fn empty() -> Self {
+        Self(0)
+    }
+
+    /// The raw byte.
+    pub const fn bits(self) -> u8 {
+        self.0
+    }
+
+    /// From a raw byte; `None` if an undefined bit is set.
+    pub const fn from_bits(bits: u8) -> Option<Self> {
+        if bits & !Self::DEFINED == 0 {
+            Some(Self(bits))
+        } else {
+            None
+        }
+    }
+
+    /// Whether every bit of `other` is set.
+    pub const fn contains(self, other: Self) -> bool {
+        self.0 & other.0 == other.0
+    }
+
+    /// Sets the bits of `other`.
+    pub fn insert(&mut self, other: Self) {
+        self.0 |= other.0;
+    }
+
+    /// Clears the bits of `other`.
+    pub fn remove(&mut self, other: Self) {
+        self.0 &= !other.0;
+    }
+
+    /// The bits set in both.
+    #[must_use]
+    pub const fn intersection(self, other: Self) -> Self {
+        Self(self.0 & other.0)
+    }
+
+    /// The bits set in either.
+    #[must_use]
+    pub const fn union(self, other: Self) -> Self {
+        Self(self.0 | other.0)
+    }
+}
+
+/// One unit step of the paper's format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnitStep {
+    /// The axis the step is for.
+    pub axis: Axis,
+    /// `true` = forward (positive).
+    pub forward: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn status_bits_are_distinct() {
+        let all = [
+            FeedStatus::ENABLED,
+            FeedStatus::ENCODER_ERROR,
+            FeedStatus::STEPS_DROPPED,
+            FeedStatus::MASTER_LOST,
+            FeedStatus::IGNORED_MOTION,
+        ];
+        let mut seen = 0u8;
+        for s in all {
+            assert_eq!(s.bits().count_ones(), 1);
+            assert_eq!(seen & s.bits(), 0);
+            seen |= s.bits();
+        }
+        assert_eq!(FeedStatus::from_bits(seen), Some(FeedStatus(seen)));
+    }
+}
