@@ -317,8 +317,7 @@ mod app {
                 {
                     debug!("wheel: rest learnt at standstill");
                 }
-                let (axis, multiplier) = cx.local.selectors.read();
-                cx.local.selector.sample(axis, multiplier)
+                cx.local.selector.sample_input(cx.local.selectors)
             } else {
                 None
             };

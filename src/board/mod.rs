@@ -214,10 +214,9 @@ pub struct Selectors {
     port: pac::GPIOA,
 }
 
-impl Selectors {
-    /// The masks of active lines `(axis, multiplier)`, as `handwheel_core::Selector` takes
-    /// them.
-    pub fn read(&mut self) -> (u8, u8) {
+impl handwheel_core::SelectorInput for Selectors {
+    /// All eight lines in one read of GPIOA.
+    fn read_lines(&mut self) -> (u8, u8) {
         pins::selector_from_port(self.port.idr().read().bits())
     }
 }

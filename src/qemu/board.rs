@@ -135,9 +135,9 @@ pub struct Selectors {
     _private: (),
 }
 
-impl Selectors {
-    /// The masks of active lines `(axis, multiplier)`, as the board's `Selectors::read`.
-    pub fn read(&mut self) -> (u8, u8) {
+impl handwheel_core::SelectorInput for Selectors {
+    /// The lines the stimulus set.
+    fn read_lines(&mut self) -> (u8, u8) {
         sim::selector_masks()
     }
 }

@@ -41,7 +41,7 @@ pub fn set_ab(levels: AbLevels) {
     AB.store(levels.bits(), Ordering::Release);
 }
 
-/// The masks of active lines `(axis, multiplier)`, as the board's `Selectors::read` returns them.
+/// The masks of active lines `(axis, multiplier)`, as the board's `SelectorInput` gives them.
 pub fn selector_masks() -> (u8, u8) {
     (
         AXIS.load(Ordering::Relaxed),

@@ -34,7 +34,8 @@ pub use edge::{EdgeChannel, EdgeDecoder, EdgeLink, EdgeSnapshot, LocalEdge};
 pub use feed::{FeedStatus, UnitStep};
 pub use pdo::{CounterStride, FeedRecord, FeedRecordError, UnitStepEncoder};
 pub use selector::{
-    Axis, Debouncer, Multiplier, Selection, Selector, SelectorLines, DEFAULT_DEBOUNCE_SAMPLES,
+    Axis, Debouncer, Multiplier, Selection, Selector, SelectorInput, SelectorLines,
+    DEFAULT_DEBOUNCE_SAMPLES,
 };
 pub use standstill::{Settle, Standstill, STANDSTILL_MS};
 pub use wheel::{DecoderView, Handwheel, LinkedWheel, WheelAccess};

@@ -1,8 +1,9 @@
 //! The axis switch (X, Y, Z, W, V) and the multiplier switch (x1, x10, x100).
 //!
-//! Each switch position pulls one line low. The firmware samples the lines on a timer and
-//! passes them here as masks (bit `i` set = line `i` active); [`SelectorLines`] does that read
-//! through `embedded-hal` input pins. A reading with no line or more than one line active is
+//! Each switch position pulls one line low. The firmware samples the lines on a timer
+//! through a [`SelectorInput`], which gives them as masks (bit `i` set = line `i` active):
+//! on the board one read of the port the lines share, and [`SelectorLines`] over
+//! `embedded-hal` input pins for any other wiring (and the host tests). A reading with no line or more than one line active is
 //! not a position: for the axis switch it means "no axis" (the safe state: feed stops), for
 //! the multiplier it keeps the previous factor, so a switch caught between positions never
 //! changes the scale of motion. Either way a reading must be stable over consecutive samples
@@ -231,10 +232,23 @@ impl Selector {
         (self.selection != before).then_some(self.selection)
     }
 
+    /// Samples both switches from `input`; returns the selection when it changes.
+    #[must_use]
+    pub fn sample_input(&mut self, input: &mut impl SelectorInput) -> Option<Selection> {
+        let (axis, multiplier) = input.read_lines();
+        self.sample(axis, multiplier)
+    }
+
     /// The debounced selection.
     pub const fn selection(&self) -> Selection {
         self.selection
     }
+}
+
+/// Where the switch lines are read: the masks of active lines `(axis, multiplier)`.
+pub trait SelectorInput {
+    /// Reads all eight lines now.
+    fn read_lines(&mut self) -> (u8, u8);
 }
 
 /// The eight switch inputs as `embedded-hal` pins, all active low (pull-ups, the switch
@@ -253,6 +267,17 @@ impl<P: InputPin> SelectorLines<P> {
             active_mask(&mut self.axis)?,
             active_mask(&mut self.multiplier)?,
         ))
+    }
+}
+
+impl<P: InputPin> SelectorInput for SelectorLines<P> {
+    /// A pin that cannot be read counts as not active: for the axis switch that is "no axis"
+    /// (feed stops), for the multiplier "between positions" (the factor stays).
+    fn read_lines(&mut self) -> (u8, u8) {
+        (
+            active_mask(&mut self.axis).unwrap_or(0),
+            active_mask(&mut self.multiplier).unwrap_or(0),
+        )
     }
 }
 
@@ -448,8 +473,7 @@ mod tests {
         let mut change = None;
         for _ in 0..DEFAULT_DEBOUNCE_SAMPLES {
             let mut lines = pins([H, H, H, L, H, H, L, H]);
-            let (a, m) = lines.read().unwrap();
-            change = s.sample(a, m).or(change);
+            change = s.sample_input(&mut lines).or(change);
             done(lines);
         }
         assert_eq!(
@@ -457,6 +481,39 @@ mod tests {
             Some(Selection {
                 axis: Some(Axis::W),
                 multiplier: Multiplier::X10
+            })
+        );
+    }
+
+    #[test]
+    fn an_unreadable_axis_line_means_no_axis() {
+        extern crate std;
+        use embedded_hal_mock::eh1::MockError;
+        use State::{High as H, Low as L};
+        let mut s = selector();
+        for _ in 0..DEFAULT_DEBOUNCE_SAMPLES {
+            let mut lines = pins([L, H, H, H, H, L, H, H]);
+            let _ = s.sample_input(&mut lines);
+            done(lines);
+        }
+        assert_eq!(s.selection().axis, Some(Axis::X));
+        let mut change = None;
+        for _ in 0..DEFAULT_DEBOUNCE_SAMPLES {
+            // X still pulled low, but the V line reports an error: the axis switch reads as
+            // no position.
+            let error = MockError::Io(std::io::ErrorKind::Other);
+            let mut lines = pins([L, H, H, H, H, L, H, H]);
+            let _ = lines.axis[4].is_high();
+            lines.axis[4].done();
+            lines.axis[4] = PinMock::new(&[Transaction::get(H).with_error(error)]);
+            change = s.sample_input(&mut lines).or(change);
+            done(lines);
+        }
+        assert_eq!(
+            change,
+            Some(Selection {
+                axis: None,
+                multiplier: Multiplier::X1
             })
         );
     }
