@@ -56,13 +56,3 @@ pub mod supervision;
 
 /// The STM32F103's peripheral access crate.
 pub use stm32f1::stm32f103 as pac;
-
-/// The serial number for 0x1018:4: CRC-32 of the 96-bit unique ID's 12 bytes, so that it
-/// spreads over all 32 bits and stays the same for the life of the chip.
-pub fn serial_number(unique_id: [u32; 3]) -> u32 {
-    let mut bytes = [0; 12];
-    for (chunk, word) in bytes.chunks_exact_mut(4).zip(unique_id) {
-        chunk.copy_from_slice(&word.to_le_bytes());
-    }
-    storage::record::crc32(&bytes)
-}

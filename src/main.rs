@@ -57,18 +57,14 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
-    use canopen_slave::{
-        indicators as indicator_leds, sleep_ms, Instant, Periodic, RxFilter, WideClock,
-    };
+    use canopen_slave::{RxFilter, WideClock};
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::{debug, info};
-    use handwheel_core::{
-        DecoderConfig, LinkedWheel, Selector, Standstill, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
-    };
-    use handwheel_device::HandwheelDevice;
+    use handwheel_core::{DecoderConfig, LinkedWheel, WheelAccess};
+    use handwheel_device::{Duties, HandwheelDevice};
     use handwheel_firmware::{
         board::{self, Leds, Selectors, SYSCLK_HZ},
-        can::{self, bus::BusState, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
+        can::{self, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
         edge::{self, PendedEdge},
         events::EventSet,
         node_config, priority,
@@ -82,21 +78,9 @@ mod app {
     // (`priority`) must agree: the edge above the CAN side, the critical section at it.
     const _: () = assert!(priority::WHEEL == 4 && priority::CAN == 3);
 
-    /// Selector sampling period (4 stable samples = 20 ms debounce).
-    const SAMPLE_PERIOD_MS: u32 = 5;
-    /// LED update period: a quarter of the 200 ms CiA 303-3 phase.
-    const LED_PERIOD_MS: u32 = 50;
-    /// The longest the CAN-side task sleeps, so that it feeds the watchdog in time.
-    const MAX_SLEEP_MS: u32 = 100;
-    /// Watchdog timeout: several missed rounds of the CAN-side task, longer than a flash
-    /// page erase (up to 40 ms).
+    /// Watchdog timeout: several missed rounds of the CAN-side task (which sleeps at most
+    /// `duties::MAX_SLEEP_MS`), longer than a flash page erase (up to 40 ms).
     const WATCHDOG_MS: u32 = 500;
-
-    /// The axis and multiplier debouncer: 4 equal samples, 5 ms apart.
-    const SELECTOR: Selector = match Selector::new(DEFAULT_DEBOUNCE_SAMPLES) {
-        Some(selector) => selector,
-        None => panic!("the default debounce count is valid"),
-    };
 
     /// The CANopen handwheel with its parameter page.
     type Device = HandwheelDevice<DeviceStorage>;
@@ -138,7 +122,7 @@ mod app {
 
         let stored = board.storage.load().map(|s| s.settings);
         let (settings, source) = node_config::select(board.dip, stored);
-        let serial = handwheel_firmware::serial_number(board.unique_id);
+        let serial = node_config::serial_number(board.unique_id);
         info!(
             "boot: node-ID {=u8}, {=u32} kbit/s ({}, DIP {=u8:#04x}), reset cause {}, \
              serial number {=u32:#010x}",
@@ -262,7 +246,6 @@ mod app {
             rx_consumer,
             watchdog,
             selectors,
-            selector: Selector = SELECTOR,
             leds,
             supervision: Supervision = Supervision::new(),
             clock: WideClock = WideClock::new(),
@@ -275,77 +258,67 @@ mod app {
         // QEMU's watchdog is only a stand-in.
         #[cfg(feature = "qemu")]
         Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
-        let now = cx.local.clock.now(Mono::now().ticks());
-        let device = cx.local.device;
-        let wheel = cx.local.wheel;
+        let local = cx.local;
+        let (device, wheel, supervision) = (local.device, local.wheel, local.supervision);
         let mut tx = TxSink(cx.shared.can);
         // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
         // the sampling duty is due immediately).
-        device.start(now, wheel, &mut tx);
-        // Sampling and LED duties: due at once, then every period; a late round is not caught
-        // up in a burst (the debouncer counts samples).
-        let start_ms = Mono::now().ticks();
-        let mut next_sample = Periodic::new(start_ms, SAMPLE_PERIOD_MS);
-        let mut next_led = Periodic::new(start_ms, LED_PERIOD_MS);
-        // Where the wheel comes to rest is learnt here, not in the edge interrupt: a still
-        // wheel makes no edges, and the edge handler has no cycles for a clock. The selector
-        // period is fine enough against the 500 ms standstill time.
-        let mut standstill = Standstill::new();
+        device.start(local.clock.now(Mono::now().ticks()), wheel, &mut tx);
+        let mut duties = Duties::new(Mono::now().ticks());
         loop {
-            cx.local.watchdog.feed();
+            local.watchdog.feed();
             // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
             // receiving above it), so that a test can overrun the receive queue.
             #[cfg(feature = "qemu")]
             stall(handwheel_firmware::qemu::sim::take_stall_ms());
-            let deadline = device.next_deadline();
-            let now = cx.local.clock.now(Mono::now().ticks());
-            let wake_at = wake_time(cx.local.supervision, now, deadline)
-                .min(mono_at(next_sample.next_ms()))
-                .min(mono_at(next_led.next_ms()));
-            let _events = match Mono::timeout_at(wake_at, EVENTS.wait()).await {
-                Ok(events) => events,
-                Err(_timeout) => EVENTS.take(),
-            };
             let ticks = Mono::now().ticks();
-            let now = cx.local.clock.now(ticks);
-            let selection = if next_sample.is_due(ticks) {
-                // At most once per standstill a settle request, which the edge applies at
-                // once (its interrupt is kicked) if the wheel has not moved since.
-                let learnt = wheel.with_wheel(|w| w.decoder.rests_learnt());
-                if wheel.with_wheel(|w| standstill.sample(ticks, &mut w.decoder))
-                    && wheel.with_wheel(|w| w.decoder.rests_learnt()) != learnt
-                {
-                    debug!("wheel: rest learnt at standstill");
-                }
-                cx.local.selector.sample_input(cx.local.selectors)
-            } else {
-                None
-            };
-            while let Some(frame) = cx.local.rx_consumer.dequeue() {
+            let now = local.clock.now(ticks);
+            let sleep =
+                duties.sleep_ms(ticks, now, device.next_deadline(), supervision.bus_state());
+            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
+            // Whatever woke the round (frames, the bus, the edge's `FEED_DUE`), the calls
+            // below look at everything.
+            if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
+                EVENTS.take();
+            }
+            let ticks = Mono::now().ticks();
+            let now = local.clock.now(ticks);
+            let sample = duties.sample(ticks, local.selectors, wheel);
+            while let Some(frame) = local.rx_consumer.dequeue() {
                 device.on_frame(now, &frame, wheel, &mut tx);
             }
-            if let Some(selection) = selection {
-                info!(
-                    "selection: axis {=u8}, x{=u8}",
-                    handwheel_core::Axis::option_value(selection.axis),
-                    selection.multiplier.factor()
-                );
-                device.set_selection(selection, wheel);
+            if let Some(sample) = sample {
+                apply_sample(sample, device, wheel);
             }
-            // `FEED_DUE` only woke this round: `poll` takes the edge's news in.
-            supervise(cx.local.supervision, device, wheel, &mut tx.0);
+            supervise(supervision, device, wheel, &mut tx.0);
             device.poll(now, wheel, &mut tx);
             if let Some(rate) = device.take_bit_rate_switch(now) {
                 info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
                 tx.0.lock(|can| can.set_bit_rate(rate));
             }
-            follow_rx_filter(device, cx.local.rx_filter, &mut tx.0);
-            if next_led.is_due(ticks) {
-                let bus_error = cx.local.supervision.bus_state().indication();
-                let error = device.error_indication().max(bus_error);
-                let (run, err) = indicator_leds(device.nmt_state(), error, ticks);
-                cx.local.leds.set(run, err);
+            follow_rx_filter(device, local.rx_filter, &mut tx.0);
+            let bus = supervision.bus_state();
+            if let Some((run, err)) =
+                duties.leds(ticks, device.nmt_state(), device.error_indication(), bus)
+            {
+                local.leds.set(run, err);
             }
+        }
+    }
+
+    /// A new switch selection goes to the device (after the frames of the same round, so an
+    /// SDO request that came first is answered under the old one).
+    fn apply_sample(sample: handwheel_device::Sample, device: &mut Device, wheel: &mut Wheel) {
+        if sample.rest_learnt {
+            debug!("wheel: rest learnt at standstill");
+        }
+        if let Some(selection) = sample.selection {
+            info!(
+                "selection: axis {=u8}, x{=u8}",
+                handwheel_core::Axis::option_value(selection.axis),
+                selection.multiplier.factor()
+            );
+            device.set_selection(selection, wheel);
         }
     }
 
@@ -389,25 +362,6 @@ mod app {
         }
     }
 
-    /// When `canopen` must run next even without an event: the device's deadline, and while
-    /// the controller is not error-active a short poll for its recovery (no interrupt
-    /// announces it), and at the latest in time to feed the watchdog.
-    fn wake_time(
-        supervision: &Supervision,
-        now: Instant,
-        deadline: Option<Instant>,
-    ) -> <Mono as Monotonic>::Instant {
-        let max_ms = match supervision.bus_state() {
-            BusState::ErrorActive => MAX_SLEEP_MS,
-            _ => can::bus::RECOVERY_POLL_MS,
-        };
-        let sleep_ms = match deadline {
-            Some(t) => sleep_ms(now, t, max_ms),
-            None => max_ms,
-        };
-        Mono::now() + sleep_ms.millis()
-    }
-
     /// Busy for `ms` at this task's priority: what a CAN side that falls behind looks like.
     #[cfg(feature = "qemu")]
     fn stall(ms: u16) {
@@ -419,10 +373,5 @@ mod app {
         while Mono::now() < until {
             core::hint::spin_loop();
         }
-    }
-
-    /// The monotonic's instant of tick `ms`.
-    fn mono_at(ms: u32) -> <Mono as Monotonic>::Instant {
-        <Mono as Monotonic>::Instant::from_ticks(ms)
     }
 }

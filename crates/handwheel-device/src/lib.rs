@@ -9,6 +9,8 @@
 //! - feed can only be enabled (0x2000 = 1) in Operational (abort 0x08000022 otherwise);
 //! - leaving Operational, or losing the master's heartbeat (0x1016), stops the feed,
 //!   discards pending unit steps and disables feed until the master enables it again;
+//! - [`duties`] decides the firmware loop's periodic work (switches, standstill, LEDs) and how
+//!   long it may sleep;
 //! - [`node_config`] and [`record`] decide the node-ID and bit rate at boot (DIP switch or
 //!   stored) and the byte layout of the stored parameters, for any board's storage glue;
 //! - the paper's unit-step stream (0x2001 = 1) goes out on TPDO2, one frame per step, from a
@@ -17,9 +19,11 @@
 
 mod app;
 mod device;
+pub mod duties;
 pub mod node_config;
 pub mod od;
 pub mod record;
 
 pub use app::WheelParameters;
 pub use device::{HandwheelDevice, EMCY_ENCODER};
+pub use duties::{Duties, Sample};
