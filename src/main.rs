@@ -126,7 +126,7 @@ mod app {
         info!(
             "boot: node-ID {=u8}, {=u32} kbit/s ({}, DIP {=u8:#04x}), reset cause {}, \
              serial number {=u32:#010x}",
-            settings.node_id,
+            settings.node_id_byte(),
             settings.bit_rate.kbit_per_second(),
             source,
             board.dip,
@@ -135,7 +135,7 @@ mod app {
         );
         // `node_config` yields node-IDs 1..=127, or 0xFF stored by LSS: unconfigured (`None`),
         // the device then answers LSS only.
-        let node_id = settings.node();
+        let node_id = settings.node_id;
         let device = HandwheelDevice::with_settings(
             node_id,
             settings.bit_rate,

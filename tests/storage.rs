@@ -29,9 +29,9 @@ mod tests {
         }
     }
 
-    const SETTINGS: NodeSettings = NodeSettings {
-        node_id: 42,
-        bit_rate: BitRate::Kbit250,
+    const SETTINGS: NodeSettings = match NodeSettings::from_parts(42, BitRate::Kbit250.code()) {
+        Some(settings) => settings,
+        None => panic!("node 42 at 250 kbit/s is valid"),
     };
 
     #[test]
@@ -51,10 +51,7 @@ mod tests {
 
     #[test]
     fn empty_and_largest_blobs_round_trip(state: &mut State) {
-        let max = NodeSettings {
-            node_id: 127,
-            bit_rate: BitRate::Kbit10,
-        };
+        let max = defmt::unwrap!(NodeSettings::from_parts(127, BitRate::Kbit10.code()));
         defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(max, &[]));
         let stored = defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load());
         defmt::assert_eq!(stored.settings, max);

@@ -101,7 +101,14 @@ pub fn select(dip: u8, stored: Option<NodeSettings>) -> (NodeSettings, Source) {
             },
             Source::DipBitRate,
         ),
-        node_id => (NodeSettings { node_id, bit_rate }, Source::Dip),
+        // 1..=31: always a node-ID.
+        switches => (
+            NodeSettings {
+                node_id: canopen_slave::NodeId::new(switches).ok(),
+                bit_rate,
+            },
+            Source::Dip,
+        ),
     }
 }
 

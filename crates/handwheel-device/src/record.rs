@@ -16,6 +16,7 @@
 //! half-words. An erased page (all 0xFF) fails the magic check, a half-written or damaged one
 //! the CRC; either reads as "nothing stored" and the firmware falls back to its defaults.
 
+use canopen_slave::NodeId;
 use handwheel_core::BitRate;
 
 /// Marks a parameter record; the trailing digit is the layout version.
@@ -30,9 +31,9 @@ pub const RECORD_MAX: usize = HEADER + BLOB_MAX + CRC_LEN;
 /// Node-ID and bit rate: what the firmware itself needs before the CAN controller starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NodeSettings {
-    /// CANopen node-ID, 1..=127, or 0xFF ([`canopen_slave::lss::UNCONFIGURED`]): the node
-    /// waits for an LSS master to give it one.
-    pub node_id: u8,
+    /// CANopen node-ID; `None`: unconfigured, the node waits for an LSS master to give it
+    /// one (stored as 0xFF, [`canopen_slave::lss::UNCONFIGURED`]).
+    pub node_id: Option<NodeId>,
     /// CAN bit rate.
     pub bit_rate: BitRate,
 }
@@ -40,21 +41,36 @@ pub struct NodeSettings {
 impl NodeSettings {
     /// Node-ID 16 at 1 Mbit/s: the factory setting.
     pub const DEFAULT: Self = Self {
-        node_id: 16,
+        node_id: match NodeId::new(16) {
+            Ok(id) => Some(id),
+            Err(_) => panic!("16 is a node-ID"),
+        },
         bit_rate: BitRate::Kbit1000,
     };
 
     /// `None` unless `node_id` is a valid CANopen node-ID (1..=127) or 0xFF (unconfigured)
     /// and `code` a bit-rate code (0..=7).
     pub const fn from_parts(node_id: u8, code: u8) -> Option<Self> {
-        let valid_id = matches!(node_id, 1..=127 | canopen_slave::lss::UNCONFIGURED);
-        if !valid_id || code > 7 {
+        let node_id = match NodeId::new(node_id) {
+            Ok(id) => Some(id),
+            Err(_) if node_id == canopen_slave::lss::UNCONFIGURED => None,
+            Err(_) => return None,
+        };
+        if code > 7 {
             return None;
         }
         Some(Self {
             node_id,
             bit_rate: BitRate::from_code(code),
         })
+    }
+
+    /// The node-ID as stored and as LSS reports it: 1..=127, or 0xFF when unconfigured.
+    pub const fn node_id_byte(&self) -> u8 {
+        match self.node_id {
+            Some(id) => id.get(),
+            None => canopen_slave::lss::UNCONFIGURED,
+        }
     }
 }
 
@@ -68,14 +84,6 @@ impl NodeSettings {
             None => None,
         }
     }
-
-    /// The node-ID as the engine takes it: `None` when unconfigured (0xFF).
-    pub const fn node(&self) -> Option<canopen_slave::NodeId> {
-        match canopen_slave::NodeId::new(self.node_id) {
-            Ok(id) => Some(id),
-            Err(_) => None,
-        }
-    }
 }
 
 #[cfg(feature = "defmt")]
@@ -84,7 +92,7 @@ impl defmt::Format for NodeSettings {
         defmt::write!(
             f,
             "node-ID {=u8} at {=u32} kbit/s",
-            self.node_id,
+            self.node_id_byte(),
             self.bit_rate.kbit_per_second()
         );
     }
@@ -99,7 +107,7 @@ pub fn encode(settings: NodeSettings, blob: &[u8], out: &mut [u8; RECORD_MAX]) -
         .filter(|&n| usize::from(n) <= BLOB_MAX)?;
     let body = HEADER + blob.len();
     out[..4].copy_from_slice(&MAGIC);
-    out[4] = settings.node_id;
+    out[4] = settings.node_id_byte();
     out[5] = settings.bit_rate.code();
     out[6..HEADER].copy_from_slice(&blob_len.to_le_bytes());
     out[HEADER..body].copy_from_slice(blob);

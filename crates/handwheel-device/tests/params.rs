@@ -3,15 +3,23 @@
 //! The record comes back from flash, which may hold anything (erased, half-written, damaged,
 //! another layout): decoding must refuse all of it rather than guess, and never panic.
 
+use canopen_slave::NodeId;
 use handwheel_core::BitRate;
 use handwheel_device::node_config::{select, Source};
 use handwheel_device::record::{crc32, decode, encode, NodeSettings, BLOB_MAX, RECORD_MAX};
 use proptest::prelude::*;
 
 const SETTINGS: NodeSettings = NodeSettings {
-    node_id: 42,
+    node_id: id(42),
     bit_rate: BitRate::Kbit250,
 };
+
+const fn id(n: u8) -> Option<NodeId> {
+    match NodeId::new(n) {
+        Ok(id) => Some(id),
+        Err(_) => None,
+    }
+}
 
 fn encoded(settings: NodeSettings, blob: &[u8]) -> Vec<u8> {
     let mut out = [0u8; RECORD_MAX];
@@ -76,11 +84,11 @@ fn a_record_with_a_valid_crc_but_impossible_settings_is_refused() {
 #[test]
 fn an_unconfigured_node_id_is_stored_as_0xff() {
     let unconfigured = NodeSettings::from_parts(0xFF, 3).unwrap();
-    assert_eq!(unconfigured.node(), None);
+    assert_eq!(unconfigured.node_id, None);
     let bytes = encoded(unconfigured, &[7]);
     assert_eq!(bytes[4], 0xFF);
     assert_eq!(decode(&bytes), Some((unconfigured, &[7u8][..])));
-    assert_eq!(SETTINGS.node().map(|n| n.get()), Some(SETTINGS.node_id));
+    assert_eq!(SETTINGS.node_id_byte(), 42);
 }
 
 #[test]
@@ -112,8 +120,8 @@ fn lss_bit_timing_indices_map_onto_the_dip_table() {
 fn lss_store_configuration_settings() {
     use handwheel_device::record::NodeSettings;
     let s = NodeSettings::from_lss(5, 2).unwrap();
-    assert_eq!((s.node_id, s.bit_rate), (5, BitRate::Kbit500));
-    assert_eq!(NodeSettings::from_lss(0xFF, 0).unwrap().node(), None);
+    assert_eq!((s.node_id, s.bit_rate), (id(5), BitRate::Kbit500));
+    assert_eq!(NodeSettings::from_lss(0xFF, 0).unwrap().node_id, None);
     assert_eq!(
         NodeSettings::from_lss(5, 5),
         None,
@@ -140,7 +148,7 @@ fn dip_all_off_uses_the_stored_settings_or_the_default() {
         select(0, None),
         (
             NodeSettings {
-                node_id: 16,
+                node_id: id(16),
                 bit_rate: BitRate::Kbit1000
             },
             Source::Default
@@ -156,7 +164,7 @@ fn dip_node_switches_set_the_node_id_and_rate_switches_the_rate() {
         select(dip, Some(SETTINGS)),
         (
             NodeSettings {
-                node_id: 5,
+                node_id: id(5),
                 bit_rate: BitRate::Kbit500
             },
             Source::Dip
@@ -167,7 +175,7 @@ fn dip_node_switches_set_the_node_id_and_rate_switches_the_rate() {
         select(0b0010_0000, Some(SETTINGS)),
         (
             NodeSettings {
-                node_id: 42,
+                node_id: id(42),
                 bit_rate: BitRate::Kbit800
             },
             Source::DipBitRate
@@ -176,7 +184,7 @@ fn dip_node_switches_set_the_node_id_and_rate_switches_the_rate() {
     assert_eq!(
         select(0b0010_0000, None).0,
         NodeSettings {
-            node_id: 16,
+            node_id: id(16),
             bit_rate: BitRate::Kbit800
         }
     );
@@ -184,7 +192,7 @@ fn dip_node_switches_set_the_node_id_and_rate_switches_the_rate() {
 
 fn any_settings() -> impl Strategy<Value = NodeSettings> {
     (1u8..=127, 0u8..=7).prop_map(|(node_id, code)| NodeSettings {
-        node_id,
+        node_id: id(node_id),
         bit_rate: BitRate::from_code(code),
     })
 }
@@ -223,7 +231,7 @@ proptest! {
         page in proptest::collection::vec(any::<u8>(), 0..300),
     ) {
         if let Some((settings, blob)) = decode(&page) {
-            prop_assert!((1..=127).contains(&settings.node_id));
+            prop_assert!(settings.node_id.is_some());
             prop_assert!(blob.len() <= BLOB_MAX);
         }
     }
@@ -231,7 +239,7 @@ proptest! {
     #[test]
     fn the_node_id_in_force_is_always_valid(dip in any::<u8>(), stored in proptest::option::of(any_settings())) {
         let (settings, source) = select(dip, stored);
-        prop_assert!((1..=127).contains(&settings.node_id));
+        prop_assert!(settings.node_id.is_some());
         let expected_source = match (dip, dip & 0x1F, stored) {
             (0, _, Some(_)) => Source::Stored,
             (0, _, None) => Source::Default,
