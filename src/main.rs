@@ -204,7 +204,7 @@ mod app {
         let lost = cx
             .shared
             .can
-            .lock(|can| can.drain_fifo0(cx.local.rx_producer));
+            .lock(|can| can.on_receive(cx.local.rx_producer));
         let overrun = if lost {
             EventSet::RX_OVERRUN
         } else {
@@ -216,7 +216,7 @@ mod app {
     /// A transmit mailbox became free: refill it from the queue.
     #[task(binds = USB_HP_CAN_TX, priority = 3, shared = [can])]
     fn can_tx(mut cx: can_tx::Context) {
-        cx.shared.can.lock(|can| can.on_mailbox_empty());
+        cx.shared.can.lock(|can| can.on_transmit_room());
     }
 
     /// Warning limit, error passive or bus-off was reached: let `canopen` look.

@@ -1,12 +1,13 @@
-//! The board's CAN port: bxCAN bit timing, acceptance filters, the three transmit
-//! mailboxes and receive FIFO 0.
+//! The board's CAN link: bxCAN bit timing, acceptance filters, the three transmit mailboxes
+//! and receive FIFO 0.
 
 use bxcan::filter::{ListEntry16, Mask16};
 use bxcan::{Fifo, Interrupts, StandardId};
 use canopen_slave::RxFilter;
 use handwheel_core::{BitRate, BitTiming};
 
-use super::{bus, frame, CanStats, Frame, Mode, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
+use super::port::{Busy, CanLink, Received};
+use super::{bus, frame, Frame, Mode};
 use crate::board::{CanInstance, APB1_HZ};
 
 /// The configured controller.
@@ -95,120 +96,47 @@ fn standard_id(id: u16) -> StandardId {
     StandardId::new(id & 0x7FF).unwrap_or(StandardId::ZERO)
 }
 
-/// The controller and its transmit queue.
-pub struct CanPort {
-    can: Bxcan,
-    queue: TxQueue<TX_QUEUE_LEN>,
-    stats: CanStats,
-}
-
-impl CanPort {
-    /// Wraps a started controller.
-    pub fn new(can: Bxcan) -> Self {
-        Self {
-            can,
-            queue: TxQueue::new(),
-            stats: CanStats::default(),
+impl CanLink for Bxcan {
+    fn transmit(&mut self, frame: &Frame) -> Result<Option<Frame>, Busy> {
+        match bxcan::Can::transmit(self, &frame::to_bxcan(frame)) {
+            Ok(status) => Ok(status.dequeued_frame().and_then(frame::from_bxcan)),
+            // Every pending mailbox outranks the frame: the TX interrupt resumes.
+            Err(nb::Error::WouldBlock) => Err(Busy),
+            Err(nb::Error::Other(never)) => match never {},
         }
     }
 
-    /// Queues `frame` and hands as many queued frames to the mailboxes as they take.
-    /// Gives the frame back when the queue is full; nothing already queued is dropped.
-    pub fn send(&mut self, frame: Frame) -> Result<(), Frame> {
-        let result = self.queue.push(frame);
-        if result.is_err() {
-            self.stats.tx_refused += 1;
-        }
-        self.pump();
-        result
-    }
-
-    /// The TX interrupt: a mailbox became free.
-    pub fn on_mailbox_empty(&mut self) {
-        self.can.clear_tx_interrupt();
-        self.pump();
-    }
-
-    fn pump(&mut self) {
-        while let Some(next) = self.queue.front() {
-            match self.can.transmit(&frame::to_bxcan(next)) {
-                Ok(status) => {
-                    self.queue.pop_front();
-                    if let Some(displaced) = status.dequeued_frame().and_then(frame::from_bxcan) {
-                        // The pop above made room, so this cannot fail.
-                        let _ = self.queue.requeue(displaced);
-                        self.stats.tx_displaced += 1;
-                    }
-                }
-                // Every pending mailbox outranks the next frame: the TX interrupt resumes.
-                Err(nb::Error::WouldBlock) => break,
-                Err(nb::Error::Other(never)) => match never {},
-            }
-        }
-    }
-
-    /// The RX0 interrupt: moves every frame from the hardware FIFO to `rx`. Returns `true`
-    /// when frames were lost (FIFO overrun or `rx` full).
-    pub fn drain_fifo0(
-        &mut self,
-        rx: &mut heapless::spsc::Producer<'_, Frame, RX_QUEUE_LEN>,
-    ) -> bool {
-        let mut lost = false;
+    fn receive(&mut self) -> Option<Received> {
         loop {
-            match self.can.receive() {
-                Ok(frame) => {
-                    let Some(frame) = frame::from_bxcan(&frame) else {
-                        continue;
-                    };
-                    if rx.enqueue(frame).is_ok() {
-                        self.stats.rx_frames += 1;
-                    } else {
-                        self.stats.rx_overruns += 1;
-                        lost = true;
-                    }
-                }
-                Err(nb::Error::WouldBlock) => break,
+            return match bxcan::Can::receive(self) {
+                Ok(frame) => match frame::from_bxcan(&frame) {
+                    Some(frame) => Some(Received::Frame(frame)),
+                    // Not a frame the device can take (the filters pass none such).
+                    None => continue,
+                },
+                Err(nb::Error::WouldBlock) => None,
                 // bxcan reports the overrun once and clears the flag; the frames still in
-                // the FIFO come on the next rounds of this loop.
-                Err(nb::Error::Other(_overrun)) => {
-                    self.stats.rx_overruns += 1;
-                    lost = true;
-                }
-            }
+                // the FIFO come on the next calls.
+                Err(nb::Error::Other(_overrun)) => Some(Received::Overrun),
+            };
         }
-        lost
     }
 
-    /// The SCE interrupt: acknowledges an error-state change.
-    pub fn on_status_change(&mut self) {
+    fn acknowledge_transmit(&mut self) {
+        self.clear_tx_interrupt();
+    }
+
+    fn acknowledge_status(&mut self) {
         bus::acknowledge_status_change();
     }
 
-    /// Re-programs the acceptance filters (the device's identifiers changed: 0x1005, or a
-    /// new node-ID).
-    pub fn set_rx_filter(&mut self, filter: RxFilter) {
-        set_filters(&mut self.can, filter);
+    fn set_rx_filter(&mut self, filter: RxFilter) {
+        set_filters(self, filter);
     }
 
-    /// Switches to `rate` (LSS activate bit timing, after its switch delay): the controller
-    /// goes through initialisation mode, keeping filters and interrupts, and rejoins after
-    /// 11 recessive bits at the new rate.
-    pub fn set_bit_rate(&mut self, rate: BitRate) {
-        self.can.modify_config().set_bit_timing(btr(rate)).enable();
-    }
-
-    /// Counters since start-up.
-    pub fn stats(&self) -> CanStats {
-        self.stats
-    }
-
-    /// Frames waiting in the software queue.
-    pub fn queued(&self) -> usize {
-        self.queue.len()
-    }
-
-    /// Gives the controller back (tests).
-    pub fn free(self) -> Bxcan {
-        self.can
+    /// The controller goes through initialisation mode, keeping filters and interrupts, and
+    /// rejoins after 11 recessive bits at the new rate.
+    fn set_bit_rate(&mut self, rate: BitRate) {
+        self.modify_config().set_bit_timing(btr(rate)).enable();
     }
 }

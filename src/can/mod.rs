@@ -2,21 +2,29 @@
 //! bxCAN on the board and over SLCAN on USART1 in the QEMU variant.
 //!
 //! [`CanPort`] is the one RTIC resource around the controller. The RX0, TX and SCE interrupt
-//! tasks and the CAN-side software task share it; each use is a few register accesses. The
-//! board's port (bxCAN: bit timing, acceptance filters, mailboxes, FIFO 0) is in
-//! `bxcan_port`; the QEMU variant's (`--features qemu`) in `crate::qemu::slcan_port`, with
-//! the same methods, so that the tasks are the same code on both.
+//! tasks and the CAN-side software task share it; each use is a few register accesses. It
+//! is one type for both boards ([`port::CanPort`]) over the board's [`port::CanLink`]:
+//! bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in `bxcan_port`, SLCAN on
+//! USART1 in the QEMU variant (`--features qemu`, `crate::qemu::slcan_port`).
 
 pub mod bus;
 #[cfg(not(feature = "qemu"))]
 mod bxcan_port;
 mod frame;
+pub mod port;
 mod tx_queue;
 
 #[cfg(feature = "qemu")]
-pub use crate::qemu::slcan_port::{start, CanPort};
+pub use crate::qemu::slcan_port::start;
 #[cfg(not(feature = "qemu"))]
-pub use bxcan_port::{btr, set_filters, start, Bxcan, CanPort, BTR_TABLE};
+pub use bxcan_port::{btr, set_filters, start, Bxcan, BTR_TABLE};
+
+/// The board's CAN port: the shared queue and statistics over its controller.
+#[cfg(not(feature = "qemu"))]
+pub type CanPort = port::CanPort<Bxcan>;
+/// The QEMU variant's CAN port: the shared queue and statistics over the SLCAN link.
+#[cfg(feature = "qemu")]
+pub type CanPort = port::CanPort<crate::qemu::slcan_port::Controller>;
 pub use frame::Frame;
 pub use tx_queue::TxQueue;
 

@@ -1,19 +1,21 @@
 //! The QEMU board's CAN port: CAN over SLCAN (Lawicel ASCII) on USART1, for python-can's
 //! `slcan` interface on the host end of QEMU's TCP bridge.
 //!
-//! [`CanPort`] has the methods the CAN tasks call on the board's bxCAN port, so `can_rx0`,
-//! `can_tx`, `can_sce` and the `canopen` task's [`TxSink`](crate::can::TxSink) are the same
-//! code. The controller's parts are played by:
+//! [`Controller`] is the QEMU board's [`CanLink`] under the shared
+//! [`CanPort`](crate::can::CanPort), so `can_rx0`, `can_tx`, `can_sce` and the `canopen`
+//! task's [`TxSink`](crate::can::TxSink) are the same code. The controller's parts are
+//! played by:
 //!
 //! - the receive FIFO and its interrupt: the USART1 interrupt handler below (board layer,
 //!   priority 3, outside the RTIC app) moves received bytes into a byte queue and, at the end
 //!   of each SLCAN line (`\r`) or when the queue is full, pends USB_LP_CAN_RX0, as bxCAN
 //!   pends it for a frame in FIFO 0. No byte is lost on the way: a full queue leaves the
 //!   byte in the USART, and QEMU holds the next ones back in the socket until it is read;
-//! - receive draining: `can_rx0` calls [`CanPort::drain_fifo0`], which runs the queued bytes
-//!   through `sim_io::slcan`, answers each command on USART1, and puts the host's data frames
-//!   into the receive queue for `canopen`, after the same acceptance filter as the board's
-//!   bxCAN (NMT, SYNC, this node's SDO requests, heartbeats);
+//! - receive draining: `can_rx0` calls `CanPort::on_receive`, which takes frames from
+//!   [`Controller`]'s `receive`: it runs the queued bytes through `sim_io::slcan`, answers
+//!   each command on USART1, and hands over the host's data frames that pass the same
+//!   acceptance filter as the board's bxCAN (NMT, SYNC, this node's SDO requests, LSS,
+//!   heartbeats);
 //! - the transmit mailboxes: USART1 itself. Frames wait in the same FIFO transmit queue and
 //!   are written out (encoded by `sim_io::slcan`) while the SLCAN channel is open. It powers
 //!   up open, because QEMU drops the host's opening `O` when it arrives before `init` has
@@ -33,7 +35,8 @@ use handwheel_core::BitRate;
 use sim_io::slcan::{CanFrame, SlcanPort};
 
 use super::usart::{UsartRx, UsartTx};
-use crate::can::{CanStats, Frame, Mode, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
+use crate::can::port::{Busy, CanLink, Received};
+use crate::can::{Frame, Mode};
 
 /// Bytes the queue from the USART1 interrupt to `can_rx0` holds, plus one. A few SLCAN
 /// lines (a frame line is at most 22 bytes); `can_rx0` empties it after every line, and a
@@ -131,108 +134,48 @@ fn now_ms() -> u32 {
     rtic_monotonics::systick::SystickBackend::now()
 }
 
-/// The SLCAN link and its transmit queue.
-pub struct CanPort {
-    controller: Controller,
-    queue: TxQueue<TX_QUEUE_LEN>,
-    stats: CanStats,
-}
-
-impl CanPort {
-    /// Wraps the started link.
-    pub fn new(controller: Controller) -> Self {
-        Self {
-            controller,
-            queue: TxQueue::new(),
-            stats: CanStats::default(),
+impl CanLink for Controller {
+    fn transmit(&mut self, frame: &Frame) -> Result<Option<Frame>, Busy> {
+        // Engine frames are always valid 11-bit frames, so this always succeeds.
+        if let Some(frame) = CanFrame::new(frame.id(), frame.data()) {
+            // `None` while the host has closed the channel (`C`): keep the frame queued.
+            let line = self.slcan.encode(&frame, now_ms()).ok_or(Busy)?;
+            self.link.tx.write_all(line.as_bytes());
         }
+        Ok(None)
     }
 
-    /// Queues `frame` and writes out what the open channel takes. Gives the frame back when
-    /// the queue is full; nothing already queued is dropped.
-    pub fn send(&mut self, frame: Frame) -> Result<(), Frame> {
-        let result = self.queue.push(frame);
-        if result.is_err() {
-            self.stats.tx_refused += 1;
-        }
-        self.pump();
-        result
-    }
-
-    /// The board's TX interrupt (never pended here: the serial link has no mailboxes to
-    /// wait for, the queue is written out whenever the channel is open).
-    pub fn on_mailbox_empty(&mut self) {
-        self.pump();
-    }
-
-    fn pump(&mut self) {
-        let c = &mut self.controller;
-        while let Some(next) = self.queue.front() {
-            // Engine frames are always valid 11-bit frames, so this always succeeds.
-            if let Some(frame) = CanFrame::new(next.id(), next.data()) {
-                // `None` while the host has closed the channel (`C`): keep the frame queued.
-                let Some(line) = c.slcan.encode(&frame, now_ms()) else {
-                    break;
-                };
-                c.link.tx.write_all(line.as_bytes());
-            }
-            self.queue.pop_front();
-        }
-    }
-
-    /// The RX0 interrupt: runs the bytes the host sent through the SLCAN protocol, answers
-    /// each command, moves the host's frames for this node to `rx`, and writes out the
-    /// transmit queue if the channel is open. Returns `true` when frames were lost (`rx` full,
-    /// as on the board when `canopen` falls behind).
-    pub fn drain_fifo0(
-        &mut self,
-        rx: &mut heapless::spsc::Producer<'_, Frame, RX_QUEUE_LEN>,
-    ) -> bool {
-        let mut lost = false;
-        let c = &mut self.controller;
-        while let Some(byte) = c.link.rx.dequeue() {
-            let Some(outcome) = c.slcan.push(byte) else {
+    /// Runs the bytes the host sent through the SLCAN protocol up to the next data frame
+    /// for this node, answering each command on the way.
+    fn receive(&mut self) -> Option<Received> {
+        while let Some(byte) = self.link.rx.dequeue() {
+            let Some(outcome) = self.slcan.push(byte) else {
                 continue;
             };
-            c.link.tx.write_all(outcome.reply);
+            self.link.tx.write_all(outcome.reply);
             let frame = outcome
                 .frame
                 // What the board's bxCAN filter banks pass (`can::set_filters`).
-                .filter(|f| c.filter.accepts(f.id))
+                .filter(|f| self.filter.accepts(f.id))
                 .and_then(|f| Frame::new(f.id, f.payload()).ok());
             if let Some(frame) = frame {
-                if rx.enqueue(frame).is_ok() {
-                    self.stats.rx_frames += 1;
-                } else {
-                    self.stats.rx_overruns += 1;
-                    lost = true;
-                }
+                return Some(Received::Frame(frame));
             }
         }
-        // The host may just have opened the channel: send what waited for it.
-        self.pump();
-        lost
+        None
     }
 
-    /// Replaces the acceptance filter (the device's identifiers changed: 0x1005, or a new
-    /// node-ID).
-    pub fn set_rx_filter(&mut self, filter: RxFilter) {
-        self.controller.filter = filter;
+    /// Never pended: the serial link has no mailboxes to wait for, the queue is written out
+    /// whenever the channel is open.
+    fn acknowledge_transmit(&mut self) {}
+
+    /// Never raised: a serial link has no error states.
+    fn acknowledge_status(&mut self) {}
+
+    fn set_rx_filter(&mut self, filter: RxFilter) {
+        self.filter = filter;
     }
 
-    /// LSS activate bit timing: a serial line has no bit rate, so nothing changes.
-    pub fn set_bit_rate(&mut self, _rate: BitRate) {}
-
-    /// The SCE interrupt: never raised on the serial link.
-    pub fn on_status_change(&mut self) {}
-
-    /// Counters since start-up.
-    pub fn stats(&self) -> CanStats {
-        self.stats
-    }
-
-    /// Frames waiting in the software queue.
-    pub fn queued(&self) -> usize {
-        self.queue.len()
-    }
+    /// A serial line has no bit rate: nothing changes.
+    fn set_bit_rate(&mut self, _rate: BitRate) {}
 }

@@ -1,0 +1,147 @@
+//! The CAN port both boards share: the transmit queue, the statistics and the interrupt
+//! entry points, over a [`CanLink`] that is the controller (bxCAN on the board, SLCAN on
+//! USART1 in the QEMU variant).
+
+use canopen_slave::RxFilter;
+use handwheel_core::BitRate;
+
+use super::{CanStats, Frame, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
+
+/// The controller takes no frame now; its transmit interrupt (or the host reopening the
+/// channel) resumes the queue.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Busy;
+
+/// One step of draining the receive side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Received {
+    /// A frame that passed the acceptance filter.
+    Frame(Frame),
+    /// The controller lost frames (its FIFO overran); more may follow.
+    Overrun,
+}
+
+/// What differs between the boards' controllers.
+pub trait CanLink {
+    /// Offers `frame` for transmission. `Ok(None)`: taken; `Ok(Some(displaced))`: taken, and
+    /// a less urgent pending frame came back out of the controller (it goes back to the head
+    /// of the queue); `Err(Busy)`: nothing taken.
+    fn transmit(&mut self, frame: &Frame) -> Result<Option<Frame>, Busy>;
+    /// The next received frame that passes the acceptance filter, or `None` when the
+    /// receive side is empty.
+    fn receive(&mut self) -> Option<Received>;
+    /// The transmit interrupt came: acknowledge it.
+    fn acknowledge_transmit(&mut self);
+    /// The status-change interrupt came: acknowledge it.
+    fn acknowledge_status(&mut self);
+    /// Passes exactly what `filter` accepts from now on.
+    fn set_rx_filter(&mut self, filter: RxFilter);
+    /// Runs at `rate` from now on (LSS activate bit timing).
+    fn set_bit_rate(&mut self, rate: BitRate);
+}
+
+/// The controller and its transmit queue: the one RTIC resource around the controller.
+pub struct CanPort<L> {
+    link: L,
+    queue: TxQueue<TX_QUEUE_LEN>,
+    stats: CanStats,
+}
+
+impl<L: CanLink> CanPort<L> {
+    /// Wraps a started controller.
+    pub fn new(link: L) -> Self {
+        Self {
+            link,
+            queue: TxQueue::new(),
+            stats: CanStats::default(),
+        }
+    }
+
+    /// Queues `frame` and hands the controller as many queued frames as it takes. Gives the
+    /// frame back when the queue is full; nothing already queued is dropped.
+    pub fn send(&mut self, frame: Frame) -> Result<(), Frame> {
+        let result = self.queue.push(frame);
+        if result.is_err() {
+            self.stats.tx_refused += 1;
+        }
+        self.pump();
+        result
+    }
+
+    /// The transmit interrupt: the controller has room again.
+    pub fn on_transmit_room(&mut self) {
+        self.link.acknowledge_transmit();
+        self.pump();
+    }
+
+    fn pump(&mut self) {
+        while let Some(next) = self.queue.front() {
+            match self.link.transmit(next) {
+                Ok(displaced) => {
+                    self.queue.pop_front();
+                    if let Some(displaced) = displaced {
+                        // The pop above made room, so this cannot fail.
+                        let _ = self.queue.requeue(displaced);
+                        self.stats.tx_displaced += 1;
+                    }
+                }
+                Err(Busy) => break,
+            }
+        }
+    }
+
+    /// The receive interrupt: moves every received frame to `rx`, then writes out what the
+    /// controller takes (the SLCAN host may just have opened the channel). Returns `true`
+    /// when frames were lost (the controller overran, or `rx` was full).
+    pub fn on_receive(
+        &mut self,
+        rx: &mut heapless::spsc::Producer<'_, Frame, RX_QUEUE_LEN>,
+    ) -> bool {
+        let mut lost = false;
+        while let Some(received) = self.link.receive() {
+            let accepted = match received {
+                Received::Frame(frame) => rx.enqueue(frame).is_ok(),
+                Received::Overrun => false,
+            };
+            if accepted {
+                self.stats.rx_frames += 1;
+            } else {
+                self.stats.rx_overruns += 1;
+                lost = true;
+            }
+        }
+        self.pump();
+        lost
+    }
+
+    /// The status-change interrupt: the error state changed (the `canopen` task reads it).
+    pub fn on_status_change(&mut self) {
+        self.link.acknowledge_status();
+    }
+
+    /// Re-programs the acceptance filter (the device's identifiers changed: 0x1005, or a new
+    /// node-ID).
+    pub fn set_rx_filter(&mut self, filter: RxFilter) {
+        self.link.set_rx_filter(filter);
+    }
+
+    /// Switches to `rate` (LSS activate bit timing, after its switch delay).
+    pub fn set_bit_rate(&mut self, rate: BitRate) {
+        self.link.set_bit_rate(rate);
+    }
+
+    /// Counters since start-up.
+    pub fn stats(&self) -> CanStats {
+        self.stats
+    }
+
+    /// Frames waiting in the software queue.
+    pub fn queued(&self) -> usize {
+        self.queue.len()
+    }
+
+    /// Gives the controller back (tests).
+    pub fn free(self) -> L {
+        self.link
+    }
+}
