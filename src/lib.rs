@@ -14,6 +14,7 @@
 //! - [`events`]: interrupt-to-task wake-ups.
 //! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
 //! - [`edge`]: the wheel's edge interrupt, outside RTIC, and the CAN side's link to it.
+//! - [`parts`]: the one `Board` both variants' `init` return, over their part types.
 //! - [`priority`]: the interrupt priorities the firmware programs itself.
 //!
 //! Module `cs` is the image's critical section: BASEPRI up to the CAN side, never the wheel.
@@ -48,6 +49,7 @@ pub mod events;
 mod mem;
 pub use handwheel_device::node_config;
 mod panic;
+pub mod parts;
 pub mod priority;
 #[cfg(feature = "qemu")]
 pub mod qemu;

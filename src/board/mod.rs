@@ -47,27 +47,21 @@ unsafe impl bxcan::FilterOwner for CanInstance {
 // SAFETY: the single bxCAN of the STM32F103 is a master instance (it has the filter banks).
 unsafe impl bxcan::MasterInstance for CanInstance {}
 
-/// Everything `init` sets up for the application.
-pub struct Board {
-    /// Wheel A/B inputs and the EXTI lines they trigger.
-    pub wheel: WheelInputs,
-    /// Axis and multiplier switch lines.
-    pub selectors: Selectors,
-    /// DIP switch, read once at start-up: bit `i` set = switch `i + 1` on.
-    pub dip: u8,
-    /// RUN and ERR LEDs.
-    pub leds: Leds,
-    /// bxCAN with its remapped pins, not yet configured.
-    pub can: CanInstance,
-    /// The parameter page in flash.
-    pub storage: FlashStorage,
-    /// Independent watchdog, not started yet.
-    pub watchdog: Watchdog,
-    /// Why the MCU last reset.
-    pub reset_cause: ResetCause,
-    /// The MCU's 96-bit unique ID.
-    pub unique_id: [u32; 3],
+/// The STM32F103 board's parts.
+pub enum Parts {}
+
+impl crate::parts::BoardParts for Parts {
+    type Wheel = WheelInputs;
+    type Selectors = Selectors;
+    type Leds = Leds;
+    type Can = CanInstance;
+    type Storage = FlashStorage;
+    type Watchdog = Watchdog;
+    type ResetCause = ResetCause;
 }
+
+/// Everything `init` sets up for the application.
+pub type Board = crate::parts::Board<Parts>;
 
 /// Brings up clocks and pins. Takes the device peripherals that RTIC's `init` hands over.
 pub fn init(dp: pac::Peripherals) -> Board {

@@ -38,27 +38,23 @@ pub const USART_PRIORITY: u8 = 3;
 /// A fixed "unique ID" (ASCII `QEMU`): the emulator has no factory-programmed one.
 const UNIQUE_ID: [u32; 3] = [u32::from_le_bytes(*b"QEMU"), 0, 0];
 
-/// Everything `init` sets up for the application.
-pub struct Board {
-    /// Wheel A/B inputs (simulated).
-    pub wheel: WheelInputs,
-    /// Axis and multiplier switch lines (simulated).
-    pub selectors: Selectors,
-    /// DIP switch: all off, so the stored (never, in RAM) or default node-ID 16 applies.
-    pub dip: u8,
-    /// RUN and ERR LEDs (not shown anywhere).
-    pub leds: Leds,
-    /// The CAN link on USART1, not yet started.
-    pub can: CanInstance,
-    /// Parameters in RAM.
-    pub storage: RamStorage,
-    /// Watchdog stand-in.
-    pub watchdog: watchdog::Watchdog,
-    /// Why the MCU last reset: the emulator always starts cold.
-    pub reset_cause: ResetCause,
-    /// The fixed stand-in for the 96-bit unique ID.
-    pub unique_id: [u32; 3],
+/// The QEMU board's parts: the simulated wheel, switches and LEDs, SLCAN on USART1,
+/// parameters in RAM, a watchdog stand-in; the DIP switch reads all off, so the stored
+/// (never, in RAM) or default node-ID 16 applies.
+pub enum Parts {}
+
+impl crate::parts::BoardParts for Parts {
+    type Wheel = WheelInputs;
+    type Selectors = Selectors;
+    type Leds = Leds;
+    type Can = CanInstance;
+    type Storage = RamStorage;
+    type Watchdog = watchdog::Watchdog;
+    type ResetCause = ResetCause;
 }
+
+/// Everything `init` sets up for the application.
+pub type Board = crate::parts::Board<Parts>;
 
 /// Sets the clock to HSI only, enables both USARTs and their interrupts. Takes the device
 /// peripherals that RTIC's `init` hands over; runs with interrupts disabled (RTIC's `init`).
