@@ -40,3 +40,20 @@ pub struct Board<P: BoardParts> {
     /// The MCU's 96-bit unique ID (a fixed stand-in under QEMU).
     pub unique_id: [u32; 3],
 }
+
+/// Declares a variant's part types: `board_parts!(Parts: wheel, selectors, leds, can,
+/// storage, watchdog, reset cause)`, the types in [`BoardParts`]' order.
+macro_rules! board_parts {
+    ($parts:ident: $wheel:ty, $selectors:ty, $leds:ty, $can:ty, $storage:ty, $watchdog:ty, $reset:ty) => {
+        impl $crate::parts::BoardParts for $parts {
+            type Wheel = $wheel;
+            type Selectors = $selectors;
+            type Leds = $leds;
+            type Can = $can;
+            type Storage = $storage;
+            type Watchdog = $watchdog;
+            type ResetCause = $reset;
+        }
+    };
+}
+pub(crate) use board_parts;

@@ -50,15 +50,9 @@ unsafe impl bxcan::MasterInstance for CanInstance {}
 /// The STM32F103 board's parts.
 pub enum Parts {}
 
-impl crate::parts::BoardParts for Parts {
-    type Wheel = WheelInputs;
-    type Selectors = Selectors;
-    type Leds = Leds;
-    type Can = CanInstance;
-    type Storage = FlashStorage;
-    type Watchdog = Watchdog;
-    type ResetCause = ResetCause;
-}
+crate::parts::board_parts!(
+    Parts: WheelInputs, Selectors, Leds, CanInstance, FlashStorage, Watchdog, ResetCause
+);
 
 /// Everything `init` sets up for the application.
 pub type Board = crate::parts::Board<Parts>;

@@ -43,15 +43,9 @@ const UNIQUE_ID: [u32; 3] = [u32::from_le_bytes(*b"QEMU"), 0, 0];
 /// (never, in RAM) or default node-ID 16 applies.
 pub enum Parts {}
 
-impl crate::parts::BoardParts for Parts {
-    type Wheel = WheelInputs;
-    type Selectors = Selectors;
-    type Leds = Leds;
-    type Can = CanInstance;
-    type Storage = RamStorage;
-    type Watchdog = watchdog::Watchdog;
-    type ResetCause = ResetCause;
-}
+crate::parts::board_parts!(
+    Parts: WheelInputs, Selectors, Leds, CanInstance, RamStorage, watchdog::Watchdog, ResetCause
+);
 
 /// Everything `init` sets up for the application.
 pub type Board = crate::parts::Board<Parts>;
