@@ -19,7 +19,6 @@ keyboard through QEMU's stimulus port:
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import select
 import shutil
@@ -32,29 +31,12 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-sys.path.insert(0, str(HERE))
+# This folder (sim_machine) and tools/ (the rig, the demo's key decoder) are not packages.
+sys.path[:0] = [str(HERE), str(ROOT / "tools")]
 
+from demo import ARROWS, split_keys  # noqa: E402  (the demo's keys, one decoder)
+from rig import Qemu, Stimulus  # noqa: E402
 from sim_machine import SimMachine  # noqa: E402
-
-
-def load(name: str, path: Path):
-    """A module of the repository by its path (the interop rig, the demo's key map)."""
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def load_rig():
-    """The interop suite's emulator and stimulus classes."""
-    return load("interop_rig", ROOT / "tests/interop/conftest.py")
-
-
-# The keyboard is read as `cargo xtask demo` reads it: the same keys, one decoder.
-_demo = load("handwheel_demo", ROOT / "tools/demo.py")
-ARROWS = _demo.ARROWS
-split_keys = _demo.split_keys
 
 
 STATES = {1: "E-stop", 2: "off", 3: "off", 4: "ON"}
@@ -170,17 +152,16 @@ def main() -> int:
     component = os.environ.get("HANDWHEEL_COMPONENT") or str(
         Path(sys.executable).parent / "canopen-handwheel")
     user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
-    rig = load_rig()
     logs = Path(os.environ.get("HANDWHEEL_LOG_DIR") or tempfile.mkdtemp(prefix="handwheel-"))
     logs.mkdir(parents=True, exist_ok=True)
-    qemu = rig.Qemu(logs / "qemu.log")
+    qemu = Qemu(logs / "qemu.log")
     cnc = stim = None
     try:
         print(f"starting QEMU and LinuxCNC (logs in {logs}) ...", flush=True)
         cnc = SimMachine(component, f"socket://127.0.0.1:{qemu.can_port}", logs / "linuxcnc.log",
                          user=user, auto_on=True)
         cnc.connect()
-        stim = rig.Stimulus(qemu.stim_port, qemu)
+        stim = Stimulus(qemu.stim_port, qemu)
         if args.script:
             return 0 if script(cnc, stim) else 1
         interactive(cnc, stim)

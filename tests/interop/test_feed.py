@@ -4,7 +4,7 @@ import time
 
 import pytest
 
-from conftest import (
+from rig import (
     AXES,
     EMCY,
     NMT_PRE_OPERATIONAL,

@@ -2,7 +2,7 @@
 
 import time
 
-from conftest import (
+from rig import (
     EMCY,
     HEARTBEAT,
     PRE_OPERATIONAL,

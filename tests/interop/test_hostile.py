@@ -6,7 +6,7 @@ import os
 import random
 import time
 
-from conftest import (
+from rig import (
     BOOTUP,
     EMCY,
     HEARTBEAT,

@@ -10,7 +10,7 @@ import canopen
 import pytest
 from canopen.lss import LssError, LssMaster
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT_RESET_COMMUNICATION,

@@ -4,7 +4,7 @@ import can
 import canopen
 import pytest
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT,

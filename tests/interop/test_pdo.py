@@ -1,6 +1,6 @@
 """Transmit PDOs: python-canopen's view of the mappings, re-mapping, when TPDOs flow."""
 
-from conftest import (
+from rig import (
     HEARTBEAT,
     NMT_PRE_OPERATIONAL,
     NMT_START,

@@ -6,7 +6,7 @@ import canopen
 import pytest
 from canopen.objectdictionary import ODVariable
 
-from conftest import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
+from rig import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
 
 # Objects whose value the firmware supplies at run time, not the EDS default.
 RUNTIME_VALUES = {

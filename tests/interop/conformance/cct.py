@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT_RESET_NODE,

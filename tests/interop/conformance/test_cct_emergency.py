@@ -1,6 +1,6 @@
 """CCT cases Emergency 01-06 against the handwheel (see docs/CONFORMANCE.md)."""
 
-from conftest import EMCY
+from rig import EMCY
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
 
 

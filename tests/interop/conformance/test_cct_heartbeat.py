@@ -6,7 +6,7 @@ import time
 import can
 import pytest
 
-from conftest import EMCY, HEARTBEAT, NMT_RESET_NODE, BOOTUP, PRE_OPERATIONAL, MasterHeartbeat
+from rig import EMCY, HEARTBEAT, NMT_RESET_NODE, BOOTUP, PRE_OPERATIONAL, MasterHeartbeat
 from cct import abort_of, count_between, dut, req, sdo_raw, shared_rig  # noqa: F401
 
 NO_GUARDING = "node guarding not implemented (0x100C/0x100D absent, remote frames ignored; checked in Guarding 01)"

@@ -5,7 +5,7 @@ SDO per state, and every NMT transition."""
 import canopen
 import pytest
 
-from conftest import (
+from rig import (
     BOOTUP, HEARTBEAT, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION, NMT_RESET_NODE,
     NMT_START, NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED, TPDO1,
 )

@@ -3,7 +3,7 @@
 
 import pytest
 
-from conftest import BOOTUP, HEARTBEAT, NMT_RESET_NODE
+from rig import BOOTUP, HEARTBEAT, NMT_RESET_NODE
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
 
 SAVE = b"save"

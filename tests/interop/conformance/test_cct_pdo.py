@@ -6,7 +6,7 @@ import time
 import can
 import pytest
 
-from conftest import NMT_PRE_OPERATIONAL, NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED
+from rig import NMT_PRE_OPERATIONAL, NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
 
 NO_RPDO = "the handwheel has no RPDO (0x1400..0x15FF / 0x1600..0x17FF absent, PDO 01)"
