@@ -234,13 +234,24 @@ class Demo:
 
 # Interactive mode ---------------------------------------------------------------------------
 
-KEYS_HELP = ("keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10\n"
-             "       x y z w v axis, 0 none, 1 2 3 = x1 x10 x100, e feed on/off, q quit\n"
-             "       (CNC axes in detents x multiplier)")
+KEYS_HELP = (
+    "keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10\n"
+    "       x y z w v axis, 0 none, 1 2 3 = x1 x10 x100, e feed on/off, q quit\n"
+    "       (CNC axes in detents x multiplier)"
+)
 
-ARROWS = {b"\x1b[A": 1, b"\x1b[C": 1, b"\x1b[B": -1, b"\x1b[D": -1,
-          b"\x1b[5~": 10, b"\x1b[6~": -10, b"\x1bOA": 1, b"\x1bOC": 1, b"\x1bOB": -1,
-          b"\x1bOD": -1}
+ARROWS = {
+    b"\x1b[A": 1,
+    b"\x1b[C": 1,
+    b"\x1b[B": -1,
+    b"\x1b[D": -1,
+    b"\x1b[5~": 10,
+    b"\x1b[6~": -10,
+    b"\x1bOA": 1,
+    b"\x1bOC": 1,
+    b"\x1bOB": -1,
+    b"\x1bOD": -1,
+}
 
 
 def split_keys(data: bytes) -> List[bytes]:
@@ -254,7 +265,7 @@ def split_keys(data: bytes) -> List[bytes]:
                 i += len(seq)
                 break
         else:
-            keys.append(data[i:i + 1])
+            keys.append(data[i : i + 1])
             i += 1
     return keys
 
@@ -305,8 +316,15 @@ def interactive(demo: Demo) -> None:
 
 # (axis, multiplier, detents): each step's motion, checked on the CNC's axes.
 TOUR = [
-    ("x", 1, 5), ("x", 1, -2), ("x", 10, 4), ("y", 100, -3), ("z", 1, 10),
-    ("off", 1, 3), ("w", 10, 2), ("v", 1, -1), ("x", 100, 1),
+    ("x", 1, 5),
+    ("x", 1, -2),
+    ("x", 10, 4),
+    ("y", 100, -3),
+    ("z", 1, 10),
+    ("off", 1, 3),
+    ("w", 10, 2),
+    ("v", 1, -1),
+    ("x", 100, 1),
 ]
 
 
@@ -346,18 +364,22 @@ def interrupt(_signum, _frame) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--script", action="store_true",
-                        help="run a scripted tour instead of reading the keyboard")
-    parser.add_argument("--pace", type=float, default=0.5,
-                        help="seconds between the tour's steps (default 0.5)")
+    parser.add_argument(
+        "--script", action="store_true", help="run a scripted tour instead of reading the keyboard"
+    )
+    parser.add_argument(
+        "--pace", type=float, default=0.5, help="seconds between the tour's steps (default 0.5)"
+    )
     args = parser.parse_args()
     if not args.script and not sys.stdin.isatty():
-        print("demo: the interactive mode reads keys from a terminal; use --script",
-              file=sys.stderr)
+        print(
+            "demo: the interactive mode reads keys from a terminal; use --script", file=sys.stderr
+        )
         return 2
 
-    log_path = Path(os.environ.get("HANDWHEEL_QEMU_LOG") or
-                    Path(tempfile.gettempdir()) / "handwheel-demo.log")
+    log_path = Path(
+        os.environ.get("HANDWHEEL_QEMU_LOG") or Path(tempfile.gettempdir()) / "handwheel-demo.log"
+    )
     log_path.parent.mkdir(parents=True, exist_ok=True)
     signal.signal(signal.SIGTERM, interrupt)
     demo = Demo(log_path)
@@ -370,8 +392,14 @@ def main() -> int:
         print("demo: node booted, Operational, feed enabled (0x2000 = 1), axis X x1")
         if args.script:
             status = 0 if tour(demo, args.pace) else 1
-            print("demo: tour " + ("finished, every step as expected" if status == 0
-                                   else "FAILED: a step did not move the CNC as expected"))
+            print(
+                "demo: tour "
+                + (
+                    "finished, every step as expected"
+                    if status == 0
+                    else "FAILED: a step did not move the CNC as expected"
+                )
+            )
         else:
             interactive(demo)
     except KeyboardInterrupt:

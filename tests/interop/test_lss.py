@@ -6,7 +6,6 @@ stored bit timing is only reported, by the log line every initialisation prints 
 node settings.
 """
 
-import canopen
 import pytest
 from canopen.lss import LssError, LssMaster
 
@@ -17,8 +16,6 @@ from rig import (
     NMT_RESET_NODE,
     NODE_ID,
     PRE_OPERATIONAL,
-    SDO_RX,
-    SDO_TX,
 )
 
 LSS_RESPONSE = 0x7E4

@@ -17,6 +17,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
+
 from rig import AXES, NMT, NODE_ID, FrameRecorder, Qemu, Stimulus
 from sim_machine import SimMachine
 from slcan_hub import SlcanHub
@@ -30,7 +31,8 @@ class Machine:
 
     def __init__(self, tmp: Path) -> None:
         component = os.environ.get("HANDWHEEL_COMPONENT") or str(
-            Path(sys.executable).parent / "canopen-handwheel")
+            Path(sys.executable).parent / "canopen-handwheel"
+        )
         user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
         self.qemu = Qemu(tmp / "qemu.log")
         self.hub = SlcanHub(self.qemu.can_port)
@@ -65,8 +67,11 @@ class Machine:
             time.sleep(0.05)
 
     def wait_pos(self, expected, timeout=10.0):
-        return self.wait(lambda s: all(abs(a - b) < TOL for a, b in zip(s["pos"], expected)),
-                         timeout, f"position {expected}")
+        return self.wait(
+            lambda s: all(abs(a - b) < TOL for a, b in zip(s["pos"], expected)),
+            timeout,
+            f"position {expected}",
+        )
 
     def assert_still(self, expected, duration=1.0):
         deadline = time.monotonic() + duration
@@ -86,8 +91,11 @@ class Machine:
         self.stim.axis(axis)
         self.stim.mult(mult)
         code = AXES[axis]
-        self.wait(lambda s: s["pins"]["axis"] == code and s["pins"]["multiplier"] == mult,
-                  5, f"selection {axis} x{mult}")
+        self.wait(
+            lambda s: s["pins"]["axis"] == code and s["pins"]["multiplier"] == mult,
+            5,
+            f"selection {axis} x{mult}",
+        )
 
     def ready_to_jog(self, axis: str) -> None:
         self.wait(lambda s: s["pins"][f"axis.{axis}.jog-enable"], 10, f"jog-enable {axis}")
@@ -98,8 +106,13 @@ class Machine:
         return mark
 
     def close(self) -> None:
-        for step in (self.cnc.stop, self.stim.close, self.network.disconnect, self.hub.close,
-                     self.qemu.stop):
+        for step in (
+            self.cnc.stop,
+            self.stim.close,
+            self.network.disconnect,
+            self.hub.close,
+            self.qemu.stop,
+        ):
             try:
                 step()
             except Exception as e:
@@ -112,8 +125,11 @@ def machine(tmp_path_factory):
     m = Machine(tmp)
     try:
         m.cnc.must("on")
-        m.wait(lambda s: s["pins"]["connected"] and s["pins"]["state"] == 5, 30,
-               "handwheel connected and Operational")
+        m.wait(
+            lambda s: s["pins"]["connected"] and s["pins"]["state"] == 5,
+            30,
+            "handwheel connected and Operational",
+        )
         yield m
     except BaseException:
         print("--- LinuxCNC log ---\n" + m.cnc.tail(80))

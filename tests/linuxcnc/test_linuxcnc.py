@@ -60,8 +60,11 @@ def test_nothing_moves_with_the_machine_off(machine):
     machine.ready_to_jog("x")
     start = machine.pos()
     machine.cnc.must("off")
-    machine.wait(lambda s: not s["pins"]["enable"] and not s["pins"]["feed-enabled"], 5,
-                 "feed off with the machine")
+    machine.wait(
+        lambda s: not s["pins"]["enable"] and not s["pins"]["feed-enabled"],
+        5,
+        "feed off with the machine",
+    )
     machine.stim.turn(5)
     machine.assert_still(start, 1.0)
     machine.cnc.must("on")
@@ -78,8 +81,11 @@ def test_nothing_moves_with_enable_false(machine):
     machine.halcmd("unlinkp", "handwheel.enable")
     machine.halcmd("setp", "handwheel.enable", "0")
     try:
-        machine.wait(lambda s: not s["pins"]["feed-enabled"]
-                     and not s["pins"]["axis.y.jog-enable"], 5, "feed off")
+        machine.wait(
+            lambda s: not s["pins"]["feed-enabled"] and not s["pins"]["axis.y.jog-enable"],
+            5,
+            "feed off",
+        )
         machine.stim.turn(9)
         machine.assert_still(start, 1.0)
     finally:
@@ -148,10 +154,18 @@ def test_killing_the_component_stops_the_feed(machine):
     mark = machine.frames.mark()
     os.kill(pid, signal.SIGKILL)
     # The device misses the master's heartbeat: EMCY 0x8130 and a record with bit 3.
-    machine.frames.wait_for(lambda f: f.id == EMCY and f.data[:2] == b"\x30\x81",
-                            since=mark, timeout=3, what="EMCY 0x8130")
-    rec = machine.frames.wait_for(lambda f: f.id == TPDO1 and f.data[6] & 0x08,
-                                  since=mark, timeout=3, what="record with master lost")
+    machine.frames.wait_for(
+        lambda f: f.id == EMCY and f.data[:2] == b"\x30\x81",
+        since=mark,
+        timeout=3,
+        what="EMCY 0x8130",
+    )
+    rec = machine.frames.wait_for(
+        lambda f: f.id == TPDO1 and f.data[6] & 0x08,
+        since=mark,
+        timeout=3,
+        what="record with master lost",
+    )
     assert not feed_record(rec)[3] & 0x01
     mark = machine.frames.mark()
     machine.stim.turn(4)

@@ -44,9 +44,7 @@ class Qemu:
         # "some-runner --can-port {can_port} --stim-port {stim_port}".
         template = os.environ.get("HANDWHEEL_QEMU_COMMAND")
         if template:
-            command = shlex.split(
-                template.format(can_port=self.can_port, stim_port=self.stim_port)
-            )
+            command = shlex.split(template.format(can_port=self.can_port, stim_port=self.stim_port))
         else:
             command = [
                 os.environ.get("CARGO", "cargo"),
@@ -75,7 +73,9 @@ class Qemu:
             tail = "\n".join(self.log().splitlines()[-40:])
             raise RuntimeError(f"`cargo xtask qemu` exited with {code}:\n{tail}")
 
-    def wait_for_log(self, pattern: str, timeout: float = FRAME_TIMEOUT, start: int = 0) -> re.Match:
+    def wait_for_log(
+        self, pattern: str, timeout: float = FRAME_TIMEOUT, start: int = 0
+    ) -> re.Match:
         """The first match of the regex `pattern` in the log after character `start`."""
         deadline = time.monotonic() + timeout
         rx = re.compile(pattern, re.MULTILINE)
@@ -100,8 +100,6 @@ class Qemu:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(10)
         self._log_file.close()
-
-
 
 
 class Stimulus:

@@ -34,8 +34,14 @@ from .frames import Frame, FrameRecorder, feed_record
 class Rig:
     """One emulated handwheel and the master's view of it."""
 
-    def __init__(self, qemu: Qemu, bus: can.BusABC, network: canopen.Network,
-                 frames: FrameRecorder, stim: Stimulus) -> None:
+    def __init__(
+        self,
+        qemu: Qemu,
+        bus: can.BusABC,
+        network: canopen.Network,
+        frames: FrameRecorder,
+        stim: Stimulus,
+    ) -> None:
         self.qemu = qemu
         self.bus = bus
         self.network = network
@@ -124,7 +130,9 @@ class Rig:
     def wait_position(self, position: int, since: int, timeout: float = FRAME_TIMEOUT) -> Frame:
         return self.frames.wait_for(
             lambda f: f.id == TPDO1 and len(f.data) == 8 and feed_record(f)[0] == position,
-            since=since, timeout=timeout, what=f"feed record at position {position}",
+            since=since,
+            timeout=timeout,
+            what=f"feed record at position {position}",
         )
 
 
@@ -132,8 +140,13 @@ class MasterHeartbeat:
     """The master's own heartbeat (0x700 + id), sent from a thread through
     `network.send_message`, which serialises it with the SDO client's frames."""
 
-    def __init__(self, network: canopen.Network, node_id: int = 1, period: float = 0.05,
-                 state: int = OPERATIONAL) -> None:
+    def __init__(
+        self,
+        network: canopen.Network,
+        node_id: int = 1,
+        period: float = 0.05,
+        state: int = OPERATIONAL,
+    ) -> None:
         self._network = network
         self._frame = (0x700 + node_id, bytes([state]))
         self._period = period
