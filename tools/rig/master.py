@@ -184,7 +184,7 @@ def open_rig(qemu: Qemu) -> Iterator[Rig]:
     stim = None
     try:
         # The firmware sends the boot-up at boot whether or not QEMU passed on python-can's
-        # `O`, so one wait, no re-sent `O` (test_connect.py checks exactly that).
+        # `O`, so one wait, no re-sent `O` (tests/interop/test_connect.py checks exactly that).
         frames.wait_id(HEARTBEAT, bytes([BOOTUP]))
         network[NODE_ID].sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT
         stim = Stimulus(qemu.stim_port, qemu)
