@@ -23,8 +23,6 @@ import os
 import select
 import shutil
 import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import termios
@@ -37,86 +35,34 @@ from typing import Dict, List, Optional, Tuple
 import can
 import canopen
 
-ROOT = Path(__file__).resolve().parents[1]
-EDS = ROOT / "eds" / "handwheel.eds"
-
-NODE_ID = 16
-TPDO1 = 0x180 + NODE_ID
-EMCY = 0x080 + NODE_ID
-HEARTBEAT = 0x700 + NODE_ID
+# The rig library (tools/rig), beside this script: emulator, stimulus, bus, constants.
+from rig import (
+    BOOTUP,
+    EDS,
+    EMCY,
+    HEARTBEAT,
+    NODE_ID,
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    SDO_TX,
+    STOPPED,
+    TPDO1,
+    TPDO2,
+    Qemu,
+    Stimulus,
+    connect_bus,
+)
 
 AXIS_NAMES = ["none", "X", "Y", "Z", "W", "V"]
-STATE_NAMES = {0x00: "boot-up", 0x04: "Stopped", 0x05: "Operational", 0x7F: "Pre-operational"}
+STATE_NAMES = {
+    BOOTUP: "boot-up",
+    STOPPED: "Stopped",
+    OPERATIONAL: "Operational",
+    PRE_OPERATIONAL: "Pre-operational",
+}
 STATUS_BITS = ["enabled", "encoder error", "steps dropped", "master lost", "turned unseen"]
 
-# The first start may build the firmware; `cargo xtask demo` has built it already.
-START_TIMEOUT = float(os.environ.get("HANDWHEEL_QEMU_START_TIMEOUT", 600))
 STEP_TIMEOUT = 5.0
-
-
-def free_ports(count: int) -> List[int]:
-    """`count` distinct free TCP ports on 127.0.0.1."""
-    socks = []
-    try:
-        for _ in range(count):
-            s = socket.socket()
-            s.bind(("127.0.0.1", 0))
-            socks.append(s)
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
-class Emulator:
-    """`cargo xtask qemu` in its own process group (so that the terminal's Ctrl-C reaches
-    this script only, which then ends the emulator itself)."""
-
-    def __init__(self, log_path: Path) -> None:
-        self.can_port, self.stim_port = free_ports(2)
-        self.log_path = log_path
-        self._log = open(log_path, "wb")
-        self.proc = subprocess.Popen(
-            [os.environ.get("CARGO", "cargo"), "xtask", "qemu",
-             "--can-port", str(self.can_port), "--stim-port", str(self.stim_port)],
-            cwd=ROOT, stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-
-    def check_alive(self) -> None:
-        code = self.proc.poll()
-        if code is not None:
-            tail = "\n".join(self.log_path.read_text(errors="replace").splitlines()[-20:])
-            raise RuntimeError(f"`cargo xtask qemu` exited with {code}:\n{tail}")
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGTERM)
-                self.proc.wait(10)
-            except ProcessLookupError:
-                pass
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(10)
-        self._log.close()
-
-
-class Stimulus:
-    """The stimulus line: one command out, one reply line back (`ok` once applied)."""
-
-    def __init__(self, port: int) -> None:
-        self._sock = socket.create_connection(("127.0.0.1", port), timeout=30)
-        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._reader = self._sock.makefile("rb")
-
-    def send(self, command: str) -> str:
-        self._sock.sendall(command.encode() + b"\n")
-        return self._reader.readline().decode(errors="replace").strip()
-
-    def close(self) -> None:
-        self._reader.close()
-        self._sock.close()
 
 
 class Cnc(can.Listener):
@@ -141,14 +87,14 @@ class Cnc(can.Listener):
         now = time.monotonic()
         data = bytes(msg.data)
         with self.lock:
-            if msg.arbitration_id in (TPDO1, EMCY, HEARTBEAT, 0x280 + NODE_ID, 0x580 + NODE_ID):
+            if msg.arbitration_id in (TPDO1, EMCY, HEARTBEAT, TPDO2, SDO_TX):
                 self._all_times.append(now)
             if msg.arbitration_id == TPDO1 and len(data) == 8:
                 self._tpdo_times.append(now)
                 self._feed(data)
             elif msg.arbitration_id == HEARTBEAT and len(data) == 1:
                 self.state = data[0]
-                if data[0] == 0x00:
+                if data[0] == BOOTUP:
                     self.booted = True
                     self._last_position = None  # reset node zeroes the position
             elif msg.arbitration_id == EMCY and len(data) == 8:
@@ -191,7 +137,7 @@ class Demo:
     """The booted node, its master and the wheel."""
 
     def __init__(self, log_path: Path) -> None:
-        self.emulator = Emulator(log_path)
+        self.emulator = Qemu(log_path)
         self.cnc = Cnc()
         self.bus: Optional[can.BusABC] = None
         self.network: Optional[canopen.Network] = None
@@ -200,18 +146,8 @@ class Demo:
         self.last_action = "-"
 
     def boot(self) -> None:
-        deadline = time.monotonic() + START_TIMEOUT
-        while True:  # QEMU listens once it is up, and starts the CPU when we connect
-            self.emulator.check_alive()
-            try:
-                self.bus = can.Bus(interface="slcan",
-                                   channel=f"socket://127.0.0.1:{self.emulator.can_port}",
-                                   sleep_after_open=0)
-                break
-            except (can.CanError, OSError):
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.1)
+        # QEMU listens once it is up, and starts the CPU when we connect.
+        self.bus = connect_bus(self.emulator)
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(self.cnc)
         self.node = self.network.add_node(NODE_ID, str(EDS))
@@ -221,7 +157,7 @@ class Demo:
         if not self.cnc.wait(lambda: self.cnc.booted, STEP_TIMEOUT):
             self.emulator.check_alive()
             raise RuntimeError("no boot-up frame from the node")
-        self.stim = Stimulus(self.emulator.stim_port)
+        self.stim = Stimulus(self.emulator.stim_port, self.emulator)
 
     def select(self, axis: str, multiplier: int) -> None:
         """Sets the switch lines and waits until the firmware's debounced selection (0x2010)
@@ -246,7 +182,7 @@ class Demo:
 
     def start_feed(self) -> None:
         self.node.nmt.state = "OPERATIONAL"
-        if not self.cnc.wait(lambda: self.cnc.state == 0x05, STEP_TIMEOUT):
+        if not self.cnc.wait(lambda: self.cnc.state == OPERATIONAL, STEP_TIMEOUT):
             raise RuntimeError("the node did not become Operational")
         self.set_feed(True)
 
@@ -298,13 +234,24 @@ class Demo:
 
 # Interactive mode ---------------------------------------------------------------------------
 
-KEYS_HELP = ("keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10\n"
-             "       x y z w v axis, 0 none, 1 2 3 = x1 x10 x100, e feed on/off, q quit\n"
-             "       (CNC axes in detents x multiplier)")
+KEYS_HELP = (
+    "keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10\n"
+    "       x y z w v axis, 0 none, 1 2 3 = x1 x10 x100, e feed on/off, q quit\n"
+    "       (CNC axes in detents x multiplier)"
+)
 
-ARROWS = {b"\x1b[A": 1, b"\x1b[C": 1, b"\x1b[B": -1, b"\x1b[D": -1,
-          b"\x1b[5~": 10, b"\x1b[6~": -10, b"\x1bOA": 1, b"\x1bOC": 1, b"\x1bOB": -1,
-          b"\x1bOD": -1}
+ARROWS = {
+    b"\x1b[A": 1,
+    b"\x1b[C": 1,
+    b"\x1b[B": -1,
+    b"\x1b[D": -1,
+    b"\x1b[5~": 10,
+    b"\x1b[6~": -10,
+    b"\x1bOA": 1,
+    b"\x1bOC": 1,
+    b"\x1bOB": -1,
+    b"\x1bOD": -1,
+}
 
 
 def split_keys(data: bytes) -> List[bytes]:
@@ -318,7 +265,7 @@ def split_keys(data: bytes) -> List[bytes]:
                 i += len(seq)
                 break
         else:
-            keys.append(data[i:i + 1])
+            keys.append(data[i : i + 1])
             i += 1
     return keys
 
@@ -369,8 +316,15 @@ def interactive(demo: Demo) -> None:
 
 # (axis, multiplier, detents): each step's motion, checked on the CNC's axes.
 TOUR = [
-    ("x", 1, 5), ("x", 1, -2), ("x", 10, 4), ("y", 100, -3), ("z", 1, 10),
-    ("off", 1, 3), ("w", 10, 2), ("v", 1, -1), ("x", 100, 1),
+    ("x", 1, 5),
+    ("x", 1, -2),
+    ("x", 10, 4),
+    ("y", 100, -3),
+    ("z", 1, 10),
+    ("off", 1, 3),
+    ("w", 10, 2),
+    ("v", 1, -1),
+    ("x", 100, 1),
 ]
 
 
@@ -410,18 +364,22 @@ def interrupt(_signum, _frame) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--script", action="store_true",
-                        help="run a scripted tour instead of reading the keyboard")
-    parser.add_argument("--pace", type=float, default=0.5,
-                        help="seconds between the tour's steps (default 0.5)")
+    parser.add_argument(
+        "--script", action="store_true", help="run a scripted tour instead of reading the keyboard"
+    )
+    parser.add_argument(
+        "--pace", type=float, default=0.5, help="seconds between the tour's steps (default 0.5)"
+    )
     args = parser.parse_args()
     if not args.script and not sys.stdin.isatty():
-        print("demo: the interactive mode reads keys from a terminal; use --script",
-              file=sys.stderr)
+        print(
+            "demo: the interactive mode reads keys from a terminal; use --script", file=sys.stderr
+        )
         return 2
 
-    log_path = Path(os.environ.get("HANDWHEEL_QEMU_LOG") or
-                    Path(tempfile.gettempdir()) / "handwheel-demo.log")
+    log_path = Path(
+        os.environ.get("HANDWHEEL_QEMU_LOG") or Path(tempfile.gettempdir()) / "handwheel-demo.log"
+    )
     log_path.parent.mkdir(parents=True, exist_ok=True)
     signal.signal(signal.SIGTERM, interrupt)
     demo = Demo(log_path)
@@ -434,8 +392,14 @@ def main() -> int:
         print("demo: node booted, Operational, feed enabled (0x2000 = 1), axis X x1")
         if args.script:
             status = 0 if tour(demo, args.pace) else 1
-            print("demo: tour " + ("finished, every step as expected" if status == 0
-                                   else "FAILED: a step did not move the CNC as expected"))
+            print(
+                "demo: tour "
+                + (
+                    "finished, every step as expected"
+                    if status == 0
+                    else "FAILED: a step did not move the CNC as expected"
+                )
+            )
         else:
             interactive(demo)
     except KeyboardInterrupt:

@@ -19,7 +19,6 @@ keyboard through QEMU's stimulus port:
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import select
 import shutil
@@ -32,34 +31,18 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-sys.path.insert(0, str(HERE))
+# This folder (sim_machine) and tools/ (the rig, the demo's key decoder) are not packages.
+sys.path[:0] = [str(HERE), str(ROOT / "tools")]
 
+from demo import ARROWS, split_keys  # noqa: E402  (the demo's keys, one decoder)
+from rig import Qemu, Stimulus  # noqa: E402
 from sim_machine import SimMachine  # noqa: E402
 
-
-def load(name: str, path: Path):
-    """A module of the repository by its path (the interop rig, the demo's key map)."""
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def load_rig():
-    """The interop suite's emulator and stimulus classes."""
-    return load("interop_rig", ROOT / "tests/interop/conftest.py")
-
-
-# The keyboard is read as `cargo xtask demo` reads it: the same keys, one decoder.
-_demo = load("handwheel_demo", ROOT / "tools/demo.py")
-ARROWS = _demo.ARROWS
-split_keys = _demo.split_keys
-
-
 STATES = {1: "E-stop", 2: "off", 3: "off", 4: "ON"}
-HELP = ("keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10, x y z w v axis, 0 none,\n"
-        "       1 2 3 = x1 x10 x100, m machine on/off, q quit")
+HELP = (
+    "keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10, x y z w v axis, 0 none,\n"
+    "       1 2 3 = x1 x10 x100, m machine on/off, q quit"
+)
 
 
 def view(status: dict, last: str) -> list:
@@ -148,18 +131,32 @@ def script(cnc: SimMachine, stim) -> bool:
         stim.send(f"axis {axis}")
         stim.send(f"mult {mult}")
         L = "xyz".index(axis)
-        wait_status(cnc, lambda s: s["pins"][f"axis.{axis}.jog-enable"]
-                    and s["pins"]["multiplier"] == mult, 10, f"{axis} x{mult}")
+        wait_status(
+            cnc,
+            lambda s, axis=axis, mult=mult: (
+                s["pins"][f"axis.{axis}.jog-enable"] and s["pins"]["multiplier"] == mult
+            ),
+            10,
+            f"{axis} x{mult}",
+        )
         stim.send(f"turn {detents}")
         expected[L] += detents * mult * 0.001
         try:
-            s = wait_status(cnc, lambda s: all(abs(a - b) < 1e-6
-                                               for a, b in zip(s["pos"], expected)), 10, "position")
+            s = wait_status(
+                cnc,
+                lambda s: all(abs(a - b) < 1e-6 for a, b in zip(s["pos"], expected)),
+                10,
+                "position",
+            )
             result = "ok"
         except RuntimeError:
             s, result, ok = cnc.must("status"), "WRONG", False
-        print(f"{axis.upper()} x{mult:<3} turn {detents:+d}: " + view(s, result)[1].strip()
-              + f"  ({result})", flush=True)
+        print(
+            f"{axis.upper()} x{mult:<3} turn {detents:+d}: "
+            + view(s, result)[1].strip()
+            + f"  ({result})",
+            flush=True,
+        )
     return ok
 
 
@@ -168,19 +165,24 @@ def main() -> int:
     p.add_argument("--script", action="store_true", help="a checked tour, then exit")
     args = p.parse_args()
     component = os.environ.get("HANDWHEEL_COMPONENT") or str(
-        Path(sys.executable).parent / "canopen-handwheel")
+        Path(sys.executable).parent / "canopen-handwheel"
+    )
     user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
-    rig = load_rig()
     logs = Path(os.environ.get("HANDWHEEL_LOG_DIR") or tempfile.mkdtemp(prefix="handwheel-"))
     logs.mkdir(parents=True, exist_ok=True)
-    qemu = rig.Qemu(logs / "qemu.log")
+    qemu = Qemu(logs / "qemu.log")
     cnc = stim = None
     try:
         print(f"starting QEMU and LinuxCNC (logs in {logs}) ...", flush=True)
-        cnc = SimMachine(component, f"socket://127.0.0.1:{qemu.can_port}", logs / "linuxcnc.log",
-                         user=user, auto_on=True)
+        cnc = SimMachine(
+            component,
+            f"socket://127.0.0.1:{qemu.can_port}",
+            logs / "linuxcnc.log",
+            user=user,
+            auto_on=True,
+        )
         cnc.connect()
-        stim = rig.Stimulus(qemu.stim_port, qemu)
+        stim = Stimulus(qemu.stim_port, qemu)
         if args.script:
             return 0 if script(cnc, stim) else 1
         interactive(cnc, stim)

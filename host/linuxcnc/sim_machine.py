@@ -65,9 +65,16 @@ def free_port() -> int:
 
 
 class SimMachine:
-    def __init__(self, component: str, channel: str, log_path: Path, interface: str = "slcan",
-                 user: Optional[str] = None, auto_on: bool = False,
-                 extra_args: str = "") -> None:
+    def __init__(
+        self,
+        component: str,
+        channel: str,
+        log_path: Path,
+        interface: str = "slcan",
+        user: Optional[str] = None,
+        auto_on: bool = False,
+        extra_args: str = "",
+    ) -> None:
         self.user = user
         self.agent_port = free_port()
         self.dir = Path(tempfile.mkdtemp(prefix="handwheel-sim-"))
@@ -75,27 +82,48 @@ class SimMachine:
             if f.is_file():
                 shutil.copy2(f, self.dir / f.name)
         ini = self.dir / INI
-        ini.write_text(set_ini(ini.read_text(), {
-            "HANDWHEEL": {"COMPONENT": component, "INTERFACE": interface, "CHANNEL": channel},
-            "HANDWHEEL_SIM": {"AGENT_PORT": str(self.agent_port),
-                              "AUTO_ON": "1" if auto_on else "0"},
-        }))
+        ini.write_text(
+            set_ini(
+                ini.read_text(),
+                {
+                    "HANDWHEEL": {
+                        "COMPONENT": component,
+                        "INTERFACE": interface,
+                        "CHANNEL": channel,
+                    },
+                    "HANDWHEEL_SIM": {
+                        "AGENT_PORT": str(self.agent_port),
+                        "AUTO_ON": "1" if auto_on else "0",
+                    },
+                },
+            )
+        )
         if extra_args:
             hal = self.dir / "handwheel.hal"
-            hal.write_text(hal.read_text().replace("--scale [HANDWHEEL]SCALE",
-                                                   f"--scale [HANDWHEEL]SCALE {extra_args}"))
+            hal.write_text(
+                hal.read_text().replace(
+                    "--scale [HANDWHEEL]SCALE", f"--scale [HANDWHEEL]SCALE {extra_args}"
+                )
+            )
         os.chmod(self.dir, 0o755)
         if user:
             shutil.chown(self.dir, user)
             for f in self.dir.iterdir():
                 shutil.chown(f, user)
         inner = f"linuxcnc {shlex.quote(str(ini))}"
-        shell = f"cd {shlex.quote(str(self.dir))} && exec script -qfec {shlex.quote(inner)} /dev/null"
+        shell = (
+            f"cd {shlex.quote(str(self.dir))} && exec script -qfec {shlex.quote(inner)} /dev/null"
+        )
         argv = ["su", user, "-s", "/bin/sh", "-c", shell] if user else ["sh", "-c", shell]
         self.log_path = log_path
         self._log = open(log_path, "wb")
-        self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=self._log,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
+        self.proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         self._sock: Optional[socket.socket] = None
         self._reader = None
 
@@ -112,10 +140,11 @@ class SimMachine:
                 self._sock = socket.create_connection(("127.0.0.1", self.agent_port), timeout=60)
                 self._reader = self._sock.makefile("rb")
                 return
-            except OSError:
+            except OSError as e:
                 if time.monotonic() > deadline:
-                    raise RuntimeError(f"LinuxCNC's display did not answer in {timeout} s:\n"
-                                       f"{self.tail()}")
+                    raise RuntimeError(
+                        f"LinuxCNC's display did not answer in {timeout} s:\n{self.tail()}"
+                    ) from e
                 time.sleep(0.2)
 
     def tail(self, lines: int = 60) -> str:
@@ -156,10 +185,18 @@ class SimMachine:
                     continue
             # Whatever LinuxCNC left (rtapi_app, HAL shared memory) goes with `halrun -U`.
             unload = "halrun -U"
-            argv = ["su", self.user, "-s", "/bin/sh", "-c", unload] if self.user else \
-                ["sh", "-c", unload]
-            subprocess.run(argv, stdin=subprocess.DEVNULL, stdout=self._log,
-                           stderr=subprocess.STDOUT, timeout=60)
+            argv = (
+                ["su", self.user, "-s", "/bin/sh", "-c", unload]
+                if self.user
+                else ["sh", "-c", unload]
+            )
+            subprocess.run(
+                argv,
+                stdin=subprocess.DEVNULL,
+                stdout=self._log,
+                stderr=subprocess.STDOUT,
+                timeout=60,
+            )
         if self._sock is not None:
             self._sock.close()
         self._log.close()

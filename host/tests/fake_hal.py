@@ -35,7 +35,7 @@ class component:  # noqa: N801 - the real module's name
         if t == HAL_BIT:
             assert isinstance(value, bool), (name, value)
         elif t == HAL_S32:
-            assert isinstance(value, int) and -2**31 <= value < 2**31, (name, value)
+            assert isinstance(value, int) and -(2**31) <= value < 2**31, (name, value)
         elif t == HAL_U32:
             assert isinstance(value, int) and 0 <= value < 2**32, (name, value)
         else:

@@ -22,26 +22,43 @@ def test_shipped_eds_is_the_repository_one():
     repo = ROOT / "eds" / "handwheel.eds"
     if not repo.exists():
         pytest.skip("not in the repository")
-    assert shipped.read_bytes() == repo.read_bytes(), "copy eds/handwheel.eds to host/src/canopen_handwheel/"
+    assert shipped.read_bytes() == repo.read_bytes(), (
+        "copy eds/handwheel.eds to host/src/canopen_handwheel/"
+    )
 
 
 def test_defaults_and_option_errors(capsys):
     a = component.parse_args([])
     assert (a.interface, a.channel, a.node, a.name, a.scale) == (
-        "socketcan", "can0", 16, "handwheel", 0.001)
+        "socketcan",
+        "can0",
+        16,
+        "handwheel",
+        0.001,
+    )
     cfg = component.config_from(a)
     assert (cfg.axes, cfg.master) == ("xyzwv", 1)
     assert cfg.consumer_timeout_ms == 500 and cfg.stale_after == pytest.approx(0.3)
-    for bad in (["--master-node", "16"], ["--axes", "xq"], ["--node", "0"],
-                ["--scale", "0"], ["--scale", "nan"], ["--scale", "inf"],
-                ["--heartbeat-ms", "5"], ["--event-timer-ms", "70000"]):
+    for bad in (
+        ["--master-node", "16"],
+        ["--axes", "xq"],
+        ["--node", "0"],
+        ["--scale", "0"],
+        ["--scale", "nan"],
+        ["--scale", "inf"],
+        ["--heartbeat-ms", "5"],
+        ["--event-timer-ms", "70000"],
+    ):
         with pytest.raises(SystemExit):
             component.parse_args(bad)
 
 
 def test_pins_have_the_table_types():
-    pins = component.HalPins(fake_hal, "hw", component.config_from(component.parse_args(
-        ["--axes", "xz", "--scale", "0.01"])))
+    pins = component.HalPins(
+        fake_hal,
+        "hw",
+        component.config_from(component.parse_args(["--axes", "xz", "--scale", "0.01"])),
+    )
     comp = pins.comp
     assert comp.is_ready and comp.name == "hw"
     assert comp.types["axis.x.jog-counts"] == "s32" and comp.dirs["enable"] == "in"
@@ -79,8 +96,10 @@ class Device:
 
     def record(self, position, axis=1, mult=1, status=0):
         self.seq = (self.seq + 1) & 0xFF
-        self.network.send_message(0x180 + NODE, (position & 0xFFFFFFFF).to_bytes(4, "little")
-                                  + bytes([axis, mult, status, self.seq]))
+        self.network.send_message(
+            0x180 + NODE,
+            (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, self.seq]),
+        )
 
     def close(self):
         self.network.disconnect()
@@ -106,11 +125,13 @@ def test_component_on_a_virtual_bus(tmp_path):
             made["comp"] = fake_hal.component(name)
             return made["comp"]
 
-    args = component.parse_args(["--interface", "virtual", "--channel", channel, "--axes", "xyz",
-                                 "--name", "hw"])
+    args = component.parse_args(
+        ["--interface", "virtual", "--channel", channel, "--axes", "xyz", "--name", "hw"]
+    )
     stop = threading.Event()
-    thread = threading.Thread(target=component.run, args=(args,), kwargs=dict(
-        hal_module=Hal(), stop=stop), daemon=True)
+    thread = threading.Thread(
+        target=component.run, args=(args,), kwargs=dict(hal_module=Hal(), stop=stop), daemon=True
+    )
     thread.start()
     try:
         # Heartbeat of master 1 first, then the consumer entry and NMT start.
@@ -165,11 +186,16 @@ def test_readme_pin_table_is_the_components():
     if not readme.exists():
         pytest.skip("not in the repository")
     text = readme.read_text()
-    section = text[text.index("## Use with LinuxCNC"):]
-    section = section[:section.index("\n## ", 5)]
-    rows = {line.split("|")[1].strip().strip("`"): (line.split("|")[2].strip(),
-                                                     line.split("|")[3].strip())
-            for line in section.splitlines() if line.startswith("| `N.")}
+    section = text[text.index("## Use with LinuxCNC") :]
+    section = section[: section.index("\n## ", 5)]
+    rows = {
+        line.split("|")[1].strip().strip("`"): (
+            line.split("|")[2].strip(),
+            line.split("|")[3].strip(),
+        )
+        for line in section.splitlines()
+        if line.startswith("| `N.")
+    }
     expected = {"N." + n.replace("{L}", "L"): (t, d) for n, t, d, _ in core.AXIS_PINS}
     expected.update({"N." + n: (t, d) for n, t, d, _ in core.COMPONENT_PINS})
     assert rows == expected

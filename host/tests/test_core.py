@@ -178,8 +178,17 @@ def test_unknown_axis_byte_is_bad_no_axis_and_a_baseline():
     assert r.counts()["x"] == 1
 
 
-@pytest.mark.parametrize("cob,data", [(TPDO1, b"\x00" * 7), (TPDO1, b"\x00" * 9), (TPDO1, b""),
-                                      (EMCY, b"\x30\x81"), (HB, b""), (HB, b"\x05\x00")])
+@pytest.mark.parametrize(
+    "cob,data",
+    [
+        (TPDO1, b"\x00" * 7),
+        (TPDO1, b"\x00" * 9),
+        (TPDO1, b""),
+        (EMCY, b"\x30\x81"),
+        (HB, b""),
+        (HB, b"\x05\x00"),
+    ],
+)
 def test_wrong_dlc_is_counted_and_ignored(cob, data):
     r = Run()
     r.record(0)
@@ -188,7 +197,10 @@ def test_wrong_dlc_is_counted_and_ignored(cob, data):
     after = r.c.pins()
     assert after.frames_bad == 1
     assert (after.position, after.emcy_code, after.state) == (
-        before.position, before.emcy_code, before.state)
+        before.position,
+        before.emcy_code,
+        before.state,
+    )
 
 
 def test_other_nodes_frames_are_ignored():
@@ -322,11 +334,20 @@ def test_make_config_checks_every_option():
     assert (cfg.master, cfg.axes, cfg.scale) == (1, "xz", -0.01)
     assert (cfg.heartbeat_period, cfg.consumer_timeout_ms) == (0.2, 1000)
     assert cfg.stale_after == pytest.approx(0.3)
-    for kwargs in [dict(scale=0.0), dict(scale=float("nan")), dict(scale=float("-inf")),
-                   dict(heartbeat_ms=9), dict(heartbeat_ms=10001), dict(event_timer_ms=9),
-                   dict(event_timer_ms=60001), dict(axes="xx"), dict(master=16)]:
-        args = dict(node=16, master=None, axes="xyz", scale=0.001, event_timer_ms=100,
-                    heartbeat_ms=100)
+    for kwargs in [
+        dict(scale=0.0),
+        dict(scale=float("nan")),
+        dict(scale=float("-inf")),
+        dict(heartbeat_ms=9),
+        dict(heartbeat_ms=10001),
+        dict(event_timer_ms=9),
+        dict(event_timer_ms=60001),
+        dict(axes="xx"),
+        dict(master=16),
+    ]:
+        args = dict(
+            node=16, master=None, axes="xyz", scale=0.001, event_timer_ms=100, heartbeat_ms=100
+        )
         args.update(kwargs)
         with pytest.raises(ValueError):
             core.make_config(**args)

@@ -1,6 +1,7 @@
 """Properties of the component's decisions over generated frame streams (hypothesis)."""
 
-from hypothesis import assume, given, settings, strategies as st
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from canopen_handwheel import core
 from canopen_handwheel.core import Config, Core, wrap_s32
@@ -30,8 +31,12 @@ step = st.one_of(
     record_step,
     st.tuples(st.just("hb"), st.sampled_from([0x00, 0x04, 0x05, 0x7F, 0x85]), st.floats(0, 0.2)),
     st.tuples(st.just("emcy"), st.binary(min_size=0, max_size=9), st.floats(0, 0.2)),
-    st.tuples(st.just("raw"), st.sampled_from([TPDO1, EMCY, HB, 0x000, 0x181, 0x590]),
-              st.binary(min_size=0, max_size=9), st.floats(0, 0.2)),
+    st.tuples(
+        st.just("raw"),
+        st.sampled_from([TPDO1, EMCY, HB, 0x000, 0x181, 0x590]),
+        st.binary(min_size=0, max_size=9),
+        st.floats(0, 0.2),
+    ),
     st.tuples(st.just("enable"), st.booleans()),
     st.tuples(st.just("tick"), st.floats(0, 1.0)),
     st.tuples(st.just("done"), st.booleans(), st.sampled_from([None, core.ABORT_DEVICE_STATE])),
@@ -104,8 +109,14 @@ def test_any_stream_is_safe(axes, steps):
         if on:
             assert c.enable and p.connected and p.feed_enabled and p.select[on[0]]
             assert c.state in (None, core.OPERATIONAL)
-        for v in list(p.jog_counts.values()) + [p.position, p.records_lost, p.frames_bad,
-                                                  p.axis, p.multiplier, p.state]:
+        for v in list(p.jog_counts.values()) + [
+            p.position,
+            p.records_lost,
+            p.frames_bad,
+            p.axis,
+            p.multiplier,
+            p.state,
+        ]:
             assert -(2**31) <= v < 2**31
         assert 0 <= p.emcy_code <= 0xFFFF
 

@@ -14,7 +14,7 @@ import canopen
 import pytest
 from can.interfaces.slcan import slcanBus
 
-from conftest import (
+from rig import (
     BOOTUP,
     EDS,
     FRAME_TIMEOUT,
@@ -22,14 +22,14 @@ from conftest import (
     NODE_ID,
     SDO_TIMEOUT,
     FrameRecorder,
-    _connect_bus,
+    connect_bus,
 )
 
 
 def _connect_and_check_bootup(qemu, **bus_kwargs):
-    # The README's snippet. `_connect_bus` retries only the TCP connection while QEMU is not
+    # The README's snippet. `connect_bus` retries only the TCP connection while QEMU is not
     # listening yet (the README has the user start the emulator first); it never re-sends `O`.
-    bus = _connect_bus(qemu, **bus_kwargs)
+    bus = connect_bus(qemu, **bus_kwargs)
     connected = time.monotonic()
     frames = FrameRecorder()
     network = canopen.Network(bus)

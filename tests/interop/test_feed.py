@@ -4,7 +4,7 @@ import time
 
 import pytest
 
-from conftest import (
+from rig import (
     AXES,
     EMCY,
     NMT_PRE_OPERATIONAL,
@@ -42,7 +42,8 @@ def test_no_pdo_feed_before_enable(rig):
     # The turning is reported (status bit 4) but the position never moves.
     seen = rig.frames.wait_for(
         lambda f: f.id == TPDO1 and feed_record(f)[3] & IGNORED_MOTION,
-        since=mark, what="feed record with the ignored-motion bit",
+        since=mark,
+        what="feed record with the ignored-motion bit",
     )
     assert feed_record(seen) == (0, 1, 1, IGNORED_MOTION, feed_record(seen)[4])
     assert all(r[0] == 0 for r in records(rig, mark)), "position never moves"
@@ -87,7 +88,8 @@ def test_axis_change_mid_turn_never_moves_the_other_axis(rig):
     rig.stim.turn(1)
     rig.frames.wait_for(
         lambda f: f.id == TPDO1 and feed_record(f)[:2] == (4, AXES["z"]),
-        since=mark, what="Z at position 4",
+        since=mark,
+        what="Z at position 4",
     )
     seen = records(rig, mark)
     on_x = [r[0] for r in seen if r[1] == AXES["x"]]
@@ -146,7 +148,8 @@ def test_illegal_jumps_are_counted_with_emcy(rig):
     assert len(emcy.data) == 8
     rig.frames.wait_for(
         lambda f: f.id == TPDO1 and feed_record(f)[3] == ENABLED | ENCODER_ERROR,
-        since=mark, what="feed record with the encoder-error bit",
+        since=mark,
+        what="feed record with the encoder-error bit",
     )
     assert rig.read_signed(0x6004) == 0, "illegal jumps never become motion"
     assert [e.code for e in rig.node.emcy.active] == [0x7300]
@@ -164,18 +167,21 @@ def test_paper_format_emits_the_documented_byte_stream(rig):
     rig.frames.wait_count(TPDO2, 4, since=mark)
     rig.stim.turn(-4)
     steps = rig.frames.wait_count(TPDO2, 8, since=mark)
-    assert [f.data for f in steps] == [bytes([b]) for b in
-                                       (0x08, 0x18, 0x28, 0x38, 0x40, 0x50, 0x60, 0x70)]
-    rig.frames.assert_none(lambda f: f.id == TPDO2, 0.3, since=steps[-1].seq + 1,
-                           what="more unit steps")
+    assert [f.data for f in steps] == [
+        bytes([b]) for b in (0x08, 0x18, 0x28, 0x38, 0x40, 0x50, 0x60, 0x70)
+    ]
+    rig.frames.assert_none(
+        lambda f: f.id == TPDO2, 0.3, since=steps[-1].seq + 1, what="more unit steps"
+    )
 
 
 def test_paper_format_backlog_is_bounded_at_x100(rig):
     mark = rig.feed_on("z", 100, unit_steps=True)
     rig.stim.turn(1)  # 100 unit steps, the backlog bound is 40
     steps = rig.frames.wait_count(TPDO2, 40, since=mark)
-    rig.frames.assert_none(lambda f: f.id == TPDO2, 0.5, since=steps[39].seq + 1,
-                           what="steps beyond the bound")
+    rig.frames.assert_none(
+        lambda f: f.id == TPDO2, 0.5, since=steps[39].seq + 1, what="steps beyond the bound"
+    )
     assert all(f.data[0] & 0x0F == 0x0A for f in steps), "axis Z (2), forward"
     assert rig.read(0x2040, 2) == 60, "dropped steps counted"
     assert rig.read(0x2030) & STEPS_DROPPED

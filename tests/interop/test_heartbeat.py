@@ -2,7 +2,7 @@
 
 import time
 
-from conftest import (
+from rig import (
     EMCY,
     HEARTBEAT,
     PRE_OPERATIONAL,
@@ -58,7 +58,8 @@ def test_master_heartbeat_loss_stops_the_feed_with_emcy_8130(rig):
         # The feed record reports the stop: disabled, master lost, position kept.
         rec = rig.frames.wait_for(
             lambda f: f.id == TPDO1 and feed_record(f)[3] & MASTER_LOST,
-            since=loss_mark, what="feed record with the master-lost bit",
+            since=loss_mark,
+            what="feed record with the master-lost bit",
         )
         assert feed_record(rec)[:4] == (1, 1, 1, MASTER_LOST)
         assert rig.read(0x2000) == 0

@@ -6,7 +6,7 @@ import os
 import random
 import time
 
-from conftest import (
+from rig import (
     BOOTUP,
     EMCY,
     HEARTBEAT,
@@ -160,11 +160,48 @@ def test_fuzzed_sdo_requests_get_one_reply_each(rig):
     rng = random.Random(seed)
     rig.nmt_and_heartbeat(NMT_START, OPERATIONAL)
     # Commands weighted towards what a server must parse; indices towards real objects.
-    commands = [0x20, 0x21, 0x22, 0x23, 0x27, 0x2B, 0x2F, 0x40, 0x60, 0x70, 0x00, 0x10,
-                0x80, 0xA0, 0xC0, 0xE0]
-    indices = [0x1000, 0x1001, 0x1003, 0x1005, 0x1008, 0x1010, 0x1011, 0x1014, 0x1016,
-               0x1017, 0x1018, 0x1800, 0x1801, 0x1A00, 0x1A01, 0x2000, 0x2001, 0x2010,
-               0x2020, 0x2030, 0x2040, 0x6004]
+    commands = [
+        0x20,
+        0x21,
+        0x22,
+        0x23,
+        0x27,
+        0x2B,
+        0x2F,
+        0x40,
+        0x60,
+        0x70,
+        0x00,
+        0x10,
+        0x80,
+        0xA0,
+        0xC0,
+        0xE0,
+    ]
+    indices = [
+        0x1000,
+        0x1001,
+        0x1003,
+        0x1005,
+        0x1008,
+        0x1010,
+        0x1011,
+        0x1014,
+        0x1016,
+        0x1017,
+        0x1018,
+        0x1800,
+        0x1801,
+        0x1A00,
+        0x1A01,
+        0x2000,
+        0x2001,
+        0x2010,
+        0x2020,
+        0x2030,
+        0x2040,
+        0x6004,
+    ]
     aborts = 0
     for i in range(SDO_FUZZ):
         cmd = rng.choice(commands) if rng.random() < 0.7 else rng.randrange(256)
@@ -184,7 +221,7 @@ def test_fuzzed_sdo_requests_get_one_reply_each(rig):
         try:
             rig.frames.wait_id(SDO_TX, since=mark, timeout=2)
         except AssertionError as e:
-            raise AssertionError(f"seed {seed}, request {i} {request.hex(' ')}: {e}")
+            raise AssertionError(f"seed {seed}, request {i} {request.hex(' ')}: {e}") from e
     # One reply per answered request: nothing more trickles in afterwards.
     time.sleep(0.3)
     replies = len(rig.frames.frames(SDO_TX))
@@ -209,7 +246,7 @@ def test_random_frames_on_every_identifier_leave_the_node_healthy(rig):
     try:
         _healthy(rig)
     except AssertionError as e:
-        raise AssertionError(f"seed {seed}: {e}")
+        raise AssertionError(f"seed {seed}: {e}") from e
 
 
 def test_receive_overrun_raises_emcy_8110_and_the_node_recovers(rig):
@@ -220,7 +257,7 @@ def test_receive_overrun_raises_emcy_8110_and_the_node_recovers(rig):
     mark = rig.frames.mark()
     rig.stim.cmd("stall 600")
     time.sleep(0.1)  # the task's next round (at most 5 ms away) starts the stall
-    for i in range(40):
+    for _ in range(40):
         # Heartbeats of unmonitored nodes: accepted by the filter, ignored by the engine.
         rig.network.send_message(0x77F, bytes([0x05]))
     emcy = rig.frames.wait_id(EMCY, since=mark, timeout=5)

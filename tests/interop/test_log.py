@@ -1,7 +1,7 @@
 """The decoded defmt log (QEMU semihosting -> defmt-print -> stderr of `cargo xtask qemu`)
 shows the engine's NMT transitions (`NMT {} -> {}` in crates/canopen-slave)."""
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT_PRE_OPERATIONAL,

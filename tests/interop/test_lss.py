@@ -6,19 +6,16 @@ stored bit timing is only reported, by the log line every initialisation prints 
 node settings.
 """
 
-import canopen
 import pytest
 from canopen.lss import LssError, LssMaster
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT_RESET_COMMUNICATION,
     NMT_RESET_NODE,
     NODE_ID,
     PRE_OPERATIONAL,
-    SDO_RX,
-    SDO_TX,
 )
 
 LSS_RESPONSE = 0x7E4

@@ -4,7 +4,7 @@ import can
 import canopen
 import pytest
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT,
@@ -142,4 +142,3 @@ def test_29_bit_and_remote_frames_are_ignored(rig):
     assert rig.read(0x1000) == 0
     hb = rig.frames.wait_id(HEARTBEAT, since=mark, timeout=3)
     assert hb.data == bytes([PRE_OPERATIONAL])
-

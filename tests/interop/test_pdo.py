@@ -1,6 +1,6 @@
 """Transmit PDOs: python-canopen's view of the mappings, re-mapping, when TPDOs flow."""
 
-from conftest import (
+from rig import (
     HEARTBEAT,
     NMT_PRE_OPERATIONAL,
     NMT_START,
@@ -58,12 +58,16 @@ def test_no_tpdo_outside_operational_and_tpdo1_on_entry(rig):
     assert all(0.03 < g < 0.3 for g in gaps), f"event timer gaps {gaps}"
     assert not rig.frames.frames(TPDO2, since=mark), "TPDO2 carries events only"
     # Stopped and Pre-operational: PDOs stop.
-    for command, state in [(NMT_STOP, STOPPED), (NMT_START, OPERATIONAL),
-                           (NMT_PRE_OPERATIONAL, PRE_OPERATIONAL)]:
+    for command, state in [
+        (NMT_STOP, STOPPED),
+        (NMT_START, OPERATIONAL),
+        (NMT_PRE_OPERATIONAL, PRE_OPERATIONAL),
+    ]:
         hb = rig.nmt_and_heartbeat(command, state)
         if state != OPERATIONAL:
-            rig.frames.assert_none(lambda f: f.id == TPDO1, 0.4, since=hb.seq + 1,
-                                   what="PDOs outside Operational")
+            rig.frames.assert_none(
+                lambda f: f.id == TPDO1, 0.4, since=hb.seq + 1, what="PDOs outside Operational"
+            )
 
 
 def test_remapping_tpdo1_by_the_cia_procedure(rig):
@@ -102,8 +106,9 @@ def test_remapping_tpdo1_by_the_cia_procedure(rig):
 
 def test_mapping_errors_while_remapping(rig):
     rig.write(0x1800, 1, 0x80000000 | TPDO1, 4)
-    assert rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")) == 0x08000022, \
+    assert rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")) == 0x08000022, (
         "entries locked until sub0 = 0"
+    )
     rig.write(0x1A00, 0, 0, 1)
     for entry, code in [
         (0x70000020, 0x06020000),  # no such object

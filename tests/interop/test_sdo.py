@@ -3,10 +3,9 @@ transfers. Abort codes are those of the CiA 301 table in shared/docs/canopen-ref
 and of crates/canopen-slave's tests."""
 
 import canopen
-import pytest
 from canopen.objectdictionary import ODVariable
 
-from conftest import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
+from rig import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
 
 # Objects whose value the firmware supplies at run time, not the EDS default.
 RUNTIME_VALUES = {
@@ -120,16 +119,28 @@ def test_heartbeat_time_write_restarts_the_timer(rig):
 def test_conformance_table_aborts(rig):
     """The stimuli of the CiA conformance table and the abort each must give."""
     cases = [
-        ("write 0x1000:00 (read-only)", lambda: rig.write_abort(0x1000, 0, b"\x01\x02\x03\x04"), 0x06010002),
+        (
+            "write 0x1000:00 (read-only)",
+            lambda: rig.write_abort(0x1000, 0, b"\x01\x02\x03\x04"),
+            0x06010002,
+        ),
         ("read 0x1000:01 (no such sub)", lambda: rig.read_abort(0x1000, 1), 0x06090011),
         ("read 0x1004:00 (no such object)", lambda: rig.read_abort(0x1004, 0), 0x06020000),
-        ("4-byte write to a U8", lambda: rig.write_abort(0x2000, 0, b"\x01\x00\x00\x00"), 0x06070012),
+        (
+            "4-byte write to a U8",
+            lambda: rig.write_abort(0x2000, 0, b"\x01\x00\x00\x00"),
+            0x06070012,
+        ),
         ("1-byte write to a U32", lambda: rig.write_abort(0x1016, 1, b"\x01"), 0x06070013),
         ("1-byte write to a U16", lambda: rig.write_abort(0x1017, 0, b"\x01"), 0x06070013),
         ("U8 above its range", lambda: rig.write_abort(0x2000, 0, b"\x02"), 0x06090031),
         ("U8 below its range", lambda: rig.write_abort(0x2020, 3, b"\x00"), 0x06090032),
         ("U8 invalid in range", lambda: rig.write_abort(0x2020, 3, b"\x03"), 0x06090030),
-        ("U16 above its range", lambda: rig.write_abort(0x2040, 3, (1001).to_bytes(2, "little")), 0x06090031),
+        (
+            "U16 above its range",
+            lambda: rig.write_abort(0x2040, 3, (1001).to_bytes(2, "little")),
+            0x06090031,
+        ),
         ("U16 below its range", lambda: rig.write_abort(0x2040, 3, b"\x00\x00"), 0x06090032),
         ("write a ro object", lambda: rig.write_abort(0x6004, 0, b"\x00\x00\x00\x00"), 0x06010002),
         ("write a ro U8", lambda: rig.write_abort(0x2030, 0, b"\x00"), 0x06010002),
@@ -140,12 +151,32 @@ def test_conformance_table_aborts(rig):
         ("read 0x1003:1 with no errors", lambda: rig.read_abort(0x1003, 1), 0x08000024),
         ("write 0x1003:0 = 1", lambda: rig.write_abort(0x1003, 0, b"\x01"), 0x06090030),
         ("feed enable in Pre-operational", lambda: rig.write_abort(0x2000, 0, b"\x01"), 0x08000022),
-        ("TPDO1 CAN-ID change while valid", lambda: rig.write_abort(0x1800, 1, (0x191).to_bytes(4, "little")), 0x06090030),
-        ("TPDO1 inhibit time while valid", lambda: rig.write_abort(0x1800, 3, (50).to_bytes(2, "little")), 0x06090030),
+        (
+            "TPDO1 CAN-ID change while valid",
+            lambda: rig.write_abort(0x1800, 1, (0x191).to_bytes(4, "little")),
+            0x06090030,
+        ),
+        (
+            "TPDO1 inhibit time while valid",
+            lambda: rig.write_abort(0x1800, 3, (50).to_bytes(2, "little")),
+            0x06090030,
+        ),
         ("transmission type 241", lambda: rig.write_abort(0x1800, 2, b"\xf1"), 0x06090030),
-        ("mapping entry while the PDO is valid", lambda: rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")), 0x08000022),
-        ("mapping count while the PDO is valid", lambda: rig.write_abort(0x1A00, 0, b"\x00"), 0x08000022),
-        ("EMCY COB-ID change while valid", lambda: rig.write_abort(0x1014, 0, (0x91).to_bytes(4, "little")), 0x06090030),
+        (
+            "mapping entry while the PDO is valid",
+            lambda: rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")),
+            0x08000022,
+        ),
+        (
+            "mapping count while the PDO is valid",
+            lambda: rig.write_abort(0x1A00, 0, b"\x00"),
+            0x08000022,
+        ),
+        (
+            "EMCY COB-ID change while valid",
+            lambda: rig.write_abort(0x1014, 0, (0x91).to_bytes(4, "little")),
+            0x06090030,
+        ),
     ]
     wrong = []
     for what, action, want in cases:

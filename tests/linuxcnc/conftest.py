@@ -9,7 +9,6 @@ Environment (set by `cargo xtask test`):
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import sys
 import time
@@ -19,29 +18,10 @@ import can
 import canopen
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "host" / "linuxcnc"))
+from rig import AXES, NMT, NODE_ID, FrameRecorder, Qemu, Stimulus
+from sim_machine import SimMachine
+from slcan_hub import SlcanHub
 
-from sim_machine import SimMachine  # noqa: E402
-from slcan_hub import SlcanHub  # noqa: E402
-
-
-def _load_interop():
-    """The interop suite's emulator, stimulus and recorder classes (not its fixtures)."""
-    spec = importlib.util.spec_from_file_location(
-        "interop_rig", ROOT / "tests" / "interop" / "conftest.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-interop = _load_interop()
-NODE = 16
-EMCY = 0x080 + NODE
-TPDO1 = 0x180 + NODE
-HEARTBEAT = 0x700 + NODE
-MASTER_HEARTBEAT = 0x701
 SCALE = 0.001
 TOL = 1e-6
 
@@ -51,16 +31,17 @@ class Machine:
 
     def __init__(self, tmp: Path) -> None:
         component = os.environ.get("HANDWHEEL_COMPONENT") or str(
-            Path(sys.executable).parent / "canopen-handwheel")
+            Path(sys.executable).parent / "canopen-handwheel"
+        )
         user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
-        self.qemu = interop.Qemu(tmp / "qemu.log")
+        self.qemu = Qemu(tmp / "qemu.log")
         self.hub = SlcanHub(self.qemu.can_port)
         self.bus = can.Bus(interface="slcan", channel=self.hub.channel, sleep_after_open=0)
-        self.frames = interop.FrameRecorder()
+        self.frames = FrameRecorder()
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(self.frames)
         self.network.connect()
-        self.stim = interop.Stimulus(self.qemu.stim_port, self.qemu)
+        self.stim = Stimulus(self.qemu.stim_port, self.qemu)
         self.cnc = SimMachine(component, self.hub.channel, tmp / "linuxcnc.log", user=user)
         self.cnc.connect()
 
@@ -86,8 +67,11 @@ class Machine:
             time.sleep(0.05)
 
     def wait_pos(self, expected, timeout=10.0):
-        return self.wait(lambda s: all(abs(a - b) < TOL for a, b in zip(s["pos"], expected)),
-                         timeout, f"position {expected}")
+        return self.wait(
+            lambda s: all(abs(a - b) < TOL for a, b in zip(s["pos"], expected)),
+            timeout,
+            f"position {expected}",
+        )
 
     def assert_still(self, expected, duration=1.0):
         deadline = time.monotonic() + duration
@@ -106,21 +90,29 @@ class Machine:
         feed on (and the axis' jog-enable when the machine allows it)."""
         self.stim.axis(axis)
         self.stim.mult(mult)
-        code = interop.AXES[axis]
-        self.wait(lambda s: s["pins"]["axis"] == code and s["pins"]["multiplier"] == mult,
-                  5, f"selection {axis} x{mult}")
+        code = AXES[axis]
+        self.wait(
+            lambda s: s["pins"]["axis"] == code and s["pins"]["multiplier"] == mult,
+            5,
+            f"selection {axis} x{mult}",
+        )
 
     def ready_to_jog(self, axis: str) -> None:
         self.wait(lambda s: s["pins"][f"axis.{axis}.jog-enable"], 10, f"jog-enable {axis}")
 
     def nmt(self, command: int) -> int:
         mark = self.frames.mark()
-        self.network.send_message(0x000, bytes([command, NODE]))
+        self.network.send_message(NMT, bytes([command, NODE_ID]))
         return mark
 
     def close(self) -> None:
-        for step in (self.cnc.stop, self.stim.close, self.network.disconnect, self.hub.close,
-                     self.qemu.stop):
+        for step in (
+            self.cnc.stop,
+            self.stim.close,
+            self.network.disconnect,
+            self.hub.close,
+            self.qemu.stop,
+        ):
             try:
                 step()
             except Exception as e:
@@ -133,8 +125,11 @@ def machine(tmp_path_factory):
     m = Machine(tmp)
     try:
         m.cnc.must("on")
-        m.wait(lambda s: s["pins"]["connected"] and s["pins"]["state"] == 5, 30,
-               "handwheel connected and Operational")
+        m.wait(
+            lambda s: s["pins"]["connected"] and s["pins"]["state"] == 5,
+            30,
+            "handwheel connected and Operational",
+        )
         yield m
     except BaseException:
         print("--- LinuxCNC log ---\n" + m.cnc.tail(80))

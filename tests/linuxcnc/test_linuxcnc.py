@@ -11,9 +11,8 @@ import re
 import signal
 import time
 
-from conftest import EMCY, SCALE, TPDO1, interop
-
-NMT_RESET_NODE = 0x81
+from conftest import SCALE
+from rig import BOOTUP, EMCY, HEARTBEAT, NMT_RESET_NODE, TPDO1, feed_record
 
 
 def moved(pos, axis, distance):
@@ -61,8 +60,11 @@ def test_nothing_moves_with_the_machine_off(machine):
     machine.ready_to_jog("x")
     start = machine.pos()
     machine.cnc.must("off")
-    machine.wait(lambda s: not s["pins"]["enable"] and not s["pins"]["feed-enabled"], 5,
-                 "feed off with the machine")
+    machine.wait(
+        lambda s: not s["pins"]["enable"] and not s["pins"]["feed-enabled"],
+        5,
+        "feed off with the machine",
+    )
     machine.stim.turn(5)
     machine.assert_still(start, 1.0)
     machine.cnc.must("on")
@@ -79,8 +81,11 @@ def test_nothing_moves_with_enable_false(machine):
     machine.halcmd("unlinkp", "handwheel.enable")
     machine.halcmd("setp", "handwheel.enable", "0")
     try:
-        machine.wait(lambda s: not s["pins"]["feed-enabled"]
-                     and not s["pins"]["axis.y.jog-enable"], 5, "feed off")
+        machine.wait(
+            lambda s: not s["pins"]["feed-enabled"] and not s["pins"]["axis.y.jog-enable"],
+            5,
+            "feed off",
+        )
         machine.stim.turn(9)
         machine.assert_still(start, 1.0)
     finally:
@@ -123,7 +128,7 @@ def test_device_reset_causes_no_jump(machine):
     after = moved(start, "x", 3 * 100 * SCALE)
     machine.wait_pos(after)
     mark = machine.nmt(NMT_RESET_NODE)  # position back to 0 on the device
-    machine.frames.wait_id(0x700 + 16, bytes([0]), since=mark)
+    machine.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
     # The component starts it again, re-arms the heartbeat watch, enables the feed.
     machine.ready_to_jog("x")
     machine.assert_still(after, 0.5)
@@ -149,14 +154,22 @@ def test_killing_the_component_stops_the_feed(machine):
     mark = machine.frames.mark()
     os.kill(pid, signal.SIGKILL)
     # The device misses the master's heartbeat: EMCY 0x8130 and a record with bit 3.
-    machine.frames.wait_for(lambda f: f.id == EMCY and f.data[:2] == b"\x30\x81",
-                            since=mark, timeout=3, what="EMCY 0x8130")
-    rec = machine.frames.wait_for(lambda f: f.id == TPDO1 and f.data[6] & 0x08,
-                                  since=mark, timeout=3, what="record with master lost")
-    assert not interop.feed_record(rec)[3] & 0x01
+    machine.frames.wait_for(
+        lambda f: f.id == EMCY and f.data[:2] == b"\x30\x81",
+        since=mark,
+        timeout=3,
+        what="EMCY 0x8130",
+    )
+    rec = machine.frames.wait_for(
+        lambda f: f.id == TPDO1 and f.data[6] & 0x08,
+        since=mark,
+        timeout=3,
+        what="record with master lost",
+    )
+    assert not feed_record(rec)[3] & 0x01
     mark = machine.frames.mark()
     machine.stim.turn(4)
     time.sleep(0.3)
     recs = machine.frames.frames(TPDO1, since=mark)
-    assert recs and all(interop.feed_record(f)[0] == interop.feed_record(rec)[0] for f in recs)
+    assert recs and all(feed_record(f)[0] == feed_record(rec)[0] for f in recs)
     machine.assert_still(start, 0.5)

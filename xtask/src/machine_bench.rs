@@ -3,10 +3,10 @@
 //! interrupt and of the SDO path, and for the worst-case stack depth.
 //!
 //! The Python side runs in its own venv (`target/machine-bench-venv`, from
-//! `tools/machine-bench/requirements.txt`), first its unit tests, then the benchmark. The
-//! benchmark prints the CPU figures itself and writes the stack figures and the wheel edge's
-//! two limits (its worst cycles, its worst latency to the port read) to a small tab-separated
-//! file that this module parses, prints and checks against the budgets.
+//! `tools/machine-bench/requirements.txt`), first its unit tests (pytest), then the
+//! benchmark. The benchmark prints the CPU figures itself and writes the stack figures and
+//! the wheel edge's two limits (its worst cycles, its worst latency to the port read) to a
+//! small tab-separated file that this module parses, prints and checks against the budgets.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -16,7 +16,7 @@ use crate::pyenv;
 
 /// The pinned requirements, relative to the workspace root.
 const REQUIREMENTS: &str = "tools/machine-bench/requirements.txt";
-/// The benchmark's folder (its unit tests are `test_*.py` there).
+/// The benchmark's folder (its unit tests, run by pytest, are `test_*.py` there).
 const DIR: &str = "tools/machine-bench";
 /// The benchmark script.
 const SCRIPT: &str = "tools/machine-bench/bench.py";
@@ -264,18 +264,10 @@ pub fn run(
     quiet: bool,
 ) -> Result<MachineReport, String> {
     let python = pyenv::ensure_from(&root.join(REQUIREMENTS), &venv_dir(target_dir))?;
+    // pytest, as every Python test here (no cache folder in the source tree).
     let mut unit = Command::new(&python);
-    unit.args([
-        "-m",
-        "unittest",
-        "discover",
-        "-q",
-        "-s",
-        DIR,
-        "-p",
-        "test_*.py",
-    ])
-    .current_dir(root);
+    unit.args(["-m", "pytest", "-q", "-p", "no:cacheprovider", DIR])
+        .current_dir(root);
     pyenv::run(&mut unit)?;
     let out_dir = target_dir.join("machine-bench");
     std::fs::create_dir_all(&out_dir)

@@ -39,6 +39,7 @@ tasks:
   qemu --can-port <P> --stim-port <Q>   build the QEMU variant if needed and run it: SLCAN on
                                         tcp:127.0.0.1:P (waits for the client), stimulus on
                                         tcp:127.0.0.1:Q, decoded defmt log on stderr
+  lint                                  ruff check and ruff format --check over all Python
   interop [pytest args]                 only the interop suite (venv, QEMU variant, pytest)
   host [pytest args]                    only the LinuxCNC component's unit and property tests
   linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the QEMU handwheel in the
@@ -57,6 +58,7 @@ fn main() -> ExitCode {
         Some("test") => test(),
         Some("fw") => firmware_build(),
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
+        Some("lint") => python_lint(),
         Some("interop") => interop(rest),
         Some("host") => host_tests(rest),
         Some("linuxcnc") => linuxcnc_console(rest),
@@ -80,6 +82,7 @@ fn main() -> ExitCode {
 fn test() -> Result<(), String> {
     let started = Instant::now();
     cargo(&["fmt", "--all", "--", "--check"])?;
+    python_lint()?;
     cargo(&["test", "--locked"])?;
     host_tests(&[])?;
     cargo(&[
@@ -353,6 +356,31 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     } else {
         Err(format!("the interop suite failed ({status})"))
     }
+}
+
+/// `ruff check` and `ruff format --check` over all of the project's Python (tests/, tools/,
+/// host/; rules in ruff.toml), with the ruff pinned in `tools/lint/requirements.txt`, in its
+/// own venv (`target/lint-venv`).
+fn python_lint() -> Result<(), String> {
+    let root = workspace_root();
+    let python = pyenv::ensure_from(
+        &root.join(pyenv::LINT_REQUIREMENTS),
+        &target_dir().join("lint-venv"),
+    )?;
+    for check in [&["check"][..], &["format", "--check"]] {
+        let mut ruff = Command::new(&python);
+        ruff.args(["-m", "ruff"])
+            .args(check)
+            .args(pyenv::LINT_PATHS)
+            .current_dir(&root);
+        pyenv::run(&mut ruff).map_err(|e| {
+            format!(
+                "Python lint: {e}\n(fix with target/lint-venv/bin/ruff format and ruff check \
+                 --fix; README, \"Python lint\")"
+            )
+        })?;
+    }
+    Ok(())
 }
 
 /// The host component's unit and property tests (`host/tests`) in `target/host-venv`, made

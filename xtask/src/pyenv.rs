@@ -1,6 +1,7 @@
 //! The Python environments: the interop suite's venv in `target/interop-venv` made from
 //! `tests/interop/requirements.txt` (pinned python-can, canopen, pyserial, pytest), and any
-//! other pinned requirements file through [`ensure_from`] (the machine benchmark's).
+//! other pinned requirements file through [`ensure_from`] (the machine benchmark's, the
+//! component's, the linter's).
 //!
 //! The venv is rebuilt only when the requirements file or the interpreter changes: a stamp
 //! file in the venv records a hash of both, and is written last, so an interrupted install
@@ -20,6 +21,10 @@ pub const SUITE: &str = "tests/interop";
 pub const HOST_REQUIREMENTS: &str = "host/requirements.txt";
 /// The host component's package folder (pyproject.toml, its unit tests).
 pub const HOST_PACKAGE: &str = "host";
+/// The pinned Python linter and formatter (ruff; its rules are in `ruff.toml`).
+pub const LINT_REQUIREMENTS: &str = "tools/lint/requirements.txt";
+/// What ruff checks: all of the project's Python, relative to the workspace root.
+pub const LINT_PATHS: &[&str] = &["tests", "tools", "host"];
 /// Stamp file inside the venv.
 const STAMP: &str = "requirements.stamp";
 

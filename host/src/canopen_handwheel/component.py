@@ -43,29 +43,58 @@ def parse_args(argv=None) -> argparse.Namespace:
         "[options]",
     )
     p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan)")
-    p.add_argument("--channel", default="can0",
-                   help="python-can channel (can0; for slcan a serial port or socket://host:port)")
-    p.add_argument("--bitrate", type=int, default=None,
-                   help="bit rate for interfaces that set it (default: leave it as it is)")
+    p.add_argument(
+        "--channel",
+        default="can0",
+        help="python-can channel (can0; for slcan a serial port or socket://host:port)",
+    )
+    p.add_argument(
+        "--bitrate",
+        type=int,
+        default=None,
+        help="bit rate for interfaces that set it (default: leave it as it is)",
+    )
     p.add_argument("--node", type=int, default=16, help="the handwheel's node-ID (16)")
     p.add_argument("--name", default="handwheel", help="HAL prefix (handwheel)")
-    p.add_argument("--axes", default=core.DEVICE_AXES,
-                   help="LinuxCNC axis letters for switch positions 1..5 (xyzwv)")
-    p.add_argument("--scale", type=float, default=0.001,
-                   help="machine units per multiplied unit (0.001)")
-    p.add_argument("--master-node", type=int, default=None,
-                   help="node-ID whose heartbeat the component produces (1, or 2 if --node is 1)")
+    p.add_argument(
+        "--axes",
+        default=core.DEVICE_AXES,
+        help="LinuxCNC axis letters for switch positions 1..5 (xyzwv)",
+    )
+    p.add_argument(
+        "--scale", type=float, default=0.001, help="machine units per multiplied unit (0.001)"
+    )
+    p.add_argument(
+        "--master-node",
+        type=int,
+        default=None,
+        help="node-ID whose heartbeat the component produces (1, or 2 if --node is 1)",
+    )
     p.add_argument("--eds", default=None, help="EDS of the device (the shipped handwheel.eds)")
-    p.add_argument("--heartbeat-ms", type=int, default=100,
-                   help="period of the component's heartbeat (100); the device is told to "
-                   "stop the feed after 5 periods without it")
-    p.add_argument("--event-timer-ms", type=int, default=100,
-                   help="the device's TPDO1 event timer 0x1800:5 (100): no record for 3 "
-                   "periods means disconnected")
+    p.add_argument(
+        "--heartbeat-ms",
+        type=int,
+        default=100,
+        help="period of the component's heartbeat (100); the device is told to "
+        "stop the feed after 5 periods without it",
+    )
+    p.add_argument(
+        "--event-timer-ms",
+        type=int,
+        default=100,
+        help="the device's TPDO1 event timer 0x1800:5 (100): no record for 3 "
+        "periods means disconnected",
+    )
     args = p.parse_args(argv)
     try:
-        args.config = core.make_config(args.node, args.master_node, args.axes, args.scale,
-                                       args.event_timer_ms, args.heartbeat_ms)
+        args.config = core.make_config(
+            args.node,
+            args.master_node,
+            args.axes,
+            args.scale,
+            args.event_timer_ms,
+            args.heartbeat_ms,
+        )
     except ValueError as e:
         p.error(str(e))
     return args
@@ -79,8 +108,7 @@ class HalPins:
     """The HAL component and its pins, as `core.pin_table` names them."""
 
     def __init__(self, hal, name: str, cfg: core.Config) -> None:
-        types = {"bit": hal.HAL_BIT, "s32": hal.HAL_S32, "u32": hal.HAL_U32,
-                 "float": hal.HAL_FLOAT}
+        types = {"bit": hal.HAL_BIT, "s32": hal.HAL_S32, "u32": hal.HAL_U32, "float": hal.HAL_FLOAT}
         dirs = {"in": hal.HAL_IN, "out": hal.HAL_OUT}
         self.comp = hal.component(name)
         self.axes = cfg.axes
@@ -227,8 +255,12 @@ def describe(action) -> str:
     return repr(action)
 
 
-def run(args: argparse.Namespace, hal_module=None, stop: Optional[threading.Event] = None,
-        clock: Callable[[], float] = time.monotonic) -> int:
+def run(
+    args: argparse.Namespace,
+    hal_module=None,
+    stop: Optional[threading.Event] = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> int:
     """The component's main loop until `stop` is set (or SIGTERM / SIGINT arrives)."""
     if hal_module is None:
         import hal as hal_module  # LinuxCNC's; only present on a LinuxCNC machine
@@ -241,8 +273,10 @@ def run(args: argparse.Namespace, hal_module=None, stop: Optional[threading.Even
     worker: Optional[Worker] = None
     next_heartbeat = 0.0
     next_connect = 0.0
-    log(f"{args.name}: node {args.node} on {args.interface} {args.channel}, axes "
-        f"{cfg.axes}, master heartbeat {cfg.master} every {args.heartbeat_ms} ms")
+    log(
+        f"{args.name}: node {args.node} on {args.interface} {args.channel}, axes "
+        f"{cfg.axes}, master heartbeat {cfg.master} every {args.heartbeat_ms} ms"
+    )
     try:
         while not stop.is_set():
             now = clock()

@@ -108,8 +108,14 @@ def consumer_plan(entries: Dict[int, int], master: int, timeout_ms: int) -> Tupl
     return 1, value
 
 
-def make_config(node: int, master: Optional[int], axes: str, scale: float,
-                event_timer_ms: int, heartbeat_ms: int) -> "Config":
+def make_config(
+    node: int,
+    master: Optional[int],
+    axes: str,
+    scale: float,
+    event_timer_ms: int,
+    heartbeat_ms: int,
+) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
     (0x1016), so one late beat never stops the wheel."""
@@ -421,10 +427,18 @@ class Core:
 # The HAL interface: (name without the prefix, type, direction, meaning). The shell creates
 # exactly these pins; the README's pin table lists them.
 AXIS_PINS = [
-    ("axis.{L}.jog-counts", "s32", "out",
-     "wrapping sum of the position deltas of the feed records that named this axis"),
-    ("axis.{L}.jog-enable", "bit", "out",
-     "true only for the selected axis while connected, Operational, feed enabled and `enable`"),
+    (
+        "axis.{L}.jog-counts",
+        "s32",
+        "out",
+        "wrapping sum of the position deltas of the feed records that named this axis",
+    ),
+    (
+        "axis.{L}.jog-enable",
+        "bit",
+        "out",
+        "true only for the selected axis while connected, Operational, feed enabled and `enable`",
+    ),
     ("axis.{L}.jog-scale", "float", "out", "`--scale`: machine units per multiplied unit"),
     ("axis.{L}.jog-vel-mode", "bit", "out", "false: move the exact distance"),
     ("halui.axis.{L}.select", "bit", "out", "the device's switch selects this axis"),
@@ -439,8 +453,12 @@ COMPONENT_PINS = [
     ("position", "s32", "out", "the last feed record's position (multiplied units)"),
     ("emcy-code", "u32", "out", "the last active EMCY code, 0 once cleared"),
     ("records-lost", "s32", "out", "feed records missed (gaps in the sequence byte)"),
-    ("frames-bad", "s32", "out",
-     "malformed frames from the device (wrong DLC, unknown axis byte), ignored"),
+    (
+        "frames-bad",
+        "s32",
+        "out",
+        "malformed frames from the device (wrong DLC, unknown axis byte), ignored",
+    ),
     ("state", "s32", "out", "the device's last heartbeat state (5 Operational), -1 before any"),
 ]
 

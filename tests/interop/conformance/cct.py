@@ -11,13 +11,13 @@ import time
 
 import pytest
 
-from conftest import (
+from rig import (
     BOOTUP,
     HEARTBEAT,
     NMT_RESET_NODE,
     SDO_RX,
-    SDO_TX,
     SDO_TIMEOUT,
+    SDO_TX,
     Qemu,
     Rig,
     open_rig,

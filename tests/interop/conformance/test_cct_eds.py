@@ -4,7 +4,7 @@ eds/handwheel.eds after CiA 306, without the emulator."""
 import configparser
 import re
 
-from conftest import EDS
+from rig import EDS
 
 
 def test_eds_checker():

@@ -1,7 +1,7 @@
 """CCT cases Emergency 01-06 against the handwheel (see docs/CONFORMANCE.md)."""
 
-from conftest import EMCY
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
+from rig import EMCY
 
 
 def raise_emcy(rig):
@@ -10,8 +10,9 @@ def raise_emcy(rig):
     rig.feed_on("x")
     mark = rig.frames.mark()
     rig.stim.ab(3)
-    return rig.frames.wait_for(lambda f: f.id == EMCY and f.data[:2] == b"\x00\x73",
-                               since=mark, what="EMCY 0x7300")
+    return rig.frames.wait_for(
+        lambda f: f.id == EMCY and f.data[:2] == b"\x00\x73", since=mark, what="EMCY 0x7300"
+    )
 
 
 def test_emergency_01_emcy_cob_id(dut):

@@ -6,10 +6,13 @@ import time
 import can
 import pytest
 
-from conftest import EMCY, HEARTBEAT, NMT_RESET_NODE, BOOTUP, PRE_OPERATIONAL, MasterHeartbeat
 from cct import abort_of, count_between, dut, req, sdo_raw, shared_rig  # noqa: F401
+from rig import BOOTUP, EMCY, HEARTBEAT, NMT_RESET_NODE, PRE_OPERATIONAL, MasterHeartbeat
 
-NO_GUARDING = "node guarding not implemented (0x100C/0x100D absent, remote frames ignored; checked in Guarding 01)"
+NO_GUARDING = (
+    "node guarding not implemented (0x100C/0x100D absent, remote frames ignored; "
+    "checked in Guarding 01)"
+)
 
 
 def test_guarding_01_guard_time_and_life_time_factor(dut):
@@ -20,8 +23,9 @@ def test_guarding_01_guard_time_and_life_time_factor(dut):
 
 def test_guarding_02_rtr_answered(dut):
     mark = dut.frames.mark()
-    dut.bus.send(can.Message(arbitration_id=HEARTBEAT, is_remote_frame=True, dlc=1,
-                             is_extended_id=False))
+    dut.bus.send(
+        can.Message(arbitration_id=HEARTBEAT, is_remote_frame=True, dlc=1, is_extended_id=False)
+    )
     dut.frames.assert_none(lambda f: f.id == HEARTBEAT, 0.3, since=mark, what="guard replies")
     pytest.skip(NO_GUARDING + "; a guarding RTR gets no reply, checked")
 
@@ -57,8 +61,10 @@ def test_heartbeat_02_count_heartbeats(dut):
     n = count_between(dut, HEARTBEAT, 2.0)
     assert 12 <= n <= 22, f"{n} heartbeats in 2 s at 100 ms (host time, emulated node)"
     mark = dut.frames.mark()
-    assert all(f.data == bytes([PRE_OPERATIONAL])
-               for f in dut.frames.wait_count(HEARTBEAT, 2, since=mark, timeout=1))
+    assert all(
+        f.data == bytes([PRE_OPERATIONAL])
+        for f in dut.frames.wait_count(HEARTBEAT, 2, since=mark, timeout=1)
+    )
 
 
 def test_heartbeat_03_disable_heartbeat(dut):
@@ -91,8 +97,12 @@ def test_heartbeat_06_consumer_timeout(dut):
         time.sleep(0.05)
         mark = dut.frames.mark()
         dut.write(0x1016, 1, 1 << 16 | 300, 4)
-        frame = dut.frames.wait_for(lambda f: f.id == EMCY and f.data[:2] == b"\x30\x81",
-                                    since=mark, timeout=3, what="EMCY 0x8130")
+        frame = dut.frames.wait_for(
+            lambda f: f.id == EMCY and f.data[:2] == b"\x30\x81",
+            since=mark,
+            timeout=3,
+            what="EMCY 0x8130",
+        )
         assert frame.data[2] & 0x10  # communication error bit
     finally:
         master.stop()
@@ -134,8 +144,9 @@ def test_heartbeat_versus_guarding_05_heartbeat_on_rtrs_ignored(dut):
     time.sleep(0.15)
     mark = dut.frames.mark()
     for _ in range(10):
-        dut.bus.send(can.Message(arbitration_id=HEARTBEAT, is_remote_frame=True, dlc=1,
-                                 is_extended_id=False))
+        dut.bus.send(
+            can.Message(arbitration_id=HEARTBEAT, is_remote_frame=True, dlc=1, is_extended_id=False)
+        )
         time.sleep(0.1)
     n = len(dut.frames.frames(HEARTBEAT, since=mark))
     assert 5 <= n <= 12, f"{n} heartbeats in ~1 s at 100 ms (host time)"

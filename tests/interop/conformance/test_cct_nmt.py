@@ -5,11 +5,20 @@ SDO per state, and every NMT transition."""
 import canopen
 import pytest
 
-from conftest import (
-    BOOTUP, HEARTBEAT, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION, NMT_RESET_NODE,
-    NMT_START, NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED, TPDO1,
-)
 from cct import count_between, dut, shared_rig  # noqa: F401
+from rig import (
+    BOOTUP,
+    HEARTBEAT,
+    NMT_PRE_OPERATIONAL,
+    NMT_RESET_COMMUNICATION,
+    NMT_RESET_NODE,
+    NMT_START,
+    NMT_STOP,
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    STOPPED,
+    TPDO1,
+)
 
 
 def beats(rig, state, period_ms=500, n=2):

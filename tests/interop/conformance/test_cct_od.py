@@ -41,7 +41,8 @@ def test_od_02_communication_objects_against_eds_defaults(dut):
         if var.index == 0x1003 and var.subindex > 0:
             continue  # empty history: abort 0x08000024 (OD 01)
         assert var.decode_raw(dut.node.sdo.upload(var.index, var.subindex)) == var.default, (
-            f"{var.index:#06x}:{var.subindex}")
+            f"{var.index:#06x}:{var.subindex}"
+        )
 
 
 def test_od_03_write_to_read_only_objects(dut):
@@ -71,16 +72,19 @@ def test_od_06_value_limits_of_rw_objects(dut):
         if var.access_type not in ("rw", "rwr", "rww") or var.index in (0x1A00, 0x1A01):
             continue
         size = len(dut.node.sdo.upload(var.index, var.subindex))
-        for value, codes in ((var.min, (0x06090030, 0x06090032)),
-                             (var.max, (0x06090030, 0x06090031))):
+        for value, codes in (
+            (var.min, (0x06090030, 0x06090032)),
+            (var.max, (0x06090030, 0x06090031)),
+        ):
             if value is None:
                 continue
             bad = value - 1 if codes[1] == 0x06090032 else value + 1
             if bad < 0 or bad >= 1 << (8 * size):
                 continue
             command = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
-            code = abort_of(sdo_raw(dut, req(command, var.index, var.subindex,
-                                             bad.to_bytes(size, "little"))))
+            code = abort_of(
+                sdo_raw(dut, req(command, var.index, var.subindex, bad.to_bytes(size, "little")))
+            )
             assert code in codes + (0x08000000,), f"{var.index:#06x}:{var.subindex} = {bad}"
             checked += 1
     assert checked >= 5
@@ -97,7 +101,8 @@ def test_od_08_application_objects_against_eds_defaults(dut):
         if var.default is None:
             continue
         assert var.decode_raw(dut.node.sdo.upload(var.index, var.subindex)) == var.default, (
-            f"{var.index:#06x}:{var.subindex}")
+            f"{var.index:#06x}:{var.subindex}"
+        )
 
 
 def test_od_09_rw_application_objects_written_back(dut):

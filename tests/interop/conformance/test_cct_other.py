@@ -3,8 +3,8 @@
 
 import pytest
 
-from conftest import BOOTUP, HEARTBEAT, NMT_RESET_NODE
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
+from rig import BOOTUP, HEARTBEAT, NMT_RESET_NODE
 
 SAVE = b"save"
 LOAD = b"load"
@@ -115,8 +115,14 @@ def test_testing_other_09_store_with_time_of_day(dut):
     pytest.skip("no 0x1020 (verify configuration) in the dictionary")
 
 
-RESTRICTED = [*range(0x000, 0x080), *range(0x101, 0x181), *range(0x581, 0x600),
-              *range(0x601, 0x680), *range(0x6E0, 0x700), *range(0x701, 0x800)]
+RESTRICTED = [
+    *range(0x000, 0x080),
+    *range(0x101, 0x181),
+    *range(0x581, 0x600),
+    *range(0x601, 0x680),
+    *range(0x6E0, 0x700),
+    *range(0x701, 0x800),
+]
 
 
 def test_testing_other_10_restricted_can_ids(dut):

@@ -6,8 +6,8 @@ import time
 import can
 import pytest
 
-from conftest import NMT_PRE_OPERATIONAL, NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
+from rig import NMT_PRE_OPERATIONAL, NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STOPPED
 
 NO_RPDO = "the handwheel has no RPDO (0x1400..0x15FF / 0x1600..0x17FF absent, PDO 01)"
 INVALID = 0x8000_0000
@@ -71,8 +71,9 @@ def _rtr_case(rig, state_command, state):
     rig.nmt_and_heartbeat(state_command, state)
     time.sleep(0.3)
     mark = rig.frames.mark()
-    rig.bus.send(can.Message(arbitration_id=cob & 0x7FF, is_remote_frame=True, dlc=8,
-                             is_extended_id=False))
+    rig.bus.send(
+        can.Message(arbitration_id=cob & 0x7FF, is_remote_frame=True, dlc=8, is_extended_id=False)
+    )
     rig.frames.wait_id(cob & 0x7FF, since=mark, timeout=0.5)
 
 

@@ -75,7 +75,7 @@ def test_sdo_09_write_u8_to_u32_object(dut):
 
 def test_sdo_10_write_too_high_value(dut):
     # 0x1003:0 accepts only 0 (clear the history).
-    code = abort_of(sdo_raw(dut, req(0x2F, 0x1003, 0, b"\xFF")))
+    code = abort_of(sdo_raw(dut, req(0x2F, 0x1003, 0, b"\xff")))
     assert code in (0x06090030, 0x06090031, 0x08000000)
     # And an object with an EDS high limit: 0x2040:3 is 1..1000.
     code = abort_of(sdo_raw(dut, req(0x2B, 0x2040, 3, (1001).to_bytes(2, "little"))))
@@ -180,8 +180,10 @@ def test_sdo_26_block_read_with_wrong_blocksize(dut):
 
 def test_sdo_27_block_read_with_wrong_sequence_number(dut):
     assert _block_refused(dut, req(0xA0, 0x1000, 0, bytes([0x14]))) == 0x05040001
-    pytest.skip("block transfer not supported (refused with 0x05040001, as the tool requires);"
-                " the tool skips this case then")
+    pytest.skip(
+        "block transfer not supported (refused with 0x05040001, as the tool requires);"
+        " the tool skips this case then"
+    )
 
 
 def test_sdo_28_additional_sdo_servers_absent(dut):

@@ -7,7 +7,9 @@ import pytest
 
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
 
-NO_PRODUCER = "no SYNC producer: 0x1006 absent, 0x1005 bit 30 refused (checked in Synchronization 02)"
+NO_PRODUCER = (
+    "no SYNC producer: 0x1006 absent, 0x1005 bit 30 refused (checked in Synchronization 02)"
+)
 NO_COUNTER = "no SYNC counter: 0x1019 absent (checked in Synchronization 05)"
 
 
@@ -70,8 +72,10 @@ def test_synchronization_07_sync_with_counter_byte(dut):
     time.sleep(0.1)
     got = len(dut.frames.frames(cob & 0x7FF, since=mark))
     if got == 0:
-        pytest.skip("SYNC frames with a counter byte are ignored (no 0x1019); a SYNC counter "
-                    "is only sent where the consumers' 0x1019 is configured")
+        pytest.skip(
+            "SYNC frames with a counter byte are ignored (no 0x1019); a SYNC counter "
+            "is only sent where the consumers' 0x1019 is configured"
+        )
     assert got == 3
 
 

@@ -1,0 +1,82 @@
+"""The test rig: the firmware's QEMU variant and a python-canopen master, as a library.
+
+The interop suite (`tests/interop`, whose conftest.py holds only the pytest fixtures), the
+LinuxCNC suite, `cargo xtask demo` (tools/demo.py) and the LinuxCNC console import it from
+here. It is not installed: put `tools/` on `sys.path` (the suites' conftest.py files do) or
+run a script that lives in `tools/`.
+
+- `constants`: the repository root, the EDS, COB-IDs, NMT states and commands, timeouts;
+- `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record`;
+- `emulator`: `free_ports`, `Qemu` (`cargo xtask qemu` in its own process group),
+  `Stimulus` (the stimulus port), `connect_bus` (python-can's slcan bus on the CAN port);
+- `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`.
+"""
+
+from .constants import (
+    AXES,
+    BOOTUP,
+    EDS,
+    EMCY,
+    FRAME_TIMEOUT,
+    HEARTBEAT,
+    NMT,
+    NMT_PRE_OPERATIONAL,
+    NMT_RESET_COMMUNICATION,
+    NMT_RESET_NODE,
+    NMT_START,
+    NMT_STOP,
+    NODE_ID,
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    ROOT,
+    SDO_RX,
+    SDO_TIMEOUT,
+    SDO_TX,
+    SELECT_TIMEOUT,
+    START_TIMEOUT,
+    STIM_TIMEOUT,
+    STOPPED,
+    TPDO1,
+    TPDO2,
+)
+from .emulator import Qemu, Stimulus, connect_bus, free_ports
+from .frames import Frame, FrameRecorder, feed_record
+from .master import MasterHeartbeat, Rig, open_rig
+
+__all__ = [
+    "AXES",
+    "BOOTUP",
+    "EDS",
+    "EMCY",
+    "FRAME_TIMEOUT",
+    "HEARTBEAT",
+    "NMT",
+    "NMT_PRE_OPERATIONAL",
+    "NMT_RESET_COMMUNICATION",
+    "NMT_RESET_NODE",
+    "NMT_START",
+    "NMT_STOP",
+    "NODE_ID",
+    "OPERATIONAL",
+    "PRE_OPERATIONAL",
+    "ROOT",
+    "SDO_RX",
+    "SDO_TIMEOUT",
+    "SDO_TX",
+    "SELECT_TIMEOUT",
+    "START_TIMEOUT",
+    "STIM_TIMEOUT",
+    "STOPPED",
+    "TPDO1",
+    "TPDO2",
+    "Frame",
+    "FrameRecorder",
+    "MasterHeartbeat",
+    "Qemu",
+    "Rig",
+    "Stimulus",
+    "connect_bus",
+    "feed_record",
+    "free_ports",
+    "open_rig",
+]
