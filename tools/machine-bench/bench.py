@@ -19,8 +19,8 @@ Boots the ELF in the emulator of `machine.py`, drives it like a CNC and an opera
 - every handler's deepest stack use, by priority level.
 
 `--stack-report FILE` writes the stack and edge figures for `cargo xtask`, which checks
-them against the stack budget and the edge limits. Exit status 1 when the firmware misbehaves under the scenarios (a reply
-is wrong, a handler never ran), 2 on bad arguments.
+them against the stack budget and the edge limits. Exit status 1 when the firmware
+misbehaves under the scenarios (a reply is wrong, a handler never ran), 2 on bad arguments.
 """
 
 from __future__ import annotations
@@ -116,7 +116,9 @@ class Rig:
         self.boot_instructions = self.m.boot()
         self.m.traced.add(self.exti)
         self.m.mask_levels = tuple(
-            sorted({self.periph.priority(e) for e in self.image.handlers if e not in machine.FAULTS})
+            sorted(
+                {self.periph.priority(e) for e in self.image.handlers if e not in machine.FAULTS}
+            )
         )
         self.m.watch_reads.add(GPIOB_IDR)
         self.wheel_priority = self.periph.priority(self.exti)
@@ -235,7 +237,7 @@ class Rig:
             for _ in range(12):
                 samples.append(self.step(direction, feed))
         self.tick(3)
-        for phase in range(4):
+        for _phase in range(4):
             samples.append(self.step(1, feed))
             for previous in GRAY:
                 for new in GRAY:
@@ -295,8 +297,14 @@ def run(elf: str) -> Results:
     paths = []
     rig.receive(0x000, bytes([0x01, NODE_ID]), "NMT start")
     rig.select(AXIS_X_LINE, MULTIPLIER_X10_LINE)
-    paths.append(rig.expect_sdo("upload 0x2010:01 (axis)", sdo_upload(0x2010, 1), sdo_value(0x2010, 1, 1, 1)))
-    paths.append(rig.expect_sdo("download 0x2000 = 1 (feed on)", sdo_download(0x2000, 0, 1, 1), sdo_ok(0x2000, 0)))
+    paths.append(
+        rig.expect_sdo("upload 0x2010:01 (axis)", sdo_upload(0x2010, 1), sdo_value(0x2010, 1, 1, 1))
+    )
+    paths.append(
+        rig.expect_sdo(
+            "download 0x2000 = 1 (feed on)", sdo_download(0x2000, 0, 1, 1), sdo_ok(0x2000, 0)
+        )
+    )
 
     start = len(rig.periph.transmitted)
     edges += rig.edge_suite("enabled")
@@ -311,13 +319,33 @@ def run(elf: str) -> Results:
         ("upload 0x2031 (feed sequence)", sdo_upload(0x2031, 0), None),
         ("upload 0x6004 (position)", sdo_upload(0x6004, 0), None),
         ("download 0x1017 = 1000 (heartbeat)", sdo_download(0x1017, 0, 1000, 2), sdo_ok(0x1017, 0)),
-        ("download 0x1800:05 = 100 (event timer)", sdo_download(0x1800, 5, 100, 2), sdo_ok(0x1800, 5)),
-        ("abort: upload 0x1234 (no object)", sdo_upload(0x1234, 0), sdo_abort(0x1234, 0, 0x0602_0000)),
+        (
+            "download 0x1800:05 = 100 (event timer)",
+            sdo_download(0x1800, 5, 100, 2),
+            sdo_ok(0x1800, 5),
+        ),
+        (
+            "abort: upload 0x1234 (no object)",
+            sdo_upload(0x1234, 0),
+            sdo_abort(0x1234, 0, 0x0602_0000),
+        ),
         ("abort: download 0x2000 = 5 (range)", sdo_download(0x2000, 0, 5, 1), None),
-        ("abort: download 0x1000 (read-only)", sdo_download(0x1000, 0, 1, 4), sdo_abort(0x1000, 0, 0x0601_0002)),
-        ("segmented upload initiate 0x1008", sdo_upload(0x1008, 0), bytes([0x41, 0x08, 0x10, 0x00, 13, 0, 0, 0])),
+        (
+            "abort: download 0x1000 (read-only)",
+            sdo_download(0x1000, 0, 1, 4),
+            sdo_abort(0x1000, 0, 0x0601_0002),
+        ),
+        (
+            "segmented upload initiate 0x1008",
+            sdo_upload(0x1008, 0),
+            bytes([0x41, 0x08, 0x10, 0x00, 13, 0, 0, 0]),
+        ),
         ("upload segment 1 of 0x1008", bytes([0x60]), b"\x00CNC han"),
-        ("upload segment 2 of 0x1008", bytes([0x70]), bytes([0x10 | 0x01 | (1 << 1)]) + b"dwheel\0"),
+        (
+            "upload segment 2 of 0x1008",
+            bytes([0x70]),
+            bytes([0x10 | 0x01 | (1 << 1)]) + b"dwheel\0",
+        ),
     ]
     for label, request, reply in requests:
         if reply is None:
@@ -374,7 +402,9 @@ def busy_can_side(rig: Rig) -> Busy:
     log line, "encoder: ... illegal transition(s)"), for `BUSY_MS` ms."""
     # TPDO1 without inhibit time, so that every detent gets its frame: disable, set, enable.
     cob = 0x180 + NODE_ID
-    rig.expect_sdo("busy: TPDO1 off", sdo_download(0x1800, 1, (1 << 31) | cob, 4), sdo_ok(0x1800, 1))
+    rig.expect_sdo(
+        "busy: TPDO1 off", sdo_download(0x1800, 1, (1 << 31) | cob, 4), sdo_ok(0x1800, 1)
+    )
     rig.expect_sdo("busy: inhibit 0", sdo_download(0x1800, 3, 0, 2), sdo_ok(0x1800, 3))
     rig.expect_sdo("busy: TPDO1 on", sdo_download(0x1800, 1, cob, 4), sdo_ok(0x1800, 1))
     start = len(rig.periph.transmitted)
@@ -394,7 +424,9 @@ def busy_can_side(rig: Rig) -> Busy:
         samples.append(rig.edge(rest, "busy"))
         rig.tick(1, label)
         spent = sum(
-            exception_cycles(inv) for inv in rig.m.invocations[mark:] if inv.priority != rig.wheel_priority
+            exception_cycles(inv)
+            for inv in rig.m.invocations[mark:]
+            if inv.priority != rig.wheel_priority
         )
         worst_ms = max(worst_ms, spent)
     # The last millisecond's illegal jumps are logged by the next round (at the latest the
@@ -413,7 +445,9 @@ def busy_can_side(rig: Rig) -> Busy:
 # -- report -------------------------------------------------------------------------------
 
 
-def by_function(image: machine.FirmwareImage, invocation: machine.Invocation) -> dict[str, tuple[int, int]]:
+def by_function(
+    image: machine.FirmwareImage, invocation: machine.Invocation
+) -> dict[str, tuple[int, int]]:
     """Instructions and cycles of a traced invocation per function, in order of first use."""
     spent: dict[str, tuple[int, int]] = {}
     for address, charged in invocation.trace or []:
@@ -439,12 +473,17 @@ def cpu_report(results: Results) -> tuple[str, dict]:
         "A/B pairs, feed disabled and enabled"
     )
     lines.append("")
-    lines.append("| A B before -> after | feed | edges | raised feed event | worst instructions | worst cycles |")
+    lines.append(
+        "| A B before -> after | feed | edges | raised feed event | worst instructions "
+        "| worst cycles |"
+    )
     lines.append("|---|---|---:|---|---:|---:|")
     groups: dict[tuple, list[EdgeSample]] = {}
     for s in edges:
         groups.setdefault((s.previous, s.new, s.feed), []).append(s)
-    for (previous, new, feed), group in sorted(groups.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])):
+    for (previous, new, feed), group in sorted(
+        groups.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])
+    ):
         top = max(group, key=lambda s: exception_cycles(s.invocation))
         raised = sum(1 for s in group if s.raised)
         lines.append(
@@ -461,11 +500,15 @@ def cpu_report(results: Results) -> tuple[str, dict]:
         f"Worst edge: {levels_str(worst.previous)} -> {levels_str(worst.new)}, feed {worst.feed}"
         f"{', raising the feed event' if worst.raised else ''}: {inv.instructions} instructions, "
         f"{inv.cycles} cycles + entry {cycles.EXCEPTION_ENTRY} + exit {cycles.EXCEPTION_EXIT} = "
-        f"{edge_cycles} cycles at zero wait states; +{edge_ws} with {WAIT_STATES} flash wait states "
-        f"({inv.refetches} refetches, {inv.flash_reads} flash data reads) = {edge_cycles + edge_ws}.",
-        f"Instruction mix of the worst edge: " + ", ".join(f"{k} {v}" for k, v in sorted(inv.mix.items())) + ".",
+        f"{edge_cycles} cycles at zero wait states; +{edge_ws} with {WAIT_STATES} flash wait "
+        f"states ({inv.refetches} refetches, {inv.flash_reads} flash data reads) = "
+        f"{edge_cycles + edge_ws}.",
+        "Instruction mix of the worst edge: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(inv.mix.items()))
+        + ".",
         f"Edge rate the handler alone sustains at 72 MHz (each edge handled before the next, "
-        f"nothing else running): {rate / 1000:.0f} kHz ({rate_ws / 1000:.0f} kHz with wait states).",
+        f"nothing else running): {rate / 1000:.0f} kHz ({rate_ws / 1000:.0f} kHz with wait "
+        "states).",
         f"CPU share at {EDGE_RATE_HZ // 1000} kHz edges: {100 * share:.1f} % "
         f"({100 * share_ws:.1f} % with wait states).",
         f"Limit {GOAL_CYCLES} cycles per edge incl. entry and exit: "
@@ -476,7 +519,9 @@ def cpu_report(results: Results) -> tuple[str, dict]:
     lines += ["| function | instructions | cycles |", "|---|---:|---:|"]
     for name, (count, spent) in by_function(results.rig.m.image, inv).items():
         lines.append(f"| {name} | {count} | {spent} |")
-    lines.append(f"| exception entry + exit | - | {cycles.EXCEPTION_ENTRY + cycles.EXCEPTION_EXIT} |")
+    lines.append(
+        f"| exception entry + exit | - | {cycles.EXCEPTION_ENTRY + cycles.EXCEPTION_EXIT} |"
+    )
     lines.append("")
     held, latency = latency_report(results, edge_cycles)
     lines += held
@@ -558,7 +603,8 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int]:
     other = max(others, key=exception_cycles, default=None)
     masked = m.longest_masks.get(wheel, (0, 0, "-", 0))[0]
     waits = {
-        "the previous edge's handler after its read, then tail-chaining": after_read + cycles.TAIL_CHAIN,
+        "the previous edge's handler after its read, then tail-chaining": after_read
+        + cycles.TAIL_CHAIN,
         f"another handler at the wheel's priority or above ({other.name if other else '-'})": (
             exception_cycles(other) if other else 0
         ),
@@ -636,7 +682,8 @@ def stack_report(results: Results) -> tuple[str, list[str]]:
     report = [f"thread\t{m.thread_depth}"]
     for level in levels:
         lines.append(
-            f"  {logical(level.priority):<15} {level.deepest:<20} {level.depth:>5} B + {frame} B frame"
+            f"  {logical(level.priority):<15} {level.deepest:<20} {level.depth:>5} B + {frame} B "
+            "frame"
             f"  ({', '.join(level.handlers)})"
         )
         report.append(
@@ -654,7 +701,13 @@ def stack_report(results: Results) -> tuple[str, list[str]]:
         + ")",
         f"  stack region (.uninit end to top of RAM) {region} B",
     ]
-    report += [f"frame\t{frame}", f"total\t{total}", f"lowest\t{lowest}", f"painted\t{painted}", f"region\t{region}"]
+    report += [
+        f"frame\t{frame}",
+        f"total\t{total}",
+        f"lowest\t{lowest}",
+        f"painted\t{painted}",
+        f"region\t{region}",
+    ]
     return "\n".join(lines), report
 
 

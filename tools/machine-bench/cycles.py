@@ -10,7 +10,7 @@ so the estimate is pessimistic:
 | mla | MLA, MLS | 2 |
 | mull | UMULL, SMULL (3..5) / UMLAL, SMLAL (4..7) | 5 / 7 |
 | div | UDIV, SDIV (2..12) | 12 |
-| load / store | LDR*, STR* single | 2, or 1 when it follows another load/store single (the manual's pipelining footnote) unless its address uses the previous load's result |
+| load / store | LDR*, STR* single | 2, or 1 when pipelined (below) |
 | exclusive | LDREX*, STREX*, CLREX | 2 (never pipelined), CLREX 1 |
 | dual | LDRD, STRD | 1 + 2 |
 | multiple | LDM, STM, PUSH, POP | 1 + N (+ P if PC is loaded) |
@@ -24,7 +24,9 @@ so the estimate is pessimistic:
 
 P, the pipeline refill, ranges 1..3 in the manual; 2 is charged for PC-relative branches
 (their target is known at decode) and 3 for branches to a register or a loaded value.
-An instruction inside an IT block whose condition fails costs 1 cycle.
+An instruction inside an IT block whose condition fails costs 1 cycle. A load or store single
+right after another one takes 1 cycle (the manual's pipelining footnote) unless its address
+uses the previous load's result.
 
 Flash wait states (`wait_state_events`): at 72 MHz the STM32F103 needs 2 wait states. The
 prefetch buffer hides them on sequential fetches; every taken branch, pipeline flush (ISB)
@@ -88,11 +90,55 @@ class Timing:
 
 _ALU_SIMPLE = {
     # Names of capstone instruction ids that take one cycle.
-    "ADC", "ADD", "ADDW", "ADR", "AND", "ASR", "BFC", "BFI", "BIC", "CLZ", "CMN", "CMP",
-    "EOR", "IT", "LSL", "LSR", "MOV", "MOVS", "MOVT", "MOVW", "MUL", "MVN", "NOP", "ORN",
-    "ORR", "RBIT", "REV", "REV16", "REVSH", "ROR", "RRX", "RSB", "SBC", "SBFX", "SSAT",
-    "SUB", "SUBW", "SXTB", "SXTH", "TEQ", "TST", "UBFX", "USAT", "UXTB", "UXTH", "YIELD",
-    "SEV", "NEG", "HINT",
+    "ADC",
+    "ADD",
+    "ADDW",
+    "ADR",
+    "AND",
+    "ASR",
+    "BFC",
+    "BFI",
+    "BIC",
+    "CLZ",
+    "CMN",
+    "CMP",
+    "EOR",
+    "IT",
+    "LSL",
+    "LSR",
+    "MOV",
+    "MOVS",
+    "MOVT",
+    "MOVW",
+    "MUL",
+    "MVN",
+    "NOP",
+    "ORN",
+    "ORR",
+    "RBIT",
+    "REV",
+    "REV16",
+    "REVSH",
+    "ROR",
+    "RRX",
+    "RSB",
+    "SBC",
+    "SBFX",
+    "SSAT",
+    "SUB",
+    "SUBW",
+    "SXTB",
+    "SXTH",
+    "TEQ",
+    "TST",
+    "UBFX",
+    "USAT",
+    "UXTB",
+    "UXTH",
+    "YIELD",
+    "SEV",
+    "NEG",
+    "HINT",
 }
 
 
@@ -105,8 +151,9 @@ MLA_IDS = _ids(["MLA", "MLS"])
 MULL_IDS = _ids(["UMULL", "SMULL"])
 MLAL_IDS = _ids(["UMLAL", "SMLAL"])
 DIV_IDS = _ids(["UDIV", "SDIV"])
-LOAD_IDS = _ids(["LDR", "LDRB", "LDRH", "LDRSB", "LDRSH", "LDRT", "LDRBT", "LDRHT",
-                 "LDRSBT", "LDRSHT"])
+LOAD_IDS = _ids(
+    ["LDR", "LDRB", "LDRH", "LDRSB", "LDRSH", "LDRT", "LDRBT", "LDRHT", "LDRSBT", "LDRSHT"]
+)
 STORE_IDS = _ids(["STR", "STRB", "STRH", "STRT", "STRBT", "STRHT"])
 EXCL_IDS = _ids(["LDREX", "LDREXB", "LDREXH", "STREX", "STREXB", "STREXH"])
 DUAL_IDS = _ids(["LDRD", "STRD"])

@@ -26,6 +26,7 @@ import bisect
 import re
 from dataclasses import dataclass, field
 
+from capstone import arm as cs_arm
 from elftools.elf.elffile import ELFFile
 from unicorn import (
     UC_ARCH_ARM,
@@ -35,11 +36,13 @@ from unicorn import (
     UC_MODE_THUMB,
     Uc,
     UcError,
+    arm_const,
 )
-from unicorn import arm_const
 from unicorn.arm_const import (
+    UC_ARM_REG_BASEPRI,
     UC_ARM_REG_LR,
     UC_ARM_REG_PC,
+    UC_ARM_REG_PRIMASK,
     UC_ARM_REG_R0,
     UC_ARM_REG_R1,
     UC_ARM_REG_R2,
@@ -47,11 +50,8 @@ from unicorn.arm_const import (
     UC_ARM_REG_R12,
     UC_ARM_REG_SP,
     UC_ARM_REG_XPSR,
-    UC_ARM_REG_BASEPRI,
-    UC_ARM_REG_PRIMASK,
     UC_CPU_ARM_CORTEX_M3,
 )
-from capstone import arm as cs_arm
 
 import cycles
 import stm32
@@ -167,7 +167,11 @@ class FirmwareImage:
                 by_address.setdefault(address & ~1, name)
         self.handlers: dict[int, str] = {}
         for exception, vector in enumerate(words):
-            if exception < 2 or vector == 0 or (default is not None and vector & ~1 == default & ~1):
+            if (
+                exception < 2
+                or vector == 0
+                or (default is not None and vector & ~1 == default & ~1)
+            ):
                 continue
             self.handlers[exception] = self._name(exception, vector & ~1)
 
@@ -305,7 +309,9 @@ class Machine:
         if self.current is not None:
             counter = self.counter
             self.current.transmits.append(
-                Mark(counter.instructions, counter.cycles, counter.refetches, self.flash_reads, frame)
+                Mark(
+                    counter.instructions, counter.cycles, counter.refetches, self.flash_reads, frame
+                )
             )
 
     def _on_flash_read(self, _uc, _access, _address, _size, _value, _user):

@@ -29,7 +29,6 @@ PPB_BASE = 0xE000_0000
 PPB_SIZE = 0x0010_0000
 
 
-
 def bitband_target(offset: int) -> tuple[int, int]:
     """The peripheral byte address and bit that a bit-band alias offset names."""
     return PERIPH_BASE + (offset >> 5), (offset >> 2) & 7

@@ -82,7 +82,9 @@ class CounterTest(unittest.TestCase):
         self.assertEqual(counter.instructions, 4)
         self.assertEqual(counter.cycles, 2 + 1 + 3 + 1)
         self.assertEqual(counter.refetches, 1)
-        self.assertEqual(counter.by_kind, {cycles.LOAD: 1, cycles.STORE: 1, cycles.BRANCH: 1, cycles.ALU: 1})
+        self.assertEqual(
+            counter.by_kind, {cycles.LOAD: 1, cycles.STORE: 1, cycles.BRANCH: 1, cycles.ALU: 1}
+        )
 
     def test_untaken_branch_and_dependent_load(self):
         counter = cycles.CycleCounter()
