@@ -199,7 +199,7 @@ pub(crate) struct Blob {
 
 impl Blob {
     /// Loads and checks the stored blob; anything invalid reads as empty.
-    pub(crate) fn load(storage: &mut impl Storage) -> Self {
+    pub(crate) fn load(storage: &mut (impl Storage + ?Sized)) -> Self {
         let mut blob = Self {
             buf: [0; BLOB_MAX],
             sections: 0,
@@ -279,7 +279,10 @@ impl Blob {
     }
 
     /// Writes the blob back, or erases the storage when no section is left.
-    pub(crate) fn store(&mut self, storage: &mut impl Storage) -> Result<(), StorageError> {
+    pub(crate) fn store(
+        &mut self,
+        storage: &mut (impl Storage + ?Sized),
+    ) -> Result<(), StorageError> {
         if self.sections == 0 {
             return storage.store(&[]);
         }
