@@ -28,6 +28,10 @@ const NO_STD_CRATES: &[&str] = &[
 /// Cargo arguments that select the QEMU board variant of the firmware. It gets its own
 /// target directory, so that building it never invalidates the board build.
 const QEMU_FEATURES: &[&str] = &["--no-default-features", "--features", "qemu"];
+/// The cargo-fuzz package (its own workspace: `cargo fuzz run` needs nightly).
+const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
+/// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
+const RANDOM_SEQUENCES: &str = "1000000";
 /// The demo's master, run with the interop venv's Python.
 const DEMO_SCRIPT: &str = "tools/demo.py";
 
@@ -80,7 +84,9 @@ fn main() -> ExitCode {
 fn test() -> Result<(), String> {
     let started = Instant::now();
     cargo(&["fmt", "--all", "--", "--check"])?;
+    cargo(&["fmt", "--manifest-path", FUZZ_MANIFEST, "--", "--check"])?;
     cargo(&["test", "--locked"])?;
+    random_frames()?;
     host_tests(&[])?;
     cargo(&[
         "clippy",
@@ -176,6 +182,33 @@ fn test() -> Result<(), String> {
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The engine's fuzz target on the pinned stable toolchain: the target must build (without
+/// coverage instrumentation, which needs nightly), and its body, `canopen_harness::frames`,
+/// runs a million seeded random frame sequences (the `harness` profile: optimised, with
+/// debug assertions and overflow checks).
+fn random_frames() -> Result<(), String> {
+    let fuzz_dir = target_dir().join("fuzz");
+    cargo(&[
+        "build",
+        "--locked",
+        "--manifest-path",
+        FUZZ_MANIFEST,
+        "--target-dir",
+        path_str(&fuzz_dir)?,
+    ])?;
+    cargo(&[
+        "run",
+        "--locked",
+        "--profile",
+        "harness",
+        "-p",
+        "canopen-harness",
+        "--",
+        "--sequences",
+        RANDOM_SEQUENCES,
+    ])
 }
 
 /// The three benchmarks of issue 6: 1. the feed protocol simulation (paper vs this project,

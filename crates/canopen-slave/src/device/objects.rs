@@ -68,6 +68,32 @@ fn read_only(_: &mut Comm, _: &mut WriteCtx<'_>, _: u16, _: u8, _: u32) -> Resul
 /// `restore` of an object whose value is not a parameter (a status, a command).
 fn not_a_parameter(_: &mut Comm, _: u16, _: u8, _: u32, _: Instant) {}
 
+/// `read` of the EMCY objects (0x1003, 0x1014, 0x1015).
+fn emcy_read(c: &Comm, index: u16, sub: u8) -> Result<u32, SdoAbort> {
+    c.emcy.read(index, sub)
+}
+
+/// `write` of 0x1003 and 0x1015 (0x1014 checks its COB-ID first).
+fn emcy_write(
+    c: &mut Comm,
+    _: &mut WriteCtx<'_>,
+    index: u16,
+    sub: u8,
+    v: u32,
+) -> Result<(), SdoAbort> {
+    c.emcy.write(index, sub, v)
+}
+
+/// `restore` of 0x1014 and 0x1015.
+fn emcy_restore(c: &mut Comm, index: u16, _: u8, v: u32, _: Instant) {
+    c.emcy.set(index, v);
+}
+
+/// `read` of 0x1010 and 0x1011: the capability, bit 0 (on command).
+fn on_command(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
+    Ok(1)
+}
+
 /// The communication objects, by index.
 static OBJECTS: [CommObject; 12] = [
     // Error register.
@@ -82,8 +108,8 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1003,
         last: 0x1003,
-        read: |c, index, sub| c.emcy.read(index, sub),
-        write: |c, _, index, sub, v| c.emcy.write(index, sub, v),
+        read: emcy_read,
+        write: emcy_write,
         restore: not_a_parameter,
     },
     // COB-ID SYNC.
@@ -98,19 +124,19 @@ static OBJECTS: [CommObject; 12] = [
         },
         restore: |c, _, _, v, _| c.sync.set(v),
     },
-    // Store parameters; reads the capability (bit 0: saved on command).
+    // Store parameters.
     CommObject {
         first: 0x1010,
         last: 0x1010,
-        read: |_, _, _| Ok(1),
+        read: on_command,
         write: |c, ctx, _, sub, v| params::save(c, ctx, sub, v),
         restore: not_a_parameter,
     },
-    // Restore default parameters; reads the capability (bit 0: restored on command).
+    // Restore default parameters.
     CommObject {
         first: 0x1011,
         last: 0x1011,
-        read: |_, _, _| Ok(1),
+        read: on_command,
         write: |_, ctx, _, sub, v| params::forget(ctx.storage, sub, v),
         restore: not_a_parameter,
     },
@@ -118,20 +144,20 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1014,
         last: 0x1014,
-        read: |c, index, sub| c.emcy.read(index, sub),
+        read: emcy_read,
         write: |c, _, index, sub, v| {
             c.check_cob_id(CobSlot::Emcy, v)?;
             c.emcy.write(index, sub, v)
         },
-        restore: |c, index, _, v, _| c.emcy.set(index, v),
+        restore: emcy_restore,
     },
     // Inhibit time EMCY.
     CommObject {
         first: 0x1015,
         last: 0x1015,
-        read: |c, index, sub| c.emcy.read(index, sub),
-        write: |c, _, index, sub, v| c.emcy.write(index, sub, v),
-        restore: |c, index, _, v, _| c.emcy.set(index, v),
+        read: emcy_read,
+        write: emcy_write,
+        restore: emcy_restore,
     },
     // Consumer heartbeat time.
     CommObject {
