@@ -211,7 +211,7 @@ fn random_frames() -> Result<(), String> {
     ])
 }
 
-/// The three benchmarks of issue 6: 1. the feed protocol simulation (paper vs this project,
+/// The three benchmarks: 1. the feed protocol simulation (paper vs this project,
 /// with its plot), 2. the CPU cost of the release machine code in the emulator, 3. the
 /// release footprint by section and the worst-case stack, with their headroom.
 fn bench() -> Result<(), String> {
