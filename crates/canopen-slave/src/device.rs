@@ -10,7 +10,7 @@
 
 mod errors;
 mod nmt;
-mod objects;
+pub(crate) mod objects;
 mod params;
 mod pdo;
 mod sdo;

@@ -1,7 +1,8 @@
 //! The communication objects the engine owns (entries of [`Value::Comm`] and
 //! [`Value::CommPlusNodeId`]) and the checked paths to every object of the dictionary.
 //!
-//! Each communication object is one row of [`OBJECTS`]: the indices it covers and how it
+//! Each communication object is one row of [`OBJECTS`]: the indices it covers, the
+//! sub-indices 0x1010 stores (the blob layout, [`STORED`], is derived from them), and how it
 //! reads, checks and writes, and restores (a table default or a stored value) itself.
 //! Adding a communication object is adding its row (and its entries to the table of
 //! [`standard_objects`](crate::od::standard_objects)).
@@ -52,9 +53,11 @@ type Write = fn(&mut Comm, &mut WriteCtx<'_>, u16, u8, u32) -> Result<(), SdoAbo
 type Restore = fn(&mut Comm, u16, u8, u32, Instant);
 
 /// One communication object, or one per PDO for the PDO parameter ranges.
-pub(super) struct CommObject {
+struct CommObject {
     first: u16,
     last: u16,
+    /// The sub-indices 0x1010 stores (of each PDO's object, for the PDO ranges).
+    stored: &'static [u8],
     read: Read,
     write: Write,
     restore: Restore,
@@ -94,12 +97,14 @@ fn on_command(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
     Ok(1)
 }
 
-/// The communication objects, by index.
-static OBJECTS: [CommObject; 12] = [
+/// The communication objects, by index. The engine looks them up in [`ROUTES`], the same
+/// rows without what only the compiler needs.
+const OBJECTS: [CommObject; 12] = [
     // Error register.
     CommObject {
         first: 0x1001,
         last: 0x1001,
+        stored: &[],
         read: |c, _, _| Ok(c.emcy.error_register().into()),
         write: read_only,
         restore: not_a_parameter,
@@ -108,6 +113,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1003,
         last: 0x1003,
+        stored: &[],
         read: emcy_read,
         write: emcy_write,
         restore: not_a_parameter,
@@ -116,6 +122,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1005,
         last: 0x1005,
+        stored: &[0],
         read: |c, _, _| Ok(c.sync.cob_id()),
         write: |c, _, _, _, v| {
             c.check_cob_id(CobSlot::Sync, v)?;
@@ -128,6 +135,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1010,
         last: 0x1010,
+        stored: &[],
         read: on_command,
         write: |c, ctx, _, sub, v| params::save(c, ctx, sub, v),
         restore: not_a_parameter,
@@ -136,6 +144,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1011,
         last: 0x1011,
+        stored: &[],
         read: on_command,
         write: |_, ctx, _, sub, v| params::forget(ctx.storage, sub, v),
         restore: not_a_parameter,
@@ -144,6 +153,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1014,
         last: 0x1014,
+        stored: &[0],
         read: emcy_read,
         write: |c, _, index, sub, v| {
             c.check_cob_id(CobSlot::Emcy, v)?;
@@ -155,6 +165,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1015,
         last: 0x1015,
+        stored: &[0],
         read: emcy_read,
         write: emcy_write,
         restore: emcy_restore,
@@ -163,6 +174,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1016,
         last: 0x1016,
+        stored: &[1, 2],
         read: |c, _, sub| c.heartbeat.consumer(sub),
         write: |c, _, _, sub, v| match c.node {
             Some(own) => c.heartbeat.write_consumer(sub, v, own),
@@ -174,6 +186,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1017,
         last: 0x1017,
+        stored: &[0],
         read: |c, _, _| Ok(c.heartbeat.producer_ms().into()),
         write: |c, ctx, _, _, v| {
             c.heartbeat.set_producer(v as u16, ctx.now);
@@ -185,6 +198,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1018,
         last: 0x1018,
+        stored: &[],
         read: |c, _, _| Ok(c.serial),
         write: read_only,
         restore: not_a_parameter,
@@ -193,6 +207,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1800,
         last: 0x19FF,
+        stored: &[1, 2, 3, 5],
         read: |c, index, sub| c.tpdo(index - 0x1800)?.read_comm(sub),
         write: |c, ctx, index, sub, v| {
             let n = index - 0x1800;
@@ -213,6 +228,7 @@ static OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1A00,
         last: 0x1BFF,
+        stored: &[0, 1, 2, 3, 4, 5, 6, 7, 8],
         read: |c, index, sub| c.tpdo(index - 0x1A00)?.read_mapping(sub),
         write: |c, _, index, sub, v| {
             let od = c.od;
@@ -226,9 +242,94 @@ static OBJECTS: [CommObject; 12] = [
     },
 ];
 
+/// How many parameters 0x1010 stores.
+pub(crate) const STORED_LEN: usize = stored_len();
+
+/// The parameters 0x1010 stores, in the order of the blob's communication section: the
+/// single objects' stored sub-indices in table order, then PDO by PDO the PDO ranges'.
+pub(crate) const STORED: [(u16, u8); STORED_LEN] = stored_list();
+
+const fn stored_len() -> usize {
+    let mut len = 0;
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        len += o.stored.len() * if o.first == o.last { 1 } else { TPDOS };
+        i += 1;
+    }
+    len
+}
+
+const fn stored_list() -> [(u16, u8); STORED_LEN] {
+    let mut list = [(0, 0); STORED_LEN];
+    let mut k = 0;
+    // Round 0: the single objects; round n + 1: the objects of PDO n.
+    let mut round = 0;
+    while round <= TPDOS {
+        let mut i = 0;
+        while i < OBJECTS.len() {
+            let o = &OBJECTS[i];
+            let single = o.first == o.last;
+            if single == (round == 0) {
+                // Below 0x200 PDOs per range, so the offset fits.
+                let index = if single {
+                    o.first
+                } else {
+                    o.first + (round - 1) as u16
+                };
+                let mut s = 0;
+                while s < o.stored.len() {
+                    list[k] = (index, o.stored[s]);
+                    k += 1;
+                    s += 1;
+                }
+            }
+            i += 1;
+        }
+        round += 1;
+    }
+    list
+}
+
+/// A row of [`OBJECTS`] as the engine uses it at run time.
+#[derive(Clone, Copy)]
+struct Route {
+    first: u16,
+    last: u16,
+    read: Read,
+    write: Write,
+    restore: Restore,
+}
+
+/// [`OBJECTS`] without the stored sub-indices, which only [`STORED`] needs.
+static ROUTES: [Route; OBJECTS.len()] = routes();
+
+const fn routes() -> [Route; OBJECTS.len()] {
+    let mut routes = [Route {
+        first: 0,
+        last: 0,
+        read: |_, _, _| Err(SdoAbort::NoObject),
+        write: read_only,
+        restore: not_a_parameter,
+    }; OBJECTS.len()];
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        routes[i] = Route {
+            first: o.first,
+            last: o.last,
+            read: o.read,
+            write: o.write,
+            restore: o.restore,
+        };
+        i += 1;
+    }
+    routes
+}
+
 /// The row of object `index`, if the engine owns it.
-fn object(index: u16) -> Option<&'static CommObject> {
-    OBJECTS.iter().find(|o| (o.first..=o.last).contains(&index))
+fn object(index: u16) -> Option<&'static Route> {
+    ROUTES.iter().find(|o| (o.first..=o.last).contains(&index))
 }
 
 /// The objects whose COB-IDs must differ (see [`Comm::check_cob_id`]).
