@@ -35,14 +35,7 @@ impl<S: Storage> Inner<S> {
         app: &mut dyn Application,
         tx: &mut dyn FrameSink,
     ) {
-        if self.comm.state != NmtState::Operational {
-            return;
-        }
-        for i in 0..TPDOS {
-            if self.comm.tpdos.get_mut(i).is_some_and(Tpdo::on_sync) {
-                self.send_tpdo(i, now, app, tx);
-            }
-        }
+        self.send_due(now, app, tx, Tpdo::on_sync);
     }
 
     /// The event-driven PDOs that are due (requested or event timer) and allowed (inhibit
@@ -53,11 +46,22 @@ impl<S: Storage> Inner<S> {
         app: &mut dyn Application,
         tx: &mut dyn FrameSink,
     ) {
+        self.send_due(now, app, tx, |t| t.event_due(now));
+    }
+
+    /// Sends each PDO `due` says is due, in Operational only.
+    fn send_due(
+        &mut self,
+        now: Instant,
+        app: &mut dyn Application,
+        tx: &mut dyn FrameSink,
+        mut due: impl FnMut(&mut Tpdo) -> bool,
+    ) {
         if self.comm.state != NmtState::Operational {
             return;
         }
         for i in 0..TPDOS {
-            if self.comm.tpdos.get_mut(i).is_some_and(|t| t.event_due(now)) {
+            if self.comm.tpdos.get_mut(i).is_some_and(&mut due) {
                 self.send_tpdo(i, now, app, tx);
             }
         }

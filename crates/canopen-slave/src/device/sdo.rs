@@ -55,23 +55,12 @@ impl<S: Storage> Device<S> {
         data: &[u8],
         app: &mut dyn Application,
     ) -> Result<(), SdoAbort> {
-        let written = self.inner.write_object(now, index, sub, data, app);
+        let inner = &mut self.inner;
+        let written = inner
+            .comm
+            .write_object(now, index, sub, data, app, &mut inner.storage);
         self.inner.settle_heartbeat(app);
         written
-    }
-}
-
-impl<S: Storage> Inner<S> {
-    fn write_object(
-        &mut self,
-        now: Instant,
-        index: u16,
-        sub: u8,
-        data: &[u8],
-        app: &mut dyn Application,
-    ) -> Result<(), SdoAbort> {
-        self.comm
-            .write_object(now, index, sub, data, app, &mut self.storage)
     }
 }
 
@@ -110,8 +99,10 @@ impl<S: Storage> ObjectAccess for Objects<'_, S> {
     }
 
     fn download(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
-        self.inner
-            .write_object(self.now, index, sub, data, self.app)?;
+        let inner = &mut *self.inner;
+        inner
+            .comm
+            .write_object(self.now, index, sub, data, self.app, &mut inner.storage)?;
         // Refused writes are logged with their abort code by the SDO server.
         info!("SDO write {=u16:#x}:{=u8}", index, sub);
         Ok(())
