@@ -329,7 +329,10 @@ const fn routes() -> [Route; OBJECTS.len()] {
 
 /// The row of object `index`, if the engine owns it.
 fn object(index: u16) -> Option<&'static Route> {
-    ROUTES.iter().find(|o| (o.first..=o.last).contains(&index))
+    // One unsigned comparison per row: `first <= index <= last`.
+    ROUTES
+        .iter()
+        .find(|o| index.wrapping_sub(o.first) <= o.last.wrapping_sub(o.first))
 }
 
 /// The objects whose COB-IDs must differ (see [`Comm::check_cob_id`]).
