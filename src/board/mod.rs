@@ -78,20 +78,22 @@ pub fn init(dp: pac::Peripherals) -> Board {
 
     // Wheel: both edges of both channels on EXTI6/EXTI7 (they share the EXTI9_5 vector),
     // taken from port B. The CAN pins move to PB8/PB9; SWJ_CFG written as 0 keeps SWD.
-    // SAFETY (both `bits`): EXTI6/EXTI7 = 1 selects port B, a valid source; CAN_REMAP =
-    // 0b10 is the documented PB8/PB9 mapping.
+    // SAFETY: EXTI6/EXTI7 = 1 selects port B, a valid source.
     dp.AFIO
         .exticr2()
         .modify(|_, w| unsafe { w.exti6().bits(1).exti7().bits(1) });
+    // SAFETY: CAN_REMAP = 0b10 is the documented PB8/PB9 mapping.
     dp.AFIO
         .mapr()
         .modify(|_, w| unsafe { w.can_remap().bits(pins::CAN_REMAP_PB8_PB9) });
     let exti = dp.EXTI;
-    // SAFETY (all three): setting the two wheel lines' bits, which exist on this part.
+    // SAFETY: sets the two wheel lines' bits (rising edge), which exist on this part.
     exti.rtsr()
         .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
+    // SAFETY: sets the two wheel lines' bits (falling edge), which exist on this part.
     exti.ftsr()
         .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
+    // SAFETY: unmasks the two wheel lines, which exist on this part.
     exti.imr()
         .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
 
@@ -154,16 +156,18 @@ fn start_clocks(rcc: &pac::RCC, flash: &pac::FLASH) {
 /// Applies `config` to `port`: output levels first, so that an output starts at its level,
 /// then the pin modes, one read-modify-write per configuration register.
 fn configure_port(port: &Port, config: PortConfig) {
-    // SAFETY (all three): BSRR only sets or clears output data bits; the CR values come
-    // from the pin map's nibbles for its own pins and keep every other pin's nibble.
+    // SAFETY: BSRR only sets or clears output data bits.
     port.bsrr().write(|w| unsafe { w.bits(config.bsrr()) });
     let [low_mask, high_mask] = [config.cr_mask as u32, (config.cr_mask >> 32) as u32];
     let [low_bits, high_bits] = [config.cr_bits as u32, (config.cr_bits >> 32) as u32];
     if low_mask != 0 {
+        // SAFETY: the pin map's nibbles for its own pins of CRL; every other pin's nibble
+        // is kept.
         port.crl()
             .modify(|r, w| unsafe { w.bits(r.bits() & !low_mask | low_bits) });
     }
     if high_mask != 0 {
+        // SAFETY: as for CRL above, in CRH.
         port.crh()
             .modify(|r, w| unsafe { w.bits(r.bits() & !high_mask | high_bits) });
     }
@@ -222,10 +226,11 @@ impl Leds {
         // wheel's reads of GPIOB never race with it. PC13 sinks the on-board LED's current:
         // low lights it.
         let bsrr = |bit: u32, high: bool| if high { 1 << bit } else { 1 << (bit + 16) };
-        // SAFETY (both): one set or clear bit of the LED's own pin.
+        // SAFETY: one set or clear bit of the RUN LED's own pin.
         self.port_c
             .bsrr()
             .write(|w| unsafe { w.bits(bsrr(pins::RUN_LED_BIT, !run)) });
+        // SAFETY: one set or clear bit of the ERR LED's own pin.
         self.port_b
             .bsrr()
             .write(|w| unsafe { w.bits(bsrr(pins::ERR_LED_BIT, err)) });

@@ -1,7 +1,8 @@
 //! The simulated input lines of the QEMU board: what GPIO would read on the real one.
 //!
-//! Written by the stimulus task (USART2), read by the wheel's EXTI task and the selector
-//! task through [`board::WheelInputs`](super::board::WheelInputs) and
+//! Written by the stimulus line's interrupt handler (USART2), read by the wheel's EXTI task
+//! and by the `canopen` task, which samples the switches, through
+//! [`board::WheelInputs`](super::board::WheelInputs) and
 //! [`board::Selectors`](super::board::Selectors). Single bytes, so plain atomics suffice on
 //! this single core. All lines start inactive: A = B = 0, no axis and no multiplier line
 //! active (the DIP switch reads all off too).

@@ -13,9 +13,9 @@
 //! port and the EXTI9_5 interrupt is pended, so the shipping edge handler (`edge::EXTI9_5`)
 //! reads and decodes them. It has the highest priority, so it runs at once (after the `isb`, which
 //! keeps back-to-back pends from merging); each edge is handled before the next is made, and
-//! `turn` replies after its last edge. Selector commands only set the lines: the `selector`
-//! task's own sampling and debouncing decide when the selection changes (4 samples, 5 ms
-//! apart).
+//! `turn` replies after its last edge. Selector commands only set the lines: the `canopen`
+//! task's sampling and debouncing of the switches decide when the selection changes (4
+//! samples, 5 ms apart).
 
 use core::cell::RefCell;
 

@@ -115,9 +115,10 @@ def test_chatter_nets_zero(rig):
 
 
 def test_rest_learnt_at_standstill_keeps_reversals_whole(rig):
-    """Issue 12, item 5: the wheel is moved half a detent (00 -> 01 -> 11) and stays there;
-    `turn` then counts whole detents from 11. Every turn, reversals and single-detent jogs
-    included, must move the feed by exactly its detents (it used to give 5, -4, 2, -2, 0, 0)."""
+    """The wheel is moved half a detent (00 -> 01 -> 11) and stays there; `turn` then counts
+    whole detents from 11. Every turn, reversals and single-detent jogs included, must move
+    the feed by exactly its detents (a decoder that keeps 00 as the rest would give 5, -4, 2,
+    -2, 0, 0)."""
     rig.feed_on("x")
     rig.stim.ab(FORWARD[0])
     rig.stim.ab(FORWARD[1])

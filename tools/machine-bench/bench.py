@@ -39,7 +39,7 @@ import stm32  # noqa: E402
 SYSCLK_HZ = 72_000_000
 # The STM32F103 needs 2 flash wait states above 48 MHz.
 WAIT_STATES = 2
-# The fastest human spin the issue names.
+# The fastest human spin (edges per second) the figures are quoted for.
 EDGE_RATE_HZ = 20_000
 # Limits on the worst edge (entry to return) and on the latency from an edge to its port
 # read; `cargo xtask test` enforces them from the report file.

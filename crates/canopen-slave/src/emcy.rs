@@ -2,6 +2,7 @@
 //! 0x1003, COB-ID 0x1014 and inhibit time 0x1015.
 
 use crate::frame::{COB_INVALID, MAX_STANDARD_ID};
+use crate::nmt::NmtState;
 use crate::sdo::SdoAbort;
 use crate::time::Instant;
 use heapless::Vec;
@@ -158,9 +159,11 @@ impl Emcy {
         self.queue.clear();
     }
 
-    /// Drops queued frames (entering Stopped, where EMCY is not sent).
-    pub(crate) fn discard_queue(&mut self) {
-        self.queue.clear();
+    /// NMT state change: entering Stopped, where EMCY is not sent, drops queued frames.
+    pub(crate) fn on_nmt_state(&mut self, next: NmtState) {
+        if next == NmtState::Stopped {
+            self.queue.clear();
+        }
     }
 
     /// The next EMCY payload that may go out now, if any.

@@ -1,6 +1,7 @@
 //! Heartbeat producer (0x1017) and consumer (0x1016), CiA 301 7.2.8.3.2.
 
 use crate::frame::NodeId;
+use crate::nmt::NmtState;
 use crate::sdo::SdoAbort;
 use crate::time::{earliest, Instant};
 
@@ -78,6 +79,19 @@ impl Heartbeat {
     #[inline(never)]
     pub(crate) fn restart(&mut self, now: Instant) {
         self.next_beat = (self.producer_ms != 0).then(|| now.after_ms(self.producer_ms));
+    }
+
+    /// NMT state change from `prev` to `next`: whether to announce the new state with a
+    /// heartbeat now (then the period starts over). Not right after the boot-up frame: some
+    /// masters miss a boot-up that is immediately followed by a heartbeat.
+    pub(crate) fn on_nmt_state(&mut self, prev: NmtState, next: NmtState, now: Instant) -> bool {
+        let announce = prev != NmtState::Initialising
+            && next != NmtState::Initialising
+            && self.producer_ms != 0;
+        if announce {
+            self.restart(now);
+        }
+        announce
     }
 
     /// Whether a heartbeat is due; if so, schedules the next one.

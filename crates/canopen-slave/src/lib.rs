@@ -70,8 +70,6 @@
 //! assert_eq!(tx[2].data(), &[0x7F]);
 //! ```
 #![no_std]
-#![deny(unsafe_code)]
-#![warn(missing_docs)]
 
 #[macro_use]
 mod log;

@@ -4,6 +4,7 @@
 //! through `ObjectAccess`, implemented by the device, so the protocol code never sees the
 //! object dictionary's internals.
 
+use crate::nmt::NmtState;
 use crate::time::Instant;
 
 /// Size of the segmented-transfer buffer: the longest object that can be uploaded or
@@ -152,6 +153,13 @@ impl SdoServer {
     /// Drops any transfer silently (client abort, NMT state change, reset).
     pub(crate) fn reset(&mut self) {
         self.mode = Mode::Idle;
+    }
+
+    /// NMT state change: a transfer does not survive leaving the communicating states.
+    pub(crate) fn on_nmt_state(&mut self, next: NmtState) {
+        if !next.communicating() {
+            self.reset();
+        }
     }
 
     /// Starts a segmented transfer of `index:sub`.

@@ -10,7 +10,7 @@
 //! section (every stored engine parameter as a little-endian U32), the application section,
 //! CRC-16/CCITT of everything before it. A blob that fails any check reads as empty.
 
-use crate::tpdo::TPDOS;
+pub(crate) use crate::device::objects::{STORED, STORED_LEN};
 
 /// Signature to write to 0x1010 ("save", little-endian).
 pub const SAVE_SIGNATURE: u32 = 0x6576_6173;
@@ -21,53 +21,13 @@ pub const LOAD_SIGNATURE: u32 = 0x6461_6F6C;
 pub const APP_MAX: usize = 32;
 
 const MAGIC: u8 = 0xC0;
-/// Bumped whenever [`STORED`] or the layout changes, so that old blobs read as empty.
+/// Bumped whenever [`STORED`] (the communication objects' `stored` sub-indices) or the
+/// layout changes, so that old blobs read as empty.
 const VERSION: u8 = 1;
 /// Section flags.
 pub(crate) const COMM: u8 = 1 << 0;
 pub(crate) const APP: u8 = 1 << 1;
 const HEADER: usize = 4;
-
-const STORED_LEN: usize = 6 + 13 * TPDOS;
-
-/// The engine-owned parameters that are stored, in blob order.
-pub(crate) const STORED: [(u16, u8); STORED_LEN] = stored_list();
-
-const fn stored_list() -> [(u16, u8); STORED_LEN] {
-    let head = [
-        (0x1005, 0),
-        (0x1014, 0),
-        (0x1015, 0),
-        (0x1016, 1),
-        (0x1016, 2),
-        (0x1017, 0),
-    ];
-    let mut list = [(0u16, 0u8); STORED_LEN];
-    let mut i = 0;
-    while i < head.len() {
-        list[i] = head[i];
-        i += 1;
-    }
-    let mut n = 0;
-    while n < TPDOS {
-        let comm = 0x1800 + n as u16;
-        let subs = [1, 2, 3, 5];
-        let mut s = 0;
-        while s < subs.len() {
-            list[i] = (comm, subs[s]);
-            i += 1;
-            s += 1;
-        }
-        let mut sub = 0;
-        while sub <= 8 {
-            list[i] = (0x1A00 + n as u16, sub);
-            i += 1;
-            sub += 1;
-        }
-        n += 1;
-    }
-    list
-}
 
 const COMM_BYTES: usize = STORED_LEN * 4;
 const APP_OFFSET: usize = HEADER + COMM_BYTES;
@@ -199,7 +159,7 @@ pub(crate) struct Blob {
 
 impl Blob {
     /// Loads and checks the stored blob; anything invalid reads as empty.
-    pub(crate) fn load(storage: &mut impl Storage) -> Self {
+    pub(crate) fn load(storage: &mut (impl Storage + ?Sized)) -> Self {
         let mut blob = Self {
             buf: [0; BLOB_MAX],
             sections: 0,
@@ -279,7 +239,10 @@ impl Blob {
     }
 
     /// Writes the blob back, or erases the storage when no section is left.
-    pub(crate) fn store(&mut self, storage: &mut impl Storage) -> Result<(), StorageError> {
+    pub(crate) fn store(
+        &mut self,
+        storage: &mut (impl Storage + ?Sized),
+    ) -> Result<(), StorageError> {
         if self.sections == 0 {
             return storage.store(&[]);
         }
@@ -314,8 +277,18 @@ mod tests {
         for (i, a) in STORED.iter().enumerate() {
             assert!(STORED.iter().skip(i + 1).all(|b| b != a), "{a:?}");
         }
-        assert_eq!(STORED[6], (0x1800, 1));
-        assert_eq!(STORED[STORED_LEN - 1], (0x1A01, 8));
+        // The layout of blob VERSION 1.
+        let mut v1: heapless::Vec<(u16, u8), 64> = heapless::Vec::new();
+        let head = [0x1005, 0x1014, 0x1015].map(|index| (index, 0));
+        v1.extend(
+            head.into_iter()
+                .chain([(0x1016, 1), (0x1016, 2), (0x1017, 0)]),
+        );
+        for n in 0..2 {
+            v1.extend([1, 2, 3, 5].map(|sub| (0x1800 + n, sub)));
+            v1.extend((0..=8).map(|sub| (0x1A00 + n, sub)));
+        }
+        assert_eq!(STORED[..], v1[..], "a new layout needs a new VERSION");
     }
 
     #[test]

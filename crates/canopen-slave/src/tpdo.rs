@@ -2,6 +2,7 @@
 //! transmission-type timing rules of CiA 301 7.2.2.
 
 use crate::frame::{COB_INVALID, MAX_STANDARD_ID};
+use crate::nmt::NmtState;
 use crate::od::{Od, OdEntry};
 use crate::sdo::SdoAbort;
 use crate::time::Instant;
@@ -213,7 +214,7 @@ impl Tpdo {
     }
 
     /// Entry to Operational: timers start; an `announce`d event-driven PDO is sent at once.
-    pub(crate) fn start(&mut self, now: Instant, announce: bool) {
+    fn start(&mut self, now: Instant, announce: bool) {
         self.pending = announce && self.active() && self.event_driven();
         self.hold_until = Instant::ZERO;
         self.sync_count = 0;
@@ -221,7 +222,7 @@ impl Tpdo {
     }
 
     /// Leaving Operational: nothing may be sent any more.
-    pub(crate) fn stop(&mut self) {
+    fn stop(&mut self) {
         self.pending = false;
         self.event_at = None;
         self.sync_count = 0;
@@ -293,6 +294,19 @@ impl Tpdo {
             Some(self.hold_until)
         } else {
             self.event_at
+        }
+    }
+}
+
+/// NMT state change: the PDOs start on entry to Operational and stop on leaving it. Only
+/// TPDO1 announces itself (CiA 406 does so for the position): a PDO carrying events rather
+/// than state must not be repeated by a state change.
+pub(crate) fn on_nmt_state(tpdos: &mut [Tpdo; TPDOS], next: NmtState, now: Instant) {
+    for (n, t) in tpdos.iter_mut().enumerate() {
+        if next == NmtState::Operational {
+            t.start(now, n == 0);
+        } else {
+            t.stop();
         }
     }
 }

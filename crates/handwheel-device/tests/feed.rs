@@ -308,7 +308,7 @@ fn master_heartbeat_loss_stops_feed_with_emcy_8130() {
     assert_eq!(b.read_u32(0x6004, 0), 2);
 }
 
-/// Issue 12.1: while the monitored master stays silent, feed cannot be switched back on,
+/// While the monitored master stays silent, feed cannot be switched back on,
 /// the wheel moves nothing, and the record keeps saying why.
 #[test]
 fn feed_cannot_be_enabled_while_the_master_is_lost() {

@@ -1,0 +1,501 @@
+//! The communication objects the engine owns (entries of [`Value::Comm`] and
+//! [`Value::CommPlusNodeId`]) and the checked paths to every object of the dictionary.
+//!
+//! Each communication object is one row of [`OBJECTS`]: the indices it covers, the
+//! sub-indices 0x1010 stores (the blob layout, [`STORED`], is derived from them), and how it
+//! reads, checks and writes, and restores (a table default or a stored value) itself.
+//! Adding a communication object is adding its row (and its entries to the table of
+//! [`standard_objects`](crate::od::standard_objects)).
+
+use super::{params, Application};
+use crate::emcy::Emcy;
+use crate::frame::{check_cob_id_write, NodeId, COB_INVALID};
+use crate::heartbeat::Heartbeat;
+use crate::nmt::NmtState;
+use crate::od::{Od, OdEntry, Value};
+use crate::sdo::SdoAbort;
+use crate::storage::Storage;
+use crate::sync::SyncConsumer;
+use crate::time::Instant;
+use crate::tpdo::{Tpdo, TPDOS};
+
+/// The NMT state and the services behind the communication objects.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct Comm {
+    pub(super) od: Od,
+    /// The active node-ID; `None` while unconfigured (the NMT state is then Initialising).
+    pub(super) node: Option<NodeId>,
+    /// 0x1018:04.
+    pub(super) serial: u32,
+    /// Changed only by `Device::set_state`.
+    pub(super) state: NmtState,
+    pub(super) heartbeat: Heartbeat,
+    pub(super) sync: SyncConsumer,
+    pub(super) tpdos: [Tpdo; TPDOS],
+    pub(super) emcy: Emcy,
+}
+
+/// What a checked write may need besides the objects.
+pub(super) struct WriteCtx<'a> {
+    pub(super) now: Instant,
+    /// For 0x1010 (the application's parameters).
+    pub(super) app: &'a dyn Application,
+    /// For 0x1010 and 0x1011.
+    pub(super) storage: &'a mut dyn Storage,
+}
+
+/// Reads sub-index `sub` of object `index`.
+type Read = fn(&Comm, u16, u8) -> Result<u32, SdoAbort>;
+/// Writes a value the dictionary's entry has checked (type and range), after the object's
+/// own checks; changes nothing on failure.
+type Write = fn(&mut Comm, &mut WriteCtx<'_>, u16, u8, u32) -> Result<(), SdoAbort>;
+/// Sets a table default or a stored value, unchecked.
+type Restore = fn(&mut Comm, u16, u8, u32, Instant);
+
+/// One communication object, or one per PDO for the PDO parameter ranges.
+struct CommObject {
+    first: u16,
+    last: u16,
+    /// The sub-indices 0x1010 stores (of each PDO's object, for the PDO ranges).
+    stored: &'static [u8],
+    read: Read,
+    write: Write,
+    restore: Restore,
+}
+
+/// `write` of an object no write reaches (its entries are read-only).
+fn read_only(_: &mut Comm, _: &mut WriteCtx<'_>, _: u16, _: u8, _: u32) -> Result<(), SdoAbort> {
+    Err(SdoAbort::ReadOnly)
+}
+
+/// `restore` of an object whose value is not a parameter (a status, a command).
+fn not_a_parameter(_: &mut Comm, _: u16, _: u8, _: u32, _: Instant) {}
+
+/// `read` of the EMCY objects (0x1003, 0x1014, 0x1015).
+fn emcy_read(c: &Comm, index: u16, sub: u8) -> Result<u32, SdoAbort> {
+    c.emcy.read(index, sub)
+}
+
+/// `write` of 0x1003 and 0x1015 (0x1014 checks its COB-ID first).
+fn emcy_write(
+    c: &mut Comm,
+    _: &mut WriteCtx<'_>,
+    index: u16,
+    sub: u8,
+    v: u32,
+) -> Result<(), SdoAbort> {
+    c.emcy.write(index, sub, v)
+}
+
+/// `restore` of 0x1014 and 0x1015.
+fn emcy_restore(c: &mut Comm, index: u16, _: u8, v: u32, _: Instant) {
+    c.emcy.set(index, v);
+}
+
+/// `read` of 0x1010 and 0x1011: the capability, bit 0 (on command).
+fn on_command(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
+    Ok(1)
+}
+
+/// The communication objects, by index. The engine looks them up in [`ROUTES`], the same
+/// rows without what only the compiler needs.
+const OBJECTS: [CommObject; 12] = [
+    // Error register.
+    CommObject {
+        first: 0x1001,
+        last: 0x1001,
+        stored: &[],
+        read: |c, _, _| Ok(c.emcy.error_register().into()),
+        write: read_only,
+        restore: not_a_parameter,
+    },
+    // Pre-defined error field (history): writing 0 to sub 0 clears it.
+    CommObject {
+        first: 0x1003,
+        last: 0x1003,
+        stored: &[],
+        read: emcy_read,
+        write: emcy_write,
+        restore: not_a_parameter,
+    },
+    // COB-ID SYNC.
+    CommObject {
+        first: 0x1005,
+        last: 0x1005,
+        stored: &[0],
+        read: |c, _, _| Ok(c.sync.cob_id()),
+        write: |c, _, _, _, v| {
+            c.check_cob_id(CobSlot::Sync, v)?;
+            c.sync.set(v);
+            Ok(())
+        },
+        restore: |c, _, _, v, _| c.sync.set(v),
+    },
+    // Store parameters.
+    CommObject {
+        first: 0x1010,
+        last: 0x1010,
+        stored: &[],
+        read: on_command,
+        write: |c, ctx, _, sub, v| params::save(c, ctx, sub, v),
+        restore: not_a_parameter,
+    },
+    // Restore default parameters.
+    CommObject {
+        first: 0x1011,
+        last: 0x1011,
+        stored: &[],
+        read: on_command,
+        write: |_, ctx, _, sub, v| params::forget(ctx.storage, sub, v),
+        restore: not_a_parameter,
+    },
+    // COB-ID EMCY.
+    CommObject {
+        first: 0x1014,
+        last: 0x1014,
+        stored: &[0],
+        read: emcy_read,
+        write: |c, _, index, sub, v| {
+            c.check_cob_id(CobSlot::Emcy, v)?;
+            c.emcy.write(index, sub, v)
+        },
+        restore: emcy_restore,
+    },
+    // Inhibit time EMCY.
+    CommObject {
+        first: 0x1015,
+        last: 0x1015,
+        stored: &[0],
+        read: emcy_read,
+        write: emcy_write,
+        restore: emcy_restore,
+    },
+    // Consumer heartbeat time.
+    CommObject {
+        first: 0x1016,
+        last: 0x1016,
+        stored: &[1, 2],
+        read: |c, _, sub| c.heartbeat.consumer(sub),
+        write: |c, _, _, sub, v| match c.node {
+            Some(own) => c.heartbeat.write_consumer(sub, v, own),
+            None => Err(SdoAbort::DeviceState),
+        },
+        restore: |c, _, sub, v, _| c.heartbeat.set_consumer(sub, v),
+    },
+    // Producer heartbeat time (typed U16 in the table, so the truncation is lossless).
+    CommObject {
+        first: 0x1017,
+        last: 0x1017,
+        stored: &[0],
+        read: |c, _, _| Ok(c.heartbeat.producer_ms().into()),
+        write: |c, ctx, _, _, v| {
+            c.heartbeat.set_producer(v as u16, ctx.now);
+            Ok(())
+        },
+        restore: |c, _, _, v, now| c.heartbeat.set_producer(v as u16, now),
+    },
+    // Identity: the serial number (the other entries are constants).
+    CommObject {
+        first: 0x1018,
+        last: 0x1018,
+        stored: &[],
+        read: |c, _, _| Ok(c.serial),
+        write: read_only,
+        restore: not_a_parameter,
+    },
+    // TPDO communication parameters.
+    CommObject {
+        first: 0x1800,
+        last: 0x19FF,
+        stored: &[1, 2, 3, 5],
+        read: |c, index, sub| c.tpdo(index - 0x1800)?.read_comm(sub),
+        write: |c, ctx, index, sub, v| {
+            let n = index - 0x1800;
+            c.tpdo(n)?;
+            if sub == 1 {
+                c.check_cob_id(CobSlot::Tpdo(usize::from(n)), v)?;
+            }
+            let operational = c.state == NmtState::Operational;
+            c.tpdo_mut(n)?.write_comm(sub, v, ctx.now, operational)
+        },
+        restore: |c, index, sub, v, _| {
+            if let Ok(t) = c.tpdo_mut(index - 0x1800) {
+                t.set_comm(sub, v);
+            }
+        },
+    },
+    // TPDO mapping parameters.
+    CommObject {
+        first: 0x1A00,
+        last: 0x1BFF,
+        stored: &[0, 1, 2, 3, 4, 5, 6, 7, 8],
+        read: |c, index, sub| c.tpdo(index - 0x1A00)?.read_mapping(sub),
+        write: |c, _, index, sub, v| {
+            let od = c.od;
+            c.tpdo_mut(index - 0x1A00)?.write_mapping(sub, v, &od)
+        },
+        restore: |c, index, sub, v, _| {
+            if let Ok(t) = c.tpdo_mut(index - 0x1A00) {
+                t.set_mapping(sub, v);
+            }
+        },
+    },
+];
+
+/// How many parameters 0x1010 stores.
+pub(crate) const STORED_LEN: usize = stored_len();
+
+/// The parameters 0x1010 stores, in the order of the blob's communication section: the
+/// single objects' stored sub-indices in table order, then PDO by PDO the PDO ranges'.
+pub(crate) const STORED: [(u16, u8); STORED_LEN] = stored_list();
+
+const fn stored_len() -> usize {
+    let mut len = 0;
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        len += o.stored.len() * if o.first == o.last { 1 } else { TPDOS };
+        i += 1;
+    }
+    len
+}
+
+const fn stored_list() -> [(u16, u8); STORED_LEN] {
+    let mut list = [(0, 0); STORED_LEN];
+    let mut k = 0;
+    // Round 0: the single objects; round n + 1: the objects of PDO n.
+    let mut round = 0;
+    while round <= TPDOS {
+        let mut i = 0;
+        while i < OBJECTS.len() {
+            let o = &OBJECTS[i];
+            let single = o.first == o.last;
+            if single == (round == 0) {
+                // Below 0x200 PDOs per range, so the offset fits.
+                let index = if single {
+                    o.first
+                } else {
+                    o.first + (round - 1) as u16
+                };
+                let mut s = 0;
+                while s < o.stored.len() {
+                    list[k] = (index, o.stored[s]);
+                    k += 1;
+                    s += 1;
+                }
+            }
+            i += 1;
+        }
+        round += 1;
+    }
+    list
+}
+
+/// A row of [`OBJECTS`] as the engine uses it at run time.
+#[derive(Clone, Copy)]
+struct Route {
+    first: u16,
+    last: u16,
+    read: Read,
+    write: Write,
+    restore: Restore,
+}
+
+/// [`OBJECTS`] without the stored sub-indices, which only [`STORED`] needs.
+static ROUTES: [Route; OBJECTS.len()] = routes();
+
+const fn routes() -> [Route; OBJECTS.len()] {
+    let mut routes = [Route {
+        first: 0,
+        last: 0,
+        read: |_, _, _| Err(SdoAbort::NoObject),
+        write: read_only,
+        restore: not_a_parameter,
+    }; OBJECTS.len()];
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        routes[i] = Route {
+            first: o.first,
+            last: o.last,
+            read: o.read,
+            write: o.write,
+            restore: o.restore,
+        };
+        i += 1;
+    }
+    routes
+}
+
+/// The row of object `index`, if the engine owns it.
+fn object(index: u16) -> Option<&'static Route> {
+    // One unsigned comparison per row: `first <= index <= last`.
+    ROUTES
+        .iter()
+        .find(|o| index.wrapping_sub(o.first) <= o.last.wrapping_sub(o.first))
+}
+
+/// The objects whose COB-IDs must differ (see [`Comm::check_cob_id`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum CobSlot {
+    Sync,
+    Emcy,
+    /// TPDO `n` (0-based).
+    Tpdo(usize),
+}
+
+impl CobSlot {
+    const fn index(self) -> usize {
+        match self {
+            Self::Sync => 0,
+            Self::Emcy => 1,
+            Self::Tpdo(n) => 2 + n,
+        }
+    }
+}
+
+impl Comm {
+    /// Reads an engine-owned object.
+    pub(super) fn read(&self, index: u16, sub: u8) -> Result<u32, SdoAbort> {
+        let o = object(index).ok_or(SdoAbort::NoObject)?;
+        (o.read)(self, index, sub)
+    }
+
+    /// Checked write of an engine-owned object (type and range already checked).
+    fn write(
+        &mut self,
+        ctx: &mut WriteCtx<'_>,
+        index: u16,
+        sub: u8,
+        value: u32,
+    ) -> Result<(), SdoAbort> {
+        let o = object(index).ok_or(SdoAbort::ReadOnly)?;
+        (o.write)(self, ctx, index, sub, value)
+    }
+
+    /// Unchecked write of a parameter: table defaults and stored values.
+    pub(super) fn restore(&mut self, index: u16, sub: u8, value: u32, now: Instant) {
+        if let Some(o) = object(index) {
+            (o.restore)(self, index, sub, value, now);
+        }
+    }
+
+    /// Communication parameters back to the table's defaults (reset communication).
+    pub(super) fn load_defaults(&mut self, now: Instant) {
+        // Objects missing from the table stay disabled rather than keeping stale values.
+        self.heartbeat = Heartbeat::new();
+        self.sync = SyncConsumer::new();
+        self.tpdos = [const { Tpdo::new() }; TPDOS];
+        self.emcy.set(0x1014, COB_INVALID);
+        self.emcy.set(0x1015, 0);
+        let node = u32::from(self.node.map_or(0, NodeId::get));
+        for e in self.od.entries() {
+            match e.value() {
+                Value::Comm(v) => self.restore(e.index(), e.sub(), v, now),
+                Value::CommPlusNodeId(v) => {
+                    self.restore(e.index(), e.sub(), v.wrapping_add(node), now)
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Checks a write of the COB-ID in `slot`: first the object's own rules (format,
+    /// restricted identifiers, no change of CAN-ID while valid: 0x06090030), then that no
+    /// other object of this node uses it (0x06040043), so that no frame of ours goes out
+    /// where the network expects another kind (feed records read as emergencies, a TPDO
+    /// taken for SYNC). An entry with bit 31 set claims nothing, except SYNC, which is
+    /// always received (bit 31 means nothing to a consumer).
+    fn check_cob_id(&self, slot: CobSlot, value: u32) -> Result<(), SdoAbort> {
+        let mut owners = [0; 2 + TPDOS];
+        owners[CobSlot::Sync.index()] = self.sync.cob_id() & !COB_INVALID;
+        owners[CobSlot::Emcy.index()] = self.emcy.cob_id();
+        for (n, t) in self.tpdos.iter().enumerate() {
+            if let Some(owner) = owners.get_mut(CobSlot::Tpdo(n).index()) {
+                *owner = t.cob_id();
+            }
+        }
+        let slot = slot.index();
+        let value = if slot == CobSlot::Sync.index() {
+            SyncConsumer::check(value)?;
+            value & !COB_INVALID
+        } else {
+            check_cob_id_write(owners.get(slot).copied().unwrap_or(0), value)?;
+            value
+        };
+        let clash = value & COB_INVALID == 0
+            && owners.iter().enumerate().any(|(other, &raw)| {
+                other != slot && raw & COB_INVALID == 0 && (raw ^ value) & 0x7FF == 0
+            });
+        if clash {
+            return Err(SdoAbort::ParameterIncompatible);
+        }
+        Ok(())
+    }
+
+    fn tpdo(&self, n: u16) -> Result<&Tpdo, SdoAbort> {
+        self.tpdos.get(usize::from(n)).ok_or(SdoAbort::NoObject)
+    }
+
+    fn tpdo_mut(&mut self, n: u16) -> Result<&mut Tpdo, SdoAbort> {
+        self.tpdos.get_mut(usize::from(n)).ok_or(SdoAbort::NoObject)
+    }
+
+    /// Reads an entry's value into `buf` (no access check: PDOs and uploads check first).
+    pub(super) fn read_value(
+        &self,
+        e: &OdEntry,
+        buf: &mut [u8],
+        app: &mut dyn Application,
+    ) -> Result<usize, SdoAbort> {
+        let size = e.data_type().size();
+        let raw = match e.value() {
+            Value::Const(v) => v,
+            Value::Comm(_) | Value::CommPlusNodeId(_) => self.read(e.index(), e.sub())?,
+            Value::Str(s) => {
+                let dst = buf.get_mut(..s.len()).ok_or(SdoAbort::OutOfMemory)?;
+                dst.copy_from_slice(s.as_bytes());
+                return Ok(s.len());
+            }
+            Value::App => {
+                let n = app.read(e.index(), e.sub(), buf)?;
+                // A wrong length is a bug in the application; never pass it on.
+                if n > buf.len() || size.is_some_and(|s| s != n) {
+                    return Err(SdoAbort::InternalIncompatible);
+                }
+                return Ok(n);
+            }
+        };
+        // Od::new guarantees that constants and parameters are numeric.
+        let n = size.unwrap_or(4);
+        let bytes = raw.to_le_bytes();
+        let dst = buf.get_mut(..n).ok_or(SdoAbort::OutOfMemory)?;
+        dst.copy_from_slice(bytes.get(..n).ok_or(SdoAbort::InternalIncompatible)?);
+        Ok(n)
+    }
+
+    /// The checked write path shared by SDO and local writes; changes nothing on failure.
+    pub(super) fn write_object(
+        &mut self,
+        now: Instant,
+        index: u16,
+        sub: u8,
+        data: &[u8],
+        app: &mut dyn Application,
+        storage: &mut dyn Storage,
+    ) -> Result<(), SdoAbort> {
+        let e = self.od.find(index, sub)?;
+        if !e.access().writable() {
+            return Err(SdoAbort::ReadOnly);
+        }
+        let value = e.check_write(data)?;
+        match e.value() {
+            Value::App => app.write(index, sub, data),
+            Value::Comm(_) | Value::CommPlusNodeId(_) => {
+                let mut ctx = WriteCtx { now, app, storage };
+                self.write(&mut ctx, index, sub, value)
+            }
+            Value::Const(_) | Value::Str(_) => Err(SdoAbort::ReadOnly),
+        }
+    }
+}
