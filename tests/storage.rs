@@ -101,8 +101,9 @@ mod tests {
 /// Programs one half-word at `offset` from the start of flash, independently of
 /// `FlashStorage` (RM0008 3.3.3: unlock, PG, a half-word write, BSY, lock).
 fn program_half_word(flash: &handwheel_firmware::pac::FLASH, offset: u32, value: u16) {
-    // SAFETY (keys): the documented unlock sequence, in order.
     for key in [0x4567_0123, 0xCDEF_89AB] {
+        // SAFETY: the documented unlock keys, in order; a wrong one would only lock FLASH_CR
+        // until reset.
         flash.keyr().write(|w| unsafe { w.key().bits(key) });
     }
     flash.cr().modify(|_, w| w.pg().set_bit());

@@ -23,10 +23,9 @@
 //!   chattering edge next to a rest completes the detent on its first arrival (one edge
 //!   early, if the wheel then goes on), and every further arrival there has `delta` 0;
 //! - a reversal costs nothing: going back from a rest state to the previous one is a whole
-//!   detent of travel, reported as such. An earlier version reported after a full detent
-//!   past the last report point instead; when the wheel's rest was not at that point's phase
-//!   (it started mid-detent, or was moved half a detent), every reversal lost a detent and
-//!   single-detent jogs reported nothing (issue 12, item 5);
+//!   detent of travel, reported as such. (Reporting a full detent past the last report point
+//!   instead would, with the rest off that point's phase, lose a detent at every reversal
+//!   and report no single-detent jog at all);
 //! - `delta` is always even with 2 or 4 counts per detent; an illegal jump between two
 //!   arrivals shifts the levels by two counts without counting, so with 4 counts per detent
 //!   the next arrival can see `delta` = +-2 (half a detent of known travel: never turned into
@@ -630,7 +629,7 @@ mod tests {
         }
     }
 
-    /// Issue 12, item 5, at the decoder: the wheel starts at 00 and is moved half a detent
+    /// A wheel moved off its start-up rest: it starts at 00 and is moved half a detent
     /// (01, then 11), where it stays; whole detents are then turned from 11.
     #[test]
     fn rest_learnt_at_standstill_keeps_reversals_whole() {

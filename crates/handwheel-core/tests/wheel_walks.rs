@@ -220,7 +220,7 @@ proptest! {
         }
     }
 
-    /// Issue 12, item 5: wherever the wheel rests (a misaligning prefix of 0..cpd counts,
+    /// Wherever the wheel rests (a misaligning prefix of 0..cpd counts,
     /// then a standstill), an arbitrary walk of whole detents with returning chatter anywhere,
     /// mid-detent included, and standstills between detents reports after every whole
     /// detent exactly the detents walked so far: the same as without the chatter.
