@@ -69,15 +69,19 @@ def free_ports(count: int) -> List[int]:
 
 
 class Emulator:
-    """`cargo xtask qemu` in its own process group (so that the terminal's Ctrl-C reaches
-    this script only, which then ends the emulator itself)."""
+    """`cargo xtask qemu` (or `cargo xtask board`, the release image on the emulated board)
+    in its own process group (so that the terminal's Ctrl-C reaches this script only, which
+    then ends the emulator itself)."""
+
+    # Set by `--board`: the task that runs the emulator.
+    TASK = "qemu"
 
     def __init__(self, log_path: Path) -> None:
         self.can_port, self.stim_port = free_ports(2)
         self.log_path = log_path
         self._log = open(log_path, "wb")
         self.proc = subprocess.Popen(
-            [os.environ.get("CARGO", "cargo"), "xtask", "qemu",
+            [os.environ.get("CARGO", "cargo"), "xtask", self.TASK,
              "--can-port", str(self.can_port), "--stim-port", str(self.stim_port)],
             cwd=ROOT, stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
             start_new_session=True,
@@ -87,7 +91,7 @@ class Emulator:
         code = self.proc.poll()
         if code is not None:
             tail = "\n".join(self.log_path.read_text(errors="replace").splitlines()[-20:])
-            raise RuntimeError(f"`cargo xtask qemu` exited with {code}:\n{tail}")
+            raise RuntimeError(f"`cargo xtask {self.TASK}` exited with {code}:\n{tail}")
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -414,7 +418,11 @@ def main() -> int:
                         help="run a scripted tour instead of reading the keyboard")
     parser.add_argument("--pace", type=float, default=0.5,
                         help="seconds between the tour's steps (default 0.5)")
+    parser.add_argument("--board", action="store_true",
+                        help="run the release image on the emulated board instead of QEMU")
     args = parser.parse_args()
+    if args.board:
+        Emulator.TASK = "board"
     if not args.script and not sys.stdin.isatty():
         print("demo: the interactive mode reads keys from a terminal; use --script",
               file=sys.stderr)
@@ -427,7 +435,8 @@ def main() -> int:
     demo = Demo(log_path)
     status = 0
     try:
-        print(f"demo: starting the handwheel firmware in QEMU (log: {log_path})")
+        where = "on the emulated board" if args.board else "in QEMU"
+        print(f"demo: starting the handwheel firmware {where} (log: {log_path})")
         demo.boot()
         demo.select("x", 1)
         demo.start_feed()
