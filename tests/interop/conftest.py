@@ -15,6 +15,7 @@ import shlex
 import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -27,6 +28,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 EDS = ROOT / "eds" / "handwheel.eds"
+
+# The emulated board (the release image, `cargo xtask board`): its launcher.
+sys.path.insert(0, str(ROOT / "tools" / "board-emu"))
+from launcher import BoardProcess  # noqa: E402
 
 NODE_ID = 16
 NMT = 0x000
@@ -498,9 +503,18 @@ def pytest_runtest_makereport(item, call):
     setattr(item, "rep_" + report.when, report)
 
 
-@pytest.fixture
+# Which emulator a test runs on: the QEMU variant, and the board image on the emulated board.
+EMULATORS = ["qemu", "board"]
+
+
+@pytest.fixture(params=EMULATORS)
 def qemu(request, tmp_path) -> Iterator[Qemu]:
-    q = Qemu(tmp_path / "qemu.log")
+    """The emulated handwheel: the QEMU variant, or (param `board`) the release image on the
+    emulated board, which has the same ports, log and stimulus commands."""
+    if request.param == "board":
+        q = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")
+    else:
+        q = Qemu(tmp_path / "qemu.log")
     try:
         yield q
     finally:

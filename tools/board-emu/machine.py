@@ -53,6 +53,7 @@ ERR_LED = ("B", 5)  # active high
 # Edges per detent and the time between two edges of `turn` (a brisk hand: 4 detents/10 ms).
 EDGES_PER_DETENT = 4
 EDGE_CYCLES = 600 * cortex.CORE_HZ // 1_000_000  # 600 us
+SETTLE_CYCLES = 10 * cortex.CORE_HZ // 1000  # 10 ms
 
 
 @dataclass
@@ -355,7 +356,10 @@ class Machine:
         def step(left: int) -> None:
             if left == 0:
                 if done:
-                    done()
+                    # Done once the last edge has been handled and its feed frame is out
+                    # (the TPDO's 2 ms inhibit time included), as the QEMU variant's reply
+                    # comes after its last edge's task has run.
+                    self.schedule(SETTLE_CYCLES, done)
                 return
             self.set_ab(table[self.ab])
             self.schedule(EDGE_CYCLES, lambda: step(left - 1))
