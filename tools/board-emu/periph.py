@@ -468,6 +468,7 @@ class Bxcan:
         self.filtered = 0
         self.overruns = 0
         self.dropped_offline = 0
+        self.aborted = 0
         self.btr_writes: list[int] = []
         self.reset()
 
@@ -660,6 +661,7 @@ class Bxcan:
             if value & (1 << (7 + 8 * box)) and self.mailboxes[box][0] & 1:  # ABRQ
                 if self.on_bus != box:
                     self._finish(box, ok=False)
+                    self.aborted += 1
 
     # -- FIFOs and filters ------------------------------------------------------------------
 

@@ -174,6 +174,7 @@ class Server:
                 return b"\a"
             self.frames_in += 1
             self.m.deliver(frame)
+            self.m.update_irqs()
             return b"z\r" if letter in "tr" else b"Z\r"
         return b"\a"
 
@@ -240,7 +241,7 @@ class Server:
                 m.turn(n, done=ok)
         elif name == "ab":
             m.set_ab(one(0, 3))
-            ok()
+            m.schedule(machine_mod.EDGE_CYCLES, ok)  # once the edge has been handled
         elif name == "axis":
             axes = {"off": 0, "x": 1, "y": 2, "z": 3, "w": 4, "v": 5}
             if len(args) != 1:
@@ -325,6 +326,7 @@ class Server:
             "delivered": can.delivered,
             "filtered": can.filtered,
             "overruns": can.overruns,
+            "aborted": can.aborted,
             "offline": can.dropped_offline,
             "in": self.frames_in,
             "out": self.frames_out,
