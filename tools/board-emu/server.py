@@ -327,6 +327,7 @@ class Server:
             "filtered": can.filtered,
             "overruns": can.overruns,
             "aborted": can.aborted,
+            "pending": ",".join(f"{can.frame_in(b).can_id:03x}" for b in range(3) if can.mailboxes[b][0] & 1) or "-",
             "offline": can.dropped_offline,
             "in": self.frames_in,
             "out": self.frames_out,
