@@ -502,6 +502,12 @@ QEMU_ONLY = {
     "test_receive_overrun_raises_emcy_8110_and_the_node_recovers":
         "needs the QEMU variant's `stall` stimulus (the board image has no such hook); the "
         "board's overrun is tested by test_board.py::test_burst_during_a_flash_erase_overruns",
+    "test_configure_node_id_store_and_reset":
+        "asserts the QEMU variant's log line for stored settings at an NMT reset (its boot); "
+        "the board reads them at power-on: test_board.py::test_stored_settings_survive_a_power_cycle",
+    "test_configure_bit_timing_and_store":
+        "asserts the QEMU variant's log lines (no bit rate there); the board's bit rates are "
+        "checked on BTR by test_board.py::test_every_dip_code_gives_the_tables_node_id_and_bit_rate",
 }
 
 

@@ -53,7 +53,7 @@ ERR_LED = ("B", 5)  # active high
 # Edges per detent and the time between two edges of `turn` (a brisk hand: 4 detents/10 ms).
 EDGES_PER_DETENT = 4
 EDGE_CYCLES = 600 * cortex.CORE_HZ // 1_000_000  # 600 us
-SETTLE_CYCLES = 10 * cortex.CORE_HZ // 1000  # 10 ms
+SETTLE_CYCLES = 25 * cortex.CORE_HZ // 1000  # 25 ms
 
 
 @dataclass
