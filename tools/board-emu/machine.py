@@ -402,6 +402,7 @@ class Machine:
         """System reset (RM0008 7.1.2): every register to its reset value but RCC_CSR's
         flags; SRAM keeps its content; the CPU starts from the vector table."""
         self.stats.resets.append(f"{self.ms():.1f} ms {cause}")
+        self.last_reset_ms = self.ms()
         self.nvic.reset()
         self.nvic.on_pend = self._on_pend
         self.nvic.now = self.now

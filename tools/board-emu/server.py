@@ -316,6 +316,7 @@ class Server:
             "ms": f"{m.ms():.1f}",
             "boot": m.boot_cause,
             "resets": len(m.stats.resets),
+            "reset_ms": f"{m.last_reset_ms:.1f}",
             "btr": f"{can.btr:#010x}",
             "bitrate": round(can.bitrate()),
             "bus": can.bus_bitrate or "auto",
