@@ -24,7 +24,7 @@ run ahead of the instructions by up to one slice per stop.
 
 from __future__ import annotations
 
-from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc, UcError, UC_HOOK_CODE
+from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc, UcError
 from unicorn import arm_const as arm
 
 CORE_HZ = 72_000_000
@@ -438,7 +438,3 @@ def make_uc() -> Uc:
     uc.ctl_set_cpu_model(arm.UC_CPU_ARM_CORTEX_M3)
     return uc
 
-
-def add_stop_hook(uc: Uc, address: int, callback) -> None:
-    """A code hook on one instruction address only (bounded: no cost elsewhere)."""
-    uc.hook_add(UC_HOOK_CODE, callback, begin=address, end=address)

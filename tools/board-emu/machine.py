@@ -89,7 +89,6 @@ class Image:
 class Stats:
     resets: list[str] = field(default_factory=list)
     slices: int = 0
-    instructions_budget: int = 0
 
 
 class Machine:
@@ -146,9 +145,6 @@ class Machine:
             periph.CAN_BASE: ("can", self.can),
         }
         self.core = cortex.Core(uc, self.nvic, self._vector)
-        self.nvic.on_pend = self._on_pend
-        self.running = False
-        self.idle_hit = False
         self.core.on_return = self.update_irqs
 
         # The world around the MCU.
@@ -170,6 +166,7 @@ class Machine:
         self.stall_until = 0  # the CPU waits for the flash until then
         self._seq = 0
         self.storm_until = 0
+        self.storm_started_ms = 0.0
         self.stats = Stats()
         self.boot_cause = "PowerOn"
         self.power_on()
@@ -268,11 +265,6 @@ class Machine:
             with open(tmp, "wb") as f:
                 f.write(self.fpec.memory)
             os.replace(tmp, self.flash_file)
-
-    def _on_pend(self) -> None:
-        # A pend during a slice is taken at its end: stopping unicorn from a memory
-        # callback would make it run the storing instruction again.
-        pass
 
     # -- interrupt lines ---------------------------------------------------------------------
 
@@ -404,7 +396,8 @@ class Machine:
         self.stats.resets.append(f"{self.ms():.1f} ms {cause}")
         self.last_reset_ms = self.ms()
         self.nvic.reset()
-        self.nvic.on_pend = self._on_pend
+        # A pend during a slice is taken at its end (`Nvic.on_pend` stays a no-op): stopping
+        # unicorn from a memory callback makes it run the storing instruction again.
         self.nvic.now = self.now
         self.rcc.reset()
         for gpio in self.gpio.values():
@@ -465,7 +458,6 @@ class Machine:
         self.nvic.advance_systick(cycle)
         self.now = cycle
         self.nvic.now = cycle
-        # A wrap that happened inside the stretch moves SysTick's base on.
         dog = self.iwdg.expiry()
         if dog is not None and self.now >= dog:
             self.rcc.csr_flags |= periph.Rcc.IWDGRSTF
@@ -495,16 +487,10 @@ class Machine:
             return
         self.core.check_preemption()
         count = min(SLICE, target - self.now)
-        self.idle_hit = False
-        self.running = True
-        try:
-            self.core.run(count)
-        finally:
-            self.running = False
+        self.core.run(count)
         self.stats.slices += 1
+        # The idle task's `spin_loop` (YIELD) in thread mode: the CPU has nothing to do.
         if self.core.stop_reason == "yield" and not self.nvic.active_stack:
-            self.idle_hit = True  # the idle task's `spin_loop` in thread mode
-        if self.idle_hit:
             primask, basepri = self.core.mask_levels()
             if self.nvic.preempting(primask, basepri) is None:
                 # Idle until the next event: nothing else can happen before it.

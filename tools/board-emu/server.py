@@ -288,6 +288,7 @@ class Server:
             ok()
         elif name == "storm":
             m.storm_until = m.now + one(1, 60_000) * cortex.CORE_HZ // 1000
+            m.storm_started_ms = m.ms()
             ok()
         elif name == "corrupt":
             m.fpec.memory[8] ^= 0x01
@@ -317,6 +318,7 @@ class Server:
             "boot": m.boot_cause,
             "resets": len(m.stats.resets),
             "reset_ms": f"{m.last_reset_ms:.1f}",
+            "storm_ms": f"{m.storm_started_ms:.1f}",
             "btr": f"{can.btr:#010x}",
             "bitrate": round(can.bitrate()),
             "bus": can.bus_bitrate or "auto",
