@@ -136,8 +136,8 @@ def describe_status(status: int) -> str:
 class Demo:
     """The booted node, its master and the wheel."""
 
-    def __init__(self, log_path: Path) -> None:
-        self.emulator = Qemu(log_path)
+    def __init__(self, log_path: Path, task: str = "qemu") -> None:
+        self.emulator = Qemu(log_path, task)
         self.cnc = Cnc()
         self.bus: Optional[can.BusABC] = None
         self.network: Optional[canopen.Network] = None
@@ -370,6 +370,11 @@ def main() -> int:
     parser.add_argument(
         "--pace", type=float, default=0.5, help="seconds between the tour's steps (default 0.5)"
     )
+    parser.add_argument(
+        "--board",
+        action="store_true",
+        help="run the release image on the emulated board instead of QEMU",
+    )
     args = parser.parse_args()
     if not args.script and not sys.stdin.isatty():
         print(
@@ -382,10 +387,11 @@ def main() -> int:
     )
     log_path.parent.mkdir(parents=True, exist_ok=True)
     signal.signal(signal.SIGTERM, interrupt)
-    demo = Demo(log_path)
+    demo = Demo(log_path, "board" if args.board else "qemu")
     status = 0
     try:
-        print(f"demo: starting the handwheel firmware in QEMU (log: {log_path})")
+        where = "on the emulated board" if args.board else "in QEMU"
+        print(f"demo: starting the handwheel firmware {where} (log: {log_path})")
         demo.boot()
         demo.select("x", 1)
         demo.start_feed()

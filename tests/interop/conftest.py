@@ -9,6 +9,7 @@ recorder, stimulus client, `open_rig`) is the library `tools/rig`.
 
 from __future__ import annotations
 
+import sys
 from typing import Iterator
 
 import canopen
@@ -16,7 +17,42 @@ import pytest
 
 # The library in tools/rig (on the path through pytest.ini), shared with the demo and the
 # host tools.
-from rig import FrameRecorder, Qemu, Rig, Stimulus, open_rig
+from rig import ROOT, FrameRecorder, Qemu, Rig, Stimulus, open_rig
+
+# The emulated board (the release image, `cargo xtask board`): its launcher.
+sys.path.insert(0, str(ROOT / "tools" / "board-emu"))
+from launcher import BoardProcess  # noqa: E402
+
+# Tests that need the QEMU variant's board layer, with the reason; on the emulated board
+# they are skipped (the rest of the suite runs on both).
+QEMU_ONLY = {
+    "test_receive_overrun_raises_emcy_8110_and_the_node_recovers": (
+        "needs the QEMU variant's `stall` stimulus (the board image has no such hook); the "
+        "board's overrun is tested by test_board.py::test_burst_during_a_flash_erase_overruns"
+    ),
+    "test_configure_node_id_store_and_reset": (
+        "asserts the QEMU variant's log line for stored settings at an NMT reset (its boot); "
+        "the board reads them at power-on: "
+        "test_board.py::test_stored_settings_survive_a_power_cycle"
+    ),
+    "test_configure_bit_timing_and_store": (
+        "asserts the QEMU variant's log lines (no bit rate there); the board's bit rates are "
+        "checked on BTR by test_board.py::test_every_dip_code_gives_the_tables_node_id_and_bit_rate"
+    ),
+}
+
+# Which emulator a test runs on: the QEMU variant, and the board image on the emulated board.
+EMULATORS = ["qemu", "board"]
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        callspec = getattr(item, "callspec", None)
+        if callspec is None or callspec.params.get("qemu") != "board":
+            continue
+        reason = QEMU_ONLY.get(getattr(item, "originalname", item.name))
+        if reason:
+            item.add_marker(pytest.mark.skip(reason=f"QEMU variant only: {reason}"))
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -26,9 +62,14 @@ def pytest_runtest_makereport(item, call):
     setattr(item, "rep_" + report.when, report)
 
 
-@pytest.fixture
+@pytest.fixture(params=EMULATORS)
 def qemu(request, tmp_path) -> Iterator[Qemu]:
-    q = Qemu(tmp_path / "qemu.log")
+    """The emulated handwheel: the QEMU variant, or (param `board`) the release image on the
+    emulated board, which has the same ports, log and stimulus commands."""
+    if request.param == "board":
+        q = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")
+    else:
+        q = Qemu(tmp_path / "qemu.log")
     try:
         yield q
     finally:

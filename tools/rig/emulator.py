@@ -34,9 +34,11 @@ def free_ports(count: int) -> List[int]:
 
 class Qemu:
     """`cargo xtask qemu --can-port P --stim-port Q`, its stderr (QEMU's messages and the
-    decoded defmt log) in `log_path`."""
+    decoded defmt log) in `log_path`. With `task` "board", `cargo xtask board` instead: the
+    release image on the emulated board, with the same ports, log and stimulus commands."""
 
-    def __init__(self, log_path: Path) -> None:
+    def __init__(self, log_path: Path, task: str = "qemu") -> None:
+        self.task = task
         self.can_port, self.stim_port = free_ports(2)
         self.log_path = log_path
         self._log_file = open(log_path, "wb")
@@ -49,7 +51,7 @@ class Qemu:
             command = [
                 os.environ.get("CARGO", "cargo"),
                 "xtask",
-                "qemu",
+                task,
                 "--can-port",
                 str(self.can_port),
                 "--stim-port",
@@ -71,7 +73,7 @@ class Qemu:
         code = self.proc.poll()
         if code is not None:
             tail = "\n".join(self.log().splitlines()[-40:])
-            raise RuntimeError(f"`cargo xtask qemu` exited with {code}:\n{tail}")
+            raise RuntimeError(f"`cargo xtask {self.task}` exited with {code}:\n{tail}")
 
     def wait_for_log(
         self, pattern: str, timeout: float = FRAME_TIMEOUT, start: int = 0

@@ -4,6 +4,7 @@
 //! change must pass, in the order that fails fastest, ending with the interop suite
 //! (python-canopen against the firmware's QEMU variant).
 
+mod board;
 mod footprint;
 mod host;
 mod linuxcnc;
@@ -43,13 +44,19 @@ tasks:
   qemu --can-port <P> --stim-port <Q>   build the QEMU variant if needed and run it: SLCAN on
                                         tcp:127.0.0.1:P (waits for the client), stimulus on
                                         tcp:127.0.0.1:Q, decoded defmt log on stderr
+  board --can-port <P> --stim-port <Q>  the release image on the emulated board (tools/board-emu):
+        [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
+                                        control line on tcp:127.0.0.1:Q, decoded defmt log on
+                                        stderr; FILE keeps the parameter page (default
+                                        target/board-emu/flash.bin)
   lint                                  ruff check and ruff format --check over all Python
-  interop [pytest args]                 only the interop suite (venv, QEMU variant, pytest)
+  interop [pytest args]                 only the interop suite (venv, QEMU variant, board, pytest)
   host [pytest args]                    only the LinuxCNC component's unit and property tests
   linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the QEMU handwheel in the
                                         terminal: DRO, machine state, wheel from the keyboard
   linuxcnc-test [pytest args]           only the LinuxCNC suite (component in LinuxCNC 2.9)
-  demo [--script]                       the handwheel in QEMU with a live python-canopen master
+  demo [--script] [--board]             the handwheel in QEMU (or on the emulated board) with a
+                                        live python-canopen master
   bench                                 1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
@@ -62,6 +69,7 @@ fn main() -> ExitCode {
         Some("test") => test(),
         Some("fw") => firmware_build(),
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
+        Some("board") => board::Args::from_args(rest).and_then(run_board),
         Some("lint") => python_lint(),
         Some("interop") => interop(rest),
         Some("host") => host_tests(rest),
@@ -147,6 +155,7 @@ fn test() -> Result<(), String> {
     // The release machine code in the emulator: CPU figures in one line, the stack and the
     // wheel edge's cycles and latency checked.
     stack_check(&machine_bench(true)?)?;
+    board_unit_tests()?;
     // The on-target suites (defmt-test) cannot run here, but they must build.
     cargo(&[
         "build",
@@ -366,11 +375,61 @@ fn run_qemu(ports: qemu::Ports) -> Result<(), String> {
     ))
 }
 
-/// The interop suite: QEMU, the QEMU firmware and defmt-print first (so that the first test
-/// does not spend its start-up time building), the venv, then pytest with `pytest_args`.
+/// Everything the emulated board needs: the release image, its venv, `defmt-print`.
+struct Board {
+    python: PathBuf,
+    defmt_print: PathBuf,
+    elf: PathBuf,
+}
+
+impl Board {
+    fn prepare() -> Result<Self, String> {
+        release_build()?;
+        let python = board::python(&workspace_root(), &target_dir())?;
+        let defmt_print = qemu::defmt_print(&qemu::tools_root(&target_dir()))?;
+        Ok(Self {
+            python,
+            defmt_print,
+            elf: firmware_elf("release"),
+        })
+    }
+}
+
+/// `cargo xtask board --can-port P --stim-port Q`: the release image on the emulated board in
+/// the foreground, its decoded defmt log on stderr. This process becomes the emulator.
+fn run_board(args: board::Args) -> Result<(), String> {
+    let setup = Board::prepare()?;
+    let default_flash = target_dir().join("board-emu").join("flash.bin");
+    if let Some(dir) = default_flash.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let root = workspace_root();
+    Err(qemu::exec_with_log(
+        board::command(&setup.python, &root, &setup.elf, &args, &default_flash),
+        &setup.defmt_print,
+        &setup.elf,
+    ))
+}
+
+/// The emulated board's own unit tests (register models, exception model; pytest).
+fn board_unit_tests() -> Result<(), String> {
+    let setup = Board::prepare()?;
+    pyenv::run(&mut board::unit_tests(
+        &setup.python,
+        &workspace_root(),
+        &setup.elf,
+        &[],
+    ))
+    .map_err(|e| format!("the emulated board's unit tests failed: {e}"))
+}
+
+/// The interop suite: QEMU, the QEMU firmware, the emulated board and defmt-print first (so
+/// that the first test does not spend its start-up time building), the venv, then pytest
+/// with `pytest_args`.
 fn interop(pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
     Emulator::prepare()?;
+    Board::prepare()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let extra: Vec<&str> = pytest_args.iter().map(String::as_str).collect();
@@ -467,10 +526,15 @@ fn linuxcnc_console(args: &[String]) -> Result<(), String> {
     Err(format!("cannot run {}: {error}", setup.python.display()))
 }
 
-/// `cargo xtask demo [--script]`: prepares everything, then becomes the demo's master
-/// (`tools/demo.py` with the interop venv's Python), which starts `cargo xtask qemu` itself.
+/// `cargo xtask demo [--script] [--board]`: prepares everything, then becomes the demo's
+/// master (`tools/demo.py` with the interop venv's Python), which starts `cargo xtask qemu`
+/// (or `cargo xtask board`) itself.
 fn demo(args: &[String]) -> Result<(), String> {
-    Emulator::prepare()?;
+    if args.iter().any(|a| a == "--board") {
+        Board::prepare()?;
+    } else {
+        Emulator::prepare()?;
+    }
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let mut command = Command::new(&python);

@@ -1,0 +1,332 @@
+"""Board-only tests: the release image on the emulated board (`cargo xtask board`), where
+the DIP switch, the flash page, the watchdog, the bxCAN error states and the LEDs exist.
+
+The board's control line (`BoardProcess.control`) sets the DIP switch, power-cycles,
+injects bus errors, holds the bus and reads the LED history; see tools/board-emu/server.py.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+
+import can
+import pytest
+from canopen.lss import LssMaster
+
+from conftest import BoardProcess
+from rig import (
+    BOOTUP,
+    EMCY,
+    HEARTBEAT,
+    NMT_STOP,
+    OPERATIONAL,
+    SDO_RX,
+    SDO_TX,
+    STOPPED,
+    TPDO1,
+    FrameRecorder,
+    feed_record,
+    open_rig,
+)
+
+SAVE = 0x65766173  # "save", little-endian (CiA 301 0x1010)
+# README "Node-ID and bit rate": code -> kbit/s.
+RATES = [1000, 800, 500, 250, 125, 50, 20, 10]
+
+
+@pytest.fixture
+def board(request, tmp_path):
+    b = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")
+    try:
+        yield b
+    finally:
+        b.stop()
+        failed = any(
+            getattr(getattr(request.node, f"rep_{w}", None), "failed", False)
+            for w in ("setup", "call")
+        )
+        if failed:
+            print("--- board log ---\n" + "\n".join(b.log().splitlines()[-60:]))
+
+
+@pytest.fixture
+def brig(board):
+    with open_rig(board) as r:
+        yield r
+
+
+@contextmanager
+def raw_bus(board: BoardProcess):
+    """python-can on the board's SLCAN port with a recorder, no canopen network."""
+    deadline = time.monotonic() + 600
+    while True:
+        board.check_alive()
+        try:
+            bus = can.Bus(
+                interface="slcan",
+                channel=f"socket://127.0.0.1:{board.can_port}",
+                sleep_after_open=0,
+            )
+            break
+        except can.CanError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+    frames = FrameRecorder()
+    notifier = can.Notifier(bus, [frames])
+    try:
+        yield bus, frames
+    finally:
+        notifier.stop()
+        bus.shutdown()
+
+
+def send(bus, cob_id: int, data: bytes) -> None:
+    bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+
+
+def sdo_upload(bus, frames, node_id: int, index: int, sub: int) -> int:
+    mark = frames.mark()
+    send(bus, 0x600 + node_id, bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0]))
+    reply = frames.wait_id(0x580 + node_id, since=mark).data
+    assert reply[0] & 0xE0 == 0x40, f"upload {index:04X}:{sub} aborted: {reply.hex(' ')}"
+    return int.from_bytes(reply[4:8], "little")
+
+
+def expected_btr_rate(btr: int) -> tuple[float, float]:
+    """Bit rate and sample point of a BTR value (RM0008 24.7.7), APB1 at 36 MHz."""
+    brp, ts1, ts2 = btr & 0x3FF, (btr >> 16) & 0xF, (btr >> 20) & 0x7
+    quanta = 3 + ts1 + ts2
+    return 36e6 / ((brp + 1) * quanta), (2 + ts1) / quanta
+
+
+def test_every_dip_code_gives_the_tables_node_id_and_bit_rate(board):
+    """DIP switches 1-5 = node-ID bits, 6-8 = the README's bit-rate code; the host side of
+    the bus runs at the table's rate, so the boot-up arrives only if BTR agrees."""
+    with raw_bus(board) as (bus, frames):
+        frames.wait_id(HEARTBEAT, bytes([BOOTUP]))  # factory state: node 16 at 1 Mbit/s
+        for code, kbit in enumerate(RATES):
+            node_id = [1, 2, 5, 10, 17, 31, 20, 3][code]
+            board.control(f"dip {node_id | code << 5}")
+            board.control(f"rate {kbit}")
+            mark = frames.mark()
+            board.control("reset")
+            frames.wait_id(0x700 + node_id, bytes([BOOTUP]), since=mark, timeout=5)
+            status = board.status()
+            rate, sample = expected_btr_rate(int(status["btr"], 16))
+            assert round(rate) == kbit * 1000, f"code {code}: BTR {status['btr']} gives {rate}"
+            assert 0.85 <= sample <= 0.90, f"code {code}: sample point {sample:.3f}"
+            assert sdo_upload(bus, frames, node_id, 0x1017, 0) == 1000
+        # A wrong host rate: the node is off the bus (no boot-up reaches the host).
+        board.control("dip 33")  # node 1, code 1 = 800 kbit/s
+        board.control("rate 500")
+        mark = frames.mark()
+        board.control("reset")
+        frames.assert_none(lambda f: f.id == 0x701, 1.0, since=mark, what="boot-up at 500 kbit/s")
+        assert board.status()["online"] == "0"
+
+
+def test_stored_settings_survive_a_power_cycle(brig):
+    rig, board = brig, brig.qemu
+    rig.write(0x1017, 0, 250, 2)  # heartbeat 250 ms
+    rig.write(0x1800, 5, 40, 2)  # TPDO1 event timer 40 ms
+    rig.write(0x1010, 1, SAVE, 4)
+    lss = rig.network.lss
+    lss.RESPONSE_TIMEOUT = 0.5
+    lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
+    lss.configure_node_id(7)
+    lss.store_configuration()
+    lss.send_switch_state_global(LssMaster.WAITING_STATE)
+    assert int(board.status()["erases"]) >= 2, "each store erased the parameter page"
+
+    mark = rig.frames.mark()
+    board.control("power")
+    rig.frames.wait_id(0x707, bytes([BOOTUP]), since=mark)
+    node = rig.network.add_node(7, rig.node.object_dictionary)
+    node.sdo.RESPONSE_TIMEOUT = 2
+    assert int.from_bytes(node.sdo.upload(0x1017, 0), "little") == 250
+    assert int.from_bytes(node.sdo.upload(0x1800, 5), "little") == 40
+    board.wait_for_log(r"node-ID 7, 1000 kbit/s \(Stored")
+    board.wait_for_log(r"reset cause PowerOn")
+    # The heartbeat runs at the stored period.
+    beats = rig.frames.wait_count(0x707, 4, since=rig.frames.mark(), timeout=3)
+    gaps = [b.t - a.t for a, b in zip(beats[1:], beats[2:])]
+    assert all(0.15 < g < 0.35 for g in gaps), gaps
+
+
+def test_a_corrupt_parameter_page_means_defaults(brig):
+    rig, board = brig, brig.qemu
+    rig.write(0x1017, 0, 300, 2)
+    rig.write(0x1010, 1, SAVE, 4)
+    board.control("corrupt")  # one bit of the stored record flips: its CRC fails
+    mark = rig.frames.mark()
+    board.control("power")
+    rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
+    assert rig.read(0x1017) == 1000, "the default heartbeat, not the stored 300 ms"
+    board.wait_for_log(r"node-ID 16, 1000 kbit/s \(Default")
+
+
+def test_a_stalled_canopen_loop_is_reset_by_the_watchdog(brig):
+    rig, board = brig, brig.qemu
+    feeds = int(board.status()["feeds"])
+    assert feeds > 0, "the loop feeds the watchdog"
+    mark = rig.frames.mark()
+    board.control("storm 2000")  # the CAN task (priority 2) never runs again
+    rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark, timeout=5)
+    status = board.status()
+    assert status["boot"] == "IndependentWatchdog"
+    # IWDG reload for 500 ms (RLR 625 at 40 kHz / 32: 500.8 ms), counted in emulated time
+    # from the last feed, at most one loop round (5 ms) before the storm began.
+    after = float(status["reset_ms"]) - float(status["storm_ms"])
+    assert 495 < after < 502, f"reset {after:.1f} ms after the loop stalled"
+    board.wait_for_log(r"reset cause IndependentWatchdog")
+
+
+def flashes(history, led, since_ms):
+    """(on, off) durations in ms of `led` after `since_ms`, from its change history."""
+    changes = [(ms, on) for ms, name, on in history if name == led and ms >= since_ms]
+    spans = []
+    for (t0, on), (t1, _) in zip(changes, changes[1:]):
+        spans.append((on, t1 - t0))
+    return spans
+
+
+def state_at(history, led, ms):
+    """Whether `led` was on at emulated time `ms` (None before its first change)."""
+    state = None
+    for t, name, on in history:
+        if name == led and t <= ms:
+            state = on
+    return state
+
+
+def near(value, want, tolerance=0.10):
+    return abs(value - want) <= tolerance * want
+
+
+def test_run_led_follows_the_nmt_state(brig):
+    """CiA 303-3: Pre-operational blinking (200 ms on / 200 ms off), Operational on,
+    Stopped single flash (200 ms on, 1 s off), within 10 %."""
+    rig, board = brig, brig.qemu
+    time.sleep(1.5)
+    pre = flashes(board.leds(), "run", 0)[1:]
+    assert len(pre) >= 4, pre
+    assert all(near(d, 200) for _, d in pre), f"blinking: {pre}"
+
+    rig.start()
+    t_start = float(board.status()["ms"])
+    time.sleep(1.0)
+    history = board.leds()
+    on_after = [(ms, on) for ms, name, on in history if name == "run" and ms > t_start + 60]
+    assert not on_after, f"Operational: RUN stays on, changes {on_after}"
+    assert [on for ms, name, on in history if name == "run"][-1] is True
+
+    rig.nmt_and_heartbeat(NMT_STOP, STOPPED)
+    t_stop = float(board.status()["ms"])
+    time.sleep(3.0)
+    spans = flashes(board.leds(), "run", t_stop + 100)[1:]
+    ons = [d for on, d in spans if on]
+    offs = [d for on, d in spans if not on]
+    assert ons and offs, spans
+    assert all(near(d, 200) for d in ons), f"single flash on: {spans}"
+    assert all(near(d, 1000) for d in offs), f"single flash off: {spans}"
+
+
+def test_bus_errors_give_emcys_err_led_codes_and_bus_off_recovers(brig):
+    rig, board = brig, brig.qemu
+    # Pre-operational: only the heartbeat is sent, each success lowers TEC by one.
+    t0 = float(board.status()["ms"])
+    mark = rig.frames.mark()
+    board.control("buserr 13 0")  # TEC 104: warning limit
+    time.sleep(2.0)
+    spans = flashes(board.leds(), "err", t0)[1:]  # the first flash may start mid-pattern
+    ons = [d for on, d in spans if on]
+    offs = [d for on, d in spans if not on]
+    assert ons and all(near(d, 200) for d in ons), f"ERR single flash: {spans}"
+    assert offs and all(near(d, 1000) for d in offs), f"ERR single flash: {spans}"
+
+    board.control("buserr 5 0")  # TEC 136: error passive
+    emcy = rig.frames.wait_id(EMCY, since=mark, timeout=3)
+    assert emcy.data[:2] == bytes([0x20, 0x81]), f"EMCY 0x8120 error passive: {emcy}"
+
+    mark = rig.frames.mark()
+    t_off = float(board.status()["ms"])
+    board.control("busoff 600")  # bus-off, the bus stays faulty for 600 ms
+    time.sleep(0.3)
+    assert board.status()["boff"] == "1"
+    recovered = rig.frames.wait_for(
+        lambda f: f.id == EMCY and f.data[:2] == bytes([0x40, 0x81]),
+        since=mark,
+        timeout=5,
+        what="EMCY 0x8140 bus-off recovered",
+    )
+    assert recovered
+    assert board.status()["boff"] == "0"
+    history = board.leds()
+    # ERR is on, steadily, from the next LED update (50 ms) to the recovery (600 ms).
+    assert state_at(history, "err", t_off + 100) is True, "ERR on in bus-off"
+    changes = [ms for ms, name, on in history if name == "err" and t_off + 100 < ms < t_off + 550]
+    assert not changes, f"ERR steady while bus-off, changed at {changes}"
+    # The node is healthy again: it answers and sends heartbeats.
+    assert rig.read(0x1017) == 1000
+
+
+def test_burst_during_a_flash_erase_overruns_and_the_node_recovers(brig):
+    """A store (0x1010) erases the parameter page: the CPU stalls about 20 ms, during which
+    a burst of 40 frames fills FIFO 0 (three frames) and overruns: EMCY 0x8110, no crash."""
+    rig, board = brig, brig.qemu
+    mark = rig.frames.mark()
+    save = bytes([0x23, 0x10, 0x10, 0x01]) + SAVE.to_bytes(4, "little")
+    rig.network.send_message(SDO_RX, save)
+    for _ in range(40):
+        rig.network.send_message(0x701, bytes([0x7F]))  # heartbeats of node 1: accepted
+    reply = rig.frames.wait_id(SDO_TX, since=mark, timeout=5)
+    assert reply.data[0] == 0x60, f"store confirmed: {reply}"
+    emcy = rig.frames.wait_id(EMCY, since=mark, timeout=5)
+    assert emcy.data[:2] == bytes([0x10, 0x81]), f"EMCY 0x8110 overrun: {emcy}"
+    status = board.status()
+    assert int(status["overruns"]) > 0
+    assert status["locked"] == "0" and status["resets"] == "1", status
+    assert rig.read(0x1017) == 1000, "the node still answers"
+
+
+def wait_pending(board, ids: set[str], timeout: float = 3.0) -> None:
+    """Waits until the transmit mailboxes hold exactly the identifiers `ids` (hex)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        pending = set(board.status()["pending"].split(",")) - {"-"}
+        if pending == ids:
+            return
+        assert time.monotonic() < deadline, f"mailboxes hold {pending}, wanted {ids}"
+        time.sleep(0.02)
+
+
+def test_a_full_transmit_side_never_loses_a_frame(brig):
+    """The bus is taken by other traffic, so the node's frames wait. The heartbeat (0x710),
+    an SDO reply (0x590) and a feed record (0x190) fill the three mailboxes, each more urgent
+    than the last; then the EMCY of error passive (0x090) finds no free mailbox and
+    displaces the least urgent (an abort, RM0008 24.7.1), which goes back to the head of
+    the queue. Once the bus is free every frame goes out, most urgent first."""
+    rig, board = brig, brig.qemu
+    rig.write(0x1800, 5, 0, 2)  # no event timer: feed records only on motion
+    rig.feed_on("x")
+    board.control("hold on")
+    held = rig.frames.mark()
+    wait_pending(board, {"710"})  # the next heartbeat (within 1 s)
+    rig.network.send_message(SDO_RX, bytes([0x40, 0x17, 0x10, 0, 0, 0, 0, 0]))
+    wait_pending(board, {"710", "590"})
+    rig.stim.turn(1)
+    wait_pending(board, {"710", "590", "190"})
+    board.control("buserr 16 0")  # TEC 128: error passive, EMCY 0x8120
+    wait_pending(board, {"090", "590", "190"})
+    assert int(board.status()["aborted"]) == 1, "the heartbeat was taken out of its mailbox"
+    assert not rig.frames.frames(since=held), "nothing gets through a held bus"
+    board.control("hold off")
+    beat = rig.frames.wait_id(HEARTBEAT, since=held)
+    out = [f.id for f in rig.frames.frames(since=held)][:4]
+    assert out == [EMCY, TPDO1, SDO_TX, HEARTBEAT], f"by priority, none lost: {out}"
+    assert beat.data == bytes([OPERATIONAL])
+    emcy = rig.frames.frames(EMCY, since=held)[0]
+    assert emcy.data[:2] == bytes([0x20, 0x81])
+    assert feed_record(rig.frames.frames(TPDO1, since=held)[0])[0] == 1

@@ -1,0 +1,534 @@
+"""The emulated Blue Pill: the release ELF on the Cortex-M3 core of `cortex.py` with the
+peripherals of `periph.py`, the pins of the handwheel (wheel, switches, DIP switch, LEDs)
+and a CAN bus whose other node is the host. No I/O and no wall clock here: `run_until`
+moves emulated time on; `server.py` paces it and connects it to TCP.
+
+Memory map (RM0008 3.3, figure 2): flash 64 KiB at 0x0800_0000, of which the last 1 KiB
+page (the parameter page, `board/memory.x`) is served by the FPEC model and persisted in a
+file; the rest is read/execute only, so a stray write faults. SRAM 20 KiB at 0x2000_0000,
+the system memory with the unique device ID (RM0008 30.2) and the flash size register
+(30.1), the peripherals at 0x4000_0000 with their bit-band alias, and the Cortex-M3's
+private peripheral bus (NVIC, SCB, SysTick, DBGMCU).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+from elftools.elf.elffile import ELFFile
+from unicorn import UC_PROT_EXEC, UC_PROT_READ
+from unicorn import arm_const as arm
+
+import cortex
+import periph
+
+FLASH_BASE = 0x0800_0000
+FLASH_SIZE = 0x1_0000
+PAGE_BASE = 0x0800_FC00
+PAGE_SIZE = 0x400
+RAM_BASE = 0x2000_0000
+RAM_SIZE = 20 * 1024
+SYSTEM_MEMORY = 0x1FFF_F000
+UNIQUE_ID = 0x1FFF_F7E8
+FLASH_SIZE_REGISTER = 0x1FFF_F7E0
+PERIPH_BASE = 0x4000_0000
+PERIPH_SIZE = 0x3_0000
+BITBAND_BASE = 0x4200_0000
+BITBAND_SIZE = PERIPH_SIZE * 32
+PPB_BASE = 0xE000_0000
+PPB_SIZE = 0x10_0000
+
+# Instructions per slice: 2000 cycles, 27.8 us at 72 MHz. An interrupt raised from outside
+# the CPU (a CAN frame, a wheel edge) is taken at the end of the slice it falls in.
+SLICE = 2000
+
+# Pins (src/board/pins.rs, README "Pin map").
+WHEEL_A, WHEEL_B = 6, 7  # PB6, PB7
+AXIS_PINS = [0, 1, 2, 3, 4]  # PA0..PA4 = X, Y, Z, W, V, active low
+MULT_PINS = {1: 5, 10: 6, 100: 7}  # PA5..PA7, active low
+DIP_PINS = [12, 13, 14, 15, 0, 1, 10, 11]  # PB, switch on = grounded
+RUN_LED = ("C", 13)  # active low
+ERR_LED = ("B", 5)  # active high
+# Edges per detent and the time between two edges of `turn` (a brisk hand: 4 detents/10 ms).
+EDGES_PER_DETENT = 4
+EDGE_CYCLES = 600 * cortex.CORE_HZ // 1_000_000  # 600 us
+SETTLE_CYCLES = 25 * cortex.CORE_HZ // 1000  # 25 ms
+
+
+@dataclass
+class LedChange:
+    ms: float
+    led: str
+    on: bool
+
+
+@dataclass
+class Image:
+    segments: list[tuple[int, bytes]]
+    symbols: dict[str, int]
+
+    @classmethod
+    def load(cls, path: str) -> "Image":
+        with open(path, "rb") as f:
+            elf = ELFFile(f)
+            segments = [
+                (seg["p_paddr"], seg.data())
+                for seg in elf.iter_segments()
+                if seg["p_type"] == "PT_LOAD" and seg["p_filesz"] > 0
+            ]
+            symbols = {}
+            symtab = elf.get_section_by_name(".symtab")
+            for sym in symtab.iter_symbols() if symtab else []:
+                if sym.name:
+                    symbols.setdefault(sym.name, sym["st_value"])
+        return cls(segments, symbols)
+
+
+@dataclass
+class Stats:
+    resets: list[str] = field(default_factory=list)
+    slices: int = 0
+
+
+class Machine:
+    """The board. `flash_file` holds the parameter page across power cycles (None: kept in
+    memory only)."""
+
+    def __init__(self, elf: str, flash_file: str | None = None, unique_id: bytes | None = None):
+        self.image = Image.load(elf)
+        self.flash_file = flash_file
+        self.unique_id = unique_id or bytes.fromhex("3a0035000d5731343932353c")
+        self.now = 0
+        self.nvic = cortex.Nvic()
+        self.uc = uc = cortex.make_uc()
+        uc.mem_map(FLASH_BASE, PAGE_BASE - FLASH_BASE, UC_PROT_READ | UC_PROT_EXEC)
+        uc.mem_write(FLASH_BASE, b"\xff" * (PAGE_BASE - FLASH_BASE))
+        page = bytearray(b"\xff" * PAGE_SIZE)
+        if flash_file and os.path.exists(flash_file):
+            with open(flash_file, "rb") as f:
+                stored = f.read(PAGE_SIZE)
+            page[: len(stored)] = stored
+        for address, data in self.image.segments:
+            if FLASH_BASE <= address < PAGE_BASE:
+                uc.mem_write(address, data[: PAGE_BASE - address])
+        self.fpec = periph.Fpec(PAGE_BASE, page)
+        uc.mmio_map(PAGE_BASE, PAGE_SIZE, self._page_read, None, self._page_write, None)
+        uc.mem_map(RAM_BASE, RAM_SIZE)
+        uc.mem_map(SYSTEM_MEMORY, 0x1000, UC_PROT_READ)
+        uc.mem_write(UNIQUE_ID, self.unique_id)
+        uc.mem_write(FLASH_SIZE_REGISTER, (64).to_bytes(2, "little"))
+        uc.mmio_map(PERIPH_BASE, PERIPH_SIZE, self._periph_read, None, self._periph_write, None)
+        uc.mmio_map(BITBAND_BASE, BITBAND_SIZE, self._bb_read, None, self._bb_write, None)
+        uc.mmio_map(PPB_BASE, PPB_SIZE, self._ppb_read, None, self._ppb_write, None)
+
+        self.rcc = periph.Rcc()
+        self.gpio = {
+            "A": periph.Gpio("A", self._on_output),
+            "B": periph.Gpio("B", self._on_output),
+            "C": periph.Gpio("C", self._on_output),
+        }
+        self.afio = periph.Afio()
+        self.exti = periph.Exti()
+        self.iwdg = periph.Iwdg()
+        self.can = periph.Bxcan(self._on_can_transmit)
+        self.other: dict[int, int] = {}
+        self.devices = {
+            periph.RCC_BASE: ("rcc", self.rcc),
+            periph.FLASH_IF_BASE: ("fpec", self.fpec),
+            periph.GPIOA_BASE: ("gpio", self.gpio["A"]),
+            periph.GPIOB_BASE: ("gpio", self.gpio["B"]),
+            periph.GPIOC_BASE: ("gpio", self.gpio["C"]),
+            periph.AFIO_BASE: ("afio", self.afio),
+            periph.EXTI_BASE: ("exti", self.exti),
+            periph.IWDG_BASE: ("iwdg", self.iwdg),
+            periph.CAN_BASE: ("can", self.can),
+        }
+        self.core = cortex.Core(uc, self.nvic, self._vector)
+        self.core.on_return = self.update_irqs
+
+        # The world around the MCU.
+        self.dip = 0  # switch n on = bit n-1
+        # The wheel rests with A and B low (a detent at 00, as the QEMU variant's stimulus
+        # starts), so the interop suite's `ab` sequences mean the same on both.
+        self.ab = 0
+        self.axis = 0  # 0 off, 1..5
+        self.mult = 0  # 0 none, 1, 10, 100
+        self.leds: list[LedChange] = []
+        self.led_state = {"run": None, "err": None}
+        self.transmitted: list[tuple[float, periph.Frame]] = []
+        self.on_frame = lambda frame: None  # frames the node put on the bus
+        self.on_reset = lambda cause: None
+        self.events: list[tuple[int, int, object]] = []  # (cycle, seq, callback)
+        self.host_frames: list[tuple[int, periph.Frame]] = []  # (arrival cycle, frame)
+        self.host_bus_free = 0
+        self.delivery_results: list[str] = []
+        self.stall_until = 0  # the CPU waits for the flash until then
+        self._seq = 0
+        self.storm_until = 0
+        self.storm_started_ms = 0.0
+        self.stats = Stats()
+        self.boot_cause = "PowerOn"
+        self.power_on()
+
+    # -- vectors and idle ---------------------------------------------------------------------
+
+    def _vector(self, exception: int) -> int:
+        base = self.nvic.vtor or FLASH_BASE
+        if base < FLASH_BASE:
+            base += FLASH_BASE  # address 0 aliases the boot flash (RM0008 3.4)
+        return int.from_bytes(self.uc.mem_read(base + 4 * exception, 4), "little")
+
+    # -- memory-mapped I/O -------------------------------------------------------------------
+
+    @staticmethod
+    def _lanes(address: int, size: int, value: int) -> tuple[int, int, int]:
+        shift = (address & 3) * 8
+        mask = ((1 << (size * 8)) - 1) << shift
+        return address & ~3, (value << shift) & mask, mask
+
+    def _periph_read(self, _uc, offset, size, _user):
+        address = PERIPH_BASE + offset
+        word = self._read_word(address & ~3)
+        return (word >> ((address & 3) * 8)) & ((1 << (size * 8)) - 1)
+
+    def _read_word(self, address: int) -> int:
+        base = address & ~0x3FF
+        device = self.devices.get(base)
+        if device is None:
+            return self.other.get(address, 0)
+        kind, model = device
+        offset = address - base
+        if kind in ("fpec", "iwdg"):
+            return model.read(offset, self.now)
+        return model.read(offset)
+
+    def _periph_write(self, _uc, offset, size, value, _user):
+        address, value, mask = self._lanes(PERIPH_BASE + offset, size, value)
+        self._write_word(address, value, mask)
+
+    def _write_word(self, address: int, value: int, mask: int) -> None:
+        base = address & ~0x3FF
+        device = self.devices.get(base)
+        if device is None:
+            self.other[address] = (self.other.get(address, 0) & ~mask) | value
+            return
+        kind, model = device
+        offset = address - base
+        if kind in ("fpec", "iwdg", "can"):
+            model.write(offset, value, mask, self.now)
+        else:
+            model.write(offset, value, mask)
+        if kind == "iwdg" and self.iwdg.running:
+            self.rcc.regs[0x24] = self.rcc.regs.get(0x24, 0) | 1  # 19.3: LSI forced on
+        if kind in ("exti", "can"):
+            self.update_irqs()
+
+    def _bb_read(self, _uc, offset, _size, _user):
+        address = PERIPH_BASE + (offset >> 5)
+        bit = ((offset >> 2) & 7) + 8 * (address & 3)
+        return (self._read_word(address & ~3) >> bit) & 1
+
+    def _bb_write(self, _uc, offset, _size, value, _user):
+        address = PERIPH_BASE + (offset >> 5)
+        bit = ((offset >> 2) & 7) + 8 * (address & 3)
+        word = address & ~3
+        current = self._read_word(word)
+        new = (current | 1 << bit) if value & 1 else (current & ~(1 << bit))
+        self._write_word(word, new, 0xFFFF_FFFF)
+
+    def _ppb_read(self, _uc, offset, size, _user):
+        address = PPB_BASE + offset
+        if 0xE000_E000 <= address < 0xE000_F000:
+            word = self.nvic.read(address & ~3)
+        else:
+            word = self.other.get(address & ~3, 0)
+        return (word >> ((address & 3) * 8)) & ((1 << (size * 8)) - 1)
+
+    def _ppb_write(self, _uc, offset, size, value, _user):
+        address, value, mask = self._lanes(PPB_BASE + offset, size, value)
+        if 0xE000_E000 <= address < 0xE000_F000:
+            self.nvic.write(address, value, mask)
+        else:
+            self.other[address] = (self.other.get(address, 0) & ~mask) | value
+
+    def _page_read(self, _uc, offset, size, _user):
+        return self.fpec.read_memory(offset, size)
+
+    def _page_write(self, _uc, offset, size, value, _user):
+        self.fpec.write_memory(offset, size, value, self.now)
+        self.save_flash()
+
+    def save_flash(self) -> None:
+        if self.flash_file:
+            tmp = self.flash_file + ".tmp"
+            with open(tmp, "wb") as f:
+                f.write(self.fpec.memory)
+            os.replace(tmp, self.flash_file)
+
+    # -- interrupt lines ---------------------------------------------------------------------
+
+    def update_irqs(self) -> None:
+        """Level-sensitive lines: an asserted line pends its interrupt unless it is active
+        (it pends again at the handler's return if still asserted)."""
+        active = set(self.nvic.active_stack)
+        for line in self.exti.irqs() | self.can.irqs():
+            exception = cortex.IRQ_BASE + line
+            if exception not in active:
+                self.nvic.set_pending(exception)
+
+    # -- outputs -----------------------------------------------------------------------------
+
+    def _on_output(self, port: str, odr: int) -> None:
+        for name, (led_port, bit), active_high in (("run", RUN_LED, False), ("err", ERR_LED, True)):
+            if led_port != port:
+                continue
+            gpio = self.gpio[port]
+            if not gpio.output_mask() >> bit & 1:
+                continue
+            on = bool(odr >> bit & 1) == active_high
+            if self.led_state[name] != on:
+                self.led_state[name] = on
+                self.leds.append(LedChange(self.ms(), name, on))
+
+    def _on_can_transmit(self, frame: periph.Frame) -> None:
+        self.transmitted.append((self.ms(), frame))
+        self.on_frame(frame)
+
+    def ms(self) -> float:
+        return self.now * 1000 / cortex.CORE_HZ
+
+    # -- inputs ------------------------------------------------------------------------------
+
+    def _apply_inputs(self) -> None:
+        a = self.gpio["A"]
+        levels = 0xFFFF
+        if self.axis:
+            levels &= ~(1 << AXIS_PINS[self.axis - 1])
+        if self.mult:
+            levels &= ~(1 << MULT_PINS[self.mult])
+        a.levels = levels
+        b = self.gpio["B"]
+        levels = 0xFFFF
+        for switch, pin in enumerate(DIP_PINS):
+            if self.dip >> switch & 1:
+                levels &= ~(1 << pin)
+        levels = levels & ~(3 << WHEEL_A) | (self.ab & 1) << WHEEL_A | (self.ab >> 1 & 1) << WHEEL_B
+        b.levels = levels
+
+    def set_ab(self, ab: int) -> None:
+        """New wheel levels: each changed line is an edge on its EXTI line (RM0008 10.2.3)
+        when AFIO routes that line to port B."""
+        old = self.ab
+        self.ab = ab & 3
+        self._apply_inputs()
+        for line, bit in ((WHEEL_A, 0), (WHEEL_B, 1)):
+            if (old ^ self.ab) >> bit & 1 and self.afio.port_of_line(line) == 1:
+                self.exti.edge(line, rising=bool(self.ab >> bit & 1))
+        self.update_irqs()
+
+    def set_selectors(self, axis: int | None = None, mult: int | None = None) -> None:
+        if axis is not None:
+            self.axis = axis
+        if mult is not None:
+            self.mult = mult
+        self._apply_inputs()
+
+    def set_dip(self, dip: int) -> None:
+        self.dip = dip & 0xFF
+        self._apply_inputs()
+
+    def schedule(self, delay_cycles: int, callback) -> None:
+        self._seq += 1
+        self.events.append((self.now + delay_cycles, self._seq, callback))
+        self.events.sort()
+
+    def turn(self, detents: int, done=None) -> None:
+        """`detents` detents as quadrature edges EDGE_CYCLES apart, forward = A leads B
+        (Gray order 0, 1, 3, 2 of B:A, as `AbLevels::next_forward`)."""
+        forward = [1, 3, 0, 2]
+        reverse = [2, 0, 3, 1]
+        edges = abs(detents) * EDGES_PER_DETENT
+        table = forward if detents > 0 else reverse
+
+        def step(left: int) -> None:
+            if left == 0:
+                if done:
+                    # Done once the last edge has been handled and its feed frame is out
+                    # (the TPDO's 2 ms inhibit time included), as the QEMU variant's reply
+                    # comes after its last edge's task has run.
+                    self.schedule(SETTLE_CYCLES, done)
+                return
+            self.set_ab(table[self.ab])
+            self.schedule(EDGE_CYCLES, lambda: step(left - 1))
+
+        step(edges)
+
+    def deliver(self, frame: periph.Frame) -> None:
+        """A frame from the host goes onto the bus: it reaches the node's controller once
+        its bits have passed (at the node's bit rate, after the host's previous frame), so a
+        burst arrives frame by frame, as on a real bus."""
+        rate = self.can.bus_bitrate or self.can.bitrate() or 1_000_000
+        start = max(self.now, self.host_bus_free)
+        self.host_bus_free = start + int(frame.bits() * cortex.CORE_HZ / rate)
+        self.host_frames.append((self.host_bus_free, frame))
+
+    def _deliver_due(self) -> None:
+        while self.host_frames and self.host_frames[0][0] <= self.now:
+            _, frame = self.host_frames.pop(0)
+            self.delivery_results.append(self.can.deliver(frame))
+
+    # -- resets ------------------------------------------------------------------------------
+
+    def power_on(self) -> None:
+        """Power-on reset: SRAM content lost, PORRSTF and PINRSTF (RM0008 7.1.2)."""
+        self.uc.mem_write(RAM_BASE, bytes(RAM_SIZE))
+        self.rcc.csr_flags = periph.Rcc.PORRSTF | periph.Rcc.PINRSTF
+        self._reset("PowerOn")
+
+    def pin_reset(self) -> None:
+        self.rcc.csr_flags |= periph.Rcc.PINRSTF
+        self._reset("Pin")
+
+    def _reset(self, cause: str) -> None:
+        """System reset (RM0008 7.1.2): every register to its reset value but RCC_CSR's
+        flags; SRAM keeps its content; the CPU starts from the vector table."""
+        self.stats.resets.append(f"{self.ms():.1f} ms {cause}")
+        self.last_reset_ms = self.ms()
+        self.nvic.reset()
+        # A pend during a slice is taken at its end (`Nvic.on_pend` stays a no-op): stopping
+        # unicorn from a memory callback makes it run the storing instruction again.
+        self.nvic.now = self.now
+        self.rcc.reset()
+        for gpio in self.gpio.values():
+            gpio.reset()
+        self.afio.reset()
+        self.exti.reset()
+        self.iwdg.reset()
+        self.fpec.reset()
+        self.can.reset()
+        self.other = {}
+        self.storm_until = 0
+        self.stall_until = 0
+        self.led_state = {"run": None, "err": None}
+        self.core.locked_up = False
+        uc = self.uc
+        for r in range(13):
+            uc.reg_write(getattr(arm, f"UC_ARM_REG_R{r}"), 0)
+        uc.reg_write(arm.UC_ARM_REG_PRIMASK, 0)
+        uc.reg_write(arm.UC_ARM_REG_BASEPRI, 0)
+        uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
+        uc.reg_write(arm.UC_ARM_REG_SP, self._vector(0))
+        uc.reg_write(arm.UC_ARM_REG_LR, 0xFFFF_FFFF)
+        uc.reg_write(arm.UC_ARM_REG_PC, self._vector(1) | 1)
+        uc.reg_write(arm.UC_ARM_REG_XPSR, 1 << 24)
+        self._apply_inputs()
+        self.boot_cause = cause
+        self.on_reset(cause)
+
+    # -- time --------------------------------------------------------------------------------
+
+    def next_event(self) -> int:
+        """The next cycle at which something outside the CPU happens."""
+        candidates = [self.now + 10 * cortex.CORE_HZ // 1000]  # at most 10 ms ahead
+        tick = self.nvic.next_systick()
+        if tick is not None:
+            candidates.append(tick)
+        bus = self.can.next_event()
+        if bus is not None:
+            candidates.append(bus)
+        dog = self.iwdg.expiry()
+        if dog is not None:
+            candidates.append(dog)
+        if self.events:
+            candidates.append(self.events[0][0])
+        if self.host_frames:
+            candidates.append(self.host_frames[0][0])
+        if self.stall_until > self.now:
+            candidates.append(self.stall_until)
+        if self.can.bus_off:
+            candidates.append(self.now + cortex.CORE_HZ // 10_000)
+        if self.can.bus_hold_until:
+            candidates.append(self.can.bus_hold_until)
+        return max(self.now + 1, min(candidates))
+
+    def _advance_to(self, cycle: int) -> None:
+        """Moves the world (not the CPU) to `cycle`."""
+        self.nvic.now = self.now
+        self.nvic.advance_systick(cycle)
+        self.now = cycle
+        self.nvic.now = cycle
+        dog = self.iwdg.expiry()
+        if dog is not None and self.now >= dog:
+            self.rcc.csr_flags |= periph.Rcc.IWDGRSTF
+            self._reset("IndependentWatchdog")
+            return
+        while self.events and self.events[0][0] <= self.now:
+            _, _, callback = self.events.pop(0)
+            callback()
+        self._deliver_due()
+        self.can.advance(self.now)
+        if self.storm_until and self.now < self.storm_until:
+            # An interrupt storm on TIM2's vector (`feed_due`, priority 3): the CAN task
+            # (priority 2) never runs, as when a handler hangs.
+            self.nvic.set_pending(cortex.IRQ_BASE + 28)
+        self.update_irqs()
+        if self.nvic.reset_requested:
+            self.rcc.csr_flags |= periph.Rcc.SFTRSTF
+            self._reset("Software")
+
+    def step(self) -> None:
+        """One slice of the CPU (or a jump over idle, a flash stall or a lock-up)."""
+        target = self.next_event()
+        if self.core.locked_up or self.stall_until > self.now:
+            # A lock-up, or the CPU waiting for a flash operation (PM0075 2.3.1): time
+            # passes, the peripherals work, no instruction runs, no exception is taken.
+            self._advance_to(max(target, self.now + 1))
+            return
+        self.core.check_preemption()
+        count = min(SLICE, target - self.now)
+        self.core.run(count)
+        self.stats.slices += 1
+        # The idle task's `spin_loop` (YIELD) in thread mode: the CPU has nothing to do.
+        if self.core.stop_reason == "yield" and not self.nvic.active_stack:
+            primask, basepri = self.core.mask_levels()
+            if self.nvic.preempting(primask, basepri) is None:
+                # Idle until the next event: nothing else can happen before it.
+                self._advance_to(max(target, self.now + 1))
+                return
+        if self.core.stop_reason == "return":
+            self.update_irqs()
+        self._advance_to(self.now + count)
+        stall = self.fpec.take_stall()
+        if stall:
+            self.stall_until = self.now + stall
+
+    def run_until(self, cycle: int) -> None:
+        while self.now < cycle:
+            self.step()
+
+    def run_ms(self, ms: float) -> None:
+        self.run_until(self.now + int(ms * cortex.CORE_HZ / 1000))
+
+    # -- RTT ---------------------------------------------------------------------------------
+
+    def rtt_read(self) -> bytes:
+        """Takes what the firmware wrote to RTT up-channel 0 (the defmt log): SEGGER's
+        control block is `_SEGGER_RTT`: id[16], max_up, max_down, then 24-byte channel
+        descriptors (name, buffer, size, write, read, flags)."""
+        cb = self.image.symbols.get("_SEGGER_RTT")
+        if cb is None:
+            return b""
+        raw = bytes(self.uc.mem_read(cb + 24, 24))
+        _name, buf, size, write, read, _flags = (
+            int.from_bytes(raw[i : i + 4], "little") for i in range(0, 24, 4)
+        )
+        if not size or write == read or not RAM_BASE <= buf < RAM_BASE + RAM_SIZE:
+            return b""
+        if write > read:
+            data = bytes(self.uc.mem_read(buf + read, write - read))
+        else:
+            data = bytes(self.uc.mem_read(buf + read, size - read))
+            data += bytes(self.uc.mem_read(buf, write))
+        self.uc.mem_write(cb + 24 + 16, write.to_bytes(4, "little"))
+        return data

@@ -1,0 +1,410 @@
+"""The emulated board in real time: `machine.Machine` paced against the wall clock, its CAN
+bus on an SLCAN TCP port and its pins on a control TCP port, the defmt log (RTT up-channel
+0) written to stdout as raw bytes for `defmt-print` (or to a file).
+
+    python server.py --elf ELF --can-port P --stim-port Q [--flash FILE] [--dip N]
+
+Like `cargo xtask qemu`, the CPU starts only once a client is on the CAN port, so the
+boot-up frame is the first thing the master reads. The control port listens at once.
+
+Pacing: emulated time never runs ahead of the wall clock (the loop waits on the sockets
+instead); when the emulation falls behind by more than `MAX_LAG` (a busy stretch: boot,
+a flash erase in Python's slow path) the wall clock reference slips, so emulated time never
+rushes to catch up. `status` reports the slips.
+
+SLCAN (Lawicel, as python-can's `slcan` interface speaks it): `O`, `L`, `C` answer `\\r`;
+`S0`..`S8` set the bit rate of the host's side of the bus (10 .. 1000 kbit/s; unset, the bus
+runs at whatever the node's BTR gives), `V`/`N`/`F` report; `t`/`r` frames are put on the bus
+(`z\\r`), `T`/`R` too (`Z\\r`); the node's frames come as `tIIIL<data>\\r`.
+
+Control line: the QEMU variant's stimulus commands with the same replies (`turn <n>`,
+`ab <0..3>`, `axis <off|x|y|z|w|v>`, `mult <1|10|100>`; `ok` or `err <reason>`), plus:
+`dip <0..255>` (switch n on = bit n-1, read by the firmware at its next reset), `power`
+(power cycle: SRAM lost, the parameter page kept), `reset` (NRST), `buserr <tx> <rx>`
+(transmit / receive errors seen by the node: TEC += 8 each, REC += 1 each), `busoff <ms>`
+(TEC past 255, and the bus stays faulty for ms before the automatic recovery can run),
+`hold <ms|off|on>` (the bus is taken by other traffic: the node's mailboxes wait),
+`storm <ms>` (an interrupt storm on TIM2's vector starves the CAN task), `corrupt` (flips
+a bit of the parameter page), `leds` (the LED history: `led <ms> <run|err> <0|1>` lines,
+then `ok`), `status` (one `status key=value ...` line, then `ok`), `rate <kbit|auto>`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import selectors
+import socket
+import sys
+import time
+
+import cortex
+import machine as machine_mod
+import periph
+
+MAX_LAG = 0.05
+SLCAN_RATES = [10, 20, 50, 100, 125, 250, 500, 800, 1000]
+
+
+class Client:
+    def __init__(self, sock: socket.socket, kind: str) -> None:
+        self.sock = sock
+        self.kind = kind
+        self.buffer = b""
+
+    def send(self, data: bytes) -> None:
+        try:
+            self.sock.sendall(data)
+        except OSError:
+            pass
+
+
+class Server:
+    def __init__(self, m: machine_mod.Machine, can_port: int, stim_port: int, log_out) -> None:
+        self.m = m
+        self.log_out = log_out
+        self.sel = selectors.DefaultSelector()
+        self.can_listener = self._listen(can_port, "can-listen")
+        self.stim_listener = self._listen(stim_port, "stim-listen")
+        self.can_client: Client | None = None
+        self.stim_clients: list[Client] = []
+        self.slcan_open = True
+        self.started = False
+        self.wall0 = 0.0
+        self.slips = 0
+        self.frames_in = 0
+        self.frames_out = 0
+        m.on_frame = self._node_frame
+
+    def _listen(self, port: int, kind: str) -> socket.socket:
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", port))
+        s.listen(4)
+        s.setblocking(False)
+        self.sel.register(s, selectors.EVENT_READ, kind)
+        return s
+
+    # -- sockets ------------------------------------------------------------------------------
+
+    def poll(self, timeout: float) -> None:
+        for key, _ in self.sel.select(timeout):
+            kind = key.data
+            if kind in ("can-listen", "stim-listen"):
+                sock, _ = key.fileobj.accept()
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                sock.setblocking(False)
+                client = Client(sock, "can" if kind == "can-listen" else "stim")
+                if client.kind == "can":
+                    if self.can_client is not None:
+                        self._drop(self.can_client)
+                    self.can_client = client
+                    self.slcan_open = True
+                    if not self.started:
+                        self.started = True
+                        self.wall0 = time.monotonic()
+                else:
+                    self.stim_clients.append(client)
+                self.sel.register(sock, selectors.EVENT_READ, client)
+                continue
+            client = kind
+            try:
+                data = client.sock.recv(4096)
+            except OSError:
+                data = b""
+            if not data:
+                self._drop(client)
+                continue
+            client.buffer += data
+            if client.kind == "can":
+                self._slcan_input(client)
+            else:
+                self._stim_input(client)
+
+    def _drop(self, client: Client) -> None:
+        try:
+            self.sel.unregister(client.sock)
+        except (KeyError, ValueError):
+            pass
+        client.sock.close()
+        if client is self.can_client:
+            self.can_client = None
+        elif client in self.stim_clients:
+            self.stim_clients.remove(client)
+
+    # -- SLCAN --------------------------------------------------------------------------------
+
+    def _slcan_input(self, client: Client) -> None:
+        while True:
+            cut = [i for i in (client.buffer.find(b"\r"), client.buffer.find(b"\n")) if i >= 0]
+            if not cut:
+                if len(client.buffer) > 64:
+                    client.buffer = b""
+                    client.send(b"\a")
+                return
+            i = min(cut)
+            line, client.buffer = client.buffer[:i], client.buffer[i + 1 :]
+            client.send(self._slcan_command(line.decode("ascii", "replace")))
+
+    def _slcan_command(self, line: str) -> bytes:
+        if not line:
+            return b"\r"
+        letter, args = line[0], line[1:]
+        if letter in "OL":
+            self.slcan_open = True
+            return b"\r"
+        if letter == "C":
+            self.slcan_open = False
+            return b"\r"
+        if letter == "S" and len(args) == 1 and args.isdigit() and int(args) < 9:
+            self.m.can.bus_bitrate = SLCAN_RATES[int(args)] * 1000
+            return b"\r"
+        if letter == "V":
+            return b"V0101\r"
+        if letter == "N":
+            return b"NBOARD\r"
+        if letter == "F":
+            return b"F00\r"
+        if letter in "sZ":
+            return b"\r"
+        if letter in "tTrR":
+            try:
+                frame = self._parse_frame(letter, args)
+            except ValueError:
+                return b"\a"
+            self.frames_in += 1
+            self.m.deliver(frame)
+            self.m.update_irqs()
+            return b"z\r" if letter in "tr" else b"Z\r"
+        return b"\a"
+
+    @staticmethod
+    def _parse_frame(letter: str, args: str) -> periph.Frame:
+        extended = letter in "TR"
+        remote = letter in "rR"
+        width = 8 if extended else 3
+        can_id = int(args[:width], 16)
+        dlc = int(args[width])
+        if dlc > 8 or can_id >= (1 << (29 if extended else 11)):
+            raise ValueError
+        data = b"" if remote else bytes.fromhex(args[width + 1 : width + 1 + 2 * dlc])
+        if not remote and len(data) != dlc:
+            raise ValueError
+        return periph.Frame(can_id, data, extended, remote, dlc)
+
+    def _node_frame(self, frame: periph.Frame) -> None:
+        self.frames_out += 1
+        if self.can_client is None or not self.slcan_open:
+            return
+        if frame.extended:
+            head = f"{'R' if frame.remote else 'T'}{frame.can_id:08X}{frame.length}"
+        else:
+            head = f"{'r' if frame.remote else 't'}{frame.can_id:03X}{frame.length}"
+        self.can_client.send((head + frame.data.hex().upper() + "\r").encode())
+
+    # -- control line -------------------------------------------------------------------------
+
+    def _stim_input(self, client: Client) -> None:
+        while b"\n" in client.buffer:
+            line, client.buffer = client.buffer.split(b"\n", 1)
+            words = line.decode("ascii", "replace").strip().lower().split()
+            try:
+                self._stim_command(client, words)
+            except StimError as e:
+                client.send(f"err {e}\n".encode())
+
+    def _stim_command(self, client: Client, words: list[str]) -> None:
+        m = self.m
+        ok = lambda: client.send(b"ok\n")  # noqa: E731
+        if not words:
+            raise StimError("empty line")
+        name, args = words[0], words[1:]
+
+        def one(limit_low: int, limit_high: int) -> int:
+            if not args:
+                raise StimError("missing argument")
+            if len(args) > 1:
+                raise StimError("extra argument")
+            try:
+                value = int(args[0])
+            except ValueError:
+                raise StimError("bad number") from None
+            if not limit_low <= value <= limit_high:
+                raise StimError("out of range")
+            return value
+
+        if name == "turn":
+            n = one(-10_000, 10_000)
+            if n == 0:
+                ok()
+            else:
+                m.turn(n, done=ok)
+        elif name == "ab":
+            m.set_ab(one(0, 3))
+            m.schedule(machine_mod.EDGE_CYCLES, ok)  # once the edge has been handled
+        elif name == "axis":
+            axes = {"off": 0, "x": 1, "y": 2, "z": 3, "w": 4, "v": 5}
+            if len(args) != 1:
+                raise StimError("missing argument" if not args else "extra argument")
+            if args[0] not in axes:
+                raise StimError("bad axis")
+            m.set_selectors(axis=axes[args[0]])
+            ok()
+        elif name == "mult":
+            if len(args) != 1:
+                raise StimError("missing argument" if not args else "extra argument")
+            if args[0] not in ("1", "10", "100"):
+                raise StimError("bad multiplier")
+            m.set_selectors(mult=int(args[0]))
+            ok()
+        elif name == "dip":
+            m.set_dip(one(0, 255))
+            ok()
+        elif name == "power":
+            m.power_on()
+            ok()
+        elif name == "reset":
+            m.pin_reset()
+            ok()
+        elif name == "buserr":
+            if len(args) != 2 or not all(a.isdigit() for a in args):
+                raise StimError("bad number")
+            m.can.inject(int(args[0]), int(args[1]), m.now)
+            m.update_irqs()
+            ok()
+        elif name == "busoff":
+            ms = one(0, 60_000)
+            m.can.bus_faulty_until = m.now + ms * cortex.CORE_HZ // 1000
+            m.can.inject(32, 0, m.now)
+            m.update_irqs()
+            ok()
+        elif name == "hold":
+            if args == ["on"]:
+                m.can.bus_hold_until = None
+            elif args == ["off"]:
+                m.can.bus_hold_until = 0
+            else:
+                m.can.bus_hold_until = m.now + one(0, 60_000) * cortex.CORE_HZ // 1000
+            ok()
+        elif name == "storm":
+            m.storm_until = m.now + one(1, 60_000) * cortex.CORE_HZ // 1000
+            m.storm_started_ms = m.ms()
+            ok()
+        elif name == "corrupt":
+            m.fpec.memory[8] ^= 0x01
+            m.save_flash()
+            ok()
+        elif name == "rate":
+            if args == ["auto"]:
+                m.can.bus_bitrate = None
+            else:
+                m.can.bus_bitrate = one(1, 1000) * 1000
+            ok()
+        elif name == "leds":
+            for change in m.leds:
+                client.send(f"led {change.ms:.1f} {change.led} {int(change.on)}\n".encode())
+            ok()
+        elif name == "status":
+            client.send(
+                ("status " + " ".join(f"{k}={v}" for k, v in self.status().items()) + "\n").encode()
+            )
+            ok()
+        else:
+            raise StimError("unknown command")
+
+    def status(self) -> dict:
+        m = self.m
+        can = m.can
+        return {
+            "ms": f"{m.ms():.1f}",
+            "boot": m.boot_cause,
+            "resets": len(m.stats.resets),
+            "reset_ms": f"{m.last_reset_ms:.1f}",
+            "storm_ms": f"{m.storm_started_ms:.1f}",
+            "btr": f"{can.btr:#010x}",
+            "bitrate": round(can.bitrate()),
+            "bus": can.bus_bitrate or "auto",
+            "online": int(can.online()),
+            "tec": can.tec,
+            "rec": can.rec,
+            "boff": int(can.bus_off),
+            "delivered": can.delivered,
+            "filtered": can.filtered,
+            "overruns": can.overruns,
+            "aborted": can.aborted,
+            "pending": ",".join(
+                f"{can.frame_in(b).can_id:03x}" for b in range(3) if can.mailboxes[b][0] & 1
+            )
+            or "-",
+            "offline": can.dropped_offline,
+            "in": self.frames_in,
+            "out": self.frames_out,
+            "feeds": m.iwdg.feeds,
+            "erases": m.fpec.erases,
+            "programs": m.fpec.programs,
+            "locked": int(m.core.locked_up),
+            "slips": self.slips,
+            "exceptions": m.core.exceptions_taken,
+            "tailchains": m.core.tail_chains,
+            "nesting": m.core.max_nesting,
+        }
+
+    # -- the loop -----------------------------------------------------------------------------
+
+    def flush_log(self) -> None:
+        data = self.m.rtt_read()
+        if data:
+            self.log_out.write(data)
+            self.log_out.flush()
+
+    def serve(self) -> None:
+        while not self.started:
+            self.poll(None)
+        steps = 0
+        while True:
+            emu = self.m.now / cortex.CORE_HZ
+            wall = time.monotonic() - self.wall0
+            if emu > wall:
+                self.flush_log()
+                self.poll(emu - wall)
+                continue
+            if wall - emu > MAX_LAG:
+                self.wall0 += wall - emu - MAX_LAG
+                self.slips += 1
+            steps += 1
+            if steps % 16 == 0:
+                self.poll(0)
+                self.flush_log()
+            self.m.step()
+
+
+class StimError(Exception):
+    pass
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--elf", required=True)
+    parser.add_argument("--can-port", type=int, required=True)
+    parser.add_argument("--stim-port", type=int, required=True)
+    parser.add_argument("--flash", help="file holding the parameter page across runs")
+    parser.add_argument("--dip", type=int, default=0)
+    parser.add_argument("--log", help="write the raw defmt stream here instead of stdout")
+    args = parser.parse_args()
+    m = machine_mod.Machine(args.elf, args.flash)
+    m.set_dip(args.dip)
+    out = open(args.log, "wb") if args.log else sys.stdout.buffer
+    server = Server(m, args.can_port, args.stim_port, out)
+    print(
+        f"board-emu: SLCAN on 127.0.0.1:{args.can_port}, control on 127.0.0.1:{args.stim_port}",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        server.serve()
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,155 @@
+//! The emulated board (`tools/board-emu`): the release ELF, the exact image a builder
+//! flashes, on a Python model of the STM32F103 (unicorn for the core; bxCAN, FPEC, IWDG,
+//! GPIO/EXTI modelled), with SLCAN and a control line on TCP like `cargo xtask qemu`.
+//!
+//! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N]` runs it in the
+//! foreground: SLCAN on P (the CPU starts when the first client connects), the control line
+//! on Q, the firmware's RTT defmt stream decoded by `defmt-print` on stderr. `--flash` keeps
+//! the parameter page in FILE across runs (default: `target/board-emu/flash.bin`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::{pyenv, qemu};
+
+/// The package, relative to the workspace root.
+pub const PACKAGE: &str = "tools/board-emu";
+/// Its pinned requirements (unicorn, pyelftools, pytest).
+pub const REQUIREMENTS: &str = "tools/board-emu/requirements.txt";
+
+/// The venv below the target directory.
+pub fn venv_dir(target_dir: &Path) -> PathBuf {
+    target_dir.join("board-emu-venv")
+}
+
+/// `cargo xtask board` arguments: the two ports, and the board's own options.
+#[derive(Debug, PartialEq, Eq)]
+pub struct Args {
+    pub ports: qemu::Ports,
+    pub flash: Option<PathBuf>,
+    pub dip: Option<u8>,
+}
+
+impl Args {
+    pub fn from_args(args: &[String]) -> Result<Self, String> {
+        let mut rest = Vec::new();
+        let mut flash = None;
+        let mut dip = None;
+        let mut it = args.iter();
+        while let Some(arg) = it.next() {
+            let (flag, inline) = match arg.split_once('=') {
+                Some((f, v)) => (f, Some(v.to_string())),
+                None => (arg.as_str(), None),
+            };
+            match flag {
+                "--flash" | "--dip" => {
+                    let value = inline
+                        .or_else(|| it.next().cloned())
+                        .ok_or_else(|| format!("{flag} needs a value"))?;
+                    if flag == "--flash" {
+                        flash = Some(PathBuf::from(value));
+                    } else {
+                        dip = Some(
+                            value
+                                .parse()
+                                .map_err(|_| format!("--dip: `{value}` is not 0..255"))?,
+                        );
+                    }
+                }
+                _ => rest.push(arg.clone()),
+            }
+        }
+        let ports = qemu::Ports::from_args(&rest).map_err(|e| {
+            e.replace(
+                "cargo xtask qemu --can-port <P> --stim-port <Q>",
+                "cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] [--dip N]",
+            )
+        })?;
+        Ok(Self { ports, flash, dip })
+    }
+}
+
+/// The board venv's interpreter, made from [`REQUIREMENTS`] if needed.
+pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
+    pyenv::ensure_from(&root.join(REQUIREMENTS), &venv_dir(target_dir))
+}
+
+/// The emulator's command line for `elf`.
+pub fn command(
+    python: &Path,
+    root: &Path,
+    elf: &Path,
+    args: &Args,
+    default_flash: &Path,
+) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.arg(root.join(PACKAGE).join("server.py"))
+        .arg("--elf")
+        .arg(elf)
+        .arg("--can-port")
+        .arg(args.ports.can.to_string())
+        .arg("--stim-port")
+        .arg(args.ports.stim.to_string())
+        .arg("--flash")
+        .arg(args.flash.as_deref().unwrap_or(default_flash));
+    if let Some(dip) = args.dip {
+        cmd.arg("--dip").arg(dip.to_string());
+    }
+    cmd.stdin(std::process::Stdio::null());
+    cmd
+}
+
+/// The board's unit tests (`tools/board-emu/test_*.py`, pytest) with extra arguments.
+pub fn unit_tests(python: &Path, root: &Path, elf: &Path, extra: &[&str]) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.args(["-m", "pytest", PACKAGE, "-q"])
+        .args(extra)
+        .env("HANDWHEEL_BOARD_ELF", elf)
+        .current_dir(root);
+    cmd
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn strings(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn args_take_ports_and_board_options() {
+        let args = Args::from_args(&strings(&[
+            "--can-port",
+            "1",
+            "--dip=33",
+            "--stim-port",
+            "2",
+            "--flash",
+            "f.bin",
+        ]))
+        .unwrap();
+        assert_eq!(args.ports, qemu::Ports { can: 1, stim: 2 });
+        assert_eq!(args.flash, Some(PathBuf::from("f.bin")));
+        assert_eq!(args.dip, Some(33));
+        assert!(Args::from_args(&strings(&[
+            "--can-port",
+            "1",
+            "--stim-port",
+            "2",
+            "--dip",
+            "256"
+        ]))
+        .is_err());
+        assert!(Args::from_args(&strings(&[
+            "--can-port",
+            "1",
+            "--stim-port",
+            "2",
+            "--flash"
+        ]))
+        .is_err());
+        let usage = Args::from_args(&strings(&["--can-port", "1"])).unwrap_err();
+        assert!(usage.contains("cargo xtask board"), "{usage}");
+    }
+}
