@@ -4,7 +4,9 @@ machine of host/linuxcnc/sim with the component, driven through its headless dis
 
 Environment (set by `cargo xtask test`):
 - HANDWHEEL_COMPONENT: the installed console script (target/linuxcnc-venv/bin/canopen-handwheel);
-- HANDWHEEL_LINUXCNC_USER: the unprivileged user LinuxCNC runs as (empty: this user).
+- HANDWHEEL_LINUXCNC_USER: the unprivileged user LinuxCNC runs as (empty: this user);
+- HANDWHEEL_EMULATOR: `qemu` (default) or `board`, the release image on the emulated board
+  (`cargo xtask linuxcnc-test --board`).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import can
 import canopen
 import pytest
 
-from rig import AXES, NMT, NODE_ID, FrameRecorder, Qemu, Stimulus
+from rig import AXES, NMT, NODE_ID, ROOT, FrameRecorder, Qemu, Stimulus
 from sim_machine import SimMachine
 from slcan_hub import SlcanHub
 
@@ -34,7 +36,13 @@ class Machine:
             Path(sys.executable).parent / "canopen-handwheel"
         )
         user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
-        self.qemu = Qemu(tmp / "qemu.log")
+        if os.environ.get("HANDWHEEL_EMULATOR") == "board":
+            sys.path.insert(0, str(ROOT / "tools" / "board-emu"))
+            from launcher import BoardProcess
+
+            self.qemu: Qemu = BoardProcess(tmp / "board.log", tmp / "flash.bin")
+        else:
+            self.qemu = Qemu(tmp / "qemu.log")
         self.hub = SlcanHub(self.qemu.can_port)
         self.bus = can.Bus(interface="slcan", channel=self.hub.channel, sleep_after_open=0)
         self.frames = FrameRecorder()

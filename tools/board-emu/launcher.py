@@ -9,79 +9,29 @@ the same surface as the interop suite's `Qemu` (ports, `log()`, `check_alive()`,
 
 from __future__ import annotations
 
-import os
-import re
-import shlex
-import signal
 import socket
-import subprocess
 import time
 from pathlib import Path
 
 # The rig library (tools/rig): the tests that use this launcher have it on their path.
-from rig import ROOT, free_ports  # noqa: E402
+from rig import Qemu  # noqa: E402
 
 
-class BoardProcess:
-    """One emulated board; `flash` is its parameter page file (kept across `power`)."""
+class BoardProcess(Qemu):
+    """One emulated board (`cargo xtask board`); `flash` is its parameter page file (kept
+    across `power`), `dip` its DIP switch. The process, its log and the stimulus port are the
+    rig's; the board adds its control line."""
 
     kind = "board"
 
     def __init__(self, log_path: Path, flash: Path, dip: int | None = None) -> None:
-        self.can_port, self.stim_port = free_ports(2)
-        self.log_path = log_path
-        self.flash = flash
-        self._log_file = open(log_path, "wb")
-        template = os.environ.get("HANDWHEEL_BOARD_COMMAND")
-        if template:
-            command = shlex.split(
-                template.format(can_port=self.can_port, stim_port=self.stim_port, flash=flash)
-            )
-        else:
-            command = [
-                os.environ.get("CARGO", "cargo"),
-                "xtask",
-                "board",
-                "--can-port",
-                str(self.can_port),
-                "--stim-port",
-                str(self.stim_port),
-                "--flash",
-                str(flash),
-            ]
+        extra = {"flash": str(flash)}
         if dip is not None:
-            command += ["--dip", str(dip)]
-        self.proc = subprocess.Popen(
-            command,
-            cwd=ROOT,
-            stdin=subprocess.DEVNULL,
-            stdout=self._log_file,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
+            extra["dip"] = str(dip)
+        super().__init__(log_path, "board", extra, "HANDWHEEL_BOARD_COMMAND")
+        self.flash = flash
         self._control: socket.socket | None = None
         self._reader = None
-
-    def log(self) -> str:
-        return self.log_path.read_text(errors="replace")
-
-    def check_alive(self) -> None:
-        code = self.proc.poll()
-        if code is not None:
-            tail = "\n".join(self.log().splitlines()[-40:])
-            raise RuntimeError(f"`cargo xtask board` exited with {code}:\n{tail}")
-
-    def wait_for_log(self, pattern: str, timeout: float = 5.0, start: int = 0) -> re.Match:
-        deadline = time.monotonic() + timeout
-        rx = re.compile(pattern, re.MULTILINE)
-        while True:
-            m = rx.search(self.log(), start)
-            if m:
-                return m
-            if time.monotonic() > deadline:
-                tail = "\n".join(self.log().splitlines()[-30:])
-                raise AssertionError(f"log line /{pattern}/ not seen in {timeout} s:\n{tail}")
-            time.sleep(0.05)
 
     # -- the control line (a second connection beside the stimulus client) ---------------------
 
@@ -130,14 +80,4 @@ class BoardProcess:
                 self._control.close()
             except OSError:
                 pass
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(10)
-        self._log_file.close()
+        super().stop()

@@ -37,16 +37,26 @@ class Qemu:
     decoded defmt log) in `log_path`. With `task` "board", `cargo xtask board` instead: the
     release image on the emulated board, with the same ports, log and stimulus commands."""
 
-    def __init__(self, log_path: Path, task: str = "qemu") -> None:
+    def __init__(
+        self,
+        log_path: Path,
+        task: str = "qemu",
+        extra: dict[str, str] | None = None,
+        override: str = "HANDWHEEL_QEMU_COMMAND",
+    ) -> None:
         self.task = task
         self.can_port, self.stim_port = free_ports(2)
         self.log_path = log_path
         self._log_file = open(log_path, "wb")
-        # HANDWHEEL_QEMU_COMMAND overrides the runner, e.g. to use a prebuilt image:
-        # "some-runner --can-port {can_port} --stim-port {stim_port}".
-        template = os.environ.get("HANDWHEEL_QEMU_COMMAND")
+        # `extra`: further options of the task (`--name value`), also offered to the override.
+        extra = extra or {}
+        # The override (HANDWHEEL_QEMU_COMMAND, or the board's) replaces the runner, e.g. to
+        # use a prebuilt image: "some-runner --can-port {can_port} --stim-port {stim_port}".
+        template = os.environ.get(override)
         if template:
-            command = shlex.split(template.format(can_port=self.can_port, stim_port=self.stim_port))
+            command = shlex.split(
+                template.format(can_port=self.can_port, stim_port=self.stim_port, **extra)
+            )
         else:
             command = [
                 os.environ.get("CARGO", "cargo"),
@@ -57,6 +67,8 @@ class Qemu:
                 "--stim-port",
                 str(self.stim_port),
             ]
+            for name, value in extra.items():
+                command += [f"--{name}", value]
         self.proc = subprocess.Popen(
             command,
             cwd=ROOT,

@@ -54,7 +54,8 @@ tasks:
   host [pytest args]                    only the LinuxCNC component's unit and property tests
   linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the QEMU handwheel in the
                                         terminal: DRO, machine state, wheel from the keyboard
-  linuxcnc-test [pytest args]           only the LinuxCNC suite (component in LinuxCNC 2.9)
+  linuxcnc-test [--board] [pytest args] only the LinuxCNC suite (component in LinuxCNC 2.9), on
+                                        the QEMU variant or (--board) the emulated board
   demo [--script] [--board]             the handwheel in QEMU (or on the emulated board) with a
                                         live python-canopen master
   bench                                 1. feed protocol comparison (writes docs/feed-protocols.svg),
@@ -190,6 +191,7 @@ fn test() -> Result<(), String> {
     );
     interop(&[])?;
     linuxcnc_suite(&[])?;
+    linuxcnc_suite(&["--board".to_string()])?;
     eprintln!(
         "xtask: all checks passed in {:.0} s",
         started.elapsed().as_secs_f64()
@@ -489,9 +491,16 @@ fn host_tests(pytest_args: &[String]) -> Result<(), String> {
 
 /// The LinuxCNC suite (`tests/linuxcnc`): the QEMU handwheel and the component in the real
 /// LinuxCNC 2.9, set up by [`linuxcnc::prepare`].
-fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
+fn linuxcnc_suite(args: &[String]) -> Result<(), String> {
     let started = Instant::now();
-    Emulator::prepare()?;
+    // `--board`: the release image on the emulated board instead of the QEMU variant.
+    let board = args.first().is_some_and(|a| a == "--board");
+    let pytest_args = if board { &args[1..] } else { args };
+    if board {
+        Board::prepare()?;
+    } else {
+        Emulator::prepare()?;
+    }
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
     let mut pytest = Command::new(&setup.python);
@@ -500,9 +509,11 @@ fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
         .args(pytest_args)
         .current_dir(&root);
     setup.apply(&mut pytest);
+    pytest.env("HANDWHEEL_EMULATOR", if board { "board" } else { "qemu" });
     let result = pyenv::run(&mut pytest);
     eprintln!(
-        "xtask: LinuxCNC suite took {:.0} s",
+        "xtask: LinuxCNC suite ({}) took {:.0} s",
+        if board { "emulated board" } else { "QEMU" },
         started.elapsed().as_secs_f64()
     );
     result.map_err(|e| format!("the LinuxCNC suite failed: {e}"))
