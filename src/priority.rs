@@ -8,7 +8,8 @@ use crate::pac::NVIC_PRIO_BITS;
 
 /// The wheel's edge interrupt: above everything else, so nothing delays its port read.
 pub const WHEEL: u8 = 4;
-/// The CAN interrupts, the `feed_due` relay, SysTick, and the critical section's mask.
+/// The CAN interrupts, the `feed_due` relay, SysTick, the QEMU board's USART handlers, and the
+/// critical section's mask.
 pub const CAN: u8 = 3;
 
 /// The NVIC's priority byte for an RTIC logical priority (higher logical = more urgent =

@@ -270,6 +270,18 @@ def split_keys(data: bytes) -> List[bytes]:
     return keys
 
 
+def redraw(out, lines: List[str], drawn: int) -> int:
+    """Draws `lines` over the `drawn` lines drawn last, each cut to the terminal's width (a
+    wrapped line would break the next redraw); returns how many it drew."""
+    width = shutil.get_terminal_size().columns - 1
+    if drawn:
+        out.write(f"\x1b[{drawn}F")
+    for line in lines:
+        out.write("\x1b[2K" + line[:width] + "\n")
+    out.flush()
+    return len(lines)
+
+
 def interactive(demo: Demo) -> None:
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
@@ -279,14 +291,7 @@ def interactive(demo: Demo) -> None:
     try:
         out.write("\x1b[?25l" + KEYS_HELP + "\n")
         while True:
-            width = shutil.get_terminal_size().columns - 1
-            lines = [line[:width] for line in demo.view()]  # a wrapped line breaks the redraw
-            if drawn:
-                out.write(f"\x1b[{drawn}F")
-            for line in lines:
-                out.write("\x1b[2K" + line + "\n")
-            out.flush()
-            drawn = len(lines)
+            drawn = redraw(out, demo.view(), drawn)
             ready, _, _ = select.select([fd], [], [], 0.1)
             if not ready:
                 continue

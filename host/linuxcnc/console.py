@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import select
-import shutil
 import sys
 import tempfile
 import termios
@@ -34,7 +33,7 @@ ROOT = HERE.parents[1]
 # This folder (sim_machine) and tools/ (the rig, the demo's key decoder) are not packages.
 sys.path[:0] = [str(HERE), str(ROOT / "tools")]
 
-from demo import ARROWS, split_keys  # noqa: E402  (the demo's keys, one decoder)
+from demo import ARROWS, redraw, split_keys  # noqa: E402  (the demo's keys and screen)
 from rig import Qemu, Stimulus  # noqa: E402
 from sim_machine import SimMachine  # noqa: E402
 
@@ -73,14 +72,7 @@ def interactive(cnc: SimMachine, stim) -> None:
     try:
         out.write("\x1b[?25l" + HELP + "\n")
         while True:
-            width = shutil.get_terminal_size().columns - 1
-            lines = [line[:width] for line in view(cnc.must("status"), last)]
-            if drawn:
-                out.write(f"\x1b[{drawn}F")
-            for line in lines:
-                out.write("\x1b[2K" + line + "\n")
-            out.flush()
-            drawn = len(lines)
+            drawn = redraw(out, view(cnc.must("status"), last), drawn)
             ready, _, _ = select.select([fd], [], [], 0.1)
             if not ready:
                 continue

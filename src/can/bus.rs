@@ -8,15 +8,12 @@
 //! bxCAN interrupts when a flag is set (warning limit, error passive, bus-off), never when
 //! it clears. The SCE interrupt wakes the CAN-side task at once on the way down; the way back
 //! up is seen by that task re-reading the state on every wake, every
-//! [`RECOVERY_POLL_MS`] while the controller is not error-active.
+//! `handwheel_device::duties::RECOVERY_POLL_MS` while the controller is not error-active.
 
 #[cfg(not(feature = "qemu"))]
 use crate::pac;
 
 pub use canopen_slave::bus::{BusEvent, BusState};
-
-/// How often the CAN-side task re-reads the error state while it is not error-active.
-pub const RECOVERY_POLL_MS: u32 = 10;
 
 /// Error counters and the last error code, for the log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]

@@ -2,7 +2,7 @@
 //! hardware the emulator does not model. Same names as the STM32F103 board module, so the
 //! RTIC application uses either unchanged.
 
-use crate::pac::{self, Interrupt, NVIC_PRIO_BITS};
+use crate::pac::{self, Interrupt};
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
 
@@ -33,7 +33,7 @@ pub type CanInstance = SlcanLink;
 
 /// Priority of the two USART interrupts (the RTIC app's numbering): that of the CAN
 /// interrupts, below the wheel's EXTI task, above the `canopen` task.
-pub const USART_PRIORITY: u8 = 3;
+pub const USART_PRIORITY: u8 = crate::priority::CAN;
 
 /// A fixed "unique ID" (ASCII `QEMU`): the emulator has no factory-programmed one.
 const UNIQUE_ID: [u32; 3] = [u32::from_le_bytes(*b"QEMU"), 0, 0];
@@ -83,8 +83,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
 /// Gives the two board-layer USART handlers [`USART_PRIORITY`] and unmasks them, after their
 /// state was handed over.
 fn enable_usart_interrupts() {
-    // RTIC's logical priority to the NVIC's: higher logical = lower number, in the top bits.
-    const HW_PRIORITY: u8 = ((1 << NVIC_PRIO_BITS) - USART_PRIORITY) << (8 - NVIC_PRIO_BITS);
+    const HW_PRIORITY: u8 = crate::priority::hardware(USART_PRIORITY);
     // SAFETY: only the priority registers of USART1 and USART2 are written, which the RTIC
     // app (the NVIC's owner) never touches: no task is bound to them. Changing priorities
     // can break priority-based critical sections, but these handlers share no RTIC resource

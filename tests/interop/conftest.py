@@ -10,6 +10,7 @@ recorder, stimulus client, `open_rig`) is the library `tools/rig`.
 from __future__ import annotations
 
 import sys
+from contextlib import contextmanager
 from typing import Iterator
 
 import canopen
@@ -70,17 +71,24 @@ def qemu(request, tmp_path) -> Iterator[Qemu]:
         q = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")
     else:
         q = Qemu(tmp_path / "qemu.log")
-    try:
+    with stopped_after(request, q):
         yield q
+
+
+@contextmanager
+def stopped_after(request, emulator: Qemu) -> Iterator[Qemu]:
+    """Stops `emulator` when the test is over; if it failed, prints its log's last lines."""
+    try:
+        yield emulator
     finally:
-        q.stop()
+        emulator.stop()
         failed = any(
             getattr(getattr(request.node, f"rep_{w}", None), "failed", False)
             for w in ("setup", "call")
         )
         if failed:
-            tail = "\n".join(q.log().splitlines()[-60:])
-            print(f"--- last lines of {q.log_path} ---\n{tail}")
+            tail = "\n".join(emulator.log().splitlines()[-60:])
+            print(f"--- last lines of {emulator.log_path} ---\n{tail}")
 
 
 @pytest.fixture

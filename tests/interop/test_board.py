@@ -14,7 +14,7 @@ import can
 import pytest
 from canopen.lss import LssMaster
 
-from conftest import BoardProcess
+from conftest import BoardProcess, stopped_after
 from rig import (
     BOOTUP,
     EMCY,
@@ -37,17 +37,8 @@ RATES = [1000, 800, 500, 250, 125, 50, 20, 10]
 
 @pytest.fixture
 def board(request, tmp_path):
-    b = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")
-    try:
+    with stopped_after(request, BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")) as b:
         yield b
-    finally:
-        b.stop()
-        failed = any(
-            getattr(getattr(request.node, f"rep_{w}", None), "failed", False)
-            for w in ("setup", "call")
-        )
-        if failed:
-            print("--- board log ---\n" + "\n".join(b.log().splitlines()[-60:]))
 
 
 @pytest.fixture
