@@ -234,9 +234,9 @@ mod app {
     /// standstill) or the next LED update (every 50 ms).
     /// Sampling the switches and driving the LEDs here rather than in tasks of their own
     /// costs nothing in latency (they are 5 and 50 ms periodic, far slower than a round) and
-    /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The device
-    /// reaches the wheel and the transmit queue through one short lock per object access or
-    /// frame, never for a whole round.
+    /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The CAN
+    /// side's half of the wheel is this task's own (the edge's half is reached through
+    /// atomics); the transmit queue through one short lock per frame, never for a whole round.
     #[task(
         priority = 2,
         local = [

@@ -1,8 +1,8 @@
 //! Detents to feed: the cumulative feed position and the paper's unit-step backlog.
 //!
-//! The EXTI task adds detents; the CAN side reads the position, takes unit steps and applies
-//! the master's commands. Both reach the accumulator through one RTIC resource, so it is a
-//! plain struct: the lock is the synchronisation.
+//! It belongs to the CAN side alone: the detents come from the edge interrupt's channel
+//! (taken in by [`LinkedWheel`](crate::LinkedWheel) before every access), the position, the
+//! unit steps and the master's commands are the CAN side's; so it is a plain struct.
 //!
 //! Safety rules, all enforced here rather than in the firmware:
 //! - the position moves only while feed is enabled and an axis is selected; turning the
@@ -92,9 +92,7 @@ impl FeedAccumulator {
     /// Adds detents from the decoder. Returns `true` when what a feed record carries changed
     /// (position or status), i.e. when a frame is due.
     ///
-    /// Runs in the wheel's edge interrupt. `#[inline]` because without it the size-optimised
-    /// build called it out of line once the decoder grew, which cost the detent edge 16
-    /// cycles and the image more flash than inlining it.
+    /// A wrapping difference of the edge's detent total: any count, either sign.
     #[inline]
     #[must_use = "a changed feed needs a TPDO"]
     pub fn add_detents(&mut self, detents: i32) -> bool {

@@ -234,8 +234,8 @@ impl EdgeOutcome {
     }
 }
 
-/// The quadrature decoder state. Lives with the feed accumulator in the resource the EXTI
-/// task shares with the CAN side.
+/// The quadrature decoder state: the edge interrupt's own (see [`edge`](crate::edge)), and
+/// the host tests'.
 #[derive(Clone, Debug)]
 pub struct QuadratureDecoder {
     /// [`STEPS`] for the counting direction: one lookup per edge, no test of `invert`.
@@ -289,7 +289,7 @@ impl QuadratureDecoder {
         }
     }
 
-    /// Feeds the levels read after an edge interrupt. Constant time; runs in the ISR.
+    /// Feeds the levels read after an edge interrupt. Constant time; runs in the edge's ISR.
     #[inline]
     pub fn update(&mut self, levels: AbLevels) -> EdgeOutcome {
         // Both levels are masked to 2 bits on construction; the masks let the compiler see

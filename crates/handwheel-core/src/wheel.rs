@@ -94,7 +94,7 @@ impl DecoderView {
 }
 
 /// The CAN side's half of the wheel, reached through
-/// [`WheelAccess`](crate::WheelAccess): a view of the edge's decoder and the feed
+/// [`WheelAccess`]: a view of the edge's decoder and the feed
 /// accumulator, which belongs to the CAN side alone.
 #[derive(Clone, Debug)]
 pub struct Handwheel {

@@ -17,8 +17,8 @@ pub const EMCY_ENCODER: u16 = 0x7300;
 const ERROR_REGISTER_GENERIC: u8 = 0x01;
 
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
-/// the wheel itself lives outside, shared with the EXTI task, and is reached through a
-/// [`WheelAccess`] on every call.
+/// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
+/// through a [`WheelAccess`] on every call.
 pub struct HandwheelDevice<S> {
     engine: Device<S>,
     app: FeedApp,
