@@ -67,6 +67,20 @@ pub trait Application {
         true
     }
 
+    /// Reads object `index:sub` into TPDO `pdo` (1-based) being built. A PDO that carries
+    /// state may carry a value the application held back for it (a state that ended while the
+    /// bus took nothing) rather than the present one; SDO uploads always see the present one
+    /// ([`Application::read`], which this defaults to).
+    fn read_for_tpdo(
+        &mut self,
+        _pdo: u8,
+        index: u16,
+        sub: u8,
+        buf: &mut [u8],
+    ) -> Result<usize, SdoAbort> {
+        self.read(index, sub, buf)
+    }
+
     /// TPDO `pdo` (1-based) was handed to the sink.
     fn on_tpdo_sent(&mut self, _pdo: u8) {}
 

@@ -201,10 +201,7 @@ impl RecordDevice {
     fn emit(&mut self, at: f64, bus: &mut Bus) {
         let feed = self.wheel.feed();
         let record = FeedRecord {
-            position: feed.position(),
-            axis: feed.selection().axis,
-            multiplier: feed.selection().multiplier,
-            status: feed.status(),
+            state: feed.state(),
             sequence: self.sequence,
         };
         self.sequence = self.sequence.wrapping_add(1);
@@ -278,7 +275,7 @@ pub fn host(scheme: Scheme, frames: &[Sent], drop: f64, rng: &mut Rng) -> (i64, 
                 let bytes: [u8; 8] = f.data.as_slice().try_into().expect("8-byte record");
                 let rec = FeedRecord::from_bytes(bytes).expect("valid record");
                 // Start at 0 and apply wrapping deltas: what a host does.
-                let delta = rec.position.wrapping_sub(position as i32);
+                let delta = rec.state.position.wrapping_sub(position as i32);
                 position += i64::from(delta);
             }
             Scheme::Paper | Scheme::Compat => {

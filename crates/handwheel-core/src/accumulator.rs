@@ -10,11 +10,14 @@
 //! - a change of axis or multiplier, a disable and a stop (master lost, NMT state change)
 //!   discard pending unit steps and start a new selection epoch, so motion meant for one axis
 //!   or scale is never delivered to another;
+//! - every epoch change closes the old epoch in the [`FeedOutbox`]: its final state goes out
+//!   as a feed record before anything of the new epoch, however long the bus is blocked;
 //! - a stop also disables feed: after the master comes back it must enable again;
 //! - the unit-step backlog is bounded: steps beyond the bound are dropped and flagged, so
 //!   run-on after the wheel stops can never exceed `bound x pacing`.
 
-use crate::feed::{FeedStatus, UnitStep};
+use crate::feed::{FeedState, FeedStatus, UnitStep};
+use crate::outbox::FeedOutbox;
 use crate::selector::{Multiplier, Selection};
 
 /// Default bound of the unit-step backlog.
@@ -48,6 +51,7 @@ pub struct FeedAccumulator {
     backlog_bound: i32,
     ignored_detents: u32,
     dropped_steps: u32,
+    outbox: FeedOutbox,
 }
 
 impl Default for FeedAccumulator {
@@ -73,6 +77,7 @@ impl FeedAccumulator {
             backlog_bound: DEFAULT_STEP_BACKLOG as i32,
             ignored_detents: 0,
             dropped_steps: 0,
+            outbox: FeedOutbox::new(),
         }
     }
 
@@ -135,11 +140,12 @@ impl FeedAccumulator {
         if enabled == self.enabled {
             return false;
         }
+        let before = self.state();
         self.enabled = enabled;
         if enabled {
             self.latched.remove(FeedStatus::MASTER_LOST);
         }
-        self.new_epoch();
+        self.new_epoch(before);
         true
     }
 
@@ -149,8 +155,9 @@ impl FeedAccumulator {
         if on == self.unit_steps {
             return false;
         }
+        let before = self.state();
         self.unit_steps = on;
-        self.new_epoch();
+        self.new_epoch(before);
         true
     }
 
@@ -160,8 +167,9 @@ impl FeedAccumulator {
         if selection == self.selection {
             return false;
         }
+        let before = self.state();
         self.selection = selection;
-        self.new_epoch();
+        self.new_epoch(before);
         true
     }
 
@@ -169,10 +177,11 @@ impl FeedAccumulator {
     /// does. Returns `true` if anything changed.
     #[must_use = "a changed feed needs a TPDO"]
     pub fn stop(&mut self, reason: StopReason) -> bool {
-        let lost = reason == StopReason::MasterLost && self.latch(FeedStatus::MASTER_LOST);
         // Disabled means no pending steps (disabling discards them, and nothing is added
-        // while disabled), so disabling is all a stop has to do.
+        // while disabled), so disabling is all a stop has to do. It comes first: the epoch
+        // it closes ended enabled, without the loss (never both in one record).
         let disabled = self.set_enabled(false);
+        let lost = reason == StopReason::MasterLost && self.latch(FeedStatus::MASTER_LOST);
         lost || disabled
     }
 
@@ -188,7 +197,9 @@ impl FeedAccumulator {
         Some(UnitStep { axis, forward })
     }
 
-    fn new_epoch(&mut self) {
+    /// The one place an epoch ends: `before` is its final state.
+    fn new_epoch(&mut self, before: FeedState) {
+        self.outbox.close_epoch(before);
         self.epoch = self.epoch.wrapping_add(1);
         self.pending_steps = 0;
         self.latched = self.latched.intersection(FeedStatus::MASTER_LOST);
@@ -226,13 +237,61 @@ impl FeedAccumulator {
         self.unit_steps
     }
 
-    /// Status bits for the feed record (object 0x2030).
+    /// Status flags of the feed record (bits 0-4 of object 0x2030; [`FeedState`] adds the
+    /// epoch bits).
     pub fn status(&self) -> FeedStatus {
         let mut status = self.latched;
         if self.enabled {
             status.insert(FeedStatus::ENABLED);
         }
         status
+    }
+
+    /// What a feed record sent now would say.
+    pub fn state(&self) -> FeedState {
+        FeedState {
+            position: self.position,
+            axis: self.selection.axis,
+            multiplier: self.selection.multiplier,
+            status: self.status(),
+            epoch: self.epoch,
+        }
+    }
+
+    /// What the next feed record carries: the oldest closed epoch's final state the outbox
+    /// holds, else the present state.
+    pub fn record_to_send(&self) -> FeedState {
+        self.outbox.next(self.state())
+    }
+
+    /// The sequence number the next feed record carries (object 0x2031).
+    pub const fn record_sequence(&self) -> u8 {
+        self.outbox.sequence()
+    }
+
+    /// A feed record carrying [`FeedAccumulator::record_to_send`] went out. Returns whether
+    /// another one is due.
+    #[must_use = "a record that is due must be requested"]
+    pub fn record_sent(&mut self) -> bool {
+        let live = self.state();
+        self.outbox.sent(live)
+    }
+
+    /// Feed records may flow (the device entered Operational): epochs that end from now on
+    /// are held until their final state is sent.
+    pub fn start_records(&mut self) {
+        self.outbox.start();
+    }
+
+    /// Feed records stop (the device left Operational): the closed epochs not sent yet are
+    /// dropped, their motion reaches no axis, and the sequence number shows the gap.
+    pub fn stop_records(&mut self) {
+        self.outbox.stop();
+    }
+
+    /// The outbox, for diagnostics.
+    pub const fn outbox(&self) -> &FeedOutbox {
+        &self.outbox
     }
 
     /// Signed unit steps waiting to be sent.

@@ -1,7 +1,8 @@
-//! The feed's vocabulary, shared by the accumulator that produces it and the PDO encodings
-//! that carry it: the status bits and the unit step.
+//! The feed's vocabulary, shared by the accumulator that produces it, the outbox that holds
+//! it for the bus and the PDO encodings that carry it: the status bits, the state a feed
+//! record describes, and the unit step.
 
-use crate::selector::Axis;
+use crate::selector::{Axis, Multiplier};
 
 /// Status bits of the feed record (object 0x2030).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
@@ -65,6 +66,33 @@ impl FeedStatus {
     #[must_use]
     pub const fn union(self, other: Self) -> Self {
         Self(self.0 | other.0)
+    }
+}
+
+/// What one feed record says, without its sequence number: the feed as it is (or was, at the
+/// end of a selection epoch).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FeedState {
+    /// Cumulative feed position in multiplied units, wrapping (object 0x6004).
+    pub position: i32,
+    /// Selected axis (object 0x2010:1).
+    pub axis: Option<Axis>,
+    /// Multiplier in force (object 0x2010:2).
+    pub multiplier: Multiplier,
+    /// Status flags, bits 0-4 of object 0x2030.
+    pub status: FeedStatus,
+    /// Selection epoch (object 0x2010:3); its low three bits are bits 5-7 of 0x2030.
+    pub epoch: u8,
+}
+
+impl FeedState {
+    /// Where the epoch sits in the status byte.
+    pub const EPOCH_SHIFT: u32 = 5;
+
+    /// The status byte as object 0x2030 and the feed record carry it: the flags in bits 0-4,
+    /// the low three bits of the epoch in bits 5-7.
+    pub const fn status_byte(&self) -> u8 {
+        self.status.bits() | (self.epoch << Self::EPOCH_SHIFT)
     }
 }
 

@@ -11,6 +11,8 @@
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
 //! - [`wheel`]: the CAN side's wheel: a view of the edge's decoder and the accumulator.
+//! - [`outbox`]: holds each selection epoch's final state until the bus takes it, so that
+//!   no epoch ends unseen while the bus is blocked.
 //! - [`pdo`]: the 8-byte feed record and the paper's 1-byte unit-step format.
 //! - [`bittiming`]: bxCAN `BTR` values for the CiA bit-rate table.
 #![no_std]
@@ -20,6 +22,7 @@ pub mod bittiming;
 pub mod decoder;
 pub mod edge;
 pub mod feed;
+pub mod outbox;
 pub mod pdo;
 pub mod selector;
 pub mod standstill;
@@ -31,7 +34,8 @@ pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
 };
 pub use edge::{EdgeChannel, EdgeDecoder, EdgeLink, EdgeSnapshot, LocalEdge};
-pub use feed::{FeedStatus, UnitStep};
+pub use feed::{FeedState, FeedStatus, UnitStep};
+pub use outbox::{FeedOutbox, HELD_EPOCHS, MAX_DROP_GAP};
 pub use pdo::{CounterStride, FeedRecord, FeedRecordError, UnitStepEncoder};
 pub use selector::{
     Axis, Debouncer, Multiplier, Selection, Selector, SelectorInput, SelectorLines,

@@ -7,11 +7,15 @@
 //! | 0-3 | 0x6004 | position, I32: cumulative feed in multiplied units, wrapping |
 //! | 4 | 0x2010:1 | axis: 0 none, 1..5 = X, Y, Z, W, V |
 //! | 5 | 0x2010:2 | multiplier: 1, 10 or 100 |
-//! | 6 | 0x2030 | status bits, see [`FeedStatus`] |
-//! | 7 | 0x2031 | sequence: +1 for every feed record sent, wrapping |
+//! | 6 | 0x2030 | bits 0-4: status flags, see [`FeedStatus`]; bits 5-7: selection epoch mod 8 |
+//! | 7 | 0x2031 | sequence: +1 for every feed record sent or dropped, wrapping |
 //!
 //! The host takes deltas of the position (wrapping subtraction) and applies them to the axis
-//! in the same frame. A lost frame costs nothing: the next one carries the truth.
+//! the newer record names, when the two records belong to the same epoch, or to consecutive
+//! epochs with no record missing in between: the device sends every epoch's final state
+//! before anything of the next epoch (the [`outbox`](crate::outbox)), so that delta is
+//! exactly the newer epoch's motion. Within an epoch a lost frame costs nothing: the next one
+//! carries the truth.
 //!
 //! # Unit-step byte (the paper's format, compatibility mode)
 //!
@@ -21,32 +25,27 @@
 //! | 3 | direction: 1 = forward |
 //! | 4-7 | counter: +1 per frame, runs on across direction changes |
 
-use crate::feed::{FeedStatus, UnitStep};
+use crate::feed::{FeedState, FeedStatus, UnitStep};
 use crate::selector::{Axis, Multiplier};
 
 /// The content of one feed record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FeedRecord {
-    /// Cumulative feed position in multiplied units.
-    pub position: i32,
-    /// Selected axis.
-    pub axis: Option<Axis>,
-    /// Multiplier in force.
-    pub multiplier: Multiplier,
-    /// Status bits.
-    pub status: FeedStatus,
+    /// What the record says. Only the low three bits of the epoch travel.
+    pub state: FeedState,
     /// Frame sequence number.
     pub sequence: u8,
 }
 
-/// Why 8 bytes are not a feed record.
+/// Why 8 bytes are not a feed record the device can send.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FeedRecordError {
     /// Axis byte not in 0..=5.
     Axis(u8),
     /// Multiplier byte not 1, 10 or 100.
     Multiplier(u8),
-    /// An undefined status bit is set.
+    /// A combination of status flags the device never sends (enabled while the master is
+    /// lost: a stop disables, and only enabling clears the loss).
     Status(u8),
 }
 
@@ -56,20 +55,21 @@ impl FeedRecord {
 
     /// The wire bytes.
     pub fn to_bytes(&self) -> [u8; 8] {
-        let p = self.position.to_le_bytes();
+        let s = &self.state;
+        let p = s.position.to_le_bytes();
         [
             p[0],
             p[1],
             p[2],
             p[3],
-            Axis::option_value(self.axis),
-            self.multiplier.factor(),
-            self.status.bits(),
+            Axis::option_value(s.axis),
+            s.multiplier.factor(),
+            s.status_byte(),
             self.sequence,
         ]
     }
 
-    /// Parses the wire bytes (what a host does).
+    /// Parses the wire bytes (what a host does). The epoch comes back as its low three bits.
     pub fn from_bytes(bytes: [u8; 8]) -> Result<Self, FeedRecordError> {
         let axis = match bytes[4] {
             0 => None,
@@ -77,12 +77,18 @@ impl FeedRecord {
         };
         let multiplier =
             Multiplier::from_factor(bytes[5]).ok_or(FeedRecordError::Multiplier(bytes[5]))?;
-        let status = FeedStatus::from_bits(bytes[6]).ok_or(FeedRecordError::Status(bytes[6]))?;
+        let flags = bytes[6] & !(0b111 << FeedState::EPOCH_SHIFT);
+        let status = FeedStatus::from_bits(flags)
+            .filter(|s| !s.contains(FeedStatus::ENABLED.union(FeedStatus::MASTER_LOST)))
+            .ok_or(FeedRecordError::Status(bytes[6]))?;
         Ok(Self {
-            position: i32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]),
-            axis,
-            multiplier,
-            status,
+            state: FeedState {
+                position: i32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]),
+                axis,
+                multiplier,
+                status,
+                epoch: bytes[6] >> FeedState::EPOCH_SHIFT,
+            },
             sequence: bytes[7],
         })
     }
@@ -232,22 +238,45 @@ mod tests {
     #[test]
     fn feed_record_layout() {
         let rec = FeedRecord {
-            position: -2,
-            axis: Some(Axis::Z),
-            multiplier: Multiplier::X100,
-            status: FeedStatus::ENABLED.union(FeedStatus::ENCODER_ERROR),
+            state: FeedState {
+                position: -2,
+                axis: Some(Axis::Z),
+                multiplier: Multiplier::X100,
+                status: FeedStatus::ENABLED.union(FeedStatus::ENCODER_ERROR),
+                epoch: 5,
+            },
             sequence: 0xA5,
         };
-        assert_eq!(rec.to_bytes(), [0xFE, 0xFF, 0xFF, 0xFF, 3, 100, 0b11, 0xA5]);
+        assert_eq!(
+            rec.to_bytes(),
+            [0xFE, 0xFF, 0xFF, 0xFF, 3, 100, 0b101_00011, 0xA5]
+        );
         assert_eq!(FeedRecord::from_bytes(rec.to_bytes()), Ok(rec));
     }
 
     #[test]
-    fn feed_record_rejects_bad_fields() {
-        let good = [1, 0, 0, 0, 0, 1, 0, 0];
+    fn only_the_low_three_epoch_bits_travel() {
+        let mut rec = FeedRecord {
+            state: FeedState {
+                position: 7,
+                axis: None,
+                multiplier: Multiplier::X1,
+                status: FeedStatus::IGNORED_MOTION,
+                epoch: 0x0B,
+            },
+            sequence: 1,
+        };
+        assert_eq!(rec.to_bytes()[6], 0b011_10000);
+        rec.state.epoch = 3;
+        assert_eq!(FeedRecord::from_bytes(rec.to_bytes()), Ok(rec));
+    }
+
+    #[test]
+    fn feed_record_rejects_what_the_device_never_sends() {
+        let good = [1, 0, 0, 0, 0, 1, 0xE0, 0];
         assert_eq!(
-            FeedRecord::from_bytes(good).map(|r| (r.position, r.axis)),
-            Ok((1, None))
+            FeedRecord::from_bytes(good).map(|r| (r.state.position, r.state.axis, r.state.epoch)),
+            Ok((1, None, 7))
         );
         let mut bad = good;
         bad[4] = 6;
@@ -259,10 +288,10 @@ mod tests {
             Err(FeedRecordError::Multiplier(0))
         );
         let mut bad = good;
-        bad[6] = 0x80;
+        bad[6] = 0x29; // epoch 1, enabled and master lost
         assert_eq!(
             FeedRecord::from_bytes(bad),
-            Err(FeedRecordError::Status(0x80))
+            Err(FeedRecordError::Status(0x29))
         );
     }
 }

@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedAccumulator, Handwheel, StopReason,
-    UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedAccumulator, FeedStatus, Handwheel,
+    StopReason, UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
 };
 
 use crate::od::{
@@ -84,8 +84,6 @@ impl WheelParameters {
 pub struct FeedApp {
     pub(crate) parameters: WheelParameters,
     pub(crate) nmt: NmtState,
-    /// 0x2031: feed records sent.
-    pub(crate) sequence: u8,
     pub(crate) encoder: UnitStepEncoder,
     /// The unit step waiting for TPDO2; its byte is in 0x2032 until it is sent.
     pub(crate) step_in_flight: Option<UnitStep>,
@@ -103,7 +101,6 @@ impl FeedApp {
         Self {
             parameters: WheelParameters::DEFAULT,
             nmt: NmtState::Initialising,
-            sequence: 0,
             encoder: UnitStepEncoder::new(CounterStride::One),
             step_in_flight: None,
             step_byte: 0,
@@ -135,7 +132,6 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
             (FEED_FORMAT, 0) => (app.parameters.unit_steps.into(), 1),
             (ENCODER, 3) => (app.parameters.decoder.counts_per_detent.get().into(), 1),
             (ENCODER, 4) => (app.parameters.decoder.invert.into(), 1),
-            (FEED_SEQUENCE, 0) => (app.sequence.into(), 1),
             (UNIT_STEP, 0) => (app.step_byte.into(), 1),
             (FEED_DIAGNOSTICS, 3) => (app.parameters.backlog_bound.into(), 2),
             _ => self.wheel.with_wheel(|w| {
@@ -148,7 +144,8 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
                     // Two's complement bytes of the signed objects, as CiA 301 sends them.
                     (ENCODER, 1) => (w.decoder.count() as u32, 4),
                     (ENCODER, 2) => (w.decoder.illegal_transitions(), 4),
-                    (FEED_STATUS, 0) => (feed.status().bits().into(), 1),
+                    (FEED_STATUS, 0) => (feed.state().status_byte().into(), 1),
+                    (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 1),
                     (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
                     (FEED_DIAGNOSTICS, 2) => (feed.dropped_steps(), 4),
                     (POSITION_VALUE, 0) => (feed.position() as u32, 4),
@@ -194,8 +191,14 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
 
     fn on_nmt_state(&mut self, state: NmtState) {
         self.app.nmt = state;
-        if state != NmtState::Operational {
+        if state == NmtState::Operational {
+            self.wheel.with_wheel(|w| w.feed.start_records());
+        } else {
             self.stop(StopReason::NotOperational);
+            // PDOs stop here: what was not reported by now (the stopped epoch's final state
+            // among it) would reach the host only at the next start, as stale motion. It is
+            // dropped, and the sequence gap makes the host start afresh.
+            self.wheel.with_wheel(|w| w.feed.stop_records());
         }
     }
 
@@ -231,9 +234,36 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         pdo != 2 || self.app.step_in_flight.is_some()
     }
 
+    fn read_for_tpdo(
+        &mut self,
+        pdo: u8,
+        index: u16,
+        sub: u8,
+        buf: &mut [u8],
+    ) -> Result<usize, SdoAbort> {
+        if pdo != 1 {
+            return self.read(index, sub, buf);
+        }
+        // TPDO1 carries the feed record: the oldest closed epoch the outbox holds, if any,
+        // else the present state (whatever the master mapped, the record's objects agree).
+        let held = self.wheel.with_wheel(|w| w.feed.record_to_send());
+        let (value, size): (u32, usize) = match (index, sub) {
+            (POSITION_VALUE, 0) => (held.position as u32, 4),
+            (SELECTION, 1) => (Axis::option_value(held.axis).into(), 1),
+            (SELECTION, 2) => (held.multiplier.factor().into(), 1),
+            (SELECTION, 3) => (held.epoch.into(), 1),
+            (FEED_STATUS, 0) => (held.status_byte().into(), 1),
+            (FEED_ENABLE, 0) => (held.status.contains(FeedStatus::ENABLED).into(), 1),
+            _ => return self.read(index, sub, buf),
+        };
+        let bytes = value.to_le_bytes();
+        put(buf, &bytes[..size])
+    }
+
     fn on_tpdo_sent(&mut self, pdo: u8) {
         if pdo == 1 {
-            self.app.sequence = self.app.sequence.wrapping_add(1);
+            let more = self.wheel.with_wheel(|w| w.feed.record_sent());
+            self.app.feed_due |= more;
         } else if pdo == 2 && self.app.step_in_flight.take().is_some() {
             // `tpdo_ready` let TPDO2 go only with a step in flight: that step is on the bus.
             self.app.encoder.advance();

@@ -143,11 +143,6 @@ impl<S: Storage> HandwheelDevice<S> {
         &mut self.engine
     }
 
-    /// Feed records sent (0x2031).
-    pub fn feed_sequence(&self) -> u8 {
-        self.app.sequence
-    }
-
     /// Work between engine calls: requests the TPDOs that are due, prepares the next unit
     /// step, and keeps the encoder EMCY in step with the feed status.
     fn service(&mut self, wheel: &mut impl WheelAccess) {

@@ -3,7 +3,7 @@
 mod common;
 
 use common::*;
-use handwheel_core::{AbLevels, Axis, FeedRecord, FeedStatus, Multiplier, WheelAccess};
+use handwheel_core::{AbLevels, Axis, FeedRecord, FeedState, FeedStatus, Multiplier, WheelAccess};
 
 const ENABLED: u8 = 0x01;
 
@@ -25,10 +25,13 @@ fn start_sends_the_default_feed_record() {
     let pdos = b.take_id(TPDO1);
     assert_eq!(pdos.len(), 1, "TPDO1 on entry to Operational");
     let expected = FeedRecord {
-        position: 0,
-        axis: None,
-        multiplier: Multiplier::X1,
-        status: FeedStatus::empty(),
+        state: FeedState {
+            position: 0,
+            axis: None,
+            multiplier: Multiplier::X1,
+            status: FeedStatus::empty(),
+            epoch: 0,
+        },
         sequence: 0,
     };
     assert_eq!(pdos[0].data, expected.to_bytes());
@@ -61,7 +64,7 @@ fn no_feed_before_enable() {
     );
     assert_eq!(b.read_u32(0x6004, 0), 0);
     assert_eq!(b.read_u32(0x2040, 1), 3, "turning is counted as ignored");
-    let status = b.read_u32(0x2030, 0) as u8;
+    let status = b.read_u32(0x2030, 0) as u8 & FLAGS;
     assert_eq!(status, FeedStatus::IGNORED_MOTION.bits());
 }
 
@@ -326,7 +329,7 @@ fn feed_cannot_be_enabled_while_the_master_is_lost() {
     b.advance_ms(50);
     assert_eq!(b.read_u32(0x6004, 0), 0, "no feed while the master is lost");
     assert_eq!(b.read_u32(0x2000, 0), 0);
-    let status = b.read_u32(0x2030, 0) as u8;
+    let status = b.read_u32(0x2030, 0) as u8 & FLAGS;
     assert_ne!(
         status & FeedStatus::MASTER_LOST.bits(),
         0,
@@ -343,7 +346,7 @@ fn feed_cannot_be_enabled_while_the_master_is_lost() {
     b.receive(0x701, &[0x05]);
     assert_eq!(b.read_u32(0x1001, 0), 0);
     b.sdo_write(0x2000, 0, &[1]).unwrap();
-    let status = b.read_u32(0x2030, 0) as u8;
+    let status = b.read_u32(0x2030, 0) as u8 & FLAGS;
     assert_eq!(
         status,
         FeedStatus::ENABLED.bits(),

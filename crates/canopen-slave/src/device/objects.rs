@@ -442,11 +442,14 @@ impl Comm {
     }
 
     /// Reads an entry's value into `buf` (no access check: PDOs and uploads check first).
+    /// `tpdo`: the PDO (1-based) being built, whose application values may be held ones
+    /// ([`Application::read_for_tpdo`]); `None` for an SDO upload.
     pub(super) fn read_value(
         &self,
         e: &OdEntry,
         buf: &mut [u8],
         app: &mut dyn Application,
+        tpdo: Option<u8>,
     ) -> Result<usize, SdoAbort> {
         let size = e.data_type().size();
         let raw = match e.value() {
@@ -458,7 +461,10 @@ impl Comm {
                 return Ok(s.len());
             }
             Value::App => {
-                let n = app.read(e.index(), e.sub(), buf)?;
+                let n = match tpdo {
+                    Some(pdo) => app.read_for_tpdo(pdo, e.index(), e.sub(), buf)?,
+                    None => app.read(e.index(), e.sub(), buf)?,
+                };
                 // A wrong length is a bug in the application; never pass it on.
                 if n > buf.len() || size.is_some_and(|s| s != n) {
                     return Err(SdoAbort::InternalIncompatible);

@@ -116,7 +116,7 @@ impl<S: Storage> Inner<S> {
             // Stored or default mappings never went through the SDO checks: re-check here.
             let (e, size) = tpdo::check_mapping(&comm.od, entry)?;
             let dst = data.get_mut(len..len + size).ok_or(SdoAbort::PdoTooLong)?;
-            comm.read_value(e, dst, app)?;
+            comm.read_value(e, dst, app, Some(i as u8 + 1))?;
             len += size;
         }
         // len <= 8, checked by the slice above.

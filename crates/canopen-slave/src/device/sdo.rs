@@ -79,7 +79,7 @@ impl<S: Storage> ObjectAccess for Objects<'_, S> {
         if !e.access().readable() {
             return Err(SdoAbort::WriteOnly);
         }
-        comm.read_value(e, buf, self.app)
+        comm.read_value(e, buf, self.app, None)
     }
 
     fn size_of(&mut self, index: u16, sub: u8) -> Result<usize, SdoAbort> {

@@ -15,11 +15,21 @@ pub const TPDO2: u16 = 0x280 + NODE as u16;
 pub const EMCY: u16 = 0x080 + NODE as u16;
 pub const HEARTBEAT: u16 = 0x700 + NODE as u16;
 
-#[derive(Default)]
-pub struct Recorder(pub Vec<Frame>);
+/// The frames one device call sends; refuses them beyond `room` (a transmit queue that the
+/// blocked bus does not drain).
+pub struct Recorder(pub Vec<Frame>, usize);
+
+impl Default for Recorder {
+    fn default() -> Self {
+        Self(Vec::new(), usize::MAX)
+    }
+}
 
 impl FrameSink for Recorder {
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
+        if self.0.len() >= self.1 {
+            return Err(SinkFull);
+        }
         self.0.push(frame);
         Ok(())
     }
@@ -39,6 +49,8 @@ pub struct Bench {
     pub now_us: u64,
     pub levels: AbLevels,
     pub seen: Vec<Seen>,
+    /// While the bus is blocked: the transmit queue's size and the frames waiting in it.
+    pub blocked: Option<(usize, Vec<Frame>)>,
 }
 
 impl Bench {
@@ -59,6 +71,7 @@ impl Bench {
             now_us: 0,
             levels,
             seen: Vec::new(),
+            blocked: None,
         };
         let mut tx = Recorder::default();
         bench
@@ -68,7 +81,33 @@ impl Bench {
         bench
     }
 
+    fn sink(&self) -> Recorder {
+        let room = match &self.blocked {
+            Some((size, queued)) => size - queued.len(),
+            None => usize::MAX,
+        };
+        Recorder(Vec::new(), room)
+    }
+
+    /// The bus takes nothing from now on: frames wait in a transmit queue of `size` frames,
+    /// and the device's sends are refused once it is full.
+    pub fn block_bus(&mut self, size: usize) {
+        self.blocked = Some((size, Vec::new()));
+    }
+
+    /// The bus is back: the queued frames go out (in order), then the device is polled.
+    pub fn unblock_bus(&mut self) {
+        if let Some((_, queued)) = self.blocked.take() {
+            self.record(Recorder(queued, usize::MAX));
+        }
+        self.poll();
+    }
+
     fn record(&mut self, tx: Recorder) {
+        if let Some((_, queued)) = &mut self.blocked {
+            queued.extend(tx.0);
+            return;
+        }
         let at_us = self.now_us;
         self.seen.extend(tx.0.into_iter().map(|f| Seen {
             at_us,
@@ -80,7 +119,7 @@ impl Bench {
     /// Delivers a frame from the bus, then polls.
     pub fn receive(&mut self, id: u16, data: &[u8]) {
         let frame = Frame::new(id, data).unwrap();
-        let mut tx = Recorder::default();
+        let mut tx = self.sink();
         let now = Instant::from_micros(self.now_us);
         self.device.on_frame(now, &frame, &mut self.wheel, &mut tx);
         self.device.poll(now, &mut self.wheel, &mut tx);
@@ -97,7 +136,7 @@ impl Bench {
     }
 
     pub fn poll(&mut self) {
-        let mut tx = Recorder::default();
+        let mut tx = self.sink();
         self.device
             .poll(Instant::from_micros(self.now_us), &mut self.wheel, &mut tx);
         self.record(tx);
@@ -234,7 +273,7 @@ impl Bench {
     }
 }
 
-/// Position, axis, multiplier, status and sequence of a feed record frame.
+/// A feed record as (position, axis, multiplier, status flags (bits 0-4), sequence).
 pub fn record(s: &Seen) -> (i32, u8, u8, u8, u8) {
     assert_eq!(s.data.len(), 8, "feed record is 8 bytes");
     let d = &s.data;
@@ -242,7 +281,15 @@ pub fn record(s: &Seen) -> (i32, u8, u8, u8, u8) {
         i32::from_le_bytes([d[0], d[1], d[2], d[3]]),
         d[4],
         d[5],
-        d[6],
+        d[6] & FLAGS,
         d[7],
     )
+}
+
+/// The status byte's flag bits; bits 5-7 are the epoch.
+pub const FLAGS: u8 = 0x1F;
+
+/// A feed record's epoch bits (the low three bits of 0x2010:3).
+pub fn record_epoch(s: &Seen) -> u8 {
+    s.data[6] >> 5
 }

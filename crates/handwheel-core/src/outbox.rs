@@ -1,0 +1,311 @@
+//! Feed records on their way to the bus: every selection epoch's final state is sent before
+//! anything of the next epoch, even when the bus is blocked.
+//!
+//! A feed record describes state, so the present state is all a record has to carry while the
+//! selection stays the same. Across a change of epoch (axis, multiplier, enable, format, a
+//! stop) that is not enough: a host that sees "X at 30" and then "Y at 37" can credit the 7 to
+//! Y only if 30 was X's final position. When records cannot reach the bus (the transmit queue
+//! is full), the present state moves on and an epoch may end unseen. The outbox closes it
+//! instead: at the change it keeps the epoch's final state, unless the last record sent
+//! already said exactly that, and the next records send what it holds, oldest first, before
+//! the present state again. So each epoch costs at most one held record, however long the
+//! bus is blocked, and every epoch's last position is delivered once the bus is back.
+//!
+//! The store is bounded ([`HELD_EPOCHS`]). When it is full the oldest held record is dropped,
+//! and the sequence number moves on as if that record had been sent and lost: a host sees the
+//! gap and starts afresh there, so the motion of a dropped epoch reaches no axis, never
+//! another one. A run of drops moves the sequence by at most [`MAX_DROP_GAP`], so that drops
+//! can never wrap the sequence byte round to "no gap".
+//!
+//! Records flow only while the device is Operational ([`FeedOutbox::start`]). Leaving it
+//! ([`FeedOutbox::stop`]) drops what is held (it would reach the host only at the next start,
+//! as stale motion) and moves the sequence on by at least one, so that the next start is a
+//! new baseline for the host. While stopped, epochs end unrecorded: there is nobody to tell.
+//!
+//! The sequence number is the outbox's: +1 for each record sent or dropped.
+
+use crate::feed::FeedState;
+
+/// Closed epochs the outbox holds at most. An operator who changes the selection more often
+/// than this while the bus is blocked loses the motion of the oldest ones (to no axis).
+pub const HELD_EPOCHS: usize = 8;
+
+/// Most the sequence number moves for one run of dropped records.
+pub const MAX_DROP_GAP: u8 = 8;
+
+/// The closed epochs' final states waiting for the bus, and the record sequence number.
+#[derive(Clone, Debug)]
+pub struct FeedOutbox {
+    held: [Option<FeedState>; HELD_EPOCHS],
+    /// Index of the oldest held record.
+    head: usize,
+    len: usize,
+    last_sent: Option<FeedState>,
+    reporting: bool,
+    sequence: u8,
+    drops_in_run: u8,
+    dropped: u32,
+}
+
+impl Default for FeedOutbox {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl FeedOutbox {
+    /// Stopped, nothing held, nothing sent, sequence 0.
+    pub const fn new() -> Self {
+        Self {
+            held: [None; HELD_EPOCHS],
+            head: 0,
+            len: 0,
+            last_sent: None,
+            reporting: false,
+            sequence: 0,
+            drops_in_run: 0,
+            dropped: 0,
+        }
+    }
+
+    /// The feed leaves an epoch whose final state is `closing`: hold it for the bus, unless
+    /// nothing is held and the last record sent already said exactly this. A full store
+    /// drops its oldest record first.
+    pub fn close_epoch(&mut self, closing: FeedState) {
+        if !self.reporting || (self.len == 0 && self.last_sent == Some(closing)) {
+            return;
+        }
+        if self.len == HELD_EPOCHS {
+            let _ = self.pop();
+            self.count_drop();
+        }
+        let tail = (self.head + self.len) % HELD_EPOCHS;
+        if let Some(slot) = self.held.get_mut(tail) {
+            *slot = Some(closing);
+            self.len += 1;
+        }
+    }
+
+    /// What the next feed record carries: the oldest held state, else `live`, the present
+    /// one.
+    pub fn next(&self, live: FeedState) -> FeedState {
+        self.oldest().unwrap_or(live)
+    }
+
+    /// The sequence number the next record carries (object 0x2031).
+    pub const fn sequence(&self) -> u8 {
+        self.sequence
+    }
+
+    /// A feed record carrying `self.next(live)` went out. Returns whether another is due:
+    /// more is held, or the present state differs from what just went out.
+    #[must_use = "a record that is due must be requested"]
+    pub fn sent(&mut self, live: FeedState) -> bool {
+        let record = self.pop().unwrap_or(live);
+        self.last_sent = Some(record);
+        self.sequence = self.sequence.wrapping_add(1);
+        self.drops_in_run = 0;
+        self.len != 0 || record != live
+    }
+
+    /// Records may flow (the device entered Operational).
+    pub fn start(&mut self) {
+        self.reporting = true;
+    }
+
+    /// Records stop (the device left Operational): everything held is dropped (its motion
+    /// reaches no axis), and the sequence moves on by one for each dropped record, or by one
+    /// if none was held, so that the next record after a start is never taken as a
+    /// continuation.
+    pub fn stop(&mut self) {
+        if !self.reporting {
+            return;
+        }
+        self.reporting = false;
+        let mut any = false;
+        while self.pop().is_some() {
+            any = true;
+            self.count_drop();
+        }
+        if !any && self.drops_in_run < MAX_DROP_GAP {
+            self.drops_in_run += 1;
+            self.sequence = self.sequence.wrapping_add(1);
+        }
+    }
+
+    fn count_drop(&mut self) {
+        self.dropped = self.dropped.wrapping_add(1);
+        if self.drops_in_run < MAX_DROP_GAP {
+            self.drops_in_run += 1;
+            self.sequence = self.sequence.wrapping_add(1);
+        }
+    }
+
+    /// Closed epochs waiting for the bus.
+    pub const fn held(&self) -> usize {
+        self.len
+    }
+
+    /// Held records dropped since start, wrapping.
+    pub const fn dropped(&self) -> u32 {
+        self.dropped
+    }
+
+    fn oldest(&self) -> Option<FeedState> {
+        if self.len == 0 {
+            return None;
+        }
+        self.held.get(self.head).copied().flatten()
+    }
+
+    fn pop(&mut self) -> Option<FeedState> {
+        let oldest = self.oldest()?;
+        if let Some(slot) = self.held.get_mut(self.head) {
+            *slot = None;
+        }
+        self.head = (self.head + 1) % HELD_EPOCHS;
+        self.len -= 1;
+        Some(oldest)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::vec;
+
+    use super::*;
+    use crate::feed::FeedStatus;
+    use crate::selector::{Axis, Multiplier};
+
+    fn state(position: i32, axis: Axis, epoch: u8) -> FeedState {
+        FeedState {
+            position,
+            axis: Some(axis),
+            multiplier: Multiplier::X1,
+            status: FeedStatus::ENABLED,
+            epoch,
+        }
+    }
+
+    fn started() -> FeedOutbox {
+        let mut out = FeedOutbox::new();
+        out.start();
+        out
+    }
+
+    #[test]
+    fn nothing_held_while_records_get_out() {
+        let mut out = started();
+        let x = state(3, Axis::X, 1);
+        assert_eq!(out.next(x), x);
+        assert!(
+            !out.sent(x),
+            "the present state went out: nothing more is due"
+        );
+        assert_eq!(out.sequence(), 1);
+        // The epoch ends where the last record left it: nothing to hold.
+        out.close_epoch(x);
+        assert_eq!(out.held(), 0);
+        let y = state(3, Axis::Y, 2);
+        assert_eq!(out.next(y), y);
+    }
+
+    #[test]
+    fn an_epoch_that_ended_unsent_goes_out_before_the_next() {
+        let mut out = started();
+        assert!(!out.sent(state(0, Axis::X, 1)));
+        // X moved to 30 but the bus took nothing; then Y (epoch 2) and X again (epoch 3).
+        out.close_epoch(state(30, Axis::X, 1));
+        out.close_epoch(state(37, Axis::Y, 2));
+        let live = state(39, Axis::X, 3);
+        let mut seen = vec![];
+        loop {
+            let record = out.next(live);
+            seen.push((record.position, record.axis, record.epoch, out.sequence()));
+            if !out.sent(live) {
+                break;
+            }
+        }
+        assert_eq!(
+            seen,
+            [
+                (30, Some(Axis::X), 1, 1),
+                (37, Some(Axis::Y), 2, 2),
+                (39, Some(Axis::X), 3, 3)
+            ]
+        );
+    }
+
+    #[test]
+    fn a_full_store_drops_the_oldest_and_shows_a_gap() {
+        let mut out = started();
+        for epoch in 0..HELD_EPOCHS as u8 + 3 {
+            out.close_epoch(state(i32::from(epoch), Axis::X, epoch));
+        }
+        assert_eq!(out.held(), HELD_EPOCHS);
+        assert_eq!(out.dropped(), 3);
+        let first = out.next(state(99, Axis::Z, 200));
+        assert_eq!(first.epoch, 3, "the three oldest were dropped");
+        assert_eq!(
+            out.sequence(),
+            3,
+            "as if three records went out and were lost"
+        );
+    }
+
+    #[test]
+    fn a_long_run_of_drops_moves_the_sequence_by_at_most_eight() {
+        let mut out = started();
+        assert!(!out.sent(state(0, Axis::X, 0)));
+        for epoch in 1..=300u16 {
+            out.close_epoch(state(0, Axis::X, epoch as u8));
+        }
+        assert_eq!(out.dropped(), 300 - HELD_EPOCHS as u32);
+        assert_eq!(
+            out.sequence(),
+            1 + MAX_DROP_GAP,
+            "not wrapped round by 292 drops"
+        );
+        // Sending ends the run: the next drops show as a new gap.
+        assert!(out.sent(state(0, Axis::X, 44)), "seven are still held");
+        out.close_epoch(state(0, Axis::X, 45));
+        assert_eq!(out.sequence(), 2 + MAX_DROP_GAP, "room for one: no drop");
+        out.close_epoch(state(0, Axis::X, 46));
+        assert_eq!(out.sequence(), 2 + MAX_DROP_GAP + 1);
+    }
+
+    #[test]
+    fn stop_drops_what_is_held_with_a_gap() {
+        let mut out = started();
+        assert!(!out.sent(state(0, Axis::X, 0)));
+        out.close_epoch(state(5, Axis::X, 0));
+        out.stop();
+        assert_eq!((out.held(), out.dropped(), out.sequence()), (0, 1, 2));
+        let live = state(5, Axis::X, 1);
+        assert_eq!(out.next(live), live);
+    }
+
+    #[test]
+    fn stop_with_nothing_held_still_breaks_continuity_once() {
+        let mut out = FeedOutbox::new();
+        out.stop();
+        assert_eq!(out.sequence(), 0, "never started: nothing to break");
+        out.start();
+        assert!(!out.sent(state(0, Axis::X, 0)));
+        out.stop();
+        out.stop();
+        assert_eq!((out.dropped(), out.sequence()), (0, 2));
+    }
+
+    #[test]
+    fn nothing_is_held_while_stopped() {
+        let mut out = FeedOutbox::new();
+        out.close_epoch(state(0, Axis::X, 0));
+        out.close_epoch(state(0, Axis::Y, 1));
+        assert_eq!(out.held(), 0);
+        out.start();
+        out.close_epoch(state(0, Axis::Z, 2));
+        assert_eq!(out.held(), 1);
+    }
+}
