@@ -121,8 +121,19 @@ class FrameRecorder(can.Listener):
                 self._cond.wait(left)
 
 
+# Bits 0-4 of a feed record's status byte are flags; bits 5-7 are the selection epoch.
+STATUS_FLAGS = 0x1F
+
+
 def feed_record(frame: Frame):
-    """(position, axis, multiplier, status, sequence) of a TPDO1 feed record."""
+    """(position, axis, multiplier, status flags (bits 0-4), sequence) of a TPDO1 feed
+    record; `feed_epoch` gives the epoch bits."""
     assert frame.id == TPDO1 and len(frame.data) == 8, f"not a feed record: {frame}"
     d = frame.data
-    return (int.from_bytes(d[0:4], "little", signed=True), d[4], d[5], d[6], d[7])
+    return (int.from_bytes(d[0:4], "little", signed=True), d[4], d[5], d[6] & STATUS_FLAGS, d[7])
+
+
+def feed_epoch(frame: Frame) -> int:
+    """The epoch bits of a feed record: the low three bits of object 0x2010:3."""
+    assert frame.id == TPDO1 and len(frame.data) == 8, f"not a feed record: {frame}"
+    return frame.data[6] >> 5

@@ -22,6 +22,20 @@ fn entry_to_operational_sends_tpdo1_only() {
 }
 
 #[test]
+fn a_tpdo_carries_what_the_application_holds_for_it_and_sdo_the_present_value() {
+    let mut b = Bench::new();
+    b.app.position = 40;
+    b.app.held_position = Some(30);
+    b.nmt(0x01, NODE);
+    assert_eq!(b.take(), vec![frame(HB, &[0x05]), tpdo1(30, 0)]);
+    assert_eq!(b.upload(0x6004, 0).unwrap(), 40i32.to_le_bytes().to_vec());
+    b.app.held_position = None;
+    b.dev.request_tpdo(1).unwrap();
+    let sent: Vec<_> = b.run_until(ms(10)).into_iter().map(|(_, f)| f).collect();
+    assert_eq!(sent, vec![tpdo1(40, 0)]);
+}
+
+#[test]
 fn no_pdo_outside_operational() {
     let mut b = Bench::new();
     b.dev.request_tpdo(1).unwrap();

@@ -24,7 +24,17 @@
 //!
 //! The sequence number is the outbox's: +1 for each record sent or dropped.
 
-use crate::feed::FeedState;
+use crate::feed::{FeedState, FeedStatus};
+use crate::selector::Multiplier;
+
+/// What an unused slot holds (never read: `len` says which slots are in use).
+const UNUSED: FeedState = FeedState {
+    position: 0,
+    axis: None,
+    multiplier: Multiplier::X1,
+    status: FeedStatus::empty(),
+    epoch: 0,
+};
 
 /// Closed epochs the outbox holds at most. An operator who changes the selection more often
 /// than this while the bus is blocked loses the motion of the oldest ones (to no axis).
@@ -36,7 +46,7 @@ pub const MAX_DROP_GAP: u8 = 8;
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
 #[derive(Clone, Debug)]
 pub struct FeedOutbox {
-    held: [Option<FeedState>; HELD_EPOCHS],
+    held: [FeedState; HELD_EPOCHS],
     /// Index of the oldest held record.
     head: usize,
     len: usize,
@@ -57,7 +67,7 @@ impl FeedOutbox {
     /// Stopped, nothing held, nothing sent, sequence 0.
     pub const fn new() -> Self {
         Self {
-            held: [None; HELD_EPOCHS],
+            held: [UNUSED; HELD_EPOCHS],
             head: 0,
             len: 0,
             last_sent: None,
@@ -81,7 +91,7 @@ impl FeedOutbox {
         }
         let tail = (self.head + self.len) % HELD_EPOCHS;
         if let Some(slot) = self.held.get_mut(tail) {
-            *slot = Some(closing);
+            *slot = closing;
             self.len += 1;
         }
     }
@@ -155,14 +165,11 @@ impl FeedOutbox {
         if self.len == 0 {
             return None;
         }
-        self.held.get(self.head).copied().flatten()
+        self.held.get(self.head).copied()
     }
 
     fn pop(&mut self) -> Option<FeedState> {
         let oldest = self.oldest()?;
-        if let Some(slot) = self.held.get_mut(self.head) {
-            *slot = None;
-        }
         self.head = (self.head + 1) % HELD_EPOCHS;
         self.len -= 1;
         Some(oldest)
@@ -175,8 +182,7 @@ mod tests {
     use std::vec;
 
     use super::*;
-    use crate::feed::FeedStatus;
-    use crate::selector::{Axis, Multiplier};
+    use crate::selector::Axis;
 
     fn state(position: i32, axis: Axis, epoch: u8) -> FeedState {
         FeedState {

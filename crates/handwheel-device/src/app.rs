@@ -125,36 +125,7 @@ fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, SdoAbort> {
 
 impl<W: WheelAccess> Application for AppContext<'_, W> {
     fn read(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
-        // Every application object is an integer of 1, 2 or 4 bytes: pick the value and its
-        // size, then copy once (one copy instead of one per object keeps the image small).
-        let app = &*self.app;
-        let (value, size): (u32, usize) = match (index, sub) {
-            (FEED_FORMAT, 0) => (app.parameters.unit_steps.into(), 1),
-            (ENCODER, 3) => (app.parameters.decoder.counts_per_detent.get().into(), 1),
-            (ENCODER, 4) => (app.parameters.decoder.invert.into(), 1),
-            (UNIT_STEP, 0) => (app.step_byte.into(), 1),
-            (FEED_DIAGNOSTICS, 3) => (app.parameters.backlog_bound.into(), 2),
-            _ => self.wheel.with_wheel(|w| {
-                let feed = &w.feed;
-                Ok(match (index, sub) {
-                    (FEED_ENABLE, 0) => (feed.enabled().into(), 1),
-                    (SELECTION, 1) => (Axis::option_value(feed.selection().axis).into(), 1),
-                    (SELECTION, 2) => (feed.selection().multiplier.factor().into(), 1),
-                    (SELECTION, 3) => (feed.epoch().into(), 1),
-                    // Two's complement bytes of the signed objects, as CiA 301 sends them.
-                    (ENCODER, 1) => (w.decoder.count() as u32, 4),
-                    (ENCODER, 2) => (w.decoder.illegal_transitions(), 4),
-                    (FEED_STATUS, 0) => (feed.state().status_byte().into(), 1),
-                    (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 1),
-                    (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
-                    (FEED_DIAGNOSTICS, 2) => (feed.dropped_steps(), 4),
-                    (POSITION_VALUE, 0) => (feed.position() as u32, 4),
-                    _ => return Err(SdoAbort::NoObject),
-                })
-            })?,
-        };
-        let bytes = value.to_le_bytes();
-        put(buf, &bytes[..size])
+        self.read_object(index, sub, buf, false)
     }
 
     fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
@@ -241,23 +212,7 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         sub: u8,
         buf: &mut [u8],
     ) -> Result<usize, SdoAbort> {
-        if pdo != 1 {
-            return self.read(index, sub, buf);
-        }
-        // TPDO1 carries the feed record: the oldest closed epoch the outbox holds, if any,
-        // else the present state (whatever the master mapped, the record's objects agree).
-        let held = self.wheel.with_wheel(|w| w.feed.record_to_send());
-        let (value, size): (u32, usize) = match (index, sub) {
-            (POSITION_VALUE, 0) => (held.position as u32, 4),
-            (SELECTION, 1) => (Axis::option_value(held.axis).into(), 1),
-            (SELECTION, 2) => (held.multiplier.factor().into(), 1),
-            (SELECTION, 3) => (held.epoch.into(), 1),
-            (FEED_STATUS, 0) => (held.status_byte().into(), 1),
-            (FEED_ENABLE, 0) => (held.status.contains(FeedStatus::ENABLED).into(), 1),
-            _ => return self.read(index, sub, buf),
-        };
-        let bytes = value.to_le_bytes();
-        put(buf, &bytes[..size])
+        self.read_object(index, sub, buf, pdo == 1)
     }
 
     fn on_tpdo_sent(&mut self, pdo: u8) {
@@ -289,6 +244,53 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
 }
 
 impl<W: WheelAccess> AppContext<'_, W> {
+    /// Reads an application object. `record`: for the feed record (TPDO1), whose state
+    /// objects carry what the outbox sends next (a closed epoch's final state while one is
+    /// held) rather than the present state, whatever the master mapped.
+    fn read_object(
+        &mut self,
+        index: u16,
+        sub: u8,
+        buf: &mut [u8],
+        record: bool,
+    ) -> Result<usize, SdoAbort> {
+        // Every application object is an integer of 1, 2 or 4 bytes: pick the value and its
+        // size, then copy once (one copy instead of one per object keeps the image small).
+        let app = &*self.app;
+        let (value, size): (u32, usize) = match (index, sub) {
+            (FEED_FORMAT, 0) => (app.parameters.unit_steps.into(), 1),
+            (ENCODER, 3) => (app.parameters.decoder.counts_per_detent.get().into(), 1),
+            (ENCODER, 4) => (app.parameters.decoder.invert.into(), 1),
+            (UNIT_STEP, 0) => (app.step_byte.into(), 1),
+            (FEED_DIAGNOSTICS, 3) => (app.parameters.backlog_bound.into(), 2),
+            _ => self.wheel.with_wheel(|w| {
+                let feed = &w.feed;
+                let state = if record {
+                    feed.record_to_send()
+                } else {
+                    feed.state()
+                };
+                Ok(match (index, sub) {
+                    (FEED_ENABLE, 0) => (state.status.contains(FeedStatus::ENABLED).into(), 1),
+                    (SELECTION, 1) => (Axis::option_value(state.axis).into(), 1),
+                    (SELECTION, 2) => (state.multiplier.factor().into(), 1),
+                    (SELECTION, 3) => (state.epoch.into(), 1),
+                    // Two's complement bytes of the signed objects, as CiA 301 sends them.
+                    (ENCODER, 1) => (w.decoder.count() as u32, 4),
+                    (ENCODER, 2) => (w.decoder.illegal_transitions(), 4),
+                    (FEED_STATUS, 0) => (state.status_byte().into(), 1),
+                    (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 1),
+                    (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
+                    (FEED_DIAGNOSTICS, 2) => (feed.dropped_steps(), 4),
+                    (POSITION_VALUE, 0) => (state.position as u32, 4),
+                    _ => return Err(SdoAbort::NoObject),
+                })
+            })?,
+        };
+        let bytes = value.to_le_bytes();
+        put(buf, &bytes[..size])
+    }
+
     fn set_parameters(&mut self, parameters: WheelParameters) {
         self.app.parameters = parameters;
         self.app.step_in_flight = None;

@@ -16,9 +16,9 @@ pub const SELECTION: u16 = 0x2010;
 /// Encoder record: sub 1 raw count (I32), sub 2 illegal transitions (U32), sub 3 counts per
 /// detent (U8 rw 1/2/4), sub 4 invert (U8 rw 0/1).
 pub const ENCODER: u16 = 0x2020;
-/// Feed status bits (U8 ro, mappable).
+/// Feed status: flags in bits 0-4, the epoch's low three bits in 5-7 (U8 ro, mappable).
 pub const FEED_STATUS: u16 = 0x2030;
-/// Feed sequence: +1 per feed record (TPDO1) sent (U8 ro, mappable).
+/// Feed sequence: +1 per feed record (TPDO1) sent or dropped (U8 ro, mappable).
 pub const FEED_SEQUENCE: u16 = 0x2031;
 /// The unit-step byte in flight in the paper's format (U8 ro, mappable; TPDO2).
 pub const UNIT_STEP: u16 = 0x2032;

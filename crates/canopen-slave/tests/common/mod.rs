@@ -81,6 +81,8 @@ pub struct TestApp {
     pub position: i32,
     /// Makes reads of 0x6004 fail, as a sensor fault would.
     pub position_fault: bool,
+    /// What TPDO1 carries for 0x6004 instead of `position` (a held state), if set.
+    pub held_position: Option<i32>,
     pub buttons: u8,
     pub states: Vec<NmtState>,
     pub lost: Vec<u8>,
@@ -150,6 +152,22 @@ impl Application for TestApp {
 
     fn tpdo_ready(&mut self, pdo: u8) -> bool {
         !self.withdraw.contains(&pdo)
+    }
+
+    fn read_for_tpdo(
+        &mut self,
+        pdo: u8,
+        index: u16,
+        sub: u8,
+        buf: &mut [u8],
+    ) -> Result<usize, SdoAbort> {
+        match (pdo, index, sub, self.held_position) {
+            (1, 0x6004, 0, Some(held)) => {
+                buf[..4].copy_from_slice(&held.to_le_bytes());
+                Ok(4)
+            }
+            _ => self.read(index, sub, buf),
+        }
     }
 
     fn on_tpdo_sent(&mut self, pdo: u8) {
