@@ -3,8 +3,8 @@
 import time
 
 import pytest
-from conftest import BoardProcess
 
+from conftest import BoardProcess
 from rig import (
     AXES,
     EMCY,
@@ -12,9 +12,9 @@ from rig import (
     NMT_START,
     OPERATIONAL,
     PRE_OPERATIONAL,
+    STATUS_FLAGS,
     TPDO1,
     TPDO2,
-    STATUS_FLAGS,
     feed_epoch,
     feed_record,
 )
