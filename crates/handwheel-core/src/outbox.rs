@@ -79,10 +79,14 @@ impl FeedOutbox {
     }
 
     /// The feed leaves an epoch whose final state is `closing`: hold it for the bus, unless
-    /// nothing is held and the last record sent already said exactly this. A full store
+    /// nothing is held and the last record sent already said exactly this, or no record went
+    /// out since the start (the host starts afresh from the first one anyway). A full store
     /// drops its oldest record first.
     pub fn close_epoch(&mut self, closing: FeedState) {
-        if !self.reporting || (self.len == 0 && self.last_sent == Some(closing)) {
+        let Some(last_sent) = self.last_sent.filter(|_| self.reporting) else {
+            return;
+        };
+        if self.len == 0 && last_sent == closing {
             return;
         }
         if self.len == HELD_EPOCHS {
@@ -118,9 +122,11 @@ impl FeedOutbox {
         self.len != 0 || record != live
     }
 
-    /// Records may flow (the device entered Operational).
+    /// Records may flow (the device entered Operational). Epochs are held from the first
+    /// record on: before it, the host has nothing to continue from.
     pub fn start(&mut self) {
         self.reporting = true;
+        self.last_sent = None;
     }
 
     /// Records stop (the device left Operational): everything held is dropped (its motion
@@ -246,6 +252,7 @@ mod tests {
     #[test]
     fn a_full_store_drops_the_oldest_and_shows_a_gap() {
         let mut out = started();
+        assert!(!out.sent(state(-1, Axis::X, 0)));
         for epoch in 0..HELD_EPOCHS as u8 + 3 {
             out.close_epoch(state(i32::from(epoch), Axis::X, epoch));
         }
@@ -255,8 +262,8 @@ mod tests {
         assert_eq!(first.epoch, 3, "the three oldest were dropped");
         assert_eq!(
             out.sequence(),
-            3,
-            "as if three records went out and were lost"
+            1 + 3,
+            "one sent, then three as if sent and lost"
         );
     }
 
@@ -305,13 +312,24 @@ mod tests {
     }
 
     #[test]
-    fn nothing_is_held_while_stopped() {
+    fn nothing_is_held_while_stopped_or_before_the_first_record() {
         let mut out = FeedOutbox::new();
         out.close_epoch(state(0, Axis::X, 0));
         out.close_epoch(state(0, Axis::Y, 1));
         assert_eq!(out.held(), 0);
         out.start();
         out.close_epoch(state(0, Axis::Z, 2));
+        assert_eq!(
+            out.held(),
+            0,
+            "no record yet: the first one is the host's baseline"
+        );
+        assert!(!out.sent(state(0, Axis::Z, 3)));
+        out.close_epoch(state(4, Axis::Z, 3));
         assert_eq!(out.held(), 1);
+        out.stop();
+        out.start();
+        out.close_epoch(state(4, Axis::Y, 4));
+        assert_eq!(out.held(), 0, "a new start: nothing sent since");
     }
 }
