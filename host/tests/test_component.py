@@ -39,6 +39,9 @@ def test_defaults_and_option_errors(capsys):
     cfg = component.config_from(a)
     assert (cfg.axes, cfg.master) == ("xyzwv", 1)
     assert cfg.consumer_timeout_ms == 500 and cfg.stale_after == pytest.approx(0.3)
+    assert cfg.max_detents_per_s == 2000
+    cfg = component.config_from(component.parse_args(["--max-detents-per-s", "800"]))
+    assert cfg.max_detents_per_s == 800
     for bad in (
         ["--master-node", "16"],
         ["--axes", "xq"],
@@ -48,6 +51,8 @@ def test_defaults_and_option_errors(capsys):
         ["--scale", "inf"],
         ["--heartbeat-ms", "5"],
         ["--event-timer-ms", "70000"],
+        ["--max-detents-per-s", "0"],
+        ["--max-detents-per-s", "many"],
     ):
         with pytest.raises(SystemExit):
             component.parse_args(bad)
@@ -94,8 +99,9 @@ class Device:
         with self.lock:
             return [d for (i, d) in self.frames if i == cob_id and (data is None or d == data)]
 
-    def record(self, position, axis=1, mult=1, status=0):
+    def record(self, position, axis=1, mult=1, status=0, epoch=0):
         self.seq = (self.seq + 1) & 0xFF
+        status |= epoch << 5
         self.network.send_message(
             0x180 + NODE,
             (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, self.seq]),
@@ -128,34 +134,39 @@ def test_component_on_a_virtual_bus(tmp_path):
     args = component.parse_args(
         ["--interface", "virtual", "--channel", channel, "--axes", "xyz", "--name", "hw"]
     )
+    dev.node.sdo[0x2000].raw = 1  # left on by a component before this one
     stop = threading.Event()
     thread = threading.Thread(
         target=component.run, args=(args,), kwargs=dict(hal_module=Hal(), stop=stop), daemon=True
     )
     thread.start()
     try:
-        # Heartbeat of master 1 first, then the consumer entry and NMT start.
+        # Heartbeat of master 1 first, then the consumer entry, feed off and NMT start.
         wait(lambda: dev.seen(0x701, b"\x05"), what="master heartbeat")
         wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
         assert dev.node.sdo[0x1016][1].raw == 0x0001_01F4
+        assert dev.node.sdo[0x2000].raw == 0
         comp = made["comp"]
         # Records with the feed off; enable pin off: nothing to write.
-        dev.record(100)
+        dev.record(100, epoch=2)
         wait(lambda: comp["connected"], what="connected")
         assert comp["axis"] == 1 and comp["position"] == 100 and not comp["feed-enabled"]
         comp["enable"] = True
         wait(lambda: dev.node.sdo[0x2000].raw == 1, what="0x2000 = 1")
-        dev.record(100, status=1)
-        dev.record(103, status=1)
-        dev.record(93, status=1)
+        dev.record(100, status=1, epoch=3)
+        dev.record(103, status=1, epoch=3)
+        dev.record(93, status=1, epoch=3)
         wait(lambda: comp["axis.x.jog-counts"] == -7, what="x counts")
         assert comp["axis.x.jog-enable"] and not comp["axis.y.jog-enable"]
         assert comp["halui.axis.x.select"] and comp["feed-enabled"]
-        # Bad data: a short record, an unknown axis.
+        # Bad data: a short record, an unknown axis, a jump no wheel makes.
         dev.network.send_message(0x180 + NODE, b"\x01\x02")
-        dev.record(500, axis=9, status=1)
+        dev.record(500, axis=9, status=1, epoch=3)
         wait(lambda: comp["frames-bad"] == 2, what="bad frames counted")
         assert comp["axis"] == 0 and not comp["axis.x.jog-enable"]
+        dev.record(93, status=1, epoch=3)
+        dev.record(1_000_093, status=1, epoch=3)
+        wait(lambda: comp["frames-bad"] == 3, what="implausible motion counted")
         assert comp["axis.x.jog-counts"] == -7
         # EMCY shown and cleared.
         dev.network.send_message(0x080 + NODE, bytes.fromhex("3081110100000000"))
@@ -163,14 +174,14 @@ def test_component_on_a_virtual_bus(tmp_path):
         dev.network.send_message(0x080 + NODE, bytes(8))
         wait(lambda: comp["emcy-code"] == 0, what="EMCY reset")
         # Silence: disconnected within three periods.
-        dev.record(500, axis=2, status=1)
+        dev.record(500, axis=2, status=1, epoch=4)
         wait(lambda: comp["halui.axis.y.select"], what="y selected")
         t0 = time.monotonic()
         wait(lambda: not comp["connected"], what="disconnect")
         assert time.monotonic() - t0 < 0.5
         assert not comp["axis.y.jog-enable"]
         # Enable off: 0x2000 = 0.
-        dev.record(500, axis=2, status=1)
+        dev.record(500, axis=2, status=1, epoch=4)
         comp["enable"] = False
         wait(lambda: dev.node.sdo[0x2000].raw == 0, what="0x2000 = 0")
     finally:

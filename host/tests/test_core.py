@@ -8,36 +8,52 @@ from canopen_handwheel.core import Config, Configure, Core, WriteFeed
 NODE = 16
 TPDO1, EMCY, HB = 0x180 + NODE, 0x080 + NODE, 0x700 + NODE
 EN = core.STATUS_ENABLED
+ML = core.STATUS_MASTER_LOST
 T = 0.1  # event timer
 
 
-def rec(position, axis=1, mult=1, status=EN, seq=0) -> bytes:
+def rec(position, axis=1, mult=1, status=EN, seq=0, epoch=0) -> bytes:
+    """A feed record's bytes; `epoch` goes into status bits 5-7."""
+    status |= (epoch % 8) << 5
     return (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, seq & 0xFF])
 
 
 class Run:
-    """A core with a clock; records get consecutive sequence numbers unless given."""
+    """A core with a clock; records get consecutive sequence numbers unless given, and the
+    epoch steps as a device's does (from 1) on a change of axis, multiplier, enable or
+    master lost, unless given."""
 
     def __init__(self, axes="xyzwv", **kw):
         self.c = Core(Config(axes=axes, **kw))
         self.t = 0.0
         self.seq = 0
+        self.epoch = 1
+        self.sel = None
 
     def at(self, dt=0.0):
         self.t += dt
         return self.t
 
-    def record(self, position, axis=1, mult=1, status=EN, seq=None, dt=0.01):
+    def record(self, position, axis=1, mult=1, status=EN, seq=None, dt=0.01, epoch=None):
         if seq is None:
             self.seq = (self.seq + 1) & 0xFF
             seq = self.seq
-        self.c.frame(TPDO1, rec(position, axis, mult, status, seq), self.at(dt))
+        sel = (axis, mult, status & (EN | ML))
+        if epoch is None:
+            if self.sel is not None and sel != self.sel:
+                self.epoch += 1
+            epoch = self.epoch
+        self.sel = sel
+        self.c.frame(TPDO1, rec(position, axis, mult, status, seq, epoch), self.at(dt))
 
     def hb(self, state, dt=0.01):
         self.c.frame(HB, bytes([state]), self.at(dt))
 
     def counts(self):
         return self.c.pins().jog_counts
+
+    def bad(self):
+        return self.c.pins().frames_bad
 
     def configure(self):
         a = self.c.next_action(self.at())
@@ -52,9 +68,10 @@ def test_first_record_is_a_baseline_then_deltas_go_to_the_named_axis():
     r.record(1003)
     r.record(1001)
     assert r.counts() == {"x": 1, "y": 0, "z": 0, "w": 0, "v": 0}
-    r.record(1001, axis=2)  # axis change: baseline
+    r.record(1001, axis=2)  # the next epoch, directly after the last of X's
     r.record(1011, axis=2)
     assert r.counts()["y"] == 10 and r.counts()["x"] == 1
+    assert r.bad() == 0
 
 
 def test_position_wraps_and_counts_wrap():
@@ -67,8 +84,10 @@ def test_position_wraps_and_counts_wrap():
     assert r.counts()["x"] == -(2**31)
 
 
-@pytest.mark.parametrize("change", ["axis", "mult", "enable", "master_lost"])
-def test_a_new_selection_epoch_is_a_baseline(change):
+@pytest.mark.parametrize("change", ["axis", "mult", "enable"])
+def test_a_selection_change_within_an_epoch_is_impossible(change):
+    """The device steps the epoch on each of these; the same epoch bits with another
+    selection are a record it cannot send: counted, no motion, and it is the baseline."""
     r = Run()
     r.record(0)
     r.record(5)
@@ -77,30 +96,220 @@ def test_a_new_selection_epoch_is_a_baseline(change):
         axis = 3
     elif change == "mult":
         mult = 10
-    elif change == "enable":
-        status = 0
     else:
-        status = EN | core.STATUS_MASTER_LOST
-    r.record(500, axis=axis, mult=mult, status=status)
-    assert sum(r.counts().values()) == 5
+        status = 0
+    r.record(500, axis=axis, mult=mult, status=status, epoch=1)
+    assert r.counts()["x"] == 5 and sum(r.counts().values()) == 5
+    assert r.bad() == 1
+    r.record(600, axis=axis, mult=mult, status=status, epoch=1)  # continues the new baseline
+    expected = 0 if change == "enable" else 100
+    assert r.bad() == (2 if change == "enable" else 1)  # disabled and moved: impossible
+    assert sum(r.counts().values()) == 5 + expected
+
+
+def test_the_next_epoch_directly_after_carries_its_own_motion():
+    """prev is the last record of its epoch (nothing between them in sequence): the
+    difference is what was turned in the new epoch, on the new axis."""
+    r = Run()
+    r.record(0)
+    r.record(30)
+    r.record(37, axis=2)  # Y selected and turned 7 before its first record went out
+    r.record(39, axis=1)  # X again, turned 2
+    assert r.counts() == {"x": 32, "y": 7, "z": 0, "w": 0, "v": 0}
+    r.record(39, mult=10)  # x10: new epoch, no motion yet
+    r.record(59, mult=10)
+    assert r.counts()["x"] == 52 and r.bad() == 0
+
+
+@pytest.mark.parametrize(
+    "epoch_step,gap,continues",
+    [
+        (0, 0, True),
+        (0, 6, True),  # 6 records lost hide at most 6 epochs: not 8
+        (0, 7, False),  # 7 could hide 8 epoch steps: the bits would read the same
+        (0, 255, False),
+        (1, 0, True),
+        (1, 1, False),  # prev may not be the last record of its epoch
+        (2, 0, False),
+        (2, 1, False),  # the epoch between may have moved another axis
+        (7, 0, False),
+    ],
+)
+def test_which_sequence_gaps_and_epoch_steps_continue(epoch_step, gap, continues):
+    r = Run()
+    r.record(100, seq=10, epoch=3)
+    r.record(104, seq=11 + gap, epoch=3 + epoch_step)
+    assert r.counts()["x"] == (4 if continues else 0)
+    assert r.bad() == 0
+    assert r.c.pins().records_lost == gap
 
 
 def test_disabled_records_move_nothing():
     r = Run()
     r.record(0, status=0)
-    r.record(7, status=0)
-    assert r.counts()["x"] == 0
-    r.record(7)  # enable rises: baseline
+    r.record(0, status=0)
+    assert r.counts()["x"] == 0 and r.bad() == 0
+    r.record(7, status=0)  # moved while disabled, same epoch: impossible
+    assert r.counts()["x"] == 0 and r.bad() == 1
+    r.record(7)  # enable rises: next epoch
     r.record(9)
     assert r.counts()["x"] == 2
+    r.record(20, status=0)  # disabled, next epoch, moved: impossible
+    assert r.counts()["x"] == 2 and r.bad() == 2
+
+
+def test_no_axis_moves_nothing():
+    r = Run()
+    r.record(0, axis=0)
+    r.record(0, axis=0)
+    r.record(4, axis=0)
+    assert sum(r.counts().values()) == 0 and r.bad() == 1
+
+
+def test_motion_not_a_multiple_of_the_multiplier_is_impossible():
+    r = Run()
+    r.record(0, mult=100)
+    r.record(300, mult=100)
+    r.record(350, mult=100)
+    assert r.counts()["x"] == 300 and r.bad() == 1
+    r.record(450, mult=100)  # from the baseline at 350
+    assert r.counts()["x"] == 400
 
 
 def test_status_bits_that_are_no_epoch_keep_the_deltas():
     r = Run()
     r.record(0)
-    r.record(4, status=EN | core.STATUS_ENCODER_ERROR | core.STATUS_TURNED_UNSEEN)
-    assert r.counts()["x"] == 4
+    r.record(4, status=EN | core.STATUS_ENCODER_ERROR | core.STATUS_IGNORED_MOTION)
+    r.record(5, status=EN | core.STATUS_STEPS_DROPPED)
+    assert r.counts()["x"] == 5
+    assert not r.c.pins().encoder_error
+    r.record(5, status=EN | core.STATUS_ENCODER_ERROR)
     assert r.c.pins().encoder_error
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        rec(5, axis=6, epoch=1),
+        rec(5, axis=255, epoch=1),
+        rec(5, mult=0, epoch=1),
+        rec(5, mult=7, epoch=1),
+        rec(5, mult=255, epoch=1),
+        rec(5, status=EN | ML, epoch=1),
+        rec(5, epoch=1)[:7],
+        rec(5, epoch=1) + b"\x00",
+        b"",
+    ],
+)
+def test_an_impossible_record_is_counted_and_breaks_continuity(data):
+    """What the device can never send moves nothing, and the record after it is a
+    baseline (a wrong-length one too, as the README says)."""
+    r = Run()
+    r.c.set_enable(True)
+    r.record(0)
+    r.record(2)
+    r.c.frame(TPDO1, data, r.at(0.01))
+    p = r.c.pins()
+    assert p.frames_bad == 1 and r.counts()["x"] == 2
+    assert p.axis == 0 and not any(p.select.values()) and not any(p.jog_enable.values())
+    assert p.position == 2  # the last possible record
+    r.seq += 1  # as if it had been the device's
+    r.record(9)  # baseline
+    r.record(10)
+    assert r.counts()["x"] == 3 and r.c.pins().frames_bad == 1
+    assert r.c.pins().select["x"]
+
+
+def test_impossible_records_alone_do_not_keep_the_connection():
+    r = Run()
+    r.record(0)
+    for _ in range(10):
+        r.c.frame(TPDO1, rec(5, axis=9, epoch=1), r.at(0.1))
+    assert not r.c.pins().connected and r.bad() == 10
+
+
+def test_motion_faster_than_a_wheel_is_refused():
+    """One record 1.1e9 units on (the issue's foreign transmitter): counted, no motion,
+    and it is the baseline."""
+    r = Run()
+    r.record(0)
+    r.record(10)
+    r.record(1_100_000_010)
+    assert r.counts()["x"] == 10 and r.bad() == 1
+    r.record(1_100_000_011)
+    assert r.counts()["x"] == 11
+    r.record(10)  # back down the same jump: refused too
+    assert r.counts()["x"] == 11 and r.bad() == 2
+
+
+def test_the_rate_bound_is_a_bucket_of_detents():
+    """Default 2000 detents/s, 0.5 s horizon (the consumer timeout): 1000 detents at once
+    after a rest, then only what refills; detents, not units (x100 moves 100 units each)."""
+    r = Run()
+    r.record(0, mult=100)
+    r.record(100_000, mult=100, dt=0.0001)  # 1000 detents: the whole bucket
+    assert r.counts()["x"] == 100_000 and r.bad() == 0
+    r.record(100_100, mult=100, dt=0.0001)  # 0.2 detents refilled: 1 is too many
+    assert r.counts()["x"] == 100_000 and r.bad() == 1
+    r.record(120_100, mult=100, dt=0.1)  # 200 refilled in 0.1 s
+    assert r.counts()["x"] == 120_000 and r.bad() == 1
+
+
+def test_a_burst_after_an_outage_passes():
+    """After an outage the queued records arrive 150 us apart, each covering turning of
+    its own time: at 1500 detents/s for 0.3 s, all of it is applied."""
+    r = Run()
+    r.record(0)
+    r.record(0)
+    pos = 0
+    for _ in range(15):  # 20 ms each at 1500 detents/s
+        pos += 30
+        r.record(pos, dt=0.00015 if pos > 30 else 0.29)
+    assert r.counts()["x"] == 450 and r.bad() == 0
+
+
+def test_max_detents_per_s_is_the_option():
+    r = Run(max_detents_per_s=100, consumer_timeout_ms=500, event_timer=0.1)
+    r.record(0)
+    r.record(50, dt=0.0001)  # cap: 100 x 0.5
+    r.record(51, dt=0.0001)
+    assert r.counts()["x"] == 50 and r.bad() == 1
+
+
+def test_bucket_refill_and_cap():
+    a = core.Allowance(rate=10.0, cap=5.0)
+    assert a.take(5, 0.0) and not a.take(1, 0.0)
+    assert not a.take(2, 0.1) and a.take(1, 0.1)  # 1 refilled; a refusal spends nothing
+    assert a.take(5, 100.0) and not a.take(1, 100.0)  # never more than the cap
+
+
+def test_a_device_that_shows_no_epoch_moves_nothing():
+    """Firmware from before the epoch bits: all 0, so every record looks like one epoch and
+    a hidden switch to another axis would look like motion of the old one."""
+    r = Run()
+    r.record(0, status=0, epoch=0)
+    r.record(0, epoch=0)  # enable without an epoch step: impossible
+    assert r.bad() == 1
+    for pos in (10, 20, 30):
+        r.record(pos, epoch=0)
+    assert sum(r.counts().values()) == 0
+    r.record(31, epoch=1)  # a non-zero epoch shows the device keeps the contract
+    r.record(35, epoch=1)
+    assert r.counts()["x"] == 5
+
+
+def test_the_epoch_must_show_again_after_a_boot_up():
+    r = Run()
+    r.record(0, epoch=1)
+    r.record(5, epoch=1)
+    assert r.counts()["x"] == 5
+    r.hb(core.BOOTUP)
+    r.record(0, seq=0, epoch=0)
+    r.record(3, seq=1, epoch=0)
+    assert r.counts()["x"] == 5
+    r.record(3, seq=2, epoch=1)
+    r.record(4, seq=3, epoch=1)
+    assert r.counts()["x"] == 6
 
 
 def test_bootup_makes_the_next_record_a_baseline_and_asks_for_configuration():
@@ -163,19 +372,6 @@ def test_unconfigured_axis_counts_nowhere():
     r.record(9, axis=2)
     r.record(12, axis=2)
     assert r.counts() == {"x": 0, "z": 3}
-
-
-def test_unknown_axis_byte_is_bad_no_axis_and_a_baseline():
-    r = Run()
-    r.c.set_enable(True)
-    r.record(0)
-    r.record(5, axis=9)
-    p = r.c.pins()
-    assert p.frames_bad == 1 and p.axis == 0 and not any(p.jog_enable.values())
-    assert r.counts()["x"] == 0
-    r.record(8)  # baseline after the bad one
-    r.record(9)
-    assert r.counts()["x"] == 1
 
 
 @pytest.mark.parametrize(
@@ -334,6 +530,9 @@ def test_make_config_checks_every_option():
     assert (cfg.master, cfg.axes, cfg.scale) == (1, "xz", -0.01)
     assert (cfg.heartbeat_period, cfg.consumer_timeout_ms) == (0.2, 1000)
     assert cfg.stale_after == pytest.approx(0.3)
+    assert cfg.max_detents_per_s == 2000 and cfg.rate_horizon == pytest.approx(1.0)
+    cfg = core.make_config(16, None, "x", 0.001, 1000, 10, max_detents_per_s=500)
+    assert cfg.max_detents_per_s == 500 and cfg.rate_horizon == pytest.approx(3.0)
     for kwargs in [
         dict(scale=0.0),
         dict(scale=float("nan")),
@@ -344,6 +543,8 @@ def test_make_config_checks_every_option():
         dict(event_timer_ms=60001),
         dict(axes="xx"),
         dict(master=16),
+        dict(max_detents_per_s=9),
+        dict(max_detents_per_s=100_001),
     ]:
         args = dict(
             node=16, master=None, axes="xyz", scale=0.001, event_timer_ms=100, heartbeat_ms=100

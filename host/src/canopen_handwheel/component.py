@@ -85,6 +85,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="the device's TPDO1 event timer 0x1800:5 (100): no record for 3 "
         "periods means disconnected",
     )
+    p.add_argument(
+        "--max-detents-per-s",
+        type=int,
+        default=core.DEFAULT_MAX_DETENTS_PER_S,
+        help=f"fastest plausible turning ({core.DEFAULT_MAX_DETENTS_PER_S}, twice a hard flick "
+        "of a 100-detent wheel); motion beyond it is counted in frames-bad and not applied",
+    )
     args = p.parse_args(argv)
     try:
         args.config = core.make_config(
@@ -94,6 +101,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.scale,
             args.event_timer_ms,
             args.heartbeat_ms,
+            args.max_detents_per_s,
         )
     except ValueError as e:
         p.error(str(e))
@@ -240,8 +248,10 @@ class Worker:
             sdo.download(0x1016, sub, value.to_bytes(4, "little"))
             if sdo.upload(0x2001, 0)[0] != 0:
                 sdo.download(0x2001, 0, b"\x00")
+            # Feed off: a fresh start enables it again, stepping the selection epoch.
+            sdo.download(0x2000, 0, b"\x00")
             self.link.send(0x000, bytes([NMT_START, self.node_id]))
-            log(f"device configured (0x1016:{sub} = 0x{value:08X}), NMT start sent")
+            log(f"device configured (0x1016:{sub} = 0x{value:08X}, feed off), NMT start sent")
         elif isinstance(action, core.WriteFeed):
             sdo.download(0x2000, 0, bytes([action.value]))
             log(f"feed enable 0x2000 = {action.value}")

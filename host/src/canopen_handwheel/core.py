@@ -4,34 +4,87 @@ what to tell the device next.
 `Core` is fed events (frames from the device, the `enable` pin, the time, the outcome of the
 actions it asked for) and answers with a `Pins` snapshot and at most one `Action` at a time.
 The shell (`component.py`) carries out actions over python-canopen and copies the pins to
-HAL; it makes no decision of its own. Everything here is plain Python and deterministic in
-the times it is given, so it is tested without a bus or LinuxCNC (`host/tests`).
+HAL; it makes no decision of its own. Everything here is plain Python (standard library
+only) and deterministic in the times it is given, so it is tested without a bus or LinuxCNC
+(`host/tests`), and the interop suite checks the device's records with the same functions
+(`Record`, `record_fault`, `continuity`, `pair_fault`).
 
 Rules (the README's "Use with LinuxCNC" section states them for machine builders):
 
-- Feed bookkeeping: every accepted feed record (TPDO1) moves the `jog-counts` of the axis it
-  names by the wrapping s32 difference of its position to the previous record's, but only
-  when both records belong to the same selection (axis, multiplier, status bits 0 and 3)
-  with the feed enabled, the previous record is still valid (no boot-up, no staleness, no bad
-  record since) and the axis is one of the configured letters. Anything else makes the
-  record a new baseline: a device reset, a new selection epoch or a reconnect never turns
-  into motion.
+- Feed bookkeeping. The feed record (TPDO1) carries the cumulative position, the axis, the
+  multiplier, status bits 0-4 and in bits 5-7 the low three bits of the device's selection
+  epoch (0x2010:3), which steps on every change of axis, multiplier, enable and feed format
+  and on every stop. The device promises: (a) within one epoch axis, multiplier and enable
+  do not change and the position moves only while enabled, by that axis's feed (detents
+  times the multiplier; none without an axis); (b) every epoch's final state goes out as a
+  record before any record of a later epoch, unless it is dropped, and a dropped record takes
+  a sequence number as if it had been sent and lost (at most 8 per run of drops); (c) the
+  sequence byte steps by one per record sent or dropped. `continuity(prev, rec)` is the rule,
+  with g = the sequence numbers between the two records (mod 256) and d = rec's epoch minus
+  prev's (mod 8):
+  - d = 0 and g <= 6: the same epoch. Every epoch takes at least one sequence number, so the
+    g missing numbers hide at most g epochs and rec lies at most g + 1 <= 7 epochs after
+    prev; d = 0 mod 8 then means none. By (a) the wrapping difference of the positions is
+    feed of rec's axis alone. A record that differs from prev in axis, multiplier or enable,
+    or moved while disabled, without an axis or by no multiple of its multiplier, breaks (a):
+    it is impossible.
+  - d = 1 and g = 0: rec directly follows prev in sequence, so no epoch lies between them
+    (each would need a number) and rec is in the next epoch. By (b) prev is the final record
+    of its epoch, so the difference is exactly the motion of rec's epoch so far, which by (a)
+    is rec's axis's (a difference on a disabled or axis-less record is impossible).
+  - anything else: rec is a new baseline; what moved in epochs the host did not see goes to
+    no axis.
+  So every applied delta is motion made inside rec's own epoch, and that is feed of rec's
+  axis: motion of one axis is never credited to another. Lost records, dropped records and
+  outages can only cost motion, never move it elsewhere. The argument needs the host to see
+  a record of every 256 consecutive sequence numbers or go stale first (a wrapped sequence
+  byte looks like a small gap). Runs of drops take at most 8 numbers each, so that would
+  take losing at least 28 records sent in a row (over 50 ms of records at the 2 ms inhibit
+  time) without three event-timer periods passing with none received.
+- The delta is applied to rec's axis when rec is enabled, the axis is a configured letter,
+  the previous record is still valid (no boot-up, no staleness, no bad record since) and the
+  device has shown a non-zero epoch since the component last configured it (start, boot-up,
+  Pre-operational). Firmware from before the epoch bits sends 0 there: its records all look
+  like one epoch, and an outage can hide a switch to another axis behind them, so such a
+  device moves nothing (and each of its enables, a change of the enable bit within what looks
+  like one epoch, counts as bad). Configuration switches the feed off (0x2000 = 0), so the
+  enable that follows steps the epoch: of the two records around it, one shows a non-zero
+  epoch.
+- Plausibility. A record the device can never send is counted in `frames-bad` and the next
+  record is a baseline: a TPDO1 of the wrong length, an axis byte above 5, a multiplier
+  other than 1, 10, 100, feed enabled together with master lost (a stop disables, and only
+  enabling clears master lost), and a record `pair_fault` finds contradicting the previous
+  one (it then is the baseline). A delta is also bounded by what a wheel can do: a token
+  bucket of detents (|delta| / multiplier) that refills at `--max-detents-per-s` and holds at
+  most that rate times `Config.rate_horizon`; a delta beyond what it holds is counted bad and
+  its record is a baseline. A bucket rather than a bound per record because after an outage
+  the device's queued records arrive back to back (100-200 us apart) though each covers at
+  least the 2 ms inhibit time of turning, and the record that closes the outage covers all
+  of it. The horizon is the longer of the staleness time and the device's heartbeat consumer
+  timeout: an outage longer than the staleness time makes the first record after it a
+  baseline, and the records after that cover at most the feed that happened during the
+  outage, which the device stops a consumer timeout after it last heard the master. So
+  turning below the bound passes, bus outages included, while a foreign transmitter on the
+  device's COB-ID (an identifier clash) moves an axis by at most the bound. (Only an outage
+  of the host's receiving alone, its heartbeat still reaching the device, can carry more:
+  that motion is refused and counted, lost rather than applied.)
 - Freshness: records come at least every event-timer period in Operational; none for three
   periods means the device is gone: `connected` and every `jog-enable` drop, and the next
   record is a baseline.
 - `jog-enable` of axis L: connected (fresh records), Operational (no heartbeat saying
   otherwise), the device reports feed enabled, `enable` is true, and L is the selected axis.
-- Configuration (0x1016 consumer entry for the component's heartbeat, feed format 0, NMT
-  start) on start, after every boot-up and when the device shows Pre-operational; retried
-  every `retry` seconds while it fails.
+  After an impossible record, until the next possible one: no axis selected.
+- Configuration (0x1016 consumer entry for the component's heartbeat, feed format 0, feed
+  off, NMT start) on start, after every boot-up and when the device shows Pre-operational;
+  retried every `retry` seconds while it fails.
 - Feed enable: 0x2000 = 1 while `enable` is true, the device is configured, Operational,
   fresh and reports feed disabled; 0x2000 = 0 when `enable` is false and it reports feed
   enabled. Refused writes (0x08000022 while the device still misses the heartbeat) are
   retried.
-- Lost records: the gaps in the sequence byte between consecutive fresh records.
-- Bad data never raises: a TPDO1 of the wrong length, an unknown axis byte, an EMCY or
-  heartbeat of the wrong length are counted in `frames-bad`; an unknown axis acts as "no
-  axis" and forces a baseline.
+- Lost records: the gaps in the sequence byte between consecutive fresh records (records the
+  device dropped included).
+- Bad data never raises: impossible records as above and an EMCY or heartbeat of the wrong
+  length are counted in `frames-bad`.
 """
 
 from __future__ import annotations
@@ -51,10 +104,25 @@ STATUS_ENABLED = 0x01
 STATUS_ENCODER_ERROR = 0x02
 STATUS_STEPS_DROPPED = 0x04
 STATUS_MASTER_LOST = 0x08
-STATUS_TURNED_UNSEEN = 0x10
+STATUS_IGNORED_MOTION = 0x10
+# Bits 5-7: the low three bits of the selection epoch (0x2010:3).
+EPOCH_SHIFT = 5
+EPOCH_MODULO = 8
 
 # The device's axis byte: 0 none, 1..5 these letters.
 DEVICE_AXES = "xyzwv"
+MULTIPLIERS = (1, 10, 100)
+
+# The largest sequence gap still read as "the same epoch": each epoch takes at least one
+# sequence number, so 6 missing numbers hide at most 6 epochs and the record after them is
+# at most 7 epochs on, never the 8 that would bring the 3-bit epoch round.
+SAME_EPOCH_MAX_GAP = 6
+
+# Default bound of the wheel's speed (`--max-detents-per-s`). A 100-detent MPG flicked as
+# fast as a hand can peaks around 10 revolutions, 1000 detents, per second; twice that is
+# never reached by turning, while the jumps of a random 32-bit position are far above it.
+DEFAULT_MAX_DETENTS_PER_S = 2000
+MAX_DETENTS_PER_S_RANGE = (10, 100_000)
 
 # SDO abort: "data cannot be transferred because of the present device state".
 ABORT_DEVICE_STATE = 0x08000022
@@ -115,10 +183,14 @@ def make_config(
     scale: float,
     event_timer_ms: int,
     heartbeat_ms: int,
+    max_detents_per_s: int = DEFAULT_MAX_DETENTS_PER_S,
 ) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
     (0x1016), so one late beat never stops the wheel."""
+    low, high = MAX_DETENTS_PER_S_RANGE
+    if not low <= max_detents_per_s <= high:
+        raise ValueError(f"--max-detents-per-s must be {low}..{high}")
     if not (math.isfinite(scale) and scale != 0):
         raise ValueError(f"--scale {scale}: a finite, non-zero number of machine units")
     if not 10 <= heartbeat_ms <= 10000:
@@ -133,6 +205,7 @@ def make_config(
         event_timer=event_timer_ms / 1000,
         heartbeat_period=heartbeat_ms / 1000,
         consumer_timeout_ms=5 * heartbeat_ms,
+        max_detents_per_s=max_detents_per_s,
     )
 
 
@@ -146,14 +219,25 @@ class Config:
     heartbeat_period: float = 0.1  # s, the component's own heartbeat
     consumer_timeout_ms: int = 500  # what the device is told to allow (0x1016)
     retry: float = 0.5  # s between attempts of a failed or unconfirmed action
+    max_detents_per_s: float = DEFAULT_MAX_DETENTS_PER_S  # the wheel's speed bound
 
     @property
     def stale_after(self) -> float:
         return 3 * self.event_timer
 
+    @property
+    def rate_horizon(self) -> float:
+        """How many seconds of turning at the bound one burst of records may carry: the
+        longer of the staleness time and the device's heartbeat consumer timeout (see the
+        module's "Plausibility")."""
+        return max(self.stale_after, self.consumer_timeout_ms / 1000)
+
 
 @dataclass(frozen=True)
 class Record:
+    """A feed record (TPDO1) as sent: position, axis byte, multiplier byte, status byte,
+    sequence byte."""
+
     position: int
     axis: int
     multiplier: int
@@ -162,6 +246,9 @@ class Record:
 
     @staticmethod
     def decode(data: bytes) -> "Record":
+        """The record in `data`, which must be 8 bytes (`ValueError` otherwise)."""
+        if len(data) != 8:
+            raise ValueError(f"a feed record is 8 bytes, not {len(data)}")
         return Record(
             position=int.from_bytes(data[0:4], "little", signed=True),
             axis=data[4],
@@ -170,22 +257,107 @@ class Record:
             sequence=data[7],
         )
 
+    def encode(self) -> bytes:
+        return (self.position & 0xFFFF_FFFF).to_bytes(4, "little") + bytes(
+            [self.axis & 0xFF, self.multiplier & 0xFF, self.status & 0xFF, self.sequence & 0xFF]
+        )
+
     @property
     def enabled(self) -> bool:
         return bool(self.status & STATUS_ENABLED)
 
     @property
-    def selection(self) -> Tuple[int, int, int]:
-        """What must stay the same for a delta to count: axis, multiplier, enable and
-        master-lost bits (a change of any is a new selection epoch on the device)."""
-        return (self.axis, self.multiplier, self.status & (STATUS_ENABLED | STATUS_MASTER_LOST))
+    def master_lost(self) -> bool:
+        return bool(self.status & STATUS_MASTER_LOST)
+
+    @property
+    def epoch(self) -> int:
+        """The low three bits of the selection epoch this record describes (status 5-7)."""
+        return (self.status >> EPOCH_SHIFT) % EPOCH_MODULO
+
+
+def record_fault(rec: Record) -> Optional[str]:
+    """Why the device can never send `rec` on its own, or None if it can."""
+    if rec.axis > len(DEVICE_AXES):
+        return f"axis byte {rec.axis}"
+    if rec.multiplier not in MULTIPLIERS:
+        return f"multiplier {rec.multiplier}"
+    if rec.enabled and rec.master_lost:
+        return "feed enabled with master lost"
+    return None
+
+
+def sequence_gap(prev: Record, rec: Record) -> int:
+    """The sequence numbers between `prev` and `rec` (records lost or dropped), mod 256."""
+    return (rec.sequence - prev.sequence - 1) % 256
+
+
+def _link(prev: Record, rec: Record) -> Tuple[Optional[int], Optional[str]]:
+    """(delta, fault): the delta `continuity` gives, and why the pair is impossible."""
+    if record_fault(prev) is not None or record_fault(rec) is not None:
+        return None, None
+    gap = sequence_gap(prev, rec)
+    epochs = (rec.epoch - prev.epoch) % EPOCH_MODULO
+    delta = wrap_s32(rec.position - prev.position)
+    if epochs == 0 and gap <= SAME_EPOCH_MAX_GAP:
+        if (rec.axis, rec.multiplier, rec.enabled) != (prev.axis, prev.multiplier, prev.enabled):
+            return None, "axis, multiplier or enable changed within an epoch"
+    elif not (epochs == 1 and gap == 0):
+        return None, None  # epochs the host did not see: a new baseline
+    if delta != 0:
+        if not rec.enabled:
+            return None, "moved while disabled"
+        if rec.axis == 0:
+            return None, "moved without an axis"
+        if delta % rec.multiplier != 0:
+            return None, f"moved {delta}, no multiple of the multiplier {rec.multiplier}"
+    return delta, None
+
+
+def continuity(prev: Record, rec: Record) -> Optional[int]:
+    """The motion `rec` adds to its axis after `prev` (the record received before it), or
+    None: `rec` is a new baseline (it continues nothing). The module's "Feed bookkeeping"
+    gives the rule and why it never credits motion to another axis. 0 for a record that
+    continues without motion (disabled, no axis, the wheel at rest). Records the device
+    cannot send (`record_fault`, `pair_fault`) give None."""
+    return _link(prev, rec)[0]
+
+
+def pair_fault(prev: Record, rec: Record) -> Optional[str]:
+    """Why `rec` cannot follow `prev` from the same device, or None. Only for records that
+    each could be sent (`record_fault` is None for both)."""
+    return _link(prev, rec)[1]
+
+
+@dataclass
+class Allowance:
+    """The detents a wheel can have turned: a token bucket that refills at `rate` per
+    second up to `cap` (the module's "Plausibility")."""
+
+    rate: float
+    cap: float
+    level: Optional[float] = None  # None: full
+    time: Optional[float] = None
+
+    def level_at(self, now: float) -> float:
+        if self.level is None or self.time is None:
+            return self.cap
+        return min(self.cap, self.level + self.rate * max(0.0, now - self.time))
+
+    def take(self, detents: int, now: float) -> bool:
+        """Spends `detents` if the bucket holds them; False (spending nothing) if not."""
+        level = self.level_at(now)
+        ok = detents <= level
+        self.level = level - detents if ok else level
+        self.time = now
+        return ok
 
 
 # Actions the shell carries out, one at a time; it reports back with `Core.done`.
 @dataclass(frozen=True)
 class Configure:
     """Read 0x1016:1..2, write the `consumer_plan` entry, set 0x2001 = 0 if it is not,
-    then NMT start."""
+    0x2000 = 0 (feed off), then NMT start."""
 
     master: int
     timeout_ms: int
@@ -232,7 +404,9 @@ class Core:
     baseline: bool = True  # the next record is a baseline
     records_lost: int = 0
     frames_bad: int = 0
-    unknown_axis: bool = False
+    suspect: bool = False  # the last TPDO1 was impossible: no axis until a possible one
+    epochs_shown: bool = False  # a non-zero epoch since the last configuration
+    allowance: Allowance = field(init=False)
     # Actions.
     configured: bool = False
     config_due: float = 0.0  # configure at this time (if not configured)
@@ -242,6 +416,8 @@ class Core:
 
     def __post_init__(self) -> None:
         self.counts = {letter: 0 for letter in self.cfg.axes}
+        rate = self.cfg.max_detents_per_s
+        self.allowance = Allowance(rate=rate, cap=rate * self.cfg.rate_horizon)
 
     # Events ---------------------------------------------------------------------------
 
@@ -299,7 +475,7 @@ class Core:
 
     def selected(self) -> Optional[str]:
         """The configured letter the device's switch selects, if any."""
-        if self.record is None or self.unknown_axis:
+        if self.record is None or self.suspect:
             return None
         axis = self.record.axis
         if 1 <= axis <= len(self.cfg.axes):
@@ -340,7 +516,7 @@ class Core:
             connected=self.fresh,
             feed_enabled=self.feed_enabled,
             encoder_error=bool(rec and rec.status & STATUS_ENCODER_ERROR),
-            axis=0 if rec is None or self.unknown_axis else rec.axis,
+            axis=0 if rec is None or self.suspect else rec.axis,
             multiplier=self.record.multiplier if self.record else 1,
             position=self.record.position if self.record else 0,
             emcy_code=self.emcy_code,
@@ -356,38 +532,43 @@ class Core:
 
     def _tpdo1(self, data: bytes, now: float) -> None:
         if len(data) != 8:
-            self._bad()
+            self._impossible()
             return
         rec = Record.decode(data)
+        if record_fault(rec) is not None:
+            self._impossible()
+            return
         prev = self.record
-        continuous = prev is not None and self.fresh
-        was_fresh = continuous and not self.baseline
-        unknown = rec.axis > len(DEVICE_AXES)
-        if unknown:
-            self._bad()
-        if continuous:
-            gap = (rec.sequence - prev.sequence - 1) & 0xFF
-            self.records_lost = wrap_s32(self.records_lost + gap)
-        apply = (
-            was_fresh
-            and not unknown
-            and not self.unknown_axis
-            and prev is not None
-            and prev.selection == rec.selection
-            and rec.enabled
-        )
-        if apply:
-            letter = self._letter(rec.axis)
-            if letter is not None:
-                delta = wrap_s32(rec.position - prev.position)
-                self.counts[letter] = wrap_s32(self.counts[letter] + delta)
+        continuous = prev is not None and self.fresh and not self.baseline
+        if prev is not None and self.fresh:
+            self.records_lost = wrap_s32(self.records_lost + sequence_gap(prev, rec))
+        if rec.epoch != 0:
+            self.epochs_shown = True
+        delta: Optional[int] = None
+        if continuous and prev is not None:
+            delta, fault = _link(prev, rec)
+            if fault is not None:
+                self._bad()
+        if delta and not self.allowance.take(abs(delta) // rec.multiplier, self.now):
+            self._bad()  # faster than a wheel turns
+            delta = None
+        letter = self._letter(rec.axis)
+        if delta and self.epochs_shown and letter is not None:
+            self.counts[letter] = wrap_s32(self.counts[letter] + delta)
         self.record = rec
         self.record_time = now
-        self.unknown_axis = unknown
-        self.baseline = unknown
+        self.suspect = False
+        self.baseline = False
         if self.state in (None, BOOTUP):
             # PDOs only flow in Operational; the heartbeat will say so too.
             self.state = OPERATIONAL
+
+    def _impossible(self) -> None:
+        """A TPDO1 the device can never send: counted, and it breaks continuity; the
+        last possible record stays the one the pins show, without a selected axis."""
+        self._bad()
+        self.baseline = True
+        self.suspect = True
 
     def _letter(self, axis: int) -> Optional[str]:
         if 1 <= axis <= len(self.cfg.axes):
@@ -412,7 +593,8 @@ class Core:
             self.baseline = True
             self.record = None
             self.record_time = None
-            self.unknown_axis = False
+            self.suspect = False
+            self.epochs_shown = False
             self.emcy_code = 0
             if isinstance(self.pending, Configure):
                 # Its outcome no longer says anything about this boot; do it again.
@@ -421,6 +603,7 @@ class Core:
             # Someone (or a missed boot-up) left it Pre-operational: configure and start.
             self.configured = False
             self.config_due = self.now
+            self.epochs_shown = False
         self.state = state
 
 
@@ -452,12 +635,18 @@ COMPONENT_PINS = [
     ("multiplier", "s32", "out", "1, 10 or 100"),
     ("position", "s32", "out", "the last feed record's position (multiplied units)"),
     ("emcy-code", "u32", "out", "the last active EMCY code, 0 once cleared"),
-    ("records-lost", "s32", "out", "feed records missed (gaps in the sequence byte)"),
+    (
+        "records-lost",
+        "s32",
+        "out",
+        "feed records missed or dropped by the device (gaps in the sequence byte)",
+    ),
     (
         "frames-bad",
         "s32",
         "out",
-        "malformed frames from the device (wrong DLC, unknown axis byte), ignored",
+        "frames the device cannot send (wrong DLC, impossible record, motion beyond "
+        "`--max-detents-per-s`); no motion from them",
     ),
     ("state", "s32", "out", "the device's last heartbeat state (5 Operational), -1 before any"),
 ]
