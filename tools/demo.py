@@ -44,6 +44,7 @@ from rig import (
     NODE_ID,
     OPERATIONAL,
     PRE_OPERATIONAL,
+    ROOT,
     SDO_TX,
     STOPPED,
     TPDO1,
@@ -52,6 +53,11 @@ from rig import (
     Stimulus,
     connect_bus,
 )
+
+# The host component's record rule (host/src, standard library only): the demo's CNC applies
+# feed records exactly as the LinuxCNC component does.
+sys.path.insert(0, str(ROOT / "host" / "src"))
+from canopen_handwheel.core import Record, continuity  # noqa: E402
 
 AXIS_NAMES = ["none", "X", "Y", "Z", "W", "V"]
 STATE_NAMES = {
@@ -66,9 +72,11 @@ STEP_TIMEOUT = 5.0
 
 
 class Cnc(can.Listener):
-    """What a CNC makes of the node's frames: the feed record applied to its axes (the
-    wrapping difference of the position goes to the axis in the same frame), the NMT
-    state, the last EMCY and the frame rates."""
+    """What a CNC makes of the node's frames: the feed record applied to its axes by the
+    host component's rule (`continuity`: the wrapping difference of the position goes to
+    the axis the newer record names, when the two records are of one epoch or of
+    consecutive epochs with none missing), the NMT state, the last EMCY and the frame
+    rates."""
 
     def __init__(self) -> None:
         self.lock = threading.Condition()
@@ -77,7 +85,7 @@ class Cnc(can.Listener):
         self.state: Optional[int] = None
         self.booted = False
         self.emcy = "none"
-        self._last_position: Optional[int] = None
+        self._last: Optional[Record] = None
         self._tpdo_times: collections.deque = collections.deque()
         self._all_times: collections.deque = collections.deque()
 
@@ -96,7 +104,7 @@ class Cnc(can.Listener):
                 self.state = data[0]
                 if data[0] == BOOTUP:
                     self.booted = True
-                    self._last_position = None  # reset node zeroes the position
+                    self._last = None  # reset node zeroes the position
             elif msg.arbitration_id == EMCY and len(data) == 8:
                 code = int.from_bytes(data[0:2], "little")
                 self.emcy = "error reset" if code == 0 else f"0x{code:04X}"
@@ -106,13 +114,12 @@ class Cnc(can.Listener):
         pass
 
     def _feed(self, data: bytes) -> None:
-        position = int.from_bytes(data[0:4], "little", signed=True)
-        axis, multiplier, status, sequence = data[4], data[5], data[6], data[7]
-        if self._last_position is not None and 1 <= axis <= 5:
-            delta = (position - self._last_position + 2**31) % 2**32 - 2**31
-            self.axes[AXIS_NAMES[axis]] += delta
-        self._last_position = position
-        self.record = (position, axis, multiplier, status, sequence)
+        rec = Record.decode(data)
+        delta = continuity(self._last, rec) if self._last is not None else None
+        if delta and 1 <= rec.axis <= 5:
+            self.axes[AXIS_NAMES[rec.axis]] += delta
+        self._last = rec
+        self.record = (rec.position, rec.axis, rec.multiplier, rec.status, rec.sequence)
 
     def rates(self) -> Tuple[float, float]:
         """TPDO1 frames and all frames from the node per second, over the last second."""
@@ -130,7 +137,7 @@ class Cnc(can.Listener):
 
 def describe_status(status: int) -> str:
     names = [name for bit, name in enumerate(STATUS_BITS) if status & (1 << bit)]
-    return f"0x{status:02X} [{', '.join(names) or 'feed off'}]"
+    return f"0x{status:02X} [{', '.join(names) or 'feed off'}, epoch {status >> 5}]"
 
 
 class Demo:
