@@ -61,7 +61,7 @@ mod app {
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::{debug, info};
     use handwheel_core::{DecoderConfig, LinkedWheel, WheelAccess};
-    use handwheel_device::{Duties, HandwheelDevice};
+    use handwheel_device::{Duties, HandwheelDevice, RateSwitch};
     use handwheel_firmware::{
         board::{self, Leds, Selectors, SYSCLK_HZ},
         can::{self, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
@@ -248,6 +248,7 @@ mod app {
             selectors,
             leds,
             supervision: Supervision = Supervision::new(),
+            rate_switch: RateSwitch = RateSwitch::new(),
             clock: WideClock = WideClock::new(),
         ],
         shared = [can]
@@ -260,6 +261,7 @@ mod app {
         Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
         let local = cx.local;
         let (device, wheel, supervision) = (local.device, local.wheel, local.supervision);
+        let rate_switch = local.rate_switch;
         let mut tx = TxSink(cx.shared.can);
         // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
         // the sampling duty is due immediately).
@@ -273,8 +275,9 @@ mod app {
             stall(handwheel_firmware::qemu::sim::take_stall_ms());
             let ticks = Mono::now().ticks();
             let now = local.clock.now(ticks);
-            let sleep =
-                duties.sleep_ms(ticks, now, device.next_deadline(), supervision.bus_state());
+            let sleep = duties
+                .sleep_ms(ticks, now, device.next_deadline(), supervision.bus_state())
+                .min(rate_switch.sleep_cap_ms());
             let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
             // Whatever woke the round (frames, the bus, the edge's `FEED_DUE`), the calls
             // below look at everything.
@@ -290,11 +293,26 @@ mod app {
             if let Some(sample) = sample {
                 apply_sample(sample, device, wheel);
             }
-            supervise(supervision, device, wheel, &mut tx.0);
+            supervise(supervision, rate_switch.off_bus(), device, wheel, &mut tx.0);
             device.poll(now, wheel, &mut tx);
             if let Some(rate) = device.take_bit_rate_switch(now) {
                 info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
-                tx.0.lock(|can| can.set_bit_rate(rate));
+                rate_switch.start(rate, ticks);
+            }
+            // One step per round, each a short lock: the CAN interrupts and SysTick wait for
+            // a few register accesses, never for the bus to synchronise (up to a frame on a
+            // healthy bus, for ever on a dominant one). Meanwhile the round repeats every
+            // millisecond, then, once the node counts as off the bus, every
+            // `RECOVERY_POLL_MS` (its bus state is bus-off).
+            if let Some(rate) =
+                rate_switch.poll(ticks, |rate| tx.0.lock(|can| can.switch_bit_rate(rate)))
+            {
+                defmt::error!(
+                    "CAN: no 11 recessive bits at {=u32} kbit/s within {=u32} ms: off the bus \
+                     until it is free",
+                    rate.kbit_per_second(),
+                    handwheel_device::rate_switch::SYNC_LIMIT_MS
+                );
             }
             follow_rx_filter(device, local.rx_filter, &mut tx.0);
             let bus = supervision.bus_state();
@@ -323,15 +341,17 @@ mod app {
     }
 
     /// Bus state, lost frames and encoder errors: `Supervision` logs the changes, the engine
-    /// decides the EMCYs (`Device::on_bus_event`, `Device::on_rx_overrun`).
+    /// decides the EMCYs (`Device::on_bus_event`, `Device::on_rx_overrun`). `off_bus`: a
+    /// bit-rate switch keeps the node off the bus, which counts as bus-off.
     fn supervise(
         supervision: &mut Supervision,
+        off_bus: bool,
         device: &mut Device,
         wheel: &mut impl WheelAccess,
         can: &mut impl Mutex<T = CanPort>,
     ) {
         let engine = device.engine();
-        if let Some(event) = supervision.check_bus() {
+        if let Some(event) = supervision.check_bus(off_bus) {
             engine.on_bus_event(event);
         }
         let stats = can.lock(|can| can.stats());

@@ -27,8 +27,14 @@ impl Supervision {
     }
 
     /// Re-reads the controller's error state; logs and returns a change worth an EMCY.
-    pub fn check_bus(&mut self) -> Option<BusEvent> {
-        let (state, counters) = bus::read_status();
+    /// `off_bus`: the controller is kept off the bus (a bit-rate switch that found no 11
+    /// recessive bits, `handwheel_device::RateSwitch`), which counts as bus-off: the ERR LED
+    /// is on, and its end is a recovery (EMCY 0x8140).
+    pub fn check_bus(&mut self, off_bus: bool) -> Option<BusEvent> {
+        let (mut state, counters) = bus::read_status();
+        if off_bus {
+            state = BusState::BusOff;
+        }
         let event = canopen_slave::bus::transition(self.bus, state);
         match event {
             Some(e @ (BusEvent::BusOff | BusEvent::ErrorPassive)) => {

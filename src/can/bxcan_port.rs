@@ -9,6 +9,7 @@ use handwheel_core::{BitRate, BitTiming};
 use super::port::{Busy, CanLink, Received};
 use super::{bus, frame, Frame, Mode};
 use crate::board::{CanInstance, APB1_HZ};
+use crate::pac;
 
 /// The configured controller.
 pub type Bxcan = bxcan::Can<CanInstance>;
@@ -29,6 +30,9 @@ pub const BTR_TABLE: [u32; 8] = {
     }
     table
 };
+
+/// `CAN_BTR`'s mode bits, silent and loopback (RM0008 24.9.7); the rest are timing bits.
+const BTR_MODE_BITS: u32 = 0xC000_0000;
 
 /// The `CAN_BTR` timing bits for `rate`.
 pub const fn btr(rate: BitRate) -> u32 {
@@ -134,9 +138,39 @@ impl CanLink for Bxcan {
         set_filters(self, filter);
     }
 
-    /// The controller goes through initialisation mode, keeping filters and interrupts, and
-    /// rejoins after 11 recessive bits at the new rate.
-    fn set_bit_rate(&mut self, rate: BitRate) {
-        self.modify_config().set_bit_timing(btr(rate)).enable();
+    /// The controller goes through initialisation mode (RM0008 24.4.1), keeping filters and
+    /// interrupts, and rejoins at the new rate after 11 recessive bits (24.4.2). bxcan's `modify_config` and `enable` wait for the acknowledges, the second
+    /// for the bus, which a dominant bus never gives; this glue only requests and looks, a
+    /// step per call:
+    /// - on the bus at another rate: request initialisation mode (INRQ), which the
+    ///   controller enters after the frame under way;
+    /// - in initialisation mode (INAK, INRQ): program BTR and request normal mode;
+    /// - waiting to synchronise (INAK, INRQ clear): nothing, the hardware rejoins by itself;
+    /// - in normal mode at `rate`: done.
+    fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
+        let timing = btr(rate);
+        // SAFETY: the controller (`self`, the bxcan handle inside the CAN port resource) is
+        // borrowed mutably, so nothing else accesses CAN_MCR, CAN_MSR or CAN_BTR meanwhile;
+        // reading MSR has no side effects and MCR's INRQ and SLEEP are mode requests that
+        // bxcan keeps no copy of.
+        let can = unsafe { &*pac::CAN::ptr() };
+        let msr = can.msr().read();
+        if msr.inak().bit_is_set() {
+            if can.mcr().read().inrq().bit_is_set() {
+                // SAFETY: BTR is writable in initialisation mode (24.9.7), which INAK
+                // confirms; the value keeps the mode bits (silent, loopback) and takes a
+                // timing of `BTR_TABLE`, all within BTR's fields.
+                can.btr()
+                    .modify(|r, w| unsafe { w.bits(r.bits() & BTR_MODE_BITS | timing) });
+                can.mcr().modify(|_, w| w.inrq().clear_bit());
+            }
+            return false;
+        }
+        if msr.slak().bit_is_clear() && can.btr().read().bits() & !BTR_MODE_BITS == timing {
+            return true;
+        }
+        can.mcr()
+            .modify(|_, w| w.sleep().clear_bit().inrq().set_bit());
+        false
     }
 }

@@ -36,8 +36,9 @@ pub trait CanLink {
     fn acknowledge_status(&mut self);
     /// Passes exactly what `filter` accepts from now on.
     fn set_rx_filter(&mut self, filter: RxFilter);
-    /// Runs at `rate` from now on (LSS activate bit timing).
-    fn set_bit_rate(&mut self, rate: BitRate);
+    /// One step of a switch to `rate` (LSS activate bit timing): a few register accesses,
+    /// never a wait for the bus. `true` once the controller is on the bus at `rate`.
+    fn switch_bit_rate(&mut self, rate: BitRate) -> bool;
 }
 
 /// The controller and its transmit queue: the one RTIC resource around the controller.
@@ -125,9 +126,11 @@ impl<L: CanLink> CanPort<L> {
         self.link.set_rx_filter(filter);
     }
 
-    /// Switches to `rate` (LSS activate bit timing, after its switch delay).
-    pub fn set_bit_rate(&mut self, rate: BitRate) {
-        self.link.set_bit_rate(rate);
+    /// One step of the switch to `rate` (LSS activate bit timing, after its switch delay):
+    /// `true` once the controller is on the bus at `rate`. Called once per round of the
+    /// CAN-side task until then (`handwheel_device::RateSwitch` keeps the time).
+    pub fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
+        self.link.switch_bit_rate(rate)
     }
 
     /// Counters since start-up.

@@ -176,6 +176,8 @@ impl CanLink for Controller {
         self.filter = filter;
     }
 
-    /// A serial line has no bit rate: nothing changes.
-    fn set_bit_rate(&mut self, _rate: BitRate) {}
+    /// A serial line has no bit rate: nothing changes, the switch is done at once.
+    fn switch_bit_rate(&mut self, _rate: BitRate) -> bool {
+        true
+    }
 }

@@ -321,3 +321,73 @@ def test_a_full_transmit_side_never_loses_a_frame(brig):
     emcy = rig.frames.frames(EMCY, since=held)[0]
     assert emcy.data[:2] == bytes([0x20, 0x81])
     assert feed_record(rig.frames.frames(TPDO1, since=held)[0])[0] == 1
+
+
+def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(brig):
+    """`hold <ms>` ends by itself: what waited in the mailboxes goes out then, and the board
+    runs on at its pace (a `turn` after the hold gets its `ok`, its feed record goes out)."""
+    rig, board = brig, brig.qemu
+    rig.write(0x1800, 5, 0, 2)  # no event timer: feed records only on motion
+    rig.feed_on("x")
+    board.control("hold 400")
+    held = rig.frames.mark()
+    rig.network.send_message(SDO_RX, bytes([0x40, 0x17, 0x10, 0, 0, 0, 0, 0]))
+    deadline = time.monotonic() + 3
+    while "590" not in board.status()["pending"]:  # the reply waits in a mailbox
+        assert time.monotonic() < deadline, "no SDO reply in the mailboxes"
+        time.sleep(0.02)
+    rig.frames.assert_none(lambda f: f.id == SDO_TX, 0.2, since=held, what="a reply while held")
+    reply = rig.frames.wait_id(SDO_TX, since=held, timeout=3)
+    assert reply.data[4:6] == (1000).to_bytes(2, "little")
+    mark = rig.frames.mark()
+    started = time.monotonic()
+    board.control("turn 2", timeout=10)
+    # 27.4 ms of emulated time, paced to the wall clock; an emulator stuck on the expired
+    # hold moves one cycle per step and needs tens of seconds.
+    assert time.monotonic() - started < 3.0, "the turn's ok comes in emulated real time"
+    record = rig.frames.wait_for(
+        lambda f: f.id == TPDO1 and feed_record(f)[0] == 2, since=mark, what="position 2"
+    )
+    assert record
+
+
+def test_a_bit_rate_switch_on_a_dominant_bus_recovers_without_a_reset(brig):
+    """LSS activate bit timing while the bus is stuck dominant: the controller cannot
+    synchronise at the new rate. The node stays off the bus and keeps running (no watchdog
+    reset), with the ERR LED on, and joins at the new rate by itself once the bus is free,
+    with EMCY 0x8140."""
+    rig, board = brig, brig.qemu
+    lss = rig.network.lss
+    lss.RESPONSE_TIMEOUT = 0.5
+    lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
+    lss.configure_bit_timing(3)  # 250 kbit/s
+    mark = rig.frames.mark()
+    delivered = int(board.status()["delivered"])
+    lss.activate_bit_timing(1000)  # the switch comes 1 s later
+    deadline = time.monotonic() + 0.8
+    while int(board.status()["delivered"]) == delivered:  # the request is in before the bus
+        assert time.monotonic() < deadline, "activate bit timing not received"  # goes dominant
+    board.control("dominant 2500")
+    before = board.status()
+    t0 = float(before["ms"])
+    time.sleep(1.7)  # the switch has come; the watchdog (500 ms) would have reset a hung loop
+    status = board.status()
+    assert status["resets"] == "1" and status["boot"] == "PowerOn", status
+    rounds = (float(status["ms"]) - t0) / 10  # the loop's rounds at RECOVERY_POLL_MS or faster
+    assert int(status["feeds"]) - int(before["feeds"]) >= rounds, "the CAN-side loop ran on"
+    assert status["mode"] == "init" and status["online"] == "0", status
+    assert status["bitrate"] == "250000", status
+    assert state_at(board.leds(), "err", float(status["ms"])) is True, "ERR on"
+    board.wait_for_log(r"CAN: no 11 recessive bits at 250 kbit/s within 50 ms")
+    emcy = rig.frames.wait_for(
+        lambda f: f.id == EMCY and f.data[:2] == bytes([0x40, 0x81]),
+        since=mark,
+        timeout=5,
+        what="EMCY 0x8140 once the bus is free",
+    )
+    assert emcy
+    status = board.status()
+    assert float(status["ms"]) > t0 + 2500, "not before the bus was free"
+    assert status["resets"] == "1" and status["boot"] == "PowerOn", status
+    assert status["mode"] == "normal" and status["bitrate"] == "250000", status
+    assert rig.read(0x1017) == 1000, "the node answers at 250 kbit/s"

@@ -376,7 +376,12 @@ class Machine:
     def _deliver_due(self) -> None:
         while self.host_frames and self.host_frames[0][0] <= self.now:
             _, frame = self.host_frames.pop(0)
-            self.delivery_results.append(self.can.deliver(frame))
+            if self.can.dominant(self.now):
+                # The host's controller cannot send on a dominant bus: the frame is lost.
+                self.can.dropped_offline += 1
+                self.delivery_results.append("dominant")
+            else:
+                self.delivery_results.append(self.can.deliver(frame))
 
     # -- resets ------------------------------------------------------------------------------
 
@@ -434,7 +439,7 @@ class Machine:
         tick = self.nvic.next_systick()
         if tick is not None:
             candidates.append(tick)
-        bus = self.can.next_event()
+        bus = self.can.next_event(self.now)
         if bus is not None:
             candidates.append(bus)
         dog = self.iwdg.expiry()
@@ -448,8 +453,6 @@ class Machine:
             candidates.append(self.stall_until)
         if self.can.bus_off:
             candidates.append(self.now + cortex.CORE_HZ // 10_000)
-        if self.can.bus_hold_until:
-            candidates.append(self.can.bus_hold_until)
         return max(self.now + 1, min(candidates))
 
     def _advance_to(self, cycle: int) -> None:

@@ -435,9 +435,14 @@ def btr_sample_point(btr: int) -> float:
 class Bxcan:
     """RM0008 24: the bxCAN controller as one node on a bus whose other side is the host.
 
-    Modes (24.4, 24.9.1-2): INRQ requests initialization (INAK), SLEEP requests sleep
-    (SLAK); the acknowledges follow at once (the bus is idle). Out of reset the controller
-    sleeps. Only in normal mode (neither INAK nor SLAK) does it take part in the bus.
+    Modes (24.4, 24.9.1-2, figure 222): INRQ requests initialization (INAK), SLEEP requests
+    sleep (SLAK); those acknowledges follow at once. Clearing both requests normal mode,
+    which the controller enters once it has synchronised on 11 consecutive recessive bits:
+    at once on a free bus, not while the bus is held dominant (`bus_dominant_until`), so
+    INAK or SLAK stays set until it is free. Out of reset the controller sleeps. Only in
+    normal mode (neither INAK nor SLAK) does it take part in the bus.
+    A dominant bus (shorted lines, a babbling node) also carries no frame either way; the
+    error frames an online node would see there are not modelled (TEC/REC stay).
     BTR (24.9.7) is writable only in initialization mode; a bus bit rate set on the board
     (`bus_bitrate`) that differs from BTR's keeps the node off the bus in both directions.
     Filters (24.7.4, 24.9.5): banks 0..13 as programmed, in 16- or 32-bit scale, mask or
@@ -467,6 +472,8 @@ class Bxcan:
         self.on_transmit = on_transmit  # called with (Frame) when a frame has gone out
         self.bus_bitrate: int | None = None  # None: whatever BTR says
         self.bus_hold_until: int | None = 0  # frames wait while now < this (None: for ever)
+        # The bus is stuck dominant while now < this (None: for ever): nothing synchronises.
+        self.bus_dominant_until: int | None = 0
         self.bus_faulty_until = 0  # bus-off recovery waits at least until then
         self.delivered = 0
         self.filtered = 0
@@ -478,6 +485,7 @@ class Bxcan:
 
     def reset(self) -> None:
         self.mcr = 0x0001_0002  # 24.9.1: SLEEP, DBF
+        self.mode = "sleep"  # "sleep", "init" or "normal": what MSR's INAK/SLAK acknowledge
         self.msr_flags = 0  # ERRI (2), WKUI (3), SLAKI (4)
         self.ier = 0
         self.btr = 0x0123_0000  # 24.9.7 reset value
@@ -501,11 +509,29 @@ class Bxcan:
 
     @property
     def inak(self) -> bool:
-        return bool(self.mcr & 1)
+        return self.mode == "init"
 
     @property
     def slak(self) -> bool:
-        return bool(self.mcr & 2) and not self.mcr & 1
+        return self.mode == "sleep"
+
+    def dominant(self, now: int) -> bool:
+        """Whether the bus is held dominant at cycle `now`."""
+        return self.bus_dominant_until is None or now < self.bus_dominant_until
+
+    def _update_mode(self, now: int) -> None:
+        """Figure 222: INRQ (before SLEEP) and SLEEP are entered at once; with both clear the
+        controller enters normal mode once synchronised (never while the bus is dominant)."""
+        was_init = self.inak
+        if self.mcr & 1:
+            self.mode = "init"
+        elif self.mcr & 2:
+            self.mode = "sleep"
+        elif not self.dominant(now):
+            self.mode = "normal"
+        if was_init and not self.inak and self.bus_off and not self.mcr & 0x40:
+            # 24.7.6: without ABOM the software leaves initialization mode to recover.
+            self._recover()
 
     def bitrate(self) -> float:
         return btr_bitrate(self.btr)
@@ -649,11 +675,8 @@ class Bxcan:
         if mcr & (1 << 15):  # RESET: master reset, back to sleep mode
             self.reset()
             return
-        was_init = self.inak
         self.mcr = mcr & 0x0001_00FF
-        if was_init and not self.inak and self.bus_off and not self.mcr & 0x40:
-            # 24.7.6: without ABOM the software leaves initialization mode to recover.
-            self._recover()
+        self._update_mode(now)
         if self.mcr & 2 and not self.mcr & 1:
             self.msr_flags |= 1 << 4  # SLAKI on entering sleep
 
@@ -774,7 +797,8 @@ class Bxcan:
 
     def advance(self, now: int) -> None:
         """Moves the bus on to cycle `now`: finishes the frame on the bus, starts the next,
-        ends bus-off when its recovery is due."""
+        ends bus-off when its recovery is due, enters normal mode once it can synchronise."""
+        self._update_mode(now)
         if self.bus_off and self.mcr & 0x40 and not self.inak:
             recovery = int(128 * 11 * CORE_HZ / max(self.bitrate(), 1))
             if now >= max(self.bus_off_since + recovery, self.bus_faulty_until):
@@ -787,7 +811,7 @@ class Bxcan:
                 self.tec -= 1
             self.on_transmit(frame)
         if self.on_bus is None and self.online():
-            if self.bus_hold_until is None or now < self.bus_hold_until:
+            if self.bus_hold_until is None or now < self.bus_hold_until or self.dominant(now):
                 return
             pending = [box for box in range(3) if self.mailboxes[box][0] & 1]
             if pending:
@@ -795,10 +819,20 @@ class Bxcan:
                 self.on_bus = box
                 self.on_bus_until = now + int(self.frame_in(box).bits() * CORE_HZ / self.bitrate())
 
-    def next_event(self) -> int | None:
-        if self.on_bus is not None:
-            return self.on_bus_until
-        return None
+    def next_event(self, now: int) -> int | None:
+        """The next cycle after `now` at which the bus changes by itself: the frame on it
+        ends, a timed hold or dominant stretch ends. A time that has passed is no event (as
+        an expired hold): the bus waits for nothing then."""
+        times = [
+            t
+            for t in (
+                self.on_bus_until if self.on_bus is not None else None,
+                self.bus_hold_until,
+                self.bus_dominant_until,
+            )
+            if t is not None and t > now
+        ]
+        return min(times, default=None)
 
     # -- errors -----------------------------------------------------------------------------
 

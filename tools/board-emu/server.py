@@ -24,6 +24,8 @@ Control line: the QEMU variant's stimulus commands with the same replies (`turn 
 (transmit / receive errors seen by the node: TEC += 8 each, REC += 1 each), `busoff <ms>`
 (TEC past 255, and the bus stays faulty for ms before the automatic recovery can run),
 `hold <ms|off|on>` (the bus is taken by other traffic: the node's mailboxes wait),
+`dominant <ms|off|on>` (the bus is stuck dominant: no frame passes either way, frames from
+the host are lost, and a controller leaving initialization or sleep mode cannot synchronise),
 `storm <ms>` (an interrupt storm on TIM2's vector starves the CAN task), `corrupt` (flips
 a bit of the parameter page), `leds` (the LED history: `led <ms> <run|err> <0|1>` lines,
 then `ok`), `status` (one `status key=value ...` line, then `ok`), `rate <kbit|auto>`.
@@ -277,13 +279,18 @@ class Server:
             m.can.inject(32, 0, m.now)
             m.update_irqs()
             ok()
-        elif name == "hold":
+        elif name in ("hold", "dominant"):
+            # Until a cycle, for ever (None) or no longer (0): a timed one ends by itself.
             if args == ["on"]:
-                m.can.bus_hold_until = None
+                until = None
             elif args == ["off"]:
-                m.can.bus_hold_until = 0
+                until = 0
             else:
-                m.can.bus_hold_until = m.now + one(0, 60_000) * cortex.CORE_HZ // 1000
+                until = m.now + one(0, 60_000) * cortex.CORE_HZ // 1000
+            if name == "hold":
+                m.can.bus_hold_until = until
+            else:
+                m.can.bus_dominant_until = until
             ok()
         elif name == "storm":
             m.storm_until = m.now + one(1, 60_000) * cortex.CORE_HZ // 1000
@@ -324,6 +331,7 @@ class Server:
             "bitrate": round(can.bitrate()),
             "bus": can.bus_bitrate or "auto",
             "online": int(can.online()),
+            "mode": can.mode,
             "tec": can.tec,
             "rec": can.rec,
             "boff": int(can.bus_off),

@@ -79,3 +79,85 @@ def test_a_wheel_edge_raises_exti9_5():
     m.run_ms(1)
     assert m.exti.pr == 0, "the handler cleared PR6/PR7"
     assert m.core.exceptions_taken > taken
+
+
+def lss(m, *data: int) -> None:
+    """An LSS request (CiA 305) from the host."""
+    m.deliver(periph.Frame(0x7E5, bytes(data).ljust(8, b"\0")))
+
+
+def after(m, mark: int, can_id: int) -> list[tuple[float, bytes]]:
+    """(ms, data) of the node's frames with `can_id` since `mark` (an index of transmitted)."""
+    return [(ms, f.data) for ms, f in m.transmitted[mark:] if f.can_id == can_id]
+
+
+def switch_to_250_kbit(m) -> float:
+    """LSS: configuration state, bit timing index 3 (250 kbit/s), activate with a 20 ms
+    switch delay. Returns the emulated time (ms) of the activation."""
+    mark = len(m.transmitted)
+    lss(m, 0x04, 0x01)  # switch state global: configuration
+    lss(m, 0x13, 0x00, 3)  # configure bit timing: CiA table, index 3
+    m.run_ms(5)
+    assert after(m, mark, 0x7E4) == [(pytest.approx(m.ms(), abs=5), bytes([0x13] + [0] * 7))]
+    lss(m, 0x15, 20, 0)  # activate bit timing, switch delay 20 ms
+    m.run_ms(1)
+    return m.ms()
+
+
+def test_a_bit_rate_switch_on_a_healthy_bus_is_quick_and_quiet():
+    m = machine.Machine(str(ELF))
+    m.run_ms(50)
+    t = switch_to_250_kbit(m)
+    m.run_ms(30)
+    assert round(m.can.bitrate()) == 250_000 and m.can.mode == "normal"
+    mark = len(m.transmitted)
+    m.run_ms(1000)
+    assert after(m, mark, 0x090) == [], "no EMCY: the node was never off the bus"
+    assert [d for _, d in after(m, mark, 0x710)] == [b"\x7f"], "its heartbeat, at 250 kbit/s"
+    assert not [c for c in m.leds if c.led == "err" and c.on and c.ms > t]
+    assert m.stats.resets == ["0.0 ms PowerOn"]
+
+
+def test_a_bit_rate_switch_on_a_dominant_bus_keeps_the_node_running_off_the_bus():
+    """The bus is stuck dominant when the switch comes: the controller cannot synchronise.
+    The CAN-side loop keeps running (it feeds the watchdog, SysTick ticks), the node is off
+    the bus with the ERR LED on, and rejoins at the new rate by itself once the bus is
+    free, with EMCY 0x8140."""
+    m = machine.Machine(str(ELF))
+    m.run_ms(50)
+    t = switch_to_250_kbit(m)
+    m.can.bus_dominant_until = m.now + 1000 * 72_000  # 1 s
+    feeds = m.iwdg.feeds
+    m.run_ms(900)
+    assert m.stats.resets == ["0.0 ms PowerOn"], "no watchdog reset"
+    assert m.iwdg.feeds - feeds > 50, "the loop kept running and feeding the watchdog"
+    assert m.can.mode == "init" and not m.can.online(), "waiting to synchronise"
+    assert round(m.can.bitrate()) == 250_000
+    err = [c for c in m.leds if c.led == "err" and c.ms > t]
+    assert err and err[0].on and err[0].ms < t + 20 + 50 + 60, f"ERR on when off the bus: {err}"
+    mark = len(m.transmitted)
+    m.run_ms(300)  # the bus is free from t + 1000 ms
+    assert m.can.mode == "normal" and m.stats.resets == ["0.0 ms PowerOn"]
+    emcy = after(m, mark, 0x090)
+    assert [d[:2] for _, d in emcy] == [b"\x40\x81", b"\x00\x00"], f"0x8140, then reset: {emcy}"
+    assert emcy[0][0] < t + 1000 + 20, "within a poll of the bus's release"
+    assert m.led_state["err"] is False
+
+
+def test_time_jumps_from_event_to_event_after_a_timed_hold():
+    """A timed hold (`hold <ms>`) that has expired is no event: the machine still jumps
+    from event to event (an idle CPU to the next SysTick) instead of a cycle per step, and
+    a wheel turn after it is done in its 25 ms."""
+    m = machine.Machine(str(ELF))
+    m.run_ms(50)
+    m.can.bus_hold_until = m.now + 5 * 72_000
+    m.run_ms(10)
+    assert m.next_event() - m.now > 1000, "the next event is a SysTick or later, not now + 1"
+    done = []
+    m.turn(1, done=lambda: done.append(m.ms()))
+    start = m.ms()
+    for _ in range(3000):  # about one step per SysTick when idle; 30 ms with the turn's work
+        m.step()
+        if done:
+            break
+    assert done and done[0] - start == pytest.approx(27.4, abs=0.1), f"{m.ms() - start:.3f} ms"

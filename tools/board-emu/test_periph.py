@@ -197,6 +197,54 @@ def test_can_modes_and_acknowledges():  # 24.4.1-24.4.3, 24.9.1-2
     assert not can.read(0x04) & 0x10
 
 
+def test_can_normal_mode_waits_for_a_free_bus_to_synchronise():  # 24.4.2, figure 222
+    can = Bxcan(lambda f: None)
+    can.bus_dominant_until = 5000
+    can.write(0x00, 0x01, ALL, 0)  # INRQ: acknowledged at once, dominant or not
+    assert can.read(0x04) & 0b11 == 0b01
+    can.write(0x00, 0x00, ALL, 100)  # request normal mode: no 11 recessive bits yet
+    assert can.read(0x04) & 0b11 == 0b01 and not can.online()
+    assert can.next_event(100) == 5000, "the end of the dominant stretch is an event"
+    can.advance(4999)
+    assert can.read(0x04) & 0b11 == 0b01
+    can.advance(5000)
+    assert can.read(0x04) & 0b11 == 0b00 and can.online()
+    assert can.next_event(5000) is None, "an expired stretch is no event"
+    # Sleep to normal mode synchronises the same way; a stretch held on waits for ever.
+    can.write(0x00, 0x02, ALL, 6000)
+    can.bus_dominant_until = None
+    can.write(0x00, 0x00, ALL, 6000)
+    can.advance(10**9)
+    assert can.read(0x04) & 0b11 == 0b10
+    can.bus_dominant_until = 0
+    can.advance(10**9 + 1)
+    assert can.read(0x04) & 0b11 == 0b00
+
+
+def test_can_timed_hold_and_dominant_bus_hold_the_mailboxes_then_end():  # server `hold <ms>`
+    sent = []
+    can = normal_can(sent)
+    can.bus_hold_until = 3000
+    load(can, 0, 0x710)
+    can.advance(0)
+    assert can.on_bus is None and can.next_event(0) == 3000
+    can.advance(2999)
+    assert can.on_bus is None
+    can.advance(3000)
+    assert can.on_bus == 0, "the hold is over: the frame starts"
+    end = can.on_bus_until
+    assert can.next_event(3000) == end, "the frame's end, not the expired hold"
+    can.advance(end)
+    assert [f.can_id for f in sent] == [0x710]
+    assert can.next_event(end) is None, "an expired hold is no event"
+    can.bus_dominant_until = end + 1000
+    load(can, 1, 0x190)
+    can.advance(end + 999)
+    assert can.on_bus is None and can.next_event(end + 999) == end + 1000
+    can.advance(end + 1000)
+    assert can.on_bus == 1
+
+
 def test_can_btr_only_in_init_mode_and_rate():  # 24.7.7, 24.9.7
     can = normal_can()
     can.write(0x1C, 0x0012_0003, ALL, 0)  # ignored outside init mode

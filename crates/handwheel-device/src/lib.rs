@@ -11,6 +11,8 @@
 //!   discards pending unit steps and disables feed until the master enables it again;
 //! - [`duties`] decides the firmware loop's periodic work (switches, standstill, LEDs) and how
 //!   long it may sleep;
+//! - [`rate_switch`] times the CAN controller's bit-rate switch after LSS "activate bit
+//!   timing", which never waits for the bus, and says when the node is off the bus;
 //! - [`node_config`] and [`record`] decide the node-ID and bit rate at boot (DIP switch or
 //!   stored) and the byte layout of the stored parameters, for any board's storage glue;
 //! - the paper's unit-step stream (0x2001 = 1) goes out on TPDO2, one frame per step, from a
@@ -22,8 +24,10 @@ mod device;
 pub mod duties;
 pub mod node_config;
 pub mod od;
+pub mod rate_switch;
 pub mod record;
 
 pub use app::WheelParameters;
 pub use device::{HandwheelDevice, EMCY_ENCODER};
 pub use duties::{Duties, Sample};
+pub use rate_switch::RateSwitch;
