@@ -4,6 +4,7 @@ import time
 
 import pytest
 
+from canopen_handwheel.core import Record, continuity
 from conftest import BoardProcess
 from rig import (
     AXES,
@@ -15,7 +16,6 @@ from rig import (
     STATUS_FLAGS,
     TPDO1,
     TPDO2,
-    feed_epoch,
     feed_record,
 )
 
@@ -232,22 +232,18 @@ def turn_one_by_one(rig, detents: int) -> None:
         time.sleep(0.005)
 
 
-def credited(records) -> dict:
-    """What a host following the README's rule credits to each axis byte: the wrapping
-    difference of consecutive records goes to the newer record's axis when both are of the
-    same epoch (at most 6 records missing) or of consecutive epochs with none missing; any
-    other pair starts afresh. Written from the README, independently of the host component."""
+def credited(frames) -> dict:
+    """What the host component credits to each axis byte from these records: its
+    `continuity` rule (the README's "Feed record"), record after record."""
     counts = {}
     prev = None
-    for f in records:
-        pos, axis, _mult, status, seq = feed_record(f)
+    for f in frames:
+        rec = Record.decode(bytes(f.data))
         if prev is not None:
-            gap = (seq - prev[1] - 1) & 0xFF
-            epochs = (feed_epoch(f) - prev[2]) & 7
-            if ((epochs == 0 and gap <= 6) or (epochs == 1 and gap == 0)) and status & ENABLED:
-                delta = ((pos - prev[0] + 2**31) % 2**32) - 2**31
-                counts[axis] = counts.get(axis, 0) + delta
-        prev = (pos, seq, feed_epoch(f))
+            delta = continuity(prev, rec)
+            if delta:
+                counts[rec.axis] = counts.get(rec.axis, 0) + delta
+        prev = rec
     return counts
 
 

@@ -6,8 +6,7 @@ here. It is not installed: put `tools/` on `sys.path` (the suites' conftest.py f
 run a script that lives in `tools/`.
 
 - `constants`: the repository root, the EDS, COB-IDs, NMT states and commands, timeouts;
-- `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record`,
-  `feed_epoch`;
+- `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record`;
 - `emulator`: `free_ports`, `Qemu` (`cargo xtask qemu` in its own process group),
   `Stimulus` (the stimulus port), `connect_bus` (python-can's slcan bus on the CAN port);
 - `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`.
@@ -41,7 +40,7 @@ from .constants import (
     TPDO2,
 )
 from .emulator import Qemu, Stimulus, connect_bus, free_ports
-from .frames import STATUS_FLAGS, Frame, FrameRecorder, feed_epoch, feed_record
+from .frames import STATUS_FLAGS, Frame, FrameRecorder, feed_record
 from .master import MasterHeartbeat, Rig, open_rig
 
 __all__ = [
@@ -78,7 +77,6 @@ __all__ = [
     "Rig",
     "Stimulus",
     "connect_bus",
-    "feed_epoch",
     "feed_record",
     "free_ports",
     "open_rig",

@@ -127,13 +127,7 @@ STATUS_FLAGS = 0x1F
 
 def feed_record(frame: Frame):
     """(position, axis, multiplier, status flags (bits 0-4), sequence) of a TPDO1 feed
-    record; `feed_epoch` gives the epoch bits."""
+    record (bits 5-7 of the status byte are the epoch)."""
     assert frame.id == TPDO1 and len(frame.data) == 8, f"not a feed record: {frame}"
     d = frame.data
     return (int.from_bytes(d[0:4], "little", signed=True), d[4], d[5], d[6] & STATUS_FLAGS, d[7])
-
-
-def feed_epoch(frame: Frame) -> int:
-    """The epoch bits of a feed record: the low three bits of object 0x2010:3."""
-    assert frame.id == TPDO1 and len(frame.data) == 8, f"not a feed record: {frame}"
-    return frame.data[6] >> 5
