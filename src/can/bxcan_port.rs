@@ -139,9 +139,9 @@ impl CanLink for Bxcan {
     }
 
     /// The controller goes through initialisation mode (RM0008 24.4.1), keeping filters and
-    /// interrupts, and rejoins at the new rate after 11 recessive bits (24.4.2). bxcan's `modify_config` and `enable` wait for the acknowledges, the second
-    /// for the bus, which a dominant bus never gives; this glue only requests and looks, a
-    /// step per call:
+    /// interrupts, and rejoins at the new rate after 11 recessive bits (24.4.2). bxcan's
+    /// `modify_config` and `enable` wait for the acknowledges, the second for the bus, which
+    /// a dominant bus never gives; this glue only requests and looks, a step per call:
     /// - on the bus at another rate: request initialisation mode (INRQ), which the
     ///   controller enters after the frame under way;
     /// - in initialisation mode (INAK, INRQ): program BTR and request normal mode;
