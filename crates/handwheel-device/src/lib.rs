@@ -12,7 +12,11 @@
 //! - [`duties`] decides the firmware loop's periodic work (switches, standstill, LEDs) and how
 //!   long it may sleep;
 //! - [`node_config`] and [`record`] decide the node-ID and bit rate at boot (DIP switch or
-//!   stored) and the byte layout of the stored parameters, for any board's storage glue;
+//!   stored) and the byte layout of the stored parameters, and [`page`] how they are written
+//!   (nothing when unchanged, a log of records, a budget of erases per time), for any board's
+//!   erase-and-program glue;
+//! - 0x1010, 0x1011 and LSS store are refused (0x08000022) while the feed is enabled: writing
+//!   flash stalls the CPU, and with it the wheel's edges;
 //! - the paper's unit-step stream (0x2001 = 1) goes out on TPDO2, one frame per step, from a
 //!   bounded backlog.
 #![no_std]
@@ -22,6 +26,7 @@ mod device;
 pub mod duties;
 pub mod node_config;
 pub mod od;
+pub mod page;
 pub mod record;
 
 pub use app::WheelParameters;
