@@ -7,7 +7,7 @@
 //!
 //! - [`board`]: clocks, the pin map, wheel and switch inputs, LEDs, reset cause, unique ID.
 //! - [`can`]: bxCAN bit timing, filters, transmit queue, receive draining, error state.
-//! - [`storage`]: the parameter page in flash (0x1010/0x1011).
+//! - [`storage`]: the parameter page's erase and program in flash (0x1010/0x1011, LSS store).
 //! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters
 //!   (re-exported from the host-tested `handwheel-device`, like the record layout in
 //!   `storage::record`).

@@ -120,8 +120,10 @@ mod app {
                 .set_priority(SystemHandler::SysTick, priority::hardware(priority::CAN))
         };
 
-        let stored = board.storage.load().map(|s| s.settings);
+        let mut page = DeviceStorage::new(board.storage);
+        let stored = page.stored().map(|(settings, _)| settings);
         let (settings, source) = node_config::select(board.dip, stored);
+        page.set_settings(settings);
         let serial = node_config::serial_number(board.unique_id);
         info!(
             "boot: node-ID {=u8}, {=u32} kbit/s ({}, DIP {=u8:#04x}), reset cause {}, \
@@ -136,12 +138,7 @@ mod app {
         // `node_config` yields node-IDs 1..=127, or 0xFF stored by LSS: unconfigured (`None`),
         // the device then answers LSS only.
         let node_id = settings.node_id;
-        let device = HandwheelDevice::with_settings(
-            node_id,
-            settings.bit_rate,
-            serial,
-            DeviceStorage::new(board.storage, settings),
-        );
+        let device = HandwheelDevice::with_settings(node_id, settings.bit_rate, serial, page);
 
         // The defaults' filter; `canopen` reprograms it once the device has loaded stored
         // parameters (a stored 0x1005) and whenever a master moves an identifier.

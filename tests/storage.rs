@@ -1,4 +1,6 @@
-//! On-target: the parameter page round-trips, and an empty or damaged page reads as empty.
+//! On-target: the parameter page on the real flash: records round-trip, changed stores append
+//! without an erase, unchanged ones write nothing, and an empty or damaged page reads as the
+//! last intact record or nothing.
 //!
 //! This erases the stored parameters of the board it runs on. Run with a board and a probe:
 //! `cargo test --target thumbv7m-none-eabi -p handwheel-firmware --test storage`.
@@ -10,22 +12,23 @@ use handwheel_firmware as _;
 
 #[defmt_test::tests]
 mod tests {
+    use canopen_slave::{Storage, StorageError};
     use handwheel_core::BitRate;
     use handwheel_firmware::board;
     use handwheel_firmware::pac;
     use handwheel_firmware::storage::{
-        FlashStorage, NodeSettings, StoreError, BLOB_MAX, PAGE_OFFSET,
+        DeviceStorage, Flash, FlashStorage, NodeSettings, BLOB_MAX, PAGE_OFFSET,
     };
 
-    struct State {
-        storage: Option<FlashStorage>,
+    pub struct State {
+        pub flash: Option<FlashStorage>,
     }
 
     #[init]
     fn init() -> State {
         let dp = defmt::unwrap!(pac::Peripherals::take());
         State {
-            storage: Some(board::init(dp).storage),
+            flash: Some(board::init(dp).storage),
         }
     }
 
@@ -36,66 +39,106 @@ mod tests {
 
     #[test]
     fn an_erased_page_reads_as_nothing_stored(state: &mut State) {
-        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).erase());
-        defmt::assert!(defmt::unwrap!(state.storage.as_mut()).load().is_none());
+        let mut page = super::erased_page(state);
+        defmt::assert!(page.stored().is_none());
+        defmt::assert_eq!(page.load(&mut [0; 16]), 0);
+        super::put_back(state, page);
     }
 
     #[test]
-    fn a_record_round_trips(state: &mut State) {
+    fn records_round_trip_and_append_without_an_erase(state: &mut State) {
+        let mut page = super::erased_page(state);
+        page.set_settings(SETTINGS);
         let blob = [0xA5, 0x00, 0xFF, 0x12, 0x34];
-        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &blob));
-        let stored = defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load());
-        defmt::assert_eq!(stored.settings, SETTINGS);
-        defmt::assert_eq!(stored.blob, &blob[..]);
+        defmt::unwrap!(page.store(super::now(), &blob));
+        let (settings, stored) = defmt::unwrap!(page.stored());
+        defmt::assert_eq!(settings, SETTINGS);
+        defmt::assert_eq!(stored, &blob[..]);
+        // A second, changed record goes after the first: the first is still on the page.
+        defmt::unwrap!(page.store(super::now(), &[1, 2]));
+        defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[1, 2]);
+        defmt::assert_eq!(&page.flash().page()[10..15], &blob[..]);
+        // Unchanged: the page stays as it is, byte for byte.
+        let before = super::crc(page.flash().page());
+        defmt::unwrap!(page.store(super::now(), &[1, 2]));
+        defmt::assert_eq!(super::crc(page.flash().page()), before);
+        // A power cycle finds the newest.
+        let page = DeviceStorage::new(page.into_flash());
+        defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[1, 2]);
+        super::put_back(state, page);
     }
 
     #[test]
     fn empty_and_largest_blobs_round_trip(state: &mut State) {
+        let mut page = super::erased_page(state);
         let max = defmt::unwrap!(NodeSettings::from_parts(127, BitRate::Kbit10.code()));
-        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(max, &[]));
-        let stored = defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load());
-        defmt::assert_eq!(stored.settings, max);
-        defmt::assert!(stored.blob.is_empty());
-
+        page.set_settings(max);
         let mut blob = [0u8; BLOB_MAX];
         for (i, b) in blob.iter_mut().enumerate() {
             *b = i as u8;
         }
-        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &blob));
+        defmt::unwrap!(page.store(super::now(), &blob));
+        defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &blob[..]);
+        // An oversized blob is refused and the record kept.
         defmt::assert_eq!(
-            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load()).blob,
-            &blob[..]
+            page.store(super::now(), &[0u8; BLOB_MAX + 1]),
+            Err(StorageError::WriteFailed)
         );
+        defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &blob[..]);
+        // LSS settings with no blob, after "restore defaults" of everything.
+        defmt::unwrap!(page.store(super::now(), &[]));
+        defmt::assert!(page.stored().is_none());
+        defmt::unwrap!(page.store_node(super::now(), 9, 0));
+        let (settings, stored) = defmt::unwrap!(page.stored());
+        defmt::assert_eq!(settings.node_id_byte(), 9);
+        defmt::assert!(stored.is_empty());
+        super::put_back(state, page);
     }
 
     #[test]
-    fn an_oversized_blob_is_refused_and_the_old_record_kept(state: &mut State) {
-        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &[1, 2, 3]));
-        let big = [0u8; BLOB_MAX + 1];
-        defmt::assert_eq!(
-            defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &big),
-            Err(StoreError::TooLarge)
-        );
-        defmt::assert_eq!(
-            defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).load()).blob,
-            &[1, 2, 3]
-        );
-    }
-
-    #[test]
-    fn a_damaged_record_reads_as_nothing_stored(state: &mut State) {
-        defmt::unwrap!(
-            defmt::unwrap!(state.storage.as_mut()).store(SETTINGS, &[0xFF, 0xFF, 0x55, 0x55])
-        );
-        // Program the first blob half-word (0xFFFF) to 0x0000: allowed without an erase,
-        // and the CRC no longer matches.
-        let flash = defmt::unwrap!(state.storage.take()).free();
-        super::program_half_word(&flash, PAGE_OFFSET + 8, 0x0000);
-        state.storage = Some(FlashStorage::new(flash));
-        defmt::assert!(defmt::unwrap!(state.storage.as_mut()).load().is_none());
+    fn a_damaged_record_falls_back_to_the_one_before(state: &mut State) {
+        let mut page = super::erased_page(state);
+        defmt::unwrap!(page.store(super::now(), &[0x55, 0x55, 0x55, 0x55]));
+        // The second record's blob starts at 18 (the first record) + 10 (its header):
+        // 0xFFFF there.
+        defmt::unwrap!(page.store(super::now(), &[0xFF, 0xFF, 0x55, 0x55]));
+        // Program that half-word to 0x0000: allowed without an erase, and the second
+        // record's CRC no longer matches.
+        let flash = page.into_flash().free();
+        super::program_half_word(&flash, PAGE_OFFSET + 28, 0x0000);
+        let page = DeviceStorage::new(FlashStorage::new(flash));
+        defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[0x55, 0x55, 0x55, 0x55]);
         // Leave the board with nothing stored: it boots with its defaults.
-        defmt::unwrap!(defmt::unwrap!(state.storage.as_mut()).erase());
+        let mut flash = page.into_flash();
+        defmt::unwrap!(flash.erase());
+        state.flash = Some(flash);
     }
+}
+
+use canopen_slave::Instant;
+use handwheel_firmware::storage::DeviceStorage;
+
+/// The page over the freshly erased flash page (taken from `state`).
+fn erased_page(state: &mut tests::State) -> DeviceStorage {
+    use handwheel_firmware::storage::Flash;
+    let mut flash = defmt::unwrap!(state.flash.take());
+    defmt::unwrap!(flash.erase());
+    DeviceStorage::new(flash)
+}
+
+/// Gives the flash back to `state` for the next test.
+fn put_back(state: &mut tests::State, page: DeviceStorage) {
+    state.flash = Some(page.into_flash());
+}
+
+/// Engine time: the page's budget is not at stake here (a fresh page has no debt).
+fn now() -> Instant {
+    Instant::ZERO
+}
+
+/// CRC-32 of the page, to compare it before and after.
+fn crc(page: &[u8]) -> u32 {
+    handwheel_firmware::storage::record::crc32(page)
 }
 
 /// Programs one half-word at `offset` from the start of flash, independently of

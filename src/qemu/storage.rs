@@ -1,27 +1,25 @@
-//! The QEMU board's parameters: in RAM, the engine's own `MemoryStorage`.
+//! The QEMU board's parameter page: 1 KiB of RAM under the same `ParameterPage` as the
+//! board's flash page (same records, same "unchanged means no write", same wear budget and
+//! answers), so that a master sees the same device.
 //!
-//! They survive NMT reset node and reset communication (the device object lives on), not a
-//! restart of the emulator, which is a power cycle: every boot starts from the defaults.
+//! It survives NMT reset node and reset communication (the device object lives on), not a
+//! restart of the emulator, which is a power cycle: every boot starts from an erased page,
+//! the defaults and a full wear budget.
 
-use canopen_slave::{MemoryStorage, Storage, StorageError};
+use handwheel_device::page::{Flash, FlashError, PAGE_SIZE};
+use handwheel_device::record::NodeSettings;
 
-use crate::storage::{NodeSettings, Stored};
-
-/// The QEMU board's "parameter page": nothing survives power-off, so nothing is ever found
-/// at boot.
+/// The QEMU board's "parameter page" in RAM.
 pub struct RamStorage {
-    _private: (),
+    bytes: [u8; PAGE_SIZE],
 }
 
 impl RamStorage {
-    /// The empty parameter memory of a fresh boot.
+    /// The erased page of a fresh boot.
     pub const fn new() -> Self {
-        Self { _private: () }
-    }
-
-    /// Node-ID and bit rate stored with 0x1010 before this boot: never any in RAM.
-    pub fn load(&self) -> Option<Stored<'static>> {
-        None
+        Self {
+            bytes: [0xFF; PAGE_SIZE],
+        }
     }
 }
 
@@ -31,44 +29,27 @@ impl Default for RamStorage {
     }
 }
 
-/// The CANopen engine's storage on the QEMU board.
-pub struct DeviceStorage {
-    ram: MemoryStorage,
-    /// Node-ID and bit rate of the last LSS "store configuration".
-    node: Option<NodeSettings>,
-}
-
-impl DeviceStorage {
-    /// Empty RAM storage. The settings in force are not kept: they could only be found again
-    /// at the next boot, and RAM does not survive it.
-    pub fn new(_memory: RamStorage, _settings: NodeSettings) -> Self {
-        Self {
-            ram: MemoryStorage::new(),
-            node: None,
-        }
-    }
-}
-
-impl Storage for DeviceStorage {
-    /// Called at every initialisation (NMT reset node or communication), the QEMU board's
-    /// "boot": the stored node settings are reported here, as the board's boot line reports
-    /// them after a power-on.
-    fn load(&mut self, buf: &mut [u8]) -> usize {
-        if let Some(settings) = self.node {
-            defmt::info!("stored node settings: {} (LSS, RAM)", settings);
-        }
-        self.ram.load(buf)
+impl Flash for RamStorage {
+    fn page(&self) -> &[u8] {
+        &self.bytes
     }
 
-    fn store_node(&mut self, node_id: u8, bit_timing: u8) -> Result<(), StorageError> {
-        let settings =
-            NodeSettings::from_lss(node_id, bit_timing).ok_or(StorageError::Unsupported)?;
-        defmt::info!("LSS stored {} (no bit rate on the serial line)", settings);
-        self.node = Some(settings);
+    fn erase(&mut self) -> Result<(), FlashError> {
+        self.bytes.fill(0xFF);
         Ok(())
     }
 
-    fn store(&mut self, blob: &[u8]) -> Result<(), StorageError> {
-        self.ram.store(blob)
+    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+        let end = offset.checked_add(bytes.len()).ok_or(FlashError::Program)?;
+        let dst = self.bytes.get_mut(offset..end).ok_or(FlashError::Program)?;
+        dst.copy_from_slice(bytes);
+        Ok(())
+    }
+
+    /// Every initialisation (NMT reset node or communication) is the QEMU board's "boot":
+    /// the stored node settings are reported here, as the board's boot line reports them
+    /// after a power-on (the serial line has no bit rate to apply).
+    fn on_load(&self, settings: NodeSettings) {
+        defmt::info!("stored node settings: {}", settings);
     }
 }

@@ -1,33 +1,34 @@
-//! Non-volatile parameters (0x1010 store, 0x1011 restore).
+//! Non-volatile parameters (0x1010 store, 0x1011 restore, LSS store).
 //!
-//! On the board they live in the last flash page (`flash`): one page holds one record
-//! (layout in [`record`]): node-ID, bit rate and the device's own parameter blob under a
-//! CRC-32. Storing erases the page and programs the new record; an empty, half-written or
-//! corrupt page reads as nothing stored, so the device starts with its defaults.
+//! What is written, and when, is `handwheel_device::page`: a log of records (layout in
+//! [`record`]: node-ID, bit rate and the device's parameter blob under a CRC-32) in one page,
+//! nothing written when nothing changed, the page erased only when full and at most as often
+//! as its wear budget allows (8 erases at once, then one per 24 h of powered time; refused:
+//! SDO abort 0x08000020). The newest intact record is the stored state; an empty or corrupt
+//! page reads as nothing stored, so the device starts with its defaults.
 //!
-//! Scheduling consequence: while flash is erased or programmed, the CPU stalls on every
-//! instruction fetch from flash, interrupts included: a store (about 20-40 ms for the page
-//! erase) holds off the wheel's EXTI too. Edges missed then show up as illegal transitions
-//! (0x2020:2), never as motion. Stores happen on an SDO write to 0x1010, not while jogging.
+//! On the board the page is the last flash page (`flash`: erase and program). While flash
+//! is erased or programmed, the CPU stalls on every instruction fetch from flash, interrupts
+//! included: an erase (20-40 ms) would hold off the wheel's EXTI too, so the device refuses
+//! every store while the feed is enabled (0x08000022, `HandwheelDevice`'s application).
 //!
-//! The QEMU variant keeps them in RAM (`crate::qemu::storage`): they survive NMT resets, not
-//! a restart of the emulator.
+//! The QEMU variant keeps the page in RAM (`crate::qemu::storage`): it survives NMT resets,
+//! not a restart of the emulator.
 
 #[cfg(not(feature = "qemu"))]
 mod flash;
+pub use handwheel_device::page::{Flash, FlashError, ParameterPage, PAGE_SIZE};
 pub use handwheel_device::record;
 
 #[cfg(feature = "qemu")]
-pub use crate::qemu::storage::{DeviceStorage, RamStorage};
+pub use crate::qemu::storage::RamStorage;
 #[cfg(not(feature = "qemu"))]
-pub use flash::{DeviceStorage, FlashStorage, StoreError, PAGE_ADDRESS, PAGE_OFFSET};
+pub use flash::{FlashStorage, PAGE_ADDRESS, PAGE_OFFSET};
 pub use record::{NodeSettings, BLOB_MAX, RECORD_MAX};
 
-/// What a valid page holds, read in place.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Stored<'a> {
-    /// Node-ID and bit rate stored with 0x1010.
-    pub settings: NodeSettings,
-    /// The device's parameter blob.
-    pub blob: &'a [u8],
-}
+/// The CANopen engine's storage: the parameter page over this board's page.
+#[cfg(not(feature = "qemu"))]
+pub type DeviceStorage = ParameterPage<FlashStorage>;
+/// The CANopen engine's storage: the parameter page over this board's page.
+#[cfg(feature = "qemu")]
+pub type DeviceStorage = ParameterPage<RamStorage>;

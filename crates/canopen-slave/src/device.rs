@@ -93,6 +93,14 @@ pub trait Application {
     /// Applies stored application parameters, at start-up and after reset node. Not called
     /// when none are stored.
     fn restore_application(&mut self, _data: &[u8]) {}
+
+    /// Whether the parameter memory may be written now. Asked before every 0x1010 save,
+    /// 0x1011 restore and LSS "store configuration": writing flash stalls the CPU (a page
+    /// erase on an STM32F1 takes 20-40 ms), so an application whose real-time work must not
+    /// stall refuses while it runs. Refused: SDO abort 0x08000022, LSS error 255 / spec 2.
+    fn may_store(&mut self) -> bool {
+        true
+    }
 }
 
 /// Run-time configuration of the device.
@@ -369,9 +377,10 @@ impl<S: Storage> Device<S> {
         tx: &mut dyn FrameSink,
     ) {
         let active = self.inner.comm.node;
-        let (reply, action) = self
-            .lss
-            .on_frame(now, frame, active, &mut self.inner.storage);
+        // Asked for every request (cheaper in flash than picking out "store configuration",
+        // the only one that writes): without consent LSS answers a store with 255 / 2.
+        let storage: Option<&mut dyn Storage> = app.may_store().then_some(&mut self.inner.storage);
+        let (reply, action) = self.lss.on_frame(now, frame, active, storage);
         if let Some(reply) = reply {
             self.inner.emit(tx, reply);
         }

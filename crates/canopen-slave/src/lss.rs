@@ -76,6 +76,18 @@ pub mod error {
     pub const REFUSED: u8 = 1;
     /// Store configuration: storage media access error.
     pub const STORAGE_ACCESS: u8 = 2;
+    /// Implementation-specific error: byte 2 says which ([`spec`](super::spec)).
+    pub const SPECIFIC: u8 = 255;
+}
+
+/// The implementation-specific errors of "store configuration" (byte 2 with error 255).
+pub mod spec {
+    /// The storage's wear budget is spent for now; nothing was stored
+    /// ([`StorageError::WearLimit`](crate::StorageError::WearLimit)).
+    pub const WEAR_LIMIT: u8 = 1;
+    /// The application does not allow storing now, e.g. while the device's real-time work
+    /// runs ([`StorageError::DeviceState`](crate::StorageError::DeviceState)).
+    pub const DEVICE_STATE: u8 = 2;
 }
 
 /// Fastscan's "bit check" value that resets the scan.
@@ -214,13 +226,15 @@ impl LssSlave {
 
     /// Handles an LSS request (`frame.id()` must be [`LSS_REQUEST`]; other frames and
     /// requests that are not 8 bytes long are ignored). `active` is the node-ID in force
-    /// (`None`: unconfigured). Returns the answer, if any, and what the device must do.
+    /// (`None`: unconfigured). `storage` takes "store configuration"; `None`: the device
+    /// does not allow storing now (answer 255 / [`spec::DEVICE_STATE`]). Returns the answer,
+    /// if any, and what the device must do.
     pub fn on_frame(
         &mut self,
         now: Instant,
         frame: &Frame,
         active: Option<NodeId>,
-        storage: &mut impl Storage,
+        storage: Option<&mut dyn Storage>,
     ) -> (Option<Frame>, LssAction) {
         if frame.id() != LSS_REQUEST || frame.dlc() != 8 {
             return (None, LssAction::None);
@@ -318,12 +332,18 @@ impl LssSlave {
             }
             cs::STORE_CONFIGURATION if configuring => {
                 let node = self.pending.map_or(UNCONFIGURED, NodeId::get);
-                let code = match storage.store_node(node, self.pending_bit_timing) {
-                    Ok(()) => error::OK,
-                    Err(StorageError::Unsupported) => error::REFUSED,
-                    Err(StorageError::WriteFailed) => error::STORAGE_ACCESS,
+                let stored = match storage {
+                    Some(storage) => storage.store_node(now, node, self.pending_bit_timing),
+                    None => Err(StorageError::DeviceState),
                 };
-                Some(answer(cs::STORE_CONFIGURATION, [code, 0, 0, 0, 0, 0, 0]))
+                let (code, spec) = match stored {
+                    Ok(()) => (error::OK, 0),
+                    Err(StorageError::Unsupported) => (error::REFUSED, 0),
+                    Err(StorageError::WriteFailed) => (error::STORAGE_ACCESS, 0),
+                    Err(StorageError::WearLimit) => (error::SPECIFIC, spec::WEAR_LIMIT),
+                    Err(StorageError::DeviceState) => (error::SPECIFIC, spec::DEVICE_STATE),
+                };
+                Some(answer(cs::STORE_CONFIGURATION, [code, spec, 0, 0, 0, 0, 0]))
             }
             c @ cs::INQUIRE_VENDOR..=cs::INQUIRE_SERIAL if configuring => {
                 let v = self.address.part(c - cs::INQUIRE_VENDOR).to_le_bytes();
@@ -402,7 +422,12 @@ mod tests {
 
     fn send(s: &mut LssSlave, active: Option<u8>, data: [u8; 8]) -> Option<[u8; 8]> {
         let active = active.map(|n| NodeId::new(n).unwrap());
-        let (reply, _) = s.on_frame(Instant::ZERO, &req(data), active, &mut MemoryStorage::new());
+        let (reply, _) = s.on_frame(
+            Instant::ZERO,
+            &req(data),
+            active,
+            Some(&mut MemoryStorage::new()),
+        );
         reply.map(|f| {
             assert_eq!((f.id(), f.dlc()), (LSS_RESPONSE, 8));
             *f.raw_data()
@@ -492,7 +517,7 @@ mod tests {
             Instant::from_millis(10),
             &req([0x15, 0x64, 0, 0, 0, 0, 0, 0]),
             NodeId::new(16).ok(),
-            &mut MemoryStorage::new(),
+            Some(&mut MemoryStorage::new()),
         );
         assert_eq!(reply, None);
         assert_eq!(s.deadline(), Some(Instant::from_millis(110)));
@@ -508,7 +533,7 @@ mod tests {
         let mut storage = MemoryStorage::new();
         let node = NodeId::new(16).ok();
         let run = |s: &mut LssSlave, st: &mut MemoryStorage, d| {
-            s.on_frame(Instant::ZERO, &req(d), node, st)
+            s.on_frame(Instant::ZERO, &req(d), node, Some(st))
                 .0
                 .map(|f| *f.raw_data())
         };
@@ -521,33 +546,48 @@ mod tests {
         );
         assert_eq!(storage.node(), Some((5, 4)));
 
-        // A storage without node settings: "not supported"; a failing one: access error.
+        // A storage without node settings: "not supported"; a failing one: access error; one
+        // out of wear budget or refusing for the device state: 255 with the reason.
         struct NoNode;
         impl Storage for NoNode {
             fn load(&mut self, _: &mut [u8]) -> usize {
                 0
             }
-            fn store(&mut self, _: &[u8]) -> Result<(), StorageError> {
+            fn store(&mut self, _: Instant, _: &[u8]) -> Result<(), StorageError> {
                 Ok(())
             }
         }
-        struct Broken;
-        impl Storage for Broken {
+        struct Failing(StorageError);
+        impl Storage for Failing {
             fn load(&mut self, _: &mut [u8]) -> usize {
                 0
             }
-            fn store(&mut self, _: &[u8]) -> Result<(), StorageError> {
-                Err(StorageError::WriteFailed)
+            fn store(&mut self, _: Instant, _: &[u8]) -> Result<(), StorageError> {
+                Err(self.0)
             }
-            fn store_node(&mut self, _: u8, _: u8) -> Result<(), StorageError> {
-                Err(StorageError::WriteFailed)
+            fn store_node(&mut self, _: Instant, _: u8, _: u8) -> Result<(), StorageError> {
+                Err(self.0)
             }
         }
         let store = req([0x17, 0, 0, 0, 0, 0, 0, 0]);
-        let (r, _) = s.on_frame(Instant::ZERO, &store, node, &mut NoNode);
+        let (r, _) = s.on_frame(Instant::ZERO, &store, node, Some(&mut NoNode));
         assert_eq!(r.unwrap().raw_data(), &[0x17, 1, 0, 0, 0, 0, 0, 0]);
-        let (r, _) = s.on_frame(Instant::ZERO, &store, node, &mut Broken);
-        assert_eq!(r.unwrap().raw_data(), &[0x17, 2, 0, 0, 0, 0, 0, 0]);
+        for (error, code, spec) in [
+            (StorageError::WriteFailed, 2, 0),
+            (StorageError::Unsupported, 1, 0),
+            (StorageError::WearLimit, 255, 1),
+            (StorageError::DeviceState, 255, 2),
+        ] {
+            let (r, _) = s.on_frame(Instant::ZERO, &store, node, Some(&mut Failing(error)));
+            assert_eq!(
+                r.unwrap().raw_data(),
+                &[0x17, code, spec, 0, 0, 0, 0, 0],
+                "{error:?}"
+            );
+        }
+        // No storage handed over: the device does not allow storing now.
+        let (r, _) = s.on_frame(Instant::ZERO, &store, node, None);
+        assert_eq!(r.unwrap().raw_data(), &[0x17, 255, 2, 0, 0, 0, 0, 0]);
     }
 
     #[test]
@@ -676,7 +716,7 @@ mod tests {
             Instant::ZERO,
             &req([0x04, 0, 0, 0, 0, 0, 0, 0]),
             None,
-            &mut MemoryStorage::new(),
+            Some(&mut MemoryStorage::new()),
         );
         assert_eq!((reply, action), (None, LssAction::ResetCommunication));
         // A configured node just goes back to waiting.
@@ -687,7 +727,7 @@ mod tests {
             Instant::ZERO,
             &req([0x04, 0, 0, 0, 0, 0, 0, 0]),
             NodeId::new(16).ok(),
-            &mut MemoryStorage::new(),
+            Some(&mut MemoryStorage::new()),
         );
         assert_eq!(action, LssAction::None);
     }
@@ -696,7 +736,7 @@ mod tests {
     fn short_requests_are_ignored() {
         let mut s = slave(None);
         let f = Frame::new(LSS_REQUEST, &[0x4C]).unwrap();
-        let (r, _) = s.on_frame(Instant::ZERO, &f, None, &mut MemoryStorage::new());
+        let (r, _) = s.on_frame(Instant::ZERO, &f, None, Some(&mut MemoryStorage::new()));
         assert_eq!(r, None);
     }
 
@@ -734,7 +774,7 @@ mod tests {
                 for (c, rest, dlc) in frames {
                     let data = answer(c, rest);
                     let f = Frame::new(LSS_REQUEST, &data[..usize::from(dlc)]).unwrap();
-                    let (reply, action) = s.on_frame(Instant::ZERO, &f, active, &mut storage);
+                    let (reply, action) = s.on_frame(Instant::ZERO, &f, active, Some(&mut storage));
                     if let Some(r) = reply {
                         prop_assert_eq!(dlc, 8);
                         prop_assert_eq!((r.id(), r.dlc()), (LSS_RESPONSE, 8));

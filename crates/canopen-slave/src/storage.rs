@@ -9,8 +9,15 @@
 //! Blob layout: magic, version, section flags, application length, the communication
 //! section (every stored engine parameter as a little-endian U32), the application section,
 //! CRC-16/CCITT of everything before it. A blob that fails any check reads as empty.
+//!
+//! Writing the medium may be refused: by the application while it must not stall
+//! ([`Application::may_store`](crate::Application::may_store), [`StorageError::DeviceState`])
+//! and by the storage itself when its wear budget is spent ([`StorageError::WearLimit`]).
+//! Either way nothing is written, and the master gets a defined answer: SDO abort 0x08000022
+//! or 0x08000020, LSS error 255 with [`lss::spec`](crate::lss::spec) 2 or 1.
 
 pub(crate) use crate::device::objects::{STORED, STORED_LEN};
+use crate::time::Instant;
 
 /// Signature to write to 0x1010 ("save", little-endian).
 pub const SAVE_SIGNATURE: u32 = 0x6576_6173;
@@ -38,25 +45,41 @@ pub const BLOB_MAX: usize = APP_OFFSET + APP_MAX + 2;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StorageError {
-    /// The medium could not be written (flash error, blob too large).
+    /// The medium could not be written (flash error, blob too large). SDO abort 0x06060000,
+    /// LSS error 2.
     WriteFailed,
-    /// The storage does not keep this kind of data (LSS node settings).
+    /// The storage does not keep this kind of data (LSS node settings). LSS error 1.
     Unsupported,
+    /// The medium's wear budget is spent for now (e.g. flash erases per time): nothing was
+    /// written, a later store may succeed. SDO abort 0x08000020, LSS error 255 / spec 1.
+    WearLimit,
+    /// The application does not allow writing now ([`Application::may_store`]): nothing was
+    /// written. SDO abort 0x08000022, LSS error 255 / spec 2.
+    ///
+    /// [`Application::may_store`]: crate::Application::may_store
+    DeviceState,
 }
 
-/// Non-volatile memory for one parameter blob, implemented by the firmware.
+/// Non-volatile memory for one parameter blob, implemented by the firmware. `now` is the
+/// engine's time, for storages that bound their writes per time.
 pub trait Storage {
     /// Copies the stored blob into `buf` and returns its length (0 when nothing is stored).
     fn load(&mut self, buf: &mut [u8]) -> usize;
-    /// Replaces the stored blob; an empty `blob` erases it.
-    fn store(&mut self, blob: &[u8]) -> Result<(), StorageError>;
+    /// Replaces the stored blob; an empty `blob` erases it. Storing what is stored already
+    /// should write nothing (flash wears).
+    fn store(&mut self, now: Instant, blob: &[u8]) -> Result<(), StorageError>;
 
     /// LSS "store configuration" (CiA 305): keeps `node_id` (1..=127, or
     /// [`UNCONFIGURED`](crate::lss::UNCONFIGURED)) and the bit-timing table index
     /// `bit_timing` (CiA 301 table, 0 = 1 Mbit/s ... 8 = 10 kbit/s) for the next power-on.
     /// Where they go (e.g. beside the blob on the same flash page) is the firmware's choice.
     /// The default keeps nothing: the LSS master is told "store configuration not supported".
-    fn store_node(&mut self, _node_id: u8, _bit_timing: u8) -> Result<(), StorageError> {
+    fn store_node(
+        &mut self,
+        _now: Instant,
+        _node_id: u8,
+        _bit_timing: u8,
+    ) -> Result<(), StorageError> {
         Err(StorageError::Unsupported)
     }
 }
@@ -118,7 +141,7 @@ impl Storage for MemoryStorage {
         n
     }
 
-    fn store(&mut self, blob: &[u8]) -> Result<(), StorageError> {
+    fn store(&mut self, _now: Instant, blob: &[u8]) -> Result<(), StorageError> {
         let dst = self
             .data
             .get_mut(..blob.len())
@@ -129,7 +152,12 @@ impl Storage for MemoryStorage {
         Ok(())
     }
 
-    fn store_node(&mut self, node_id: u8, bit_timing: u8) -> Result<(), StorageError> {
+    fn store_node(
+        &mut self,
+        _now: Instant,
+        node_id: u8,
+        bit_timing: u8,
+    ) -> Result<(), StorageError> {
         self.node = Some((node_id, bit_timing));
         Ok(())
     }
@@ -241,10 +269,11 @@ impl Blob {
     /// Writes the blob back, or erases the storage when no section is left.
     pub(crate) fn store(
         &mut self,
+        now: Instant,
         storage: &mut (impl Storage + ?Sized),
     ) -> Result<(), StorageError> {
         if self.sections == 0 {
-            return storage.store(&[]);
+            return storage.store(now, &[]);
         }
         let body = APP_OFFSET + self.app_len;
         // app_len <= APP_MAX was enforced when it was set.
@@ -259,7 +288,7 @@ impl Blob {
             .get_mut(body..end)
             .ok_or(StorageError::WriteFailed)?;
         tail.copy_from_slice(&crc.to_le_bytes());
-        storage.store(self.buf.get(..end).unwrap_or(&[]))
+        storage.store(now, self.buf.get(..end).unwrap_or(&[]))
     }
 }
 
@@ -301,7 +330,7 @@ mod tests {
             buf[..3].copy_from_slice(b"abc");
             3
         });
-        blob.store(&mut storage).unwrap();
+        blob.store(Instant::ZERO, &mut storage).unwrap();
         assert_eq!(storage.bytes().len(), APP_OFFSET + 3 + 2);
         let blob = Blob::load(&mut storage);
         assert_eq!(blob.app(), Some(&b"abc"[..]));
@@ -313,7 +342,7 @@ mod tests {
         // An application claiming more than APP_MAX bytes is clamped.
         let mut blob = Blob::load(&mut storage);
         blob.set_app(|_| 1000);
-        blob.store(&mut storage).unwrap();
+        blob.store(Instant::ZERO, &mut storage).unwrap();
         assert_eq!(
             Blob::load(&mut storage).app().map(<[u8]>::len),
             Some(APP_MAX)

@@ -145,7 +145,7 @@ fn corrupt_blob_falls_back_to_defaults() {
     let mut short = MemoryStorage::new();
     use canopen_slave::Storage;
     short
-        .store(&good.bytes()[..good.bytes().len() - 1])
+        .store(ms(0), &good.bytes()[..good.bytes().len() - 1])
         .unwrap();
     let mut b = Bench::with_storage(short);
     assert_defaults(&mut b);
@@ -158,7 +158,11 @@ fn store_fails_cleanly_when_the_medium_fails() {
         fn load(&mut self, _buf: &mut [u8]) -> usize {
             0
         }
-        fn store(&mut self, _blob: &[u8]) -> Result<(), canopen_slave::StorageError> {
+        fn store(
+            &mut self,
+            _now: canopen_slave::Instant,
+            _blob: &[u8],
+        ) -> Result<(), canopen_slave::StorageError> {
             Err(canopen_slave::StorageError::WriteFailed)
         }
     }
@@ -182,4 +186,117 @@ fn store_fails_cleanly_when_the_medium_fails() {
         tx.frames,
         vec![frame(SDO_TX, &abort(0x1010, 1, 0x0606_0000))]
     );
+}
+
+/// A storage that takes nothing, with a fixed error, and records when it was asked.
+struct Refusing {
+    error: canopen_slave::StorageError,
+    asked: Vec<canopen_slave::Instant>,
+}
+
+impl canopen_slave::Storage for Refusing {
+    fn load(&mut self, _buf: &mut [u8]) -> usize {
+        0
+    }
+    fn store(
+        &mut self,
+        now: canopen_slave::Instant,
+        _blob: &[u8],
+    ) -> Result<(), canopen_slave::StorageError> {
+        self.asked.push(now);
+        Err(self.error)
+    }
+    fn store_node(
+        &mut self,
+        now: canopen_slave::Instant,
+        _: u8,
+        _: u8,
+    ) -> Result<(), canopen_slave::StorageError> {
+        self.asked.push(now);
+        Err(self.error)
+    }
+}
+
+fn device_on(storage: Refusing) -> (canopen_slave::Device<Refusing>, TestApp, Sink) {
+    let node = canopen_slave::NodeId::new(NODE).unwrap();
+    let mut dev = canopen_slave::Device::new(canopen_slave::Config::new(node), OD, storage);
+    let mut app = TestApp::default();
+    let mut tx = Sink::default();
+    dev.start(ms(0), &mut app, &mut tx);
+    tx.frames.clear();
+    (dev, app, tx)
+}
+
+#[test]
+fn a_spent_wear_budget_aborts_with_0x08000020_and_lss_error_255_1() {
+    let (mut dev, mut app, mut tx) = device_on(Refusing {
+        error: canopen_slave::StorageError::WearLimit,
+        asked: Vec::new(),
+    });
+    for (index, signature) in [(0x1010, SAVE), (0x1011, LOAD)] {
+        dev.on_frame(
+            ms(7),
+            &frame(SDO_RX, &req(0x23, index, 1, signature.to_le_bytes())),
+            &mut app,
+            &mut tx,
+        );
+        assert_eq!(
+            tx.frames,
+            vec![frame(SDO_TX, &abort(index, 1, 0x0800_0020))]
+        );
+        tx.frames.clear();
+    }
+    // LSS: configuration state, then store configuration.
+    dev.on_frame(
+        ms(8),
+        &frame(0x7E5, &[0x04, 1, 0, 0, 0, 0, 0, 0]),
+        &mut app,
+        &mut tx,
+    );
+    dev.on_frame(
+        ms(9),
+        &frame(0x7E5, &[0x17, 0, 0, 0, 0, 0, 0, 0]),
+        &mut app,
+        &mut tx,
+    );
+    assert_eq!(
+        tx.frames,
+        vec![frame(0x7E4, &[0x17, 255, 1, 0, 0, 0, 0, 0])]
+    );
+    // The storage was told the time of each request (its budget runs on it).
+    assert_eq!(dev.storage().asked, vec![ms(7), ms(7), ms(9)]);
+}
+
+#[test]
+fn stores_the_application_forbids_are_refused_with_0x08000022_and_write_nothing() {
+    let mut b = Bench::new();
+    customise(&mut b);
+    b.app.store_refused = true;
+    for sub in 1..=3 {
+        assert_eq!(b.download_u32(0x1010, sub, SAVE), Err(0x0800_0022));
+        assert_eq!(b.download_u32(0x1011, sub, LOAD), Err(0x0800_0022));
+    }
+    // A wrong signature is still a wrong signature: 0x08000020 before the device state.
+    assert_eq!(b.download_u32(0x1010, 1, LOAD), Err(0x0800_0020));
+    assert_eq!(b.dev.storage().writes(), 0);
+    // LSS store configuration: error 255, spec 2; nothing stored.
+    b.rx(frame(0x7E5, &[0x04, 1, 0, 0, 0, 0, 0, 0]));
+    b.rx(frame(0x7E5, &[0x17, 0, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(b.take(), vec![frame(0x7E4, &[0x17, 255, 2, 0, 0, 0, 0, 0])]);
+    assert_eq!(b.dev.storage().node(), None);
+    // Other LSS services go on as before.
+    b.rx(frame(0x7E5, &[0x5E, 0, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(
+        b.take(),
+        vec![frame(0x7E4, &[0x5E, NODE, 0, 0, 0, 0, 0, 0])]
+    );
+    // Allowed again: both go through.
+    b.app.store_refused = false;
+    b.download_u32(0x1010, 1, SAVE).unwrap();
+    b.rx(frame(0x7E5, &[0x17, 0, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(b.take(), vec![frame(0x7E4, &[0x17, 0, 0, 0, 0, 0, 0, 0])]);
+    assert_eq!(b.dev.storage().writes(), 1);
+    assert_eq!(b.dev.storage().node(), Some((NODE, 0)));
+    reset(&mut b, 0x81);
+    assert_customised(&mut b);
 }

@@ -241,6 +241,12 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
             self.set_parameters(parameters);
         }
     }
+
+    fn may_store(&mut self) -> bool {
+        // Writing flash stalls the CPU, edge interrupt included (a page erase takes 20-40 ms
+        // on the F103): edges in that window would be lost. Store only with the feed off.
+        !self.wheel.with_wheel(|w| w.feed.enabled())
+    }
 }
 
 impl<W: WheelAccess> AppContext<'_, W> {

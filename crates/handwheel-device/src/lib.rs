@@ -14,7 +14,11 @@
 //! - [`rate_switch`] times the CAN controller's bit-rate switch after LSS "activate bit
 //!   timing", which never waits for the bus, and says when the node is off the bus;
 //! - [`node_config`] and [`record`] decide the node-ID and bit rate at boot (DIP switch or
-//!   stored) and the byte layout of the stored parameters, for any board's storage glue;
+//!   stored) and the byte layout of the stored parameters, and [`page`] how they are written
+//!   (nothing when unchanged, a log of records, a budget of erases per time), for any board's
+//!   erase-and-program glue;
+//! - 0x1010, 0x1011 and LSS store are refused (0x08000022) while the feed is enabled: writing
+//!   flash stalls the CPU, and with it the wheel's edges;
 //! - the paper's unit-step stream (0x2001 = 1) goes out on TPDO2, one frame per step, from a
 //!   bounded backlog.
 #![no_std]
@@ -24,6 +28,7 @@ mod device;
 pub mod duties;
 pub mod node_config;
 pub mod od;
+pub mod page;
 pub mod rate_switch;
 pub mod record;
 

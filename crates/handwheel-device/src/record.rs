@@ -1,27 +1,32 @@
-//! The byte layout of the firmware's parameter page (0x1010 store): node-ID, bit rate and
-//! the device's blob under a CRC-32. Pure functions, no flash access: the board's flash glue
-//! erases and programs, this module decides what the bytes mean.
+//! The byte layout of the firmware's parameter page (0x1010 store, LSS store): a log of
+//! records, each the whole stored state (node-ID, bit rate, the device's blob) under a CRC-32.
+//! Pure functions, no flash access: [`page`](crate::page) decides when to append and erase,
+//! the firmware's flash glue erases and programs.
 //!
 //! ```text
 //! offset  size  field
-//! 0       4     magic "HWP1" (0x31505748 little-endian)
-//! 4       1     node-ID, 1..=127, or 0xFF: unconfigured (LSS, CiA 305)
+//! 0       4     magic "HWP2" (0x32505748 little-endian)
+//! 4       1     node-ID, 1..=127, or 0xFF: unconfigured (LSS, CiA 305); 0: nothing stored
+//!               (0x1011 restored the defaults; bit rate and blob length are then 0)
 //! 5       1     bit-rate code, 0..=7 (handwheel-core's BitRate table)
 //! 6       2     blob length n, little-endian, at most BLOB_MAX
-//! 8       n     the device's parameter blob (heartbeat, PDO configuration, ...), opaque here
-//! 8+n     4     CRC-32 (IEEE 802.3) of bytes 0..8+n, little-endian
+//! 8       2     wear debt when written, in units of 2^26 us (about 67 s; see `page`)
+//! 10      n     the device's parameter blob (heartbeat, PDO configuration, ...), opaque here
+//! 10+n    4     CRC-32 (IEEE 802.3) of bytes 0..10+n, little-endian
 //! ```
 //!
-//! The record is padded with 0xFF to an even length because flash is programmed in
-//! half-words. An erased page (all 0xFF) fails the magic check, a half-written or damaged one
-//! the CRC; either reads as "nothing stored" and the firmware falls back to its defaults.
+//! Each record is padded with 0xFF to an even length because flash is programmed in
+//! half-words, and the next record starts right after it. [`scan`] walks them from the start
+//! of the page: the last intact one is the stored state. A damaged record (a store cut off
+//! by a power loss) is skipped by its length; an unreadable header ends the walk and leaves
+//! no room for appending (the next store erases). An erased page (all 0xFF) holds nothing.
 
 use canopen_slave::NodeId;
 use handwheel_core::BitRate;
 
 /// Marks a parameter record; the trailing digit is the layout version.
-const MAGIC: [u8; 4] = *b"HWP1";
-const HEADER: usize = 8;
+const MAGIC: [u8; 4] = *b"HWP2";
+const HEADER: usize = 10;
 const CRC_LEN: usize = 4;
 /// Largest device blob a record holds.
 pub const BLOB_MAX: usize = 256;
@@ -98,22 +103,47 @@ impl defmt::Format for NodeSettings {
     }
 }
 
-/// Writes the record for `settings` and `blob` into the start of `out`; returns its even
-/// length, or `None` when the blob is longer than [`BLOB_MAX`]. Bytes past the returned
-/// length are left as they were; a pad byte that makes the length even is 0xFF.
-pub fn encode(settings: NodeSettings, blob: &[u8], out: &mut [u8; RECORD_MAX]) -> Option<usize> {
-    let blob_len = u16::try_from(blob.len())
-        .ok()
-        .filter(|&n| usize::from(n) <= BLOB_MAX)?;
+/// One record as read from the page.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Record<'a> {
+    /// Node-ID and bit rate; `None`: nothing stored (0x1011 "restore defaults" of all).
+    pub settings: Option<NodeSettings>,
+    /// The device's blob (empty when nothing is stored).
+    pub blob: &'a [u8],
+    /// The wear debt when the record was written, in units of 2^26 us.
+    pub debt: u16,
+}
+
+/// The even length of the record of a `blob_len`-byte blob, or `None` beyond [`BLOB_MAX`].
+pub const fn encoded_len(blob_len: usize) -> Option<usize> {
+    if blob_len > BLOB_MAX {
+        return None;
+    }
+    Some((HEADER + blob_len + CRC_LEN).next_multiple_of(2))
+}
+
+/// Writes the record into the start of `out`; returns its even length, or `None` when the
+/// blob is longer than [`BLOB_MAX`]. `settings` `None` (nothing stored) writes node-ID 0, bit
+/// rate 0 and `blob` as given (empty, by the page's use). Bytes past the returned length are
+/// left as they were; a pad byte that makes the length even is 0xFF.
+pub fn encode(
+    settings: Option<NodeSettings>,
+    blob: &[u8],
+    debt: u16,
+    out: &mut [u8; RECORD_MAX],
+) -> Option<usize> {
+    let len = encoded_len(blob.len())?;
     let body = HEADER + blob.len();
+    let [node, rate] = settings_bytes(settings);
     out[..4].copy_from_slice(&MAGIC);
-    out[4] = settings.node_id_byte();
-    out[5] = settings.bit_rate.code();
-    out[6..HEADER].copy_from_slice(&blob_len.to_le_bytes());
+    out[4] = node;
+    out[5] = rate;
+    // `encoded_len` bounded the length by BLOB_MAX.
+    out[6..8].copy_from_slice(&(blob.len() as u16).to_le_bytes());
+    out[8..HEADER].copy_from_slice(&debt.to_le_bytes());
     out[HEADER..body].copy_from_slice(blob);
     let crc = crc32(&out[..body]);
     out[body..body + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
-    let len = (body + CRC_LEN).next_multiple_of(2);
     if len > body + CRC_LEN {
         // The pad byte reads as erased flash.
         out[len - 1] = 0xFF;
@@ -121,24 +151,100 @@ pub fn encode(settings: NodeSettings, blob: &[u8], out: &mut [u8; RECORD_MAX]) -
     Some(len)
 }
 
-/// Reads a record from the start of `page`: the settings and the device blob, or `None` when
-/// the page holds no valid record.
-pub fn decode(page: &[u8]) -> Option<(NodeSettings, &[u8])> {
-    let header = page.get(..HEADER)?;
+/// The node-ID byte of a "nothing stored" record.
+const CLEARED: u8 = 0;
+
+/// The node-ID and bit-rate bytes of a record: equal exactly when the settings are.
+pub fn settings_bytes(settings: Option<NodeSettings>) -> [u8; 2] {
+    match settings {
+        Some(s) => [s.node_id_byte(), s.bit_rate.code()],
+        None => [CLEARED, 0],
+    }
+}
+
+/// What starts at some offset of the page.
+enum Slot<'a> {
+    /// Erased flash (or too little room left for a header): the free tail.
+    Erased,
+    /// A record of this even length: intact (`Some`) or damaged (`None`).
+    Record(Option<Record<'a>>, usize),
+    /// Neither: no record boundary can be trusted from here on.
+    Garbage,
+}
+
+fn slot(bytes: &[u8]) -> Slot<'_> {
+    let Some(header) = bytes.get(..HEADER) else {
+        return Slot::Erased;
+    };
+    if header[..4] == [0xFF; 4] {
+        return Slot::Erased;
+    }
     if header[..4] != MAGIC {
-        return None;
+        return Slot::Garbage;
     }
     let blob_len = usize::from(u16::from_le_bytes([header[6], header[7]]));
-    if blob_len > BLOB_MAX {
-        return None;
+    let (Some(len), body) = (encoded_len(blob_len), HEADER + blob_len) else {
+        return Slot::Garbage;
+    };
+    let (Some(data), Some(crc)) = (bytes.get(..body), bytes.get(body..body + CRC_LEN)) else {
+        return Slot::Garbage;
+    };
+    let settings = match (header[4], header[5], blob_len) {
+        (CLEARED, 0, 0) => Some(None),
+        (node, code, _) => NodeSettings::from_parts(node, code).map(Some),
+    };
+    let record = match settings {
+        Some(settings) if crc32(data).to_le_bytes() == crc => Some(Record {
+            settings,
+            blob: &bytes[HEADER..body],
+            debt: u16::from_le_bytes([header[8], header[9]]),
+        }),
+        _ => None,
+    };
+    Slot::Record(record, len)
+}
+
+/// Reads the record at the start of `bytes`; `None` when there is no intact one.
+pub fn decode(bytes: &[u8]) -> Option<Record<'_>> {
+    match slot(bytes) {
+        Slot::Record(record, _) => record,
+        Slot::Erased | Slot::Garbage => None,
     }
-    let body = HEADER + blob_len;
-    let stored_crc = page.get(body..body + CRC_LEN)?;
-    if crc32(&page[..body]).to_le_bytes() != stored_crc {
-        return None;
+}
+
+/// The page as [`scan`] reads it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Log<'a> {
+    /// The last intact record: the stored state (a "nothing stored" record included).
+    pub newest: Option<Record<'a>>,
+    /// Where the next record may go: the end of the last record walked, or the page's
+    /// length when the walk met something unreadable. The bytes from here on may still be
+    /// anything: check that they are erased before programming.
+    pub free: usize,
+}
+
+/// Walks the records from the start of `page`.
+pub fn scan(page: &[u8]) -> Log<'_> {
+    let mut log = Log {
+        newest: None,
+        free: 0,
+    };
+    while let Some(rest) = page.get(log.free..) {
+        match slot(rest) {
+            Slot::Erased => break,
+            Slot::Record(record, len) => {
+                if record.is_some() {
+                    log.newest = record;
+                }
+                log.free += len;
+            }
+            Slot::Garbage => {
+                log.free = page.len();
+                break;
+            }
+        }
     }
-    let settings = NodeSettings::from_parts(header[4], header[5])?;
-    Some((settings, &page[HEADER..body]))
+    log
 }
 
 /// CRC-32 as in IEEE 802.3 / zlib (reflected, polynomial 0x04C11DB7, init and final XOR

@@ -390,6 +390,37 @@ fn stored_wheel_parameters_survive_reset_node_and_restore_defaults() {
 }
 
 #[test]
+fn nothing_is_stored_while_the_feed_is_enabled() {
+    // Writing flash stalls the CPU and with it the wheel's edges: 0x1010, 0x1011 and LSS
+    // store are refused (0x08000022, LSS 255 / 2) while the feed is on, and work once off.
+    let mut b = Bench::operational_enabled(Axis::X, Multiplier::X1);
+    b.sdo_write(0x2020, 3, &[2]).unwrap();
+    for sub in 1..=3 {
+        assert_eq!(b.sdo_write(0x1010, sub, b"save"), Err(0x0800_0022));
+        assert_eq!(b.sdo_write(0x1011, sub, b"load"), Err(0x0800_0022));
+    }
+    b.receive(0x7E5, &[0x04, 1, 0, 0, 0, 0, 0, 0]);
+    b.take();
+    b.receive(0x7E5, &[0x17, 0, 0, 0, 0, 0, 0, 0]);
+    let lss: Vec<Vec<u8>> = b.take_id(0x7E4).into_iter().map(|s| s.data).collect();
+    assert_eq!(lss, vec![vec![0x17, 255, 2, 0, 0, 0, 0, 0]]);
+    assert_eq!(b.device.engine().storage().writes(), 0);
+    assert_eq!(b.device.engine().storage().node(), None);
+    // The wheel kept going meanwhile.
+    b.turn(3);
+    assert_eq!(b.read_u32(0x6004, 0), 6, "12 counts at 2 counts per detent");
+    // Feed off: stores go through.
+    b.sdo_write(0x2000, 0, &[0]).unwrap();
+    b.sdo_write(0x1010, 1, b"save").unwrap();
+    b.receive(0x7E5, &[0x17, 0, 0, 0, 0, 0, 0, 0]);
+    let lss: Vec<Vec<u8>> = b.take_id(0x7E4).into_iter().map(|s| s.data).collect();
+    assert_eq!(lss, vec![vec![0x17, 0, 0, 0, 0, 0, 0, 0]]);
+    assert_eq!(b.device.engine().storage().writes(), 1);
+    b.nmt(0x81);
+    assert_eq!(b.read_u32(0x2020, 3), 2, "stored");
+}
+
+#[test]
 fn reset_node_keeps_the_selector_but_zeroes_the_feed() {
     let mut b = Bench::operational_enabled(Axis::W, Multiplier::X10);
     b.turn(2);

@@ -1,12 +1,15 @@
 //! The stored parameter record and the boot-time choice of node-ID and bit rate.
 //!
 //! The record comes back from flash, which may hold anything (erased, half-written, damaged,
-//! another layout): decoding must refuse all of it rather than guess, and never panic.
+//! another layout): decoding must refuse all of it rather than guess, and never panic. How
+//! records are written to the page (log, wear budget) is `tests/page.rs`.
 
 use canopen_slave::NodeId;
 use handwheel_core::BitRate;
 use handwheel_device::node_config::{select, Source};
-use handwheel_device::record::{crc32, decode, encode, NodeSettings, BLOB_MAX, RECORD_MAX};
+use handwheel_device::record::{
+    crc32, decode, encode, scan, NodeSettings, Record, BLOB_MAX, RECORD_MAX,
+};
 use proptest::prelude::*;
 
 const SETTINGS: NodeSettings = NodeSettings {
@@ -22,9 +25,19 @@ const fn id(n: u8) -> Option<NodeId> {
 }
 
 fn encoded(settings: NodeSettings, blob: &[u8]) -> Vec<u8> {
+    encoded_with(Some(settings), blob, 0)
+}
+
+fn encoded_with(settings: Option<NodeSettings>, blob: &[u8], debt: u16) -> Vec<u8> {
     let mut out = [0u8; RECORD_MAX];
-    let len = encode(settings, blob, &mut out).expect("blob fits");
+    let len = encode(settings, blob, debt, &mut out).expect("blob fits");
     out[..len].to_vec()
+}
+
+/// The stored state of a record: settings and blob.
+fn state(bytes: &[u8]) -> Option<(NodeSettings, &[u8])> {
+    let r = decode(bytes)?;
+    Some((r.settings?, r.blob))
 }
 
 #[test]
@@ -36,47 +49,74 @@ fn crc32_is_the_ieee_one() {
 
 #[test]
 fn the_layout_is_the_documented_one() {
-    let bytes = encoded(SETTINGS, &[0xA5, 0x01, 0x02]);
-    // 8 header + 3 blob + 4 CRC = 15, padded to 16 with 0xFF.
-    assert_eq!(bytes.len(), 16);
-    assert_eq!(&bytes[..4], b"HWP1");
+    let bytes = encoded_with(Some(SETTINGS), &[0xA5, 0x01, 0x02], 0x1234);
+    // 10 header + 3 blob + 4 CRC = 17, padded to 18 with 0xFF.
+    assert_eq!(bytes.len(), 18);
+    assert_eq!(&bytes[..4], b"HWP2");
     assert_eq!(bytes[4], 42);
     assert_eq!(bytes[5], BitRate::Kbit250.code());
     assert_eq!(&bytes[6..8], &[3, 0]);
-    assert_eq!(&bytes[8..11], &[0xA5, 0x01, 0x02]);
-    assert_eq!(&bytes[11..15], &crc32(&bytes[..11]).to_le_bytes());
-    assert_eq!(bytes[15], 0xFF);
+    assert_eq!(&bytes[8..10], &[0x34, 0x12]);
+    assert_eq!(&bytes[10..13], &[0xA5, 0x01, 0x02]);
+    assert_eq!(&bytes[13..17], &crc32(&bytes[..13]).to_le_bytes());
+    assert_eq!(bytes[17], 0xFF);
+    let record = decode(&bytes).unwrap();
+    assert_eq!(record.debt, 0x1234);
+    // "Nothing stored": node-ID 0, code 0, no blob.
+    let cleared = encoded_with(None, &[], 7);
+    assert_eq!(&cleared[4..10], &[0, 0, 0, 0, 7, 0]);
+    assert_eq!(
+        decode(&cleared),
+        Some(Record {
+            settings: None,
+            blob: &[],
+            debt: 7
+        })
+    );
 }
 
 #[test]
 fn an_even_record_has_no_pad_byte() {
-    assert_eq!(encoded(SETTINGS, &[1, 2]).len(), 14);
-    assert_eq!(encoded(SETTINGS, &[]).len(), 12);
+    assert_eq!(encoded(SETTINGS, &[1, 2]).len(), 16);
+    assert_eq!(encoded(SETTINGS, &[]).len(), 14);
     assert_eq!(encoded(SETTINGS, &[0; BLOB_MAX]).len(), RECORD_MAX);
 }
 
 #[test]
 fn an_oversized_blob_is_refused() {
     let mut out = [0u8; RECORD_MAX];
-    assert_eq!(encode(SETTINGS, &[0; BLOB_MAX + 1], &mut out), None);
+    assert_eq!(
+        encode(Some(SETTINGS), &[0; BLOB_MAX + 1], 0, &mut out),
+        None
+    );
 }
 
 #[test]
 fn an_erased_or_short_page_holds_nothing() {
     assert_eq!(decode(&[0xFF; 1024]), None);
     assert_eq!(decode(&[0x00; 1024]), None);
-    assert_eq!(decode(&encoded(SETTINGS, &[1, 2, 3])[..10]), None);
+    assert_eq!(decode(&encoded(SETTINGS, &[1, 2, 3])[..12]), None);
     assert_eq!(decode(&[]), None);
+    let empty = scan(&[0xFF; 1024]);
+    assert_eq!((empty.newest, empty.free), (None, 0));
 }
 
 #[test]
 fn a_record_with_a_valid_crc_but_impossible_settings_is_refused() {
-    for (node_id, code) in [(0u8, 0u8), (128, 0), (254, 0), (16, 8)] {
-        let mut bytes = encoded(SETTINGS, &[]);
+    // Node-ID 0 is "nothing stored" only with code 0 and no blob.
+    for (node_id, code, blob) in [
+        (0u8, 1u8, &[][..]),
+        (0, 0, &[5][..]),
+        (128, 0, &[]),
+        (254, 0, &[]),
+        (16, 8, &[]),
+    ] {
+        let mut bytes = encoded(SETTINGS, blob);
         bytes[4] = node_id;
         bytes[5] = code;
-        let crc = crc32(&bytes[..8]).to_le_bytes();
-        bytes[8..12].copy_from_slice(&crc);
+        let body = 10 + blob.len();
+        let crc = crc32(&bytes[..body]).to_le_bytes();
+        bytes[body..body + 4].copy_from_slice(&crc);
         assert_eq!(decode(&bytes), None, "node {node_id} code {code}");
     }
 }
@@ -87,8 +127,36 @@ fn an_unconfigured_node_id_is_stored_as_0xff() {
     assert_eq!(unconfigured.node_id, None);
     let bytes = encoded(unconfigured, &[7]);
     assert_eq!(bytes[4], 0xFF);
-    assert_eq!(decode(&bytes), Some((unconfigured, &[7u8][..])));
+    assert_eq!(state(&bytes), Some((unconfigured, &[7u8][..])));
     assert_eq!(SETTINGS.node_id_byte(), 42);
+}
+
+#[test]
+fn the_last_intact_record_of_the_log_is_the_stored_state() {
+    let other = NodeSettings::from_parts(7, 0).unwrap();
+    let mut page = encoded(SETTINGS, &[1, 2, 3]);
+    let second = page.len();
+    page.extend(encoded(other, &[4]));
+    page.extend(encoded_with(None, &[], 3));
+    let end = page.len();
+    page.resize(1024, 0xFF);
+    let log = scan(&page);
+    assert_eq!(log.free, end);
+    assert_eq!(log.newest.map(|r| (r.settings, r.debt)), Some((None, 3)));
+    // The last one damaged (a store cut off by a power loss): the one before counts, and
+    // the next record goes after the damaged one.
+    page[end - 5] ^= 0x10;
+    let log = scan(&page);
+    assert_eq!(log.free, end);
+    assert_eq!(
+        log.newest.map(|r| (r.settings, r.blob)),
+        Some((Some(other), &[4u8][..]))
+    );
+    // An unreadable header: what came before still counts, and nothing can be appended.
+    page[second] = 0;
+    let log = scan(&page);
+    assert_eq!(log.free, 1024);
+    assert_eq!(log.newest.map(|r| r.blob), Some(&[1u8, 2, 3][..]));
 }
 
 #[test]
@@ -135,10 +203,11 @@ fn lss_store_configuration_settings() {
 #[test]
 fn a_blob_length_beyond_the_maximum_is_refused() {
     let mut bytes = vec![0xFF; 1024];
-    bytes[..8].copy_from_slice(b"HWP1\x10\x00\x01\x01"); // 257 bytes of blob
-    let crc = crc32(&bytes[..8 + 257]).to_le_bytes();
-    bytes[8 + 257..8 + 261].copy_from_slice(&crc);
+    bytes[..10].copy_from_slice(b"HWP2\x10\x00\x01\x01\x00\x00"); // 257 bytes of blob
+    let crc = crc32(&bytes[..10 + 257]).to_le_bytes();
+    bytes[10 + 257..10 + 261].copy_from_slice(&crc);
     assert_eq!(decode(&bytes), None);
+    assert_eq!(scan(&bytes).free, 1024, "no record boundary to trust");
 }
 
 #[test]
@@ -209,7 +278,7 @@ proptest! {
         let mut page = encoded(settings, &blob);
         // Whatever follows the record on the page does not matter.
         page.resize(1024, page_tail);
-        prop_assert_eq!(decode(&page), Some((settings, &blob[..])));
+        prop_assert_eq!(state(&page), Some((settings, &blob[..])));
     }
 
     #[test]
@@ -221,7 +290,7 @@ proptest! {
     ) {
         let mut bytes = encoded(settings, &blob);
         // Only the bytes the CRC covers or holds; a pad byte is not part of the record.
-        let covered = 8 + blob.len() + 4;
+        let covered = 10 + blob.len() + 4;
         bytes[at.index(covered)] ^= flip;
         prop_assert_eq!(decode(&bytes), None);
     }
@@ -230,10 +299,12 @@ proptest! {
     fn decoding_arbitrary_bytes_never_panics_and_only_accepts_valid_settings(
         page in proptest::collection::vec(any::<u8>(), 0..300),
     ) {
-        if let Some((settings, blob)) = decode(&page) {
-            prop_assert!(settings.node_id.is_some());
-            prop_assert!(blob.len() <= BLOB_MAX);
+        if let Some(record) = decode(&page) {
+            prop_assert!(record.settings.is_none_or(|s| s.node_id.is_some()));
+            prop_assert!(record.blob.len() <= BLOB_MAX);
         }
+        let log = scan(&page);
+        prop_assert!(log.free <= page.len() + 1);
     }
 
     #[test]

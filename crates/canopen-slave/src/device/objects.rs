@@ -38,8 +38,8 @@ pub(super) struct Comm {
 /// What a checked write may need besides the objects.
 pub(super) struct WriteCtx<'a> {
     pub(super) now: Instant,
-    /// For 0x1010 (the application's parameters).
-    pub(super) app: &'a dyn Application,
+    /// For 0x1010 (the application's parameters) and 0x1011 (whether it may store now).
+    pub(super) app: &'a mut dyn Application,
     /// For 0x1010 and 0x1011.
     pub(super) storage: &'a mut dyn Storage,
 }
@@ -146,7 +146,7 @@ const OBJECTS: [CommObject; 12] = [
         last: 0x1011,
         stored: &[],
         read: on_command,
-        write: |_, ctx, _, sub, v| params::forget(ctx.storage, sub, v),
+        write: |_, ctx, _, sub, v| params::forget(ctx, sub, v),
         restore: not_a_parameter,
     },
     // COB-ID EMCY.

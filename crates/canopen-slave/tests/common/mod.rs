@@ -93,6 +93,8 @@ pub struct TestApp {
     /// TPDOs the application withdraws when they are about to go out.
     pub withdraw: Vec<u8>,
     pub restored: Vec<Vec<u8>>,
+    /// `may_store` answers false: 0x1010, 0x1011 and LSS store are refused.
+    pub store_refused: bool,
 }
 
 impl Application for TestApp {
@@ -186,6 +188,10 @@ impl Application for TestApp {
             self.flag = flag;
             self.vars[5] = v5.into();
         }
+    }
+
+    fn may_store(&mut self) -> bool {
+        !self.store_refused
     }
 }
 

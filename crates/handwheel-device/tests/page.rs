@@ -1,0 +1,386 @@
+//! The parameter page over a simulated NOR flash page: unchanged stores write nothing,
+//! changed ones append and erase only a full page, and erases are bounded per powered time,
+//! across power cycles too.
+
+use canopen_slave::{Instant, Storage, StorageError};
+use handwheel_core::BitRate;
+use handwheel_device::page::{
+    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGE_SIZE,
+};
+use handwheel_device::record::NodeSettings;
+use proptest::prelude::*;
+
+/// One flash page as NOR flash behaves: erase sets every bit, programming only clears bits
+/// (programming a half-word that is not erased is refused here: the page must never ask).
+#[derive(Clone, Debug)]
+struct SimFlash {
+    bytes: Vec<u8>,
+    erases: u32,
+    /// Half-words programmed.
+    programs: u32,
+    fail: Option<FlashError>,
+}
+
+impl SimFlash {
+    fn new() -> Self {
+        Self {
+            bytes: vec![0xFF; PAGE_SIZE],
+            erases: 0,
+            programs: 0,
+            fail: None,
+        }
+    }
+}
+
+impl Flash for SimFlash {
+    fn page(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    fn erase(&mut self) -> Result<(), FlashError> {
+        if let Some(error) = self.fail {
+            return Err(error);
+        }
+        self.erases += 1;
+        self.bytes.fill(0xFF);
+        Ok(())
+    }
+
+    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+        if let Some(error) = self.fail {
+            return Err(error);
+        }
+        assert!(
+            offset.is_multiple_of(2) && bytes.len().is_multiple_of(2),
+            "half-words only"
+        );
+        for (i, pair) in bytes.chunks_exact(2).enumerate() {
+            let at = offset + 2 * i;
+            assert_eq!(
+                &self.bytes[at..at + 2],
+                &[0xFF, 0xFF],
+                "programming a half-word that is not erased, at {at}"
+            );
+            self.bytes[at..at + 2].copy_from_slice(pair);
+            self.programs += 1;
+        }
+        Ok(())
+    }
+}
+
+const HOUR_MS: u64 = 60 * 60 * 1000;
+
+fn at_ms(ms: u64) -> Instant {
+    Instant::from_millis(ms)
+}
+
+/// A blob the size of the handwheel's (140 bytes: a 154-byte record, six to a page), whose
+/// content is `n`.
+fn blob(n: u32) -> Vec<u8> {
+    let mut b = vec![0x5A; 140];
+    b[..4].copy_from_slice(&n.to_le_bytes());
+    b
+}
+
+fn settings(node: u8, code: u8) -> NodeSettings {
+    NodeSettings::from_parts(node, code).unwrap()
+}
+
+fn stored(page: &ParameterPage<SimFlash>) -> Option<(NodeSettings, Vec<u8>)> {
+    page.stored().map(|(s, b)| (s, b.to_vec()))
+}
+
+#[test]
+fn unchanged_stores_write_nothing() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    // Nothing stored, and "restore defaults" asked again and again: nothing to write.
+    for _ in 0..100 {
+        page.store(at_ms(0), &[]).unwrap();
+    }
+    assert_eq!((page.flash().erases, page.flash().programs), (0, 0));
+    page.store(at_ms(1), &blob(1)).unwrap();
+    let programs = page.flash().programs;
+    assert_eq!(programs, 77, "one 154-byte record");
+    for t in 0..1000 {
+        page.store(at_ms(t), &blob(1)).unwrap();
+    }
+    // LSS storing the settings the record holds: nothing either.
+    page.store_node(at_ms(5), 16, 0).unwrap();
+    assert_eq!(page.flash().erases, 0);
+    assert_eq!(page.flash().programs, programs);
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(1))));
+}
+
+#[test]
+fn changed_stores_append_six_records_per_erase_until_the_budget_is_spent() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    let mut accepted = 0;
+    let refused = loop {
+        match page.store(at_ms(accepted), &blob(accepted as u32)) {
+            Ok(()) => accepted += 1,
+            Err(error) => break error,
+        }
+        assert!(accepted < 1000, "never refused");
+    };
+    assert_eq!(refused, StorageError::WearLimit);
+    assert_eq!(accepted, 6 * (ERASE_BURST + 1));
+    assert_eq!(u64::from(page.flash().erases), ERASE_BURST);
+    // The refusal changed nothing: the last accepted store is the stored state.
+    let before = page.flash().bytes.clone();
+    assert_eq!(
+        page.store(at_ms(accepted), &blob(7777)),
+        Err(StorageError::WearLimit)
+    );
+    assert_eq!(
+        page.store_node(at_ms(accepted), 5, 0),
+        Err(StorageError::WearLimit)
+    );
+    assert_eq!(page.flash().bytes, before);
+    let last = blob(accepted as u32 - 1);
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, last.clone())));
+    // What is stored may still be stored again.
+    page.store(at_ms(accepted), &last).unwrap();
+    let mut buf = [0u8; 256];
+    assert_eq!(page.load(&mut buf), 140);
+    assert_eq!(&buf[..140], &last[..]);
+    // A record that still fits the page's tail needs no erase: "nothing stored" (14 bytes).
+    page.store(at_ms(accepted), &[]).unwrap();
+    assert_eq!(stored(&page), None);
+    assert_eq!(u64::from(page.flash().erases), ERASE_BURST);
+}
+
+#[test]
+fn powered_time_pays_the_debt_back_one_erase_per_interval() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    let mut n = 0;
+    while page.store(at_ms(0), &blob(n)).is_ok() {
+        n += 1;
+    }
+    // Just before one interval has passed: still refused; at it, one erase (and the five
+    // appends after it), then refused again.
+    let almost = at_ms(ERASE_INTERVAL_MS - 1);
+    assert_eq!(page.store(almost, &blob(n)), Err(StorageError::WearLimit));
+    let day = at_ms(ERASE_INTERVAL_MS);
+    for i in 0..6 {
+        page.store(day, &blob(n + i)).unwrap();
+    }
+    assert_eq!(u64::from(page.flash().erases), ERASE_BURST + 1);
+    assert_eq!(page.store(day, &blob(n + 6)), Err(StorageError::WearLimit));
+    // After a long quiet spell the bucket is full again, but never fuller.
+    let later = at_ms(ERASE_INTERVAL_MS * 100);
+    let mut more = 0;
+    while page.store(later, &blob(n + 100 + more)).is_ok() {
+        more += 1;
+    }
+    assert_eq!(u64::from(page.flash().erases), 2 * ERASE_BURST + 1);
+}
+
+#[test]
+fn a_power_cycle_does_not_refill_the_budget() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    let mut n = 0;
+    // Four hours into the session, the budget is spent.
+    let t = at_ms(4 * HOUR_MS);
+    while page.store(t, &blob(n)).is_ok() {
+        n += 1;
+    }
+    let erases = page.flash().erases;
+    // Power cycle: engine time starts at zero again, the debt comes from the newest record.
+    let mut page = ParameterPage::new(page.into_flash());
+    assert_eq!(page.store(at_ms(0), &blob(n)), Err(StorageError::WearLimit));
+    assert_eq!(
+        page.store(at_ms(ERASE_INTERVAL_MS - 1), &blob(n)),
+        Err(StorageError::WearLimit)
+    );
+    // One interval of powered time in this session pays for one erase (plus at most one
+    // unit of 2^26 us: the stored debt is rounded up).
+    let unit_ms = (1u64 << 26) / 1000 + 1;
+    page.store(at_ms(ERASE_INTERVAL_MS + unit_ms), &blob(n))
+        .unwrap();
+    assert_eq!(page.flash().erases, erases + 1);
+}
+
+#[test]
+fn lss_settings_and_the_blob_share_the_record() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    page.set_settings(settings(10, 0));
+    page.store(at_ms(0), &blob(1)).unwrap();
+    // LSS: the new settings with the stored blob.
+    page.store_node(at_ms(1), 5, 2).unwrap();
+    assert_eq!(stored(&page), Some((settings(5, 2), blob(1))));
+    // 0x1010 afterwards keeps the LSS settings.
+    page.store(at_ms(2), &blob(2)).unwrap();
+    assert_eq!(stored(&page), Some((settings(5, 2), blob(2))));
+    // Unconfigured (0xFF) and bit-timing index 6 (50 kbit/s, DIP code 5).
+    page.store_node(at_ms(3), 0xFF, 6).unwrap();
+    let unconfigured = NodeSettings::from_parts(0xFF, BitRate::Kbit50.code()).unwrap();
+    assert_eq!(stored(&page), Some((unconfigured, blob(2))));
+    // Index 5 (100 kbit/s) and node-ID 0 cannot be stored: "not supported", nothing written.
+    let programs = page.flash().programs;
+    assert_eq!(
+        page.store_node(at_ms(4), 5, 5),
+        Err(StorageError::Unsupported)
+    );
+    assert_eq!(
+        page.store_node(at_ms(4), 0, 0),
+        Err(StorageError::Unsupported)
+    );
+    assert_eq!(page.flash().programs, programs);
+    // Restore defaults of everything: nothing stored, LSS settings included.
+    page.store(at_ms(5), &[]).unwrap();
+    assert_eq!(stored(&page), None);
+    assert_eq!(page.load(&mut [0u8; 256]), 0);
+    // LSS after that: the settings with no blob.
+    page.store_node(at_ms(6), 7, 0).unwrap();
+    assert_eq!(stored(&page), Some((settings(7, 0), Vec::new())));
+    assert_eq!(page.flash().erases, 0);
+}
+
+#[test]
+fn a_store_cut_off_by_a_power_loss_leaves_the_previous_record() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    page.store(at_ms(0), &blob(1)).unwrap();
+    page.store(at_ms(0), &blob(2)).unwrap();
+    let mut flash = page.into_flash();
+    // The second record's CRC never made it: its last bytes read erased... and a bit of its
+    // blob is wrong, as if programming stopped half-way.
+    flash.bytes[154 + 150..154 + 154].fill(0xFF);
+    let page = ParameterPage::new(flash);
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(1))));
+    // The next store goes after the damaged record, without an erase.
+    let mut page = page;
+    page.store(at_ms(0), &blob(3)).unwrap();
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(3))));
+    assert_eq!(page.flash().erases, 0);
+    // Garbage where a header should be: the page is erased for the next store.
+    let mut flash = page.into_flash();
+    flash.bytes[3 * 154] = 0x00;
+    let mut page = ParameterPage::new(flash);
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(3))));
+    page.store(at_ms(0), &blob(4)).unwrap();
+    assert_eq!(page.flash().erases, 1);
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(4))));
+}
+
+#[test]
+fn flash_errors_are_write_failures() {
+    let mut flash = SimFlash::new();
+    flash.fail = Some(FlashError::Controller);
+    let mut page = ParameterPage::new(flash);
+    assert_eq!(
+        page.store(at_ms(0), &blob(1)),
+        Err(StorageError::WriteFailed)
+    );
+    assert_eq!(
+        page.store(at_ms(0), &[0; 257]),
+        Err(StorageError::WriteFailed)
+    );
+    assert_eq!(stored(&page), None);
+}
+
+#[test]
+fn the_stored_debt_rounds_up_to_whole_units() {
+    let unit_us = 1u64 << 26;
+    let budget = WearBudget::from_stored(3);
+    assert_eq!(budget.stored(Instant::ZERO), 3);
+    assert_eq!(budget.stored(Instant::from_micros(1)), 3);
+    assert_eq!(budget.stored(Instant::from_micros(unit_us)), 2);
+    assert_eq!(budget.stored(Instant::from_micros(3 * unit_us)), 0);
+    assert_eq!(budget.stored(Instant::from_micros(99 * unit_us)), 0);
+    let mut budget = WearBudget::from_stored(0);
+    assert!(budget.take(Instant::ZERO));
+    let day_units = (ERASE_INTERVAL_MS * 1000).div_ceil(unit_us) as u16;
+    assert_eq!(budget.stored(Instant::ZERO), day_units);
+    // A full bucket's debt, as stored, still refuses at boot.
+    let mut full = WearBudget::from_stored(0);
+    for _ in 0..ERASE_BURST {
+        assert!(full.take(Instant::ZERO));
+    }
+    assert!(!full.take(Instant::ZERO));
+    let mut booted = WearBudget::from_stored(full.stored(Instant::ZERO));
+    assert!(!booted.take(Instant::ZERO));
+}
+
+#[derive(Clone, Debug)]
+enum Op {
+    Store(u8),
+    Restore,
+    Lss(u8),
+    Wait(u64),
+    PowerCycle,
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    prop_oneof![
+        6 => (0u8..4).prop_map(Op::Store),
+        1 => Just(Op::Restore),
+        1 => (1u8..4).prop_map(Op::Lss),
+        2 => (0u64..6 * HOUR_MS).prop_map(Op::Wait),
+        1 => Just(Op::PowerCycle),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Against a model of what is stored: every accepted store is what loads afterwards,
+    /// a refused one changes nothing, what is stored already writes nothing, the flash is
+    /// never programmed where it is not erased, and erases stay within the budget of the
+    /// powered time.
+    #[test]
+    fn the_page_keeps_the_last_accepted_state_within_its_erase_budget(
+        ops in proptest::collection::vec(op(), 1..200),
+    ) {
+        let mut page = ParameterPage::new(SimFlash::new());
+        let mut model: Option<(NodeSettings, Vec<u8>)> = None;
+        // What 0x1010 stores with the blob: the boot's settings, or the last LSS store's.
+        let mut in_force = NodeSettings::DEFAULT;
+        let mut now = 0u64;
+        let mut powered = 0u64;
+        for op in ops {
+            let before = page.flash().clone();
+            let (result, target) = match op.clone() {
+                Op::Store(n) => {
+                    let b = blob(u32::from(n));
+                    (page.store(at_ms(now), &b), Some((in_force, b)))
+                }
+                Op::Restore => (page.store(at_ms(now), &[]), None),
+                Op::Lss(node) => {
+                    let b = model.as_ref().map_or(Vec::new(), |m| m.1.clone());
+                    (page.store_node(at_ms(now), node, 0), Some((settings(node, 0), b)))
+                }
+                Op::Wait(ms) => {
+                    now += ms;
+                    powered += ms;
+                    continue;
+                }
+                Op::PowerCycle => {
+                    page = ParameterPage::new(page.into_flash());
+                    in_force = model.as_ref().map_or(NodeSettings::DEFAULT, |m| m.0);
+                    page.set_settings(in_force);
+                    now = 0;
+                    continue;
+                }
+            };
+            match result {
+                Ok(()) => {
+                    if let (Op::Lss(node), _) = (&op, &target) {
+                        in_force = settings(*node, 0);
+                    }
+                    if target == model {
+                        prop_assert_eq!(page.flash().programs, before.programs);
+                        prop_assert_eq!(page.flash().erases, before.erases);
+                    }
+                    model = target;
+                }
+                Err(error) => {
+                    prop_assert_eq!(error, StorageError::WearLimit);
+                    prop_assert_eq!(&page.flash().bytes, &before.bytes);
+                }
+            }
+            prop_assert_eq!(stored(&page), model.clone());
+            let allowed = ERASE_BURST + powered / ERASE_INTERVAL_MS;
+            prop_assert!(u64::from(page.flash().erases) <= allowed);
+        }
+    }
+}
