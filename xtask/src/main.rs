@@ -276,10 +276,11 @@ fn stack_check(report: &machine_bench::MachineReport) -> Result<(), String> {
 /// image within 8 KiB of the 20 KiB part, which is also all the RAM the QEMU variant's has.
 const STACK_BUDGET: u32 = 4 * 1024;
 
-/// Release footprint budget: 24 KiB flash (20 KiB plus room for LSS and the device profile),
-/// 4 KiB static RAM (RTT included). CI fails above it.
+/// Release footprint budget: 26 KiB flash (20 KiB, plus room for LSS and the device profile,
+/// plus the feed record's outbox and the wear-levelled parameter page), 4 KiB static RAM
+/// (RTT included). CI fails above it.
 const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
-    flash: 24 * 1024,
+    flash: 26 * 1024,
     ram: 4 * 1024,
 };
 
