@@ -248,7 +248,7 @@ def credited(frames) -> dict:
 
 
 def test_a_turn_on_another_axis_while_the_bus_is_held_reaches_that_axis(rig):
-    """Issue 19's attack: the bus is held long enough for the transmit side to fill with X
+    """The hostile-master attack: the bus is held long enough for the transmit side to fill with X
     records; the operator selects Y, turns 7, selects X again and turns 2. Each epoch's
     final state must still reach the master, in order, so that Y's turn goes to Y."""
     mark = rig.feed_on("x")

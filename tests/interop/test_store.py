@@ -1,6 +1,6 @@
-"""Storing parameters under a hostile master (issue 19, items 2 and 3): unchanged stores
-write nothing, changed ones stop at the wear budget with a defined answer, and no store is
-made while the feed is enabled, so a store never costs a detent.
+"""Storing parameters under a hostile master: unchanged stores write nothing, changed ones
+stop at the wear budget with a defined answer, and no store is made while the feed is
+enabled, so a store never costs a detent.
 
 The parameter page is the same code on both variants (`handwheel_device::page`, over the
 board's flash page or the QEMU board's RAM page); on the emulated board the FPEC model counts
