@@ -8,8 +8,7 @@ from pathlib import Path
 
 import pytest
 
-import machine
-import periph
+from stm32emu import machine, periph
 
 ROOT = Path(__file__).resolve().parents[2]
 ELF = Path(

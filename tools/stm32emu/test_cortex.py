@@ -5,8 +5,8 @@ import pytest
 from unicorn import UcError
 from unicorn import arm_const as arm
 
-import cortex
-from cortex import IRQ_BASE, Core, Nvic
+from stm32emu import cortex
+from stm32emu.cortex import IRQ_BASE, Core, Nvic
 
 CODE = 0x0800_0000
 RAM = 0x2000_0000
