@@ -105,6 +105,9 @@ class Nvic:
         self.aircr_prigroup = 0
         self.ccr = 0x200  # STKALIGN set out of reset on r2p1 (PM0056 4.4.7)
         self.reset_requested = False
+        # Set by whatever may let a pending exception preempt (a pend, an enable, a priority);
+        # the core's precise mode clears it when it has looked.
+        self.changed = True
         # SysTick (B3.3.2): CSR ENABLE bit 0, TICKINT 1, CLKSOURCE 2, COUNTFLAG 16.
         self.syst_csr = 0
         self.syst_rvr = 0
@@ -167,6 +170,7 @@ class Nvic:
     def set_pending(self, exception: int) -> None:
         if exception not in self.pending:
             self.pending.add(exception)
+            self.changed = True
             self.on_pend(exception)
 
     # -- SysTick (B3.3) -------------------------------------------------------------------
@@ -260,6 +264,7 @@ class Nvic:
 
     def write(self, address: int, value: int, mask: int) -> None:
         """One word of the system control space; `mask` holds the written byte lanes."""
+        self.changed = True  # an enable, a priority or a pend may let something preempt
         if address == SYST_CSR:
             was = self.syst_csr & 1
             self.syst_csr = (self.syst_csr & ~mask | value & mask) & 0x7
@@ -363,8 +368,11 @@ class Core:
         self.running = False
         self.cost = None  # precise mode: (address, size) -> cycles of that instruction
         self._stop_at = 0
-        self._it_ends: dict[int, int] = {}  # address -> end of the IT block it starts, or 0
+        # Precise mode, per instruction address: the end of the IT block it starts (or 0),
+        # and whether it may lower PRIMASK or BASEPRI (CPS, MSR).
+        self._decoded: dict[int, tuple[int, bool]] = {}
         self._it_block = (0, 0)
+        self._recheck = True  # whether to look for a preempting exception at the next one
 
     def reg(self, r: int) -> int:
         return self.uc.reg_read(r)
@@ -384,37 +392,43 @@ class Core:
 
     def _on_code(self, uc, address, size, _user) -> None:
         start, end = self._it_block
+        decoded = self._decoded.get(address)
+        if decoded is None:
+            decoded = self._decoded[address] = self._decode(address, size)
         if not start < address < end:
             if self.cycles >= self._stop_at:
                 self.stop_reason = "slice"
                 uc.emu_stop()  # before this instruction: it runs in the next slice
                 return
-            if self.nvic.pending and self.nvic.preempting(*self.mask_levels()) is not None:
-                self.stop_reason = "preempt"
-                uc.emu_stop()
-                return
-            it_end = self._it_ends.get(address)
-            if it_end is None:
-                it_end = self._it_ends[address] = self._it_end(address, size)
-            if it_end:
-                self._it_block = (address, it_end)
+            nvic = self.nvic
+            if self._recheck or nvic.changed:
+                self._recheck = nvic.changed = False
+                if nvic.pending and nvic.preempting(*self.mask_levels()) is not None:
+                    self.stop_reason = "preempt"
+                    uc.emu_stop()
+                    return
+            if decoded[0]:
+                self._it_block = (address, decoded[0])
+        if decoded[1]:
+            self._recheck = True  # the masks may have come down
         self.cycles += self.cost(address, size)
 
-    def _it_end(self, address: int, size: int) -> int:
-        """The address after the IT block that the instruction at `address` starts (IT is
-        0xBFxy with a mask y != 0; ARMv7-M ARM A7.7.38), or 0 if it is no IT instruction."""
-        if size != 2:
-            return 0
-        word = int.from_bytes(bytes(self.uc.mem_read(address, 2)), "little")
-        mask = word & 0xF
-        if word & 0xFF00 != 0xBF00 or not mask:
-            return 0
+    def _decode(self, address: int, size: int) -> tuple[int, bool]:
+        """(the address after the IT block the instruction at `address` starts, or 0;
+        whether it is CPS or MSR). IT is 0xBFxy with a mask y != 0 (ARMv7-M ARM A7.7.38),
+        CPS 0xB66x (A7.7.24), MSR 0xF38x then a second half-word (A7.7.83)."""
+        first = int.from_bytes(bytes(self.uc.mem_read(address, 2)), "little")
+        if size == 4:
+            return 0, first & 0xFFF0 == 0xF380
+        mask = first & 0xF
+        if first & 0xFF00 != 0xBF00 or not mask:
+            return 0, first & 0xFFE8 == 0xB660
         count = 4 - (mask & -mask).bit_length() + 1
         end = address + 2
         for _ in range(count):
-            first = int.from_bytes(bytes(self.uc.mem_read(end, 2)), "little")
-            end += 4 if first >> 11 in (0b11101, 0b11110, 0b11111) else 2
-        return end
+            half = int.from_bytes(bytes(self.uc.mem_read(end, 2)), "little")
+            end += 4 if half >> 11 in (0b11101, 0b11110, 0b11111) else 2
+        return end, False
 
     # -- exception entry and return (B1.5.6, B1.5.8) ---------------------------------------
 
@@ -504,6 +518,7 @@ class Core:
             self.cycles += count
         else:
             self._stop_at = self.cycles + count
+            self._recheck = True
             count += 8  # the hook ends the slice; room to finish an IT block
         self.running = True
         try:

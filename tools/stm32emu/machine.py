@@ -460,14 +460,16 @@ class Machine:
             self.rcc.csr_flags |= periph.Rcc.SFTRSTF
             self._reset("Software")
 
-    def step(self) -> None:
-        """One slice of the CPU (or a jump over idle, a flash stall or a lock-up)."""
+    def step(self, idle_jump: bool = True) -> bool:
+        """One slice of the CPU (or a jump over idle, a flash stall or a lock-up). Returns
+        whether the CPU went idle: thread mode's YIELD with nothing it would take; then time
+        jumps to the next event (with `idle_jump`; else it stays where the CPU stopped)."""
         target = self.next_event()
         if self.core.locked_up or self.stall_until > self.now:
             # A lock-up, or the CPU waiting for a flash operation (PM0075 2.3.1): time
             # passes, the peripherals work, no instruction runs, no exception is taken.
             self._advance_to(max(target, self.now + 1))
-            return
+            return False
         before = self.core.cycles
         self.core.check_preemption()
         count = min(SLICE, target - self.now)
@@ -481,14 +483,19 @@ class Machine:
             primask, basepri = self.core.mask_levels()
             if self.nvic.preempting(primask, basepri) is None:
                 # Idle until the next event: nothing else can happen before it.
-                self._advance_to(max(target, self.now + max(elapsed, 1)))
-                return
+                if idle_jump:
+                    target = max(target, self.now + max(elapsed, 1))
+                else:
+                    target = self.now + elapsed
+                self._advance_to(target)
+                return True
         if self.core.stop_reason == "return":
             self.update_irqs()
         self._advance_to(self.now + elapsed)
         stall = self.fpec.take_stall()
         if stall:
             self.stall_until = self.now + stall
+        return False
 
     def run_until(self, cycle: int) -> None:
         while self.now < cycle:
