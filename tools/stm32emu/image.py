@@ -1,6 +1,6 @@
 """The firmware image and the memory it was linked for: the one loader of every tool.
 
-`Image.load(elf)` reads the ELF with pyelftools: its loadable segments at their load
+`Image(elf)` reads the ELF with pyelftools: its loadable segments at their load
 addresses (the firmware's reset handler copies .data to RAM itself), the symbols with their
 sizes, the vector table (`.vector_table`) and the name of the handler each vector points at.
 The memory map is the linker script's MEMORY command (`board/memory.x`: FLASH, STORAGE and
