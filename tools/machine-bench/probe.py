@@ -155,6 +155,7 @@ class Probe(cortex.Observer):
         self.on_read = None
         self.on_mask = None
         self._chain_start: Totals | None = None
+        self._outside = False
         self._check_sp = False
         self._check_mask = False
         self.core.observer = self
@@ -190,6 +191,15 @@ class Probe(cortex.Observer):
     @property
     def thread_depth(self) -> int:
         return self.stack_top - self.thread.min_sp
+
+    def from_outside(self, action) -> None:
+        """Runs `action`, a stimulus from outside the CPU made while a handler runs (from a
+        hook), without counting what it pends as that handler's."""
+        self._outside = True
+        try:
+            action()
+        finally:
+            self._outside = False
 
     def watch(self, address: int) -> None:
         """Marks the first read of the register at `address` in every invocation."""
@@ -374,7 +384,7 @@ class Probe(cortex.Observer):
 
     def _pended(self, exception: int) -> None:
         invocation = self.contexts[-1].invocation
-        if self.core.running and invocation is not None:
+        if self.core.running and invocation is not None and not self._outside:
             invocation.pended.append(exception)
 
     def _requested(self, box: int) -> None:

@@ -172,6 +172,15 @@ def test_the_memory_map_is_the_linker_scripts():  # image.py, RM0008 30.1
     assert bytes(m.uc.mem_read(start, 16)) == data[:16]
 
 
+def test_unmodelled_registers_read_back_with_their_byte_lanes():
+    m = machine.Machine(str(ELF))
+    usart1 = 0x4001_3800 - machine.PERIPH_BASE  # no model: plain memory
+    m._periph_write(None, usart1, 4, 0x1234_5678, None)
+    m._periph_write(None, usart1 + 2, 1, 0xAB, None)
+    assert m._periph_read(None, usart1, 4, None) == 0x12AB_5678
+    assert m._periph_read(None, usart1 + 1, 2, None) == 0xAB56
+
+
 def test_bit_band_alias_reaches_the_peripheral_bit():  # PM0056 2.2.5
     m = machine.Machine(str(ELF))
     apb1enr = periph.RCC_BASE + 0x1C
