@@ -19,16 +19,13 @@ from __future__ import annotations
 
 import argparse
 import collections
+import curses
 import os
-import select
-import shutil
 import signal
 import sys
 import tempfile
-import termios
 import threading
 import time
-import tty
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
@@ -247,81 +244,76 @@ KEYS_HELP = (
     "       (CNC axes in detents x multiplier)"
 )
 
-ARROWS = {
-    b"\x1b[A": 1,
-    b"\x1b[C": 1,
-    b"\x1b[B": -1,
-    b"\x1b[D": -1,
-    b"\x1b[5~": 10,
-    b"\x1b[6~": -10,
-    b"\x1bOA": 1,
-    b"\x1bOC": 1,
-    b"\x1bOB": -1,
-    b"\x1bOD": -1,
+# The keys that turn the wheel, as curses decodes them (keypad mode: the arrows and PgUp/PgDn
+# whatever escape sequences the terminal sends for them).
+TURNS = {
+    curses.KEY_UP: 1,
+    curses.KEY_RIGHT: 1,
+    curses.KEY_DOWN: -1,
+    curses.KEY_LEFT: -1,
+    curses.KEY_PPAGE: 10,
+    curses.KEY_NPAGE: -10,
 }
 
 
-def split_keys(data: bytes) -> List[bytes]:
-    """Keys from a terminal read: escape sequences whole, other bytes one by one."""
-    keys = []
-    i = 0
-    while i < len(data):
-        for seq in ARROWS:
-            if data.startswith(seq, i):
-                keys.append(seq)
-                i += len(seq)
-                break
-        else:
-            keys.append(data[i : i + 1])
-            i += 1
-    return keys
+def wheel_command(key: int) -> Optional[str]:
+    """The stimulus command of a key the demo and the LinuxCNC console share: a turn, an axis
+    (x y z w v, 0 none), a multiplier (1 2 3); None for any other key."""
+    if key in TURNS:
+        return f"turn {TURNS[key]:+d}"
+    char = chr(key).lower() if 0 <= key < 128 else ""
+    if char and char in "xyzwv":
+        return f"axis {char}"
+    if char == "0":
+        return "axis off"
+    if char and char in "123":
+        return f"mult {10 ** (int(char) - 1)}"
+    return None
 
 
-def redraw(out, lines: List[str], drawn: int) -> int:
-    """Draws `lines` over the `drawn` lines drawn last, each cut to the terminal's width (a
-    wrapped line would break the next redraw); returns how many it drew."""
-    width = shutil.get_terminal_size().columns - 1
-    if drawn:
-        out.write(f"\x1b[{drawn}F")
-    for line in lines:
-        out.write("\x1b[2K" + line[:width] + "\n")
-    out.flush()
-    return len(lines)
+def screen(help_text: str, view, on_key) -> None:
+    """The interactive screen of the demo and the LinuxCNC console (curses): `help_text` at
+    the top, under it the lines of `view()`, redrawn every 0.1 s and cut to the terminal's
+    width; each key goes to `on_key(key)` (a curses key code: a character's code or
+    `curses.KEY_*`), which returns False to quit. Ctrl-C raises KeyboardInterrupt as ever;
+    the terminal is restored however it ends."""
+
+    def loop(window) -> None:
+        try:
+            curses.curs_set(0)
+        except curses.error:  # a terminal that cannot hide the cursor
+            pass
+        window.keypad(True)
+        window.timeout(100)
+        while True:
+            window.erase()
+            height, width = window.getmaxyx()
+            for row, line in enumerate(help_text.splitlines() + view()):
+                if row < height:
+                    window.addnstr(row, 0, line, max(width - 1, 0))
+            window.refresh()
+            key = window.getch()
+            if key != -1 and not on_key(key):
+                return
+
+    curses.wrapper(loop)
 
 
 def interactive(demo: Demo) -> None:
-    fd = sys.stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    tty.setcbreak(fd)  # keys one by one, no echo; Ctrl-C still raises KeyboardInterrupt
-    out = sys.stdout
-    drawn = 0
-    try:
-        out.write("\x1b[?25l" + KEYS_HELP + "\n")
-        while True:
-            drawn = redraw(out, demo.view(), drawn)
-            ready, _, _ = select.select([fd], [], [], 0.1)
-            if not ready:
-                continue
-            for key in split_keys(os.read(fd, 64)):
-                if key in (b"q", b"Q"):
-                    return
-                if key in ARROWS:
-                    demo.stimulus(f"turn {ARROWS[key]:+d}")
-                elif key.lower() in (b"x", b"y", b"z", b"w", b"v"):
-                    demo.stimulus(f"axis {key.decode().lower()}")
-                elif key == b"0":
-                    demo.stimulus("axis off")
-                elif key in (b"1", b"2", b"3"):
-                    demo.stimulus(f"mult {10 ** (int(key) - 1)}")
-                elif key in (b"e", b"E"):
-                    try:
-                        demo.set_feed(not demo.feed_enabled)
-                    except canopen.SdoAbortedError as e:
-                        demo.last_action = f"0x2000 write refused: {e}"
-    finally:
-        out.write("\x1b[?25h")
-        out.flush()
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+    def on_key(key: int) -> bool:
+        command = wheel_command(key)
+        if command is not None:
+            demo.stimulus(command)
+        elif key in (ord("q"), ord("Q")):
+            return False
+        elif key in (ord("e"), ord("E")):
+            try:
+                demo.set_feed(not demo.feed_enabled)
+            except canopen.SdoAbortedError as e:
+                demo.last_action = f"0x2000 write refused: {e}"
+        return True
+
+    screen(KEYS_HELP, demo.view, on_key)
 
 
 # Scripted tour ------------------------------------------------------------------------------

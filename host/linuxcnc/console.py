@@ -20,12 +20,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import select
 import sys
 import tempfile
-import termios
 import time
-import tty
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -33,7 +30,7 @@ ROOT = HERE.parents[1]
 # This folder (sim_machine) and tools/ (the rig, the demo's key decoder) are not packages.
 sys.path[:0] = [str(HERE), str(ROOT / "tools")]
 
-from demo import ARROWS, redraw, split_keys  # noqa: E402  (the demo's keys and screen)
+from demo import screen, wheel_command  # noqa: E402  (the demo's keys and screen)
 from rig import Qemu, Stimulus  # noqa: E402
 from sim_machine import SimMachine  # noqa: E402
 
@@ -64,42 +61,21 @@ def view(status: dict, last: str) -> list:
 
 
 def interactive(cnc: SimMachine, stim) -> None:
-    fd = sys.stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    tty.setcbreak(fd)
-    out = sys.stdout
-    drawn, last = 0, "-"
-    try:
-        out.write("\x1b[?25l" + HELP + "\n")
-        while True:
-            drawn = redraw(out, view(cnc.must("status"), last), drawn)
-            ready, _, _ = select.select([fd], [], [], 0.1)
-            if not ready:
-                continue
-            for key in split_keys(os.read(fd, 64)):
-                k = key.lower()
-                if k == b"q":
-                    return
-                if key in ARROWS:
-                    command = f"turn {ARROWS[key]:+d}"
-                elif k in (b"x", b"y", b"z", b"w", b"v"):
-                    command = f"axis {k.decode()}"
-                elif k == b"0":
-                    command = "axis off"
-                elif k in (b"1", b"2", b"3"):
-                    command = f"mult {10 ** (int(k) - 1)}"
-                elif k == b"m":
-                    on = cnc.must("status")["task_state"] == 4
-                    reply = cnc.call("off" if on else "on")
-                    last = f"machine {'off' if on else 'on'}: {'ok' if reply['ok'] else reply}"
-                    continue
-                else:
-                    continue
-                last = f"{command}: {stim.send(command)}"
-    finally:
-        out.write("\x1b[?25h")
-        out.flush()
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+    last = ["-"]
+
+    def on_key(key: int) -> bool:
+        command = wheel_command(key)
+        if command is not None:
+            last[0] = f"{command}: {stim.send(command)}"
+        elif key in (ord("q"), ord("Q")):
+            return False
+        elif key in (ord("m"), ord("M")):
+            on = cnc.must("status")["task_state"] == 4
+            reply = cnc.call("off" if on else "on")
+            last[0] = f"machine {'off' if on else 'on'}: {'ok' if reply['ok'] else reply}"
+        return True
+
+    screen(HELP, lambda: view(cnc.must("status"), last[0]), on_key)
 
 
 def wait_status(cnc: SimMachine, pred, timeout: float, what: str) -> dict:

@@ -38,10 +38,13 @@ import selectors
 import socket
 import sys
 import time
+from pathlib import Path
 
-import cortex
-import machine as machine_mod
-import periph
+# The chip model (tools/stm32emu) is a package beside this folder.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from stm32emu import cortex, periph  # noqa: E402
+from stm32emu import machine as machine_mod  # noqa: E402
 
 MAX_LAG = 0.05
 SLCAN_RATES = [10, 20, 50, 100, 125, 250, 500, 800, 1000]

@@ -4,9 +4,9 @@ on and reads the replies. Needs the release ELF (as test_machine.py)."""
 
 import pytest
 
-import machine
 import server
-from test_machine import ELF
+from stm32emu import machine
+from stm32emu.test_machine import ELF
 
 pytestmark = pytest.mark.skipif(not ELF.exists(), reason=f"no release image at {ELF}")
 

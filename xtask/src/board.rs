@@ -1,6 +1,7 @@
 //! The emulated board (`tools/board-emu`): the release ELF, the exact image a builder
-//! flashes, on a Python model of the STM32F103 (unicorn for the core; bxCAN, FPEC, IWDG,
-//! GPIO/EXTI modelled), with SLCAN and a control line on TCP like `cargo xtask qemu`.
+//! flashes, on the Python model of the STM32F103 in `tools/stm32emu` (unicorn for the core;
+//! NVIC, bxCAN, FPEC, IWDG, GPIO/EXTI modelled), paced in real time, with SLCAN and a
+//! control line on TCP like `cargo xtask qemu`.
 //!
 //! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N]` runs it in the
 //! foreground: SLCAN on P (the CPU starts when the first client connects), the control line
@@ -12,15 +13,10 @@ use std::process::Command;
 
 use crate::{pyenv, qemu};
 
-/// The package, relative to the workspace root.
+/// The server and launcher, relative to the workspace root.
 pub const PACKAGE: &str = "tools/board-emu";
-/// Its pinned requirements (unicorn, pyelftools, pytest).
-pub const REQUIREMENTS: &str = "tools/board-emu/requirements.txt";
-
-/// The venv below the target directory.
-pub fn venv_dir(target_dir: &Path) -> PathBuf {
-    target_dir.join("board-emu-venv")
-}
+/// The chip model it runs (its unit tests run with the board's).
+pub const CHIP: &str = "tools/stm32emu";
 
 /// `cargo xtask board` arguments: the two ports, and the board's own options.
 #[derive(Debug, PartialEq, Eq)]
@@ -69,9 +65,9 @@ impl Args {
     }
 }
 
-/// The board venv's interpreter, made from [`REQUIREMENTS`] if needed.
+/// The chip model venv's interpreter, made if needed.
 pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
-    pyenv::ensure_from(&root.join(REQUIREMENTS), &venv_dir(target_dir))
+    pyenv::emu_python(root, target_dir)
 }
 
 /// The emulator's command line for `elf`.
@@ -99,10 +95,11 @@ pub fn command(
     cmd
 }
 
-/// The board's unit tests (`tools/board-emu/test_*.py`, pytest) with extra arguments.
+/// The chip model's and the board's unit tests (`tools/stm32emu/test_*.py`,
+/// `tools/board-emu/test_*.py`, pytest) with extra arguments.
 pub fn unit_tests(python: &Path, root: &Path, elf: &Path, extra: &[&str]) -> Command {
     let mut cmd = Command::new(python);
-    cmd.args(["-m", "pytest", PACKAGE, "-q"])
+    cmd.args(["-m", "pytest", CHIP, PACKAGE, "-q"])
         .args(extra)
         .env("HANDWHEEL_BOARD_ELF", elf)
         .current_dir(root);

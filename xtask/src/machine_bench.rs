@@ -1,30 +1,24 @@
-//! The machine benchmark (`tools/machine-bench`): the release firmware's machine code in an
-//! instruction-level emulator (Python `unicorn`), for the CPU cost of the wheel's edge
-//! interrupt and of the SDO path, and for the worst-case stack depth.
+//! The machine benchmark (`tools/machine-bench`): the release firmware's machine code on the
+//! chip model of `tools/stm32emu` (the emulated board's), instrumented instruction by
+//! instruction, for the CPU cost of the wheel's edge interrupt and of the SDO path, and for
+//! the worst-case stack depth.
 //!
-//! The Python side runs in its own venv (`target/machine-bench-venv`, from
-//! `tools/machine-bench/requirements.txt`), first its unit tests (pytest), then the
+//! The Python side runs in the chip model's venv (`target/emu-venv`, from
+//! `tools/stm32emu/requirements.txt`), first its unit tests (pytest), then the
 //! benchmark. The benchmark prints the CPU figures itself and writes the stack figures and
 //! the wheel edge's two limits (its worst cycles, its worst latency to the port read) to a
 //! small tab-separated file that this module parses, prints and checks against the budgets.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use crate::pyenv;
 
-/// The pinned requirements, relative to the workspace root.
-const REQUIREMENTS: &str = "tools/machine-bench/requirements.txt";
 /// The benchmark's folder (its unit tests, run by pytest, are `test_*.py` there).
 const DIR: &str = "tools/machine-bench";
 /// The benchmark script.
 const SCRIPT: &str = "tools/machine-bench/bench.py";
-
-/// The venv folder below the target directory.
-fn venv_dir(target_dir: &Path) -> PathBuf {
-    target_dir.join("machine-bench-venv")
-}
 
 /// One preemption level: its NVIC priority byte, its deepest handler and that handler's
 /// stack use (bytes below the exception frame).
@@ -263,10 +257,12 @@ pub fn run(
     elf: &Path,
     quiet: bool,
 ) -> Result<MachineReport, String> {
-    let python = pyenv::ensure_from(&root.join(REQUIREMENTS), &venv_dir(target_dir))?;
-    // pytest, as every Python test here (no cache folder in the source tree).
+    let python = pyenv::emu_python(root, target_dir)?;
+    // pytest, as every Python test here (tools/pytest.ini: no cache folder in the source
+    // tree); the tests that boot the image take this one.
     let mut unit = Command::new(&python);
-    unit.args(["-m", "pytest", "-q", "-p", "no:cacheprovider", DIR])
+    unit.args(["-m", "pytest", "-q", DIR])
+        .env("HANDWHEEL_BOARD_ELF", elf)
         .current_dir(root);
     pyenv::run(&mut unit)?;
     let out_dir = target_dir.join("machine-bench");

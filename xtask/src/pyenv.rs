@@ -1,7 +1,7 @@
 //! The Python environments: the interop suite's venv in `target/interop-venv` made from
 //! `tests/interop/requirements.txt` (pinned python-can, canopen, pyserial, pytest), and any
-//! other pinned requirements file through [`ensure_from`] (the machine benchmark's, the
-//! component's, the linter's).
+//! other pinned requirements file through [`ensure_from`] (the chip model's, shared by the
+//! emulated board and the machine benchmark; the component's; the linter's).
 //!
 //! The venv is rebuilt only when the requirements file or the interpreter changes: a stamp
 //! file in the venv records a hash of both, and is written last, so an interrupted install
@@ -25,12 +25,21 @@ pub const HOST_PACKAGE: &str = "host";
 pub const LINT_REQUIREMENTS: &str = "tools/lint/requirements.txt";
 /// What ruff checks: all of the project's Python, relative to the workspace root.
 pub const LINT_PATHS: &[&str] = &["tests", "tools", "host"];
+/// The chip model's pinned requirements (`tools/stm32emu`: unicorn, pyelftools, capstone,
+/// pytest), for the emulated board and the machine benchmark alike.
+pub const EMU_REQUIREMENTS: &str = "tools/stm32emu/requirements.txt";
 /// Stamp file inside the venv.
 const STAMP: &str = "requirements.stamp";
 
 /// The venv folder below the target directory.
 pub fn venv_dir(target_dir: &Path) -> PathBuf {
     target_dir.join("interop-venv")
+}
+
+/// The chip model's venv (`target/emu-venv`), made from [`EMU_REQUIREMENTS`] if needed;
+/// returns its interpreter.
+pub fn emu_python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
+    ensure_from(&root.join(EMU_REQUIREMENTS), &target_dir.join("emu-venv"))
 }
 
 /// The venv's interpreter.

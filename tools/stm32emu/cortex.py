@@ -14,17 +14,28 @@ instruction, as a Rust panic ends in) is a fault: the core then counts as locked
 HardFault, as the firmware's HardFault handler would loop forever, and only a reset (the
 watchdog's) brings it back.
 
-Time: one executed instruction is one cycle of the 72 MHz core clock. Instructions run in
-slices (`emu_start(count=N)`); an exception pended by a peripheral or by a register write
-is taken at the end of the current slice (the writer stops the slice early when the new
-exception would preempt), so its latency is at most one slice. A slice that stops early
-(exception return, a preempting write, the idle loop) is charged in full: emulated time can
-run ahead of the instructions by up to one slice per stop.
+Time (`Core.cycles`): by default one executed instruction is one cycle of the 72 MHz core
+clock. Instructions run in slices (`emu_start(count=N)`); an exception pended by a
+peripheral or by a register write is taken at the end of the current slice, so its latency
+is at most one slice. A slice that stops early (exception return, the idle loop) is charged
+in full: emulated time can run ahead of the instructions by up to one slice per stop. This
+is the real-time board's mode: no Python runs per instruction.
+
+Precise mode (`Core.precise(cost)`, the machine benchmark's): a hook runs before every
+instruction. It charges the instruction's cost (1 by default, or the caller's cycle
+estimate), ends the slice exactly when its cycles are spent, and stops before the next
+instruction as soon as a pending exception beats the execution priority (a pend by the
+previous instruction's register write, or a PRIMASK/BASEPRI change), so that exception is
+taken at that instruction boundary, as the NVIC does, nested or not. It never stops inside
+an IT block: the exception frame here does not carry the IT state.
+
+`Core.observer` is told of every exception entry and return (`Observer`): the benchmark
+measures handlers through it.
 """
 
 from __future__ import annotations
 
-from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc, UcError
+from unicorn import UC_ARCH_ARM, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, Uc, UcError
 from unicorn import arm_const as arm
 
 CORE_HZ = 72_000_000
@@ -80,6 +91,8 @@ class Nvic:
     order. Peripheral interrupt lines call `set_pending`."""
 
     def __init__(self) -> None:
+        # Called with an exception that has just become pending (an instrument's hook).
+        self.on_pend = lambda exception: None
         self.reset()
 
     def reset(self) -> None:
@@ -92,6 +105,9 @@ class Nvic:
         self.aircr_prigroup = 0
         self.ccr = 0x200  # STKALIGN set out of reset on r2p1 (PM0056 4.4.7)
         self.reset_requested = False
+        # Set by whatever may let a pending exception preempt (a pend, an enable, a priority);
+        # the core's precise mode clears it when it has looked.
+        self.changed = True
         # SysTick (B3.3.2): CSR ENABLE bit 0, TICKINT 1, CLKSOURCE 2, COUNTFLAG 16.
         self.syst_csr = 0
         self.syst_rvr = 0
@@ -99,8 +115,6 @@ class Nvic:
         self.syst_loaded = False
         self.countflag = False
         self.now = 0  # emulated core cycles, kept by the board
-        # Called when a write pends something that may preempt: stops the current slice.
-        self.on_pend = lambda: None
 
     # -- priorities (B1.5.4) ----------------------------------------------------------------
 
@@ -156,7 +170,8 @@ class Nvic:
     def set_pending(self, exception: int) -> None:
         if exception not in self.pending:
             self.pending.add(exception)
-            self.on_pend()
+            self.changed = True
+            self.on_pend(exception)
 
     # -- SysTick (B3.3) -------------------------------------------------------------------
 
@@ -249,6 +264,7 @@ class Nvic:
 
     def write(self, address: int, value: int, mask: int) -> None:
         """One word of the system control space; `mask` holds the written byte lanes."""
+        self.changed = True  # an enable, a priority or a pend may let something preempt
         if address == SYST_CSR:
             was = self.syst_csr & 1
             self.syst_csr = (self.syst_csr & ~mask | value & mask) & 0x7
@@ -265,7 +281,6 @@ class Nvic:
             return
         if NVIC_ISER <= address < NVIC_ISER + 12:
             self.enabled |= (value & mask) << (32 * ((address & 0x7F) // 4))
-            self.on_pend()  # an enabled pending interrupt may now preempt
             return
         if NVIC_ICER <= address < NVIC_ICER + 12:
             self.enabled &= ~((value & mask) << (32 * ((address & 0x7F) // 4)))
@@ -305,7 +320,6 @@ class Nvic:
                 self.aircr_prigroup = (value >> 8) & 7
                 if value & (1 << 2):  # SYSRESETREQ
                     self.reset_requested = True
-                    self.on_pend()
             return
         if address == SCB_CCR:
             self.ccr = value & 0x31B
@@ -321,6 +335,19 @@ class Nvic:
             return
 
 
+class Observer:
+    """What the core tells an instrument about exceptions (the default does nothing)."""
+
+    def entered(self, exception: int, interrupted: int | None) -> None:
+        """The handler of `exception` is about to run its first instruction: taken from the
+        code whose next instruction is at `interrupted` (thread mode or a handler it
+        preempts), or with None tail-chained onto the handler that just returned."""
+
+    def returned(self, exception: int, chained: int | None) -> None:
+        """The handler of `exception` returned; `chained` is the exception tail-chained
+        next, or None when the core unstacks to the code it interrupted."""
+
+
 class Core:
     """Unicorn plus the exception model. `run(count)` executes one slice."""
 
@@ -332,15 +359,76 @@ class Core:
         self.exceptions_taken = 0
         self.tail_chains = 0
         self.max_nesting = 0
-        self.idle_address: int | None = None
         self.stop_reason = ""
         self.on_return = lambda: None
+        self.observer = Observer()
+        # Core clock cycles run so far (see the module's "Time"); `running` while unicorn
+        # executes instructions.
+        self.cycles = 0
+        self.running = False
+        self.cost = None  # precise mode: (address, size) -> cycles of that instruction
+        self._stop_at = 0
+        # Precise mode, per instruction address: the end of the IT block it starts (or 0),
+        # and whether it may lower PRIMASK or BASEPRI (CPS, MSR).
+        self._decoded: dict[int, tuple[int, bool]] = {}
+        self._it_block = (0, 0)
+        self._recheck = True  # whether to look for a preempting exception at the next one
 
     def reg(self, r: int) -> int:
         return self.uc.reg_read(r)
 
     def mask_levels(self) -> tuple[int, int]:
         return self.reg(arm.UC_ARM_REG_PRIMASK), self.reg(arm.UC_ARM_REG_BASEPRI)
+
+    # -- precise mode -------------------------------------------------------------------------
+
+    def precise(self, cost=None) -> None:
+        """Switches to precise mode (see the module's doc). `cost(address, size)` gives the
+        cycles of the instruction about to run; it is called once per executed instruction,
+        so it is also where an instrument looks at each one."""
+        if self.cost is None:
+            self.uc.hook_add(UC_HOOK_CODE, self._on_code)
+        self.cost = cost or (lambda _address, _size: 1)
+
+    def _on_code(self, uc, address, size, _user) -> None:
+        start, end = self._it_block
+        decoded = self._decoded.get(address)
+        if decoded is None:
+            decoded = self._decoded[address] = self._decode(address, size)
+        if not start < address < end:
+            if self.cycles >= self._stop_at:
+                self.stop_reason = "slice"
+                uc.emu_stop()  # before this instruction: it runs in the next slice
+                return
+            nvic = self.nvic
+            if self._recheck or nvic.changed:
+                self._recheck = nvic.changed = False
+                if nvic.pending and nvic.preempting(*self.mask_levels()) is not None:
+                    self.stop_reason = "preempt"
+                    uc.emu_stop()
+                    return
+            if decoded[0]:
+                self._it_block = (address, decoded[0])
+        if decoded[1]:
+            self._recheck = True  # the masks may have come down
+        self.cycles += self.cost(address, size)
+
+    def _decode(self, address: int, size: int) -> tuple[int, bool]:
+        """(the address after the IT block the instruction at `address` starts, or 0;
+        whether it is CPS or MSR). IT is 0xBFxy with a mask y != 0 (ARMv7-M ARM A7.7.38),
+        CPS 0xB66x (A7.7.24), MSR 0xF38x then a second half-word (A7.7.83)."""
+        first = int.from_bytes(bytes(self.uc.mem_read(address, 2)), "little")
+        if size == 4:
+            return 0, first & 0xFFF0 == 0xF380
+        mask = first & 0xF
+        if first & 0xFF00 != 0xBF00 or not mask:
+            return 0, first & 0xFFE8 == 0xB660
+        count = 4 - (mask & -mask).bit_length() + 1
+        end = address + 2
+        for _ in range(count):
+            half = int.from_bytes(bytes(self.uc.mem_read(end, 2)), "little")
+            end += 4 if half >> 11 in (0b11101, 0b11110, 0b11111) else 2
+        return end, False
 
     # -- exception entry and return (B1.5.6, B1.5.8) ---------------------------------------
 
@@ -358,7 +446,7 @@ class Core:
         uc.mem_write(frame_sp, b"".join(w.to_bytes(4, "little") for w in words))
         uc.reg_write(arm.UC_ARM_REG_SP, frame_sp)
 
-    def _enter(self, exception: int) -> None:
+    def _enter(self, exception: int, interrupted: int | None) -> None:
         nvic = self.nvic
         nvic.pending.discard(exception)
         nested = bool(nvic.active_stack)
@@ -367,25 +455,28 @@ class Core:
         self.exceptions_taken += 1
         self.uc.reg_write(arm.UC_ARM_REG_LR, EXC_RETURN_HANDLER if nested else EXC_RETURN_THREAD)
         self.uc.reg_write(arm.UC_ARM_REG_PC, self.vectors_at(exception) | 1)
+        self._it_block = (0, 0)
+        self.observer.entered(exception, interrupted)
 
     def take(self, exception: int, pc: int) -> None:
         """Exception entry from the current context, whose next instruction is at `pc`."""
         self._push_frame(pc & ~1)
-        self._enter(exception)
+        self._enter(exception, pc & ~1)
 
     def exception_return(self) -> None:
         """The handler branched to EXC_RETURN: tail-chain or unstack (B1.5.8)."""
         nvic = self.nvic
         if not nvic.active_stack:
             raise RuntimeError("exception return in thread mode")
-        nvic.active_stack.pop()
+        returning = nvic.active_stack.pop()
         self.on_return()  # level-sensitive lines still asserted pend again
         primask, basepri = self.mask_levels()
         nxt = nvic.preempting(primask, basepri)
+        self.observer.returned(returning, nxt)
         if nxt is not None:
             # Tail-chaining: the stacked frame stays, the next handler starts at once.
             self.tail_chains += 1
-            self._enter(nxt)
+            self._enter(nxt, None)
             return
         uc = self.uc
         sp = uc.reg_read(arm.UC_ARM_REG_SP)
@@ -398,6 +489,7 @@ class Core:
         uc.reg_write(arm.UC_ARM_REG_SP, new_sp)
         uc.reg_write(arm.UC_ARM_REG_PC, words[6] | 1)
         uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr & ~(1 << 9))
+        self._it_block = (0, 0)
 
     def check_preemption(self) -> bool:
         """At a slice boundary: take the most urgent exception that beats the execution
@@ -415,18 +507,27 @@ class Core:
     # -- running --------------------------------------------------------------------------
 
     def run(self, count: int) -> None:
-        """Runs up to `count` instructions from the current PC."""
+        """Runs one slice of `count` cycles from the current PC: `count` instructions, or in
+        precise mode until their costs add up to `count` (an IT block is finished first)."""
         if self.locked_up:
             return
         uc = self.uc
         pc = uc.reg_read(arm.UC_ARM_REG_PC)
         self.stop_reason = ""
+        if self.cost is None:
+            self.cycles += count
+        else:
+            self._stop_at = self.cycles + count
+            self._recheck = True
+            count += 8  # the hook ends the slice; room to finish an IT block
+        self.running = True
         try:
             uc.emu_start(pc | 1, 0xFFFF_FFFF, count=count)
         except UcError as error:
             pc = uc.reg_read(arm.UC_ARM_REG_PC)
             if pc >= 0xFFFF_FFE0:  # EXC_RETURN with bit 0 cleared by the branch
                 self.stop_reason = "return"
+                self.running = False
                 self.exception_return()
                 return
             if pc >= 2 and int.from_bytes(bytes(uc.mem_read(pc - 2, 2)), "little") == 0xBF10:
@@ -437,6 +538,8 @@ class Core:
             # A fault: the firmware's HardFault handler would spin; stay there.
             self.stop_reason = f"fault at {pc:#010x}: {error}"
             self.locked_up = True
+        finally:
+            self.running = False
 
 
 def make_uc() -> Uc:

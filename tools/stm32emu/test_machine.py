@@ -8,8 +8,7 @@ from pathlib import Path
 
 import pytest
 
-import machine
-import periph
+from stm32emu import machine, periph
 
 ROOT = Path(__file__).resolve().parents[2]
 ELF = Path(
@@ -162,3 +161,48 @@ def test_time_jumps_from_event_to_event_after_a_timed_hold():
         if done:
             break
     assert done and done[0] - start == pytest.approx(27.4, abs=0.1), f"{m.ms() - start:.3f} ms"
+
+
+def test_the_memory_map_is_the_linker_scripts():  # image.py, RM0008 30.1
+    m = machine.Machine(str(ELF))
+    memory = m.image.memory
+    assert m.fpec.base == memory.storage.origin and len(m.fpec.memory) == memory.storage.length
+    size = int.from_bytes(m.uc.mem_read(machine.FLASH_SIZE_REGISTER, 2), "little")
+    assert size == (memory.flash_end - memory.flash_base) // 1024 == 64
+    start, data = m.image.segments[0]
+    assert bytes(m.uc.mem_read(start, 16)) == data[:16]
+
+
+def test_unmodelled_registers_read_back_with_their_byte_lanes():
+    m = machine.Machine(str(ELF))
+    usart1 = 0x4001_3800 - machine.PERIPH_BASE  # no model: plain memory
+    m._periph_write(None, usart1, 4, 0x1234_5678, None)
+    m._periph_write(None, usart1 + 2, 1, 0xAB, None)
+    assert m._periph_read(None, usart1, 4, None) == 0x12AB_5678
+    assert m._periph_read(None, usart1 + 1, 2, None) == 0xAB56
+
+
+def test_bit_band_alias_reaches_the_peripheral_bit():  # PM0056 2.2.5
+    m = machine.Machine(str(ELF))
+    apb1enr = periph.RCC_BASE + 0x1C
+    alias = (apb1enr - machine.PERIPH_BASE) * 32 + 25 * 4  # CANEN
+    m._bb_write(None, alias, 4, 1, None)
+    assert m._read_word(apb1enr) == 1 << 25 and m._bb_read(None, alias, 4, None) == 1
+    m._bb_write(None, alias, 4, 0, None)
+    assert m._read_word(apb1enr) == 0
+
+
+def test_precise_mode_runs_the_image_as_the_board_does():
+    """The same boot in precise mode (one cycle per instruction, exceptions taken at the
+    instruction boundary): boot-up, watchdog, a wheel edge; time is what ran."""
+    m = machine.Machine(str(ELF))
+    m.core.precise()
+    m.run_ms(300)
+    assert [(f.can_id, f.data) for _, f in m.transmitted][:1] == [(0x710, b"\x00")]
+    assert m.iwdg.running and m.iwdg.feeds > 20 and m.stats.resets == ["0.0 ms PowerOn"]
+    taken = m.core.exceptions_taken
+    cycles = m.core.cycles
+    m.set_ab(1)
+    m.run_ms(1)
+    assert m.exti.pr == 0 and m.core.exceptions_taken > taken
+    assert 0 < m.core.cycles - cycles < 72_000, "busy only for what its instructions took"

@@ -1,14 +1,16 @@
 """The emulated Blue Pill: the release ELF on the Cortex-M3 core of `cortex.py` with the
 peripherals of `periph.py`, the pins of the handwheel (wheel, switches, DIP switch, LEDs)
 and a CAN bus whose other node is the host. No I/O and no wall clock here: `run_until`
-moves emulated time on; `server.py` paces it and connects it to TCP.
+moves emulated time on; the board emulator (`tools/board-emu/server.py`) paces it and
+connects it to TCP, the machine benchmark (`tools/machine-bench`) measures it.
 
-Memory map (RM0008 3.3, figure 2): flash 64 KiB at 0x0800_0000, of which the last 1 KiB
-page (the parameter page, `board/memory.x`) is served by the FPEC model and persisted in a
-file; the rest is read/execute only, so a stray write faults. SRAM 20 KiB at 0x2000_0000,
-the system memory with the unique device ID (RM0008 30.2) and the flash size register
-(30.1), the peripherals at 0x4000_0000 with their bit-band alias, and the Cortex-M3's
-private peripheral bus (NVIC, SCB, SysTick, DBGMCU).
+Memory map: flash, its parameter page and SRAM as the linker script gives them (`image.py`
+reads `board/memory.x`: 63 KiB FLASH at 0x0800_0000, the 1 KiB STORAGE page after it, 20 KiB
+RAM at 0x2000_0000). The parameter page is served by the FPEC model and persisted in a file;
+the rest of the flash is read/execute only, so a stray write faults. The chip's own regions
+(RM0008 3.3, figure 2): the system memory with the unique device ID (RM0008 30.2) and the
+flash size register (30.1), the peripherals at 0x4000_0000 with their bit-band alias
+(PM0056 2.2.5), and the Cortex-M3's private peripheral bus (NVIC, SCB, SysTick, DBGMCU).
 """
 
 from __future__ import annotations
@@ -16,19 +18,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
-from elftools.elf.elffile import ELFFile
 from unicorn import UC_PROT_EXEC, UC_PROT_READ
 from unicorn import arm_const as arm
 
-import cortex
-import periph
+from . import cortex, periph
+from .image import Image
 
-FLASH_BASE = 0x0800_0000
-FLASH_SIZE = 0x1_0000
-PAGE_BASE = 0x0800_FC00
-PAGE_SIZE = 0x400
-RAM_BASE = 0x2000_0000
-RAM_SIZE = 20 * 1024
 SYSTEM_MEMORY = 0x1FFF_F000
 UNIQUE_ID = 0x1FFF_F7E8
 FLASH_SIZE_REGISTER = 0x1FFF_F7E0
@@ -64,60 +59,44 @@ class LedChange:
 
 
 @dataclass
-class Image:
-    segments: list[tuple[int, bytes]]
-    symbols: dict[str, int]
-
-    @classmethod
-    def load(cls, path: str) -> "Image":
-        with open(path, "rb") as f:
-            elf = ELFFile(f)
-            segments = [
-                (seg["p_paddr"], seg.data())
-                for seg in elf.iter_segments()
-                if seg["p_type"] == "PT_LOAD" and seg["p_filesz"] > 0
-            ]
-            symbols = {}
-            symtab = elf.get_section_by_name(".symtab")
-            for sym in symtab.iter_symbols() if symtab else []:
-                if sym.name:
-                    symbols.setdefault(sym.name, sym["st_value"])
-        return cls(segments, symbols)
-
-
-@dataclass
 class Stats:
     resets: list[str] = field(default_factory=list)
     slices: int = 0
 
 
 class Machine:
-    """The board. `flash_file` holds the parameter page across power cycles (None: kept in
-    memory only)."""
+    """The board running `elf` (a path or a loaded `Image`). `flash_file` holds the
+    parameter page across power cycles (None: kept in memory only)."""
 
-    def __init__(self, elf: str, flash_file: str | None = None, unique_id: bytes | None = None):
-        self.image = Image.load(elf)
+    def __init__(
+        self, elf: str | Image, flash_file: str | None = None, unique_id: bytes | None = None
+    ):
+        self.image = elf if isinstance(elf, Image) else Image(elf)
+        memory = self.image.memory
+        self.flash = memory.flash
+        self.ram = memory.ram
+        page = memory.storage
         self.flash_file = flash_file
         self.unique_id = unique_id or bytes.fromhex("3a0035000d5731343932353c")
         self.now = 0
         self.nvic = cortex.Nvic()
         self.uc = uc = cortex.make_uc()
-        uc.mem_map(FLASH_BASE, PAGE_BASE - FLASH_BASE, UC_PROT_READ | UC_PROT_EXEC)
-        uc.mem_write(FLASH_BASE, b"\xff" * (PAGE_BASE - FLASH_BASE))
-        page = bytearray(b"\xff" * PAGE_SIZE)
+        uc.mem_map(self.flash.origin, self.flash.length, UC_PROT_READ | UC_PROT_EXEC)
+        uc.mem_write(self.flash.origin, b"\xff" * self.flash.length)
+        stored_page = bytearray(b"\xff" * page.length)
         if flash_file and os.path.exists(flash_file):
             with open(flash_file, "rb") as f:
-                stored = f.read(PAGE_SIZE)
-            page[: len(stored)] = stored
+                stored = f.read(page.length)
+            stored_page[: len(stored)] = stored
         for address, data in self.image.segments:
-            if FLASH_BASE <= address < PAGE_BASE:
-                uc.mem_write(address, data[: PAGE_BASE - address])
-        self.fpec = periph.Fpec(PAGE_BASE, page)
-        uc.mmio_map(PAGE_BASE, PAGE_SIZE, self._page_read, None, self._page_write, None)
-        uc.mem_map(RAM_BASE, RAM_SIZE)
+            uc.mem_write(address, data)
+        self.fpec = periph.Fpec(page.origin, stored_page)
+        uc.mmio_map(page.origin, page.length, self._page_read, None, self._page_write, None)
+        uc.mem_map(self.ram.origin, self.ram.length)
         uc.mem_map(SYSTEM_MEMORY, 0x1000, UC_PROT_READ)
         uc.mem_write(UNIQUE_ID, self.unique_id)
-        uc.mem_write(FLASH_SIZE_REGISTER, (64).to_bytes(2, "little"))
+        size_kib = (memory.flash_end - memory.flash_base) // 1024
+        uc.mem_write(FLASH_SIZE_REGISTER, size_kib.to_bytes(2, "little"))
         uc.mmio_map(PERIPH_BASE, PERIPH_SIZE, self._periph_read, None, self._periph_write, None)
         uc.mmio_map(BITBAND_BASE, BITBAND_SIZE, self._bb_read, None, self._bb_write, None)
         uc.mmio_map(PPB_BASE, PPB_SIZE, self._ppb_read, None, self._ppb_write, None)
@@ -174,9 +153,9 @@ class Machine:
     # -- vectors and idle ---------------------------------------------------------------------
 
     def _vector(self, exception: int) -> int:
-        base = self.nvic.vtor or FLASH_BASE
-        if base < FLASH_BASE:
-            base += FLASH_BASE  # address 0 aliases the boot flash (RM0008 3.4)
+        base = self.nvic.vtor or self.flash.origin
+        if base < self.flash.origin:
+            base += self.flash.origin  # address 0 aliases the boot flash (RM0008 3.4)
         return int.from_bytes(self.uc.mem_read(base + 4 * exception, 4), "little")
 
     # -- memory-mapped I/O -------------------------------------------------------------------
@@ -387,7 +366,7 @@ class Machine:
 
     def power_on(self) -> None:
         """Power-on reset: SRAM content lost, PORRSTF and PINRSTF (RM0008 7.1.2)."""
-        self.uc.mem_write(RAM_BASE, bytes(RAM_SIZE))
+        self.uc.mem_write(self.ram.origin, bytes(self.ram.length))
         self.rcc.csr_flags = periph.Rcc.PORRSTF | periph.Rcc.PINRSTF
         self._reset("PowerOn")
 
@@ -401,8 +380,9 @@ class Machine:
         self.stats.resets.append(f"{self.ms():.1f} ms {cause}")
         self.last_reset_ms = self.ms()
         self.nvic.reset()
-        # A pend during a slice is taken at its end (`Nvic.on_pend` stays a no-op): stopping
-        # unicorn from a memory callback makes it run the storing instruction again.
+        # A pend during a slice is taken at its end, or in precise mode before the next
+        # instruction (stopping unicorn from a memory callback would make it run the storing
+        # instruction again).
         self.nvic.now = self.now
         self.rcc.reset()
         for gpio in self.gpio.values():
@@ -480,31 +460,42 @@ class Machine:
             self.rcc.csr_flags |= periph.Rcc.SFTRSTF
             self._reset("Software")
 
-    def step(self) -> None:
-        """One slice of the CPU (or a jump over idle, a flash stall or a lock-up)."""
+    def step(self, idle_jump: bool = True) -> bool:
+        """One slice of the CPU (or a jump over idle, a flash stall or a lock-up). Returns
+        whether the CPU went idle: thread mode's YIELD with nothing it would take; then time
+        jumps to the next event (with `idle_jump`; else it stays where the CPU stopped)."""
         target = self.next_event()
         if self.core.locked_up or self.stall_until > self.now:
             # A lock-up, or the CPU waiting for a flash operation (PM0075 2.3.1): time
             # passes, the peripherals work, no instruction runs, no exception is taken.
             self._advance_to(max(target, self.now + 1))
-            return
+            return False
+        before = self.core.cycles
         self.core.check_preemption()
         count = min(SLICE, target - self.now)
         self.core.run(count)
         self.stats.slices += 1
+        # The whole slice, or in precise mode what its instructions and exception entries
+        # and returns took.
+        elapsed = self.core.cycles - before
         # The idle task's `spin_loop` (YIELD) in thread mode: the CPU has nothing to do.
         if self.core.stop_reason == "yield" and not self.nvic.active_stack:
             primask, basepri = self.core.mask_levels()
             if self.nvic.preempting(primask, basepri) is None:
                 # Idle until the next event: nothing else can happen before it.
-                self._advance_to(max(target, self.now + 1))
-                return
+                if idle_jump:
+                    target = max(target, self.now + max(elapsed, 1))
+                else:
+                    target = self.now + elapsed
+                self._advance_to(target)
+                return True
         if self.core.stop_reason == "return":
             self.update_irqs()
-        self._advance_to(self.now + count)
+        self._advance_to(self.now + elapsed)
         stall = self.fpec.take_stall()
         if stall:
             self.stall_until = self.now + stall
+        return False
 
     def run_until(self, cycle: int) -> None:
         while self.now < cycle:
@@ -526,7 +517,7 @@ class Machine:
         _name, buf, size, write, read, _flags = (
             int.from_bytes(raw[i : i + 4], "little") for i in range(0, 24, 4)
         )
-        if not size or write == read or not RAM_BASE <= buf < RAM_BASE + RAM_SIZE:
+        if not size or write == read or buf not in self.ram:
             return b""
         if write > read:
             data = bytes(self.uc.mem_read(buf + read, write - read))

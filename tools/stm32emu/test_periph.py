@@ -3,8 +3,8 @@ the section of RM0008 (or PM0075 for the FPEC) it checks."""
 
 import pytest
 
-import periph
-from periph import Bxcan, Exti, Fpec, Frame, Gpio, Iwdg, Rcc
+from stm32emu import periph
+from stm32emu.periph import Bxcan, Exti, Fpec, Frame, Gpio, Iwdg, Rcc
 
 ALL = 0xFFFF_FFFF
 

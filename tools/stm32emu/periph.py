@@ -470,6 +470,7 @@ class Bxcan:
 
     def __init__(self, on_transmit) -> None:
         self.on_transmit = on_transmit  # called with (Frame) when a frame has gone out
+        self.on_request = lambda box: None  # called when TXRQ makes a mailbox pending
         self.bus_bitrate: int | None = None  # None: whatever BTR says
         self.bus_hold_until: int | None = 0  # frames wait while now < this (None: for ever)
         # The bus is stuck dominant while now < this (None: for ever): nothing synchronises.
@@ -655,6 +656,7 @@ class Bxcan:
             if reg == 0 and value & 1:
                 self.pending_order.append(box)
                 self.tsr_flags &= ~(0xF << (8 * box))
+                self.on_request(box)
         elif offset == 0x200:
             self.fmr = merge(self.fmr, value, mask) & 0x0000_3F01
         elif self.fmr & 1 and offset in (0x204, 0x20C, 0x214):

@@ -5,8 +5,8 @@ import pytest
 from unicorn import UcError
 from unicorn import arm_const as arm
 
-import cortex
-from cortex import IRQ_BASE, Core, Nvic
+from stm32emu import cortex
+from stm32emu.cortex import IRQ_BASE, Core, Nvic
 
 CODE = 0x0800_0000
 RAM = 0x2000_0000
@@ -202,3 +202,139 @@ def test_aircr_sysresetreq_needs_the_key():  # B3.2.6
     assert not nvic.reset_requested
     nvic.write(cortex.SCB_AIRCR, 0x05FA_0004, 0xFFFF_FFFF)
     assert nvic.reset_requested
+
+
+# -- precise mode --------------------------------------------------------------------------
+
+STR_R1_R2 = 0x6011  # str r1, [r2]
+ADDS_R6_1 = 0x3601
+ADDS_R7_1 = 0x3701
+CMP_R0_R0 = 0x4280
+ITT_EQ = 0xBF04
+MSR_BASEPRI_R3 = (0xF383, 0x8811)
+B_SELF_AT = CODE + 0x40  # the thread programs below start here
+
+
+class Recorder(cortex.Observer):
+    """The observer's calls, in order."""
+
+    def __init__(self) -> None:
+        self.calls = []
+
+    def entered(self, exception, interrupted):
+        self.calls.append(("entered", exception - IRQ_BASE, interrupted))
+
+    def returned(self, exception, chained):
+        self.calls.append(("returned", exception - IRQ_BASE, chained and chained - IRQ_BASE))
+
+
+@pytest.fixture
+def precise(core):
+    """The core in precise mode, the system control space mapped (stores reach the NVIC),
+    r2 pointing at STIR, r1 = 0 (a store pends IRQ 0), and an observer."""
+
+    def read(_uc, offset, size, _user):
+        word = core.nvic.read(0xE000_E000 + (offset & ~3))
+        return (word >> ((offset & 3) * 8)) & ((1 << (size * 8)) - 1)
+
+    def write(_uc, offset, size, value, _user):
+        shift = (offset & 3) * 8
+        mask = ((1 << (size * 8)) - 1) << shift
+        core.nvic.write(0xE000_E000 + (offset & ~3), (value << shift) & mask, mask)
+
+    core.uc.mmio_map(0xE000_E000, 0x1000, read, None, write, None)
+    core.uc.reg_write(arm.UC_ARM_REG_R2, cortex.NVIC_STIR)
+    core.uc.reg_write(arm.UC_ARM_REG_R1, 0)
+    core.observer = Recorder()
+    core.precise()
+    return core
+
+
+def program(core, *words):
+    """Thread mode runs `words`, then `b .`."""
+    core.uc.mem_write(B_SELF_AT, halfwords(*words, B_SELF))
+    core.uc.reg_write(arm.UC_ARM_REG_PC, B_SELF_AT | 1)
+
+
+def test_precise_slice_ends_when_its_cycles_are_spent(core):
+    program(core, *[ADDS_R6_1] * 8)
+    core.precise(lambda _address, _size: 3)
+    core.run(7)  # three instructions: 9 cycles, the first to reach 7
+    assert core.uc.reg_read(arm.UC_ARM_REG_R6) == 3 and core.cycles == 9
+    assert core.stop_reason == "slice" and core.uc.reg_read(arm.UC_ARM_REG_PC) == B_SELF_AT + 6
+
+
+def test_slices_charge_their_whole_count_without_precise_mode(core):  # the board's time
+    program(core, ADDS_R6_1, ADDS_R6_1)
+    core.run(50)
+    assert core.cycles == 50
+
+
+def test_precise_a_store_that_pends_preempts_before_the_next_instruction(precise):
+    """B1.5.6: an exception that becomes pending and beats the execution priority is taken
+    at the next instruction boundary; the frame returns to that instruction."""
+    program(precise, STR_R1_R2, ADDS_R6_1)
+    precise.run(100)
+    assert precise.stop_reason == "preempt" and precise.uc.reg_read(arm.UC_ARM_REG_R6) == 0
+    assert precise.check_preemption()
+    assert precise.observer.calls == [("entered", 0, B_SELF_AT + 2)]
+    frame_sp = precise.uc.reg_read(arm.UC_ARM_REG_SP)
+    assert int.from_bytes(precise.uc.mem_read(frame_sp + 24, 4), "little") == B_SELF_AT + 2
+    for _ in range(3):
+        precise.check_preemption()
+        precise.run(100)
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R4) == 1, "the handler ran"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R6) == 1, "then the interrupted code went on"
+    assert precise.observer.calls[1:] == [("returned", 0, None)]
+
+
+def test_precise_never_stops_inside_an_it_block(precise):
+    """The frame does not carry the IT state here, so a pend inside an IT block is taken
+    after the block (ARMv7-M takes it inside and keeps ITSTATE in the stacked xPSR)."""
+    program(precise, CMP_R0_R0, ITT_EQ, STR_R1_R2, ADDS_R6_1, ADDS_R7_1)
+    precise.run(100)
+    assert precise.stop_reason == "preempt"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R6) == 1, "the block's second instruction ran"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R7) == 0
+    assert precise.uc.reg_read(arm.UC_ARM_REG_PC) == B_SELF_AT + 8
+
+
+def test_precise_lowering_basepri_lets_the_pending_one_in_at_once(precise):  # B1.4.3, B5.2.3
+    set_priority(precise.nvic, 0, 0x40)
+    precise.uc.reg_write(arm.UC_ARM_REG_BASEPRI, 0x40)
+    precise.uc.reg_write(arm.UC_ARM_REG_R3, 0)
+    program(precise, STR_R1_R2, ADDS_R6_1, *MSR_BASEPRI_R3, ADDS_R7_1)
+    precise.run(100)
+    assert precise.stop_reason == "preempt"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R6) == 1, "masked: the store did not preempt"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_PC) == B_SELF_AT + 8, "right after the MSR"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R7) == 0
+
+
+def test_observer_sees_nesting_and_tail_chaining(precise):  # B1.5.4, B1.5.12
+    set_priority(precise.nvic, 2, 0x80)
+    set_priority(precise.nvic, 0, 0x40)
+    set_priority(precise.nvic, 1, 0x40)
+    precise.nvic.set_pending(IRQ_BASE + 2)  # the handler that spins
+    run(precise, 2)
+    precise.nvic.set_pending(IRQ_BASE + 0)
+    precise.nvic.set_pending(IRQ_BASE + 1)
+    run(precise, 4)
+    assert precise.observer.calls == [
+        ("entered", 2, THREAD),
+        ("entered", 0, SPIN),  # preempts the spinning handler
+        ("returned", 0, 1),  # and tail-chains into the other one of its priority
+        ("entered", 1, None),
+        ("returned", 1, None),  # back to the spinning handler
+    ]
+    assert precise.nvic.active_stack == [IRQ_BASE + 2]
+
+
+def test_on_pend_names_the_exception():
+    nvic = Nvic()
+    pends = []
+    nvic.on_pend = pends.append
+    nvic.write(cortex.NVIC_STIR, 5, 0xFFFF_FFFF)
+    nvic.set_pending(IRQ_BASE + 5)  # already pending: no second call
+    nvic.write(cortex.SCB_ICSR, 1 << 26, 0xFFFF_FFFF)
+    assert pends == [IRQ_BASE + 5, cortex.SYSTICK]
