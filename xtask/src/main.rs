@@ -11,6 +11,7 @@ mod linuxcnc;
 mod machine_bench;
 mod pyenv;
 mod qemu;
+mod wiring;
 
 use std::env;
 use std::os::unix::process::CommandExt;
@@ -58,6 +59,9 @@ tasks:
                                         the QEMU variant or (--board) the emulated board
   demo [--script] [--board]             the handwheel in QEMU (or on the emulated board) with a
                                         live python-canopen master
+  docs [--check]                        re-render docs/wiring/handwheel.svg from handwheel.yml
+                                        (WireViz, Graphviz), then check it against the pin
+                                        map; --check: only the check (no Graphviz)
   bench                                 1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
@@ -78,6 +82,7 @@ fn main() -> ExitCode {
         Some("linuxcnc-test") => linuxcnc_suite(rest),
         Some("demo") => demo(rest),
         Some("bench") => bench(),
+        Some("docs") => docs(rest),
         _ => {
             eprintln!("{USAGE}");
             return ExitCode::from(2);
@@ -100,6 +105,7 @@ fn test() -> Result<(), String> {
     cargo(&["test", "--locked"])?;
     random_frames()?;
     host_tests(&[])?;
+    wiring_check()?;
     cargo(&[
         "clippy",
         "--locked",
@@ -488,6 +494,37 @@ fn host_tests(pytest_args: &[String]) -> Result<(), String> {
     let extra: Vec<&str> = pytest_args.iter().map(String::as_str).collect();
     pyenv::run(&mut pyenv::host_pytest(&root, &python, &extra))
         .map_err(|e| format!("the component's unit tests failed: {e}"))
+}
+
+/// `cargo xtask docs [--check]`: re-renders the wiring diagram (unless `--check`), then
+/// checks it against the firmware's and the README's pin maps.
+fn docs(args: &[String]) -> Result<(), String> {
+    let check_only = match args {
+        [] => false,
+        [flag] if flag == "--check" => true,
+        _ => return Err(format!("usage: cargo xtask docs [--check]\n\n{USAGE}")),
+    };
+    if !check_only {
+        let root = workspace_root();
+        let python = wiring::python(&root, &target_dir())?;
+        wiring::require_dot()?;
+        pyenv::run(&mut wiring::render(&python, &root))
+            .map_err(|e| format!("rendering the wiring diagram failed: {e}"))?;
+    }
+    wiring_check()
+}
+
+/// The wiring diagram's checks (`tools/wiring/test_wiring.py`) in `target/wiring-venv`: the
+/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp.
+fn wiring_check() -> Result<(), String> {
+    let root = workspace_root();
+    let python = wiring::python(&root, &target_dir())?;
+    pyenv::run(&mut wiring::tests(&python, &root, &[])).map_err(|e| {
+        format!(
+            "the wiring diagram's checks failed: {e}\n(after changing docs/wiring/handwheel.yml, \
+             re-render with `cargo xtask docs`)"
+        )
+    })
 }
 
 /// The LinuxCNC suite (`tests/linuxcnc`): the QEMU handwheel and the component in the real

@@ -1,0 +1,45 @@
+//! The wiring diagram (`tools/wiring`): `docs/wiring/handwheel.yml`, rendered by WireViz
+//! through Graphviz into `docs/wiring/handwheel.svg`, and its checks against the firmware's
+//! pin map (the table in `src/board/pins.rs`) and the README's.
+//!
+//! `cargo xtask docs` re-renders the SVG (WireViz from the pinned venv `target/wiring-venv`,
+//! Graphviz's `dot` installed with apt-get when root and missing), then runs the checks;
+//! `cargo xtask docs --check` and `cargo xtask test` run only the checks, which need no
+//! Graphviz: they read the YAML, the firmware's table, the README and the committed SVG.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::{host, pyenv};
+
+/// The package (render script, checks), relative to the workspace root.
+pub const PACKAGE: &str = "tools/wiring";
+/// Its pinned requirements (WireViz, PyYAML, pytest and their dependencies).
+pub const REQUIREMENTS: &str = "tools/wiring/requirements.txt";
+
+/// The venv's interpreter, made from [`REQUIREMENTS`] if needed.
+pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
+    pyenv::ensure_from(&root.join(REQUIREMENTS), &target_dir.join("wiring-venv"))
+}
+
+/// Graphviz's `dot` (Debian package `graphviz`), installed as root when missing.
+pub fn require_dot() -> Result<PathBuf, String> {
+    host::require("dot", &["graphviz"])
+}
+
+/// `python tools/wiring/render.py`: writes the SVG with its source stamp.
+pub fn render(python: &Path, root: &Path) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.arg(root.join(PACKAGE).join("render.py"))
+        .current_dir(root);
+    cmd
+}
+
+/// The checks under pytest (no cache folder left in the source tree).
+pub fn tests(python: &Path, root: &Path, extra: &[&str]) -> Command {
+    let mut cmd = Command::new(python);
+    cmd.args(["-m", "pytest", "-p", "no:cacheprovider", PACKAGE, "-q"])
+        .args(extra)
+        .current_dir(root);
+    cmd
+}
