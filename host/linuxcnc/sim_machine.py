@@ -164,7 +164,19 @@ class SimMachine:
         return reply
 
     def stop(self, timeout: float = 30) -> None:
-        """Asks the display to quit (LinuxCNC shuts down); forces it after `timeout`."""
+        """Asks the display to quit (LinuxCNC shuts down); forces it after `timeout`; then
+        removes the configuration's folder."""
+        self.shutdown(timeout)
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        self._log.close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def shutdown(self, timeout: float = 30) -> None:
+        """Asks the display to quit, so that LinuxCNC shuts down as it does when its user
+        quits; forces it after `timeout`. The configuration's folder (and what was written
+        there) stays until `stop`."""
         if self.proc.poll() is None and self._sock is not None:
             try:
                 self.call("quit")
@@ -197,7 +209,3 @@ class SimMachine:
                 stderr=subprocess.STDOUT,
                 timeout=60,
             )
-        if self._sock is not None:
-            self._sock.close()
-        self._log.close()
-        shutil.rmtree(self.dir, ignore_errors=True)

@@ -5,6 +5,13 @@ where any number of python-can `slcan` clients (`socket://127.0.0.1:<port>`) con
 frame from the device goes to all of them, every frame from a client to the device and to
 the other clients, as on a bus. Channel commands from clients (`O`, `C`, `S8`, ...) are
 answered `\\r` locally and not passed on: the device's channel is open from its power-on.
+
+The LinuxCNC suite also uses it to make faults: the device gone and another one on the bus
+(`attach` a new upstream port after the emulator was restarted; the clients stay connected
+meanwhile, as on a bus whose one node was unplugged), a client's line that breaks
+(`break_clients`: its connection closed, new ones refused for a while, as a CAN adapter
+that errors and comes back; `protect_current` spares the test's listener) and a device that
+does not answer (`mute`: nothing from it reaches the clients for a while).
 """
 
 from __future__ import annotations
@@ -30,9 +37,48 @@ class SlcanHub:
         self._stop = threading.Event()
         self._clients: List[socket.socket] = []
         self._buffers = {}
+        self._protected: set = set()
+        self._refuse_until = 0.0
+        self._mute_until = 0.0
+        self._lock = threading.Lock()  # the fault settings, set from the tests' thread
+        self._breaking = False
+        self._attached = threading.Event()
+        self._attached.set()
+        self.upstream_lost = threading.Event()
         self.error: Exception = None
         self.thread = threading.Thread(target=self._run, name="slcan-hub", daemon=True)
         self.thread.start()
+
+    # Faults ----------------------------------------------------------------------------
+
+    def attach(self, upstream_port: int) -> None:
+        """The device's SLCAN port after the old one closed (a restarted emulator)."""
+        self.upstream_port = upstream_port
+        self.upstream_lost.clear()
+        self._attached.set()
+
+    def protect_current(self, count: int = 1, timeout: float = 10) -> None:
+        """Once `count` clients are connected, they survive `break_clients` (the test's
+        listener, connected before anyone else)."""
+        deadline = time.monotonic() + timeout
+        while len(self._clients) < count:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"{len(self._clients)} of {count} clients connected")
+            time.sleep(0.01)
+        with self._lock:
+            self._protected = set(self._clients)
+
+    def break_clients(self, refuse_for: float) -> None:
+        """Closes every unprotected client's connection and, for `refuse_for` seconds,
+        closes new ones as soon as they are accepted."""
+        with self._lock:
+            self._refuse_until = time.monotonic() + refuse_for
+            self._breaking = True
+
+    def mute(self, seconds: float) -> None:
+        """For `seconds`, frames from the device reach no client."""
+        with self._lock:
+            self._mute_until = time.monotonic() + seconds
 
     @property
     def channel(self) -> str:
@@ -59,36 +105,66 @@ class SlcanHub:
             self.error = e
 
     def _loop(self) -> None:
-        up = self._connect_upstream()
-        try:
-            self._pump(up)
-        finally:
-            up.close()
+        while not self._stop.is_set():
+            if not self._attached.wait(0.05):
+                self._pump(None)  # no device: the clients still talk to each other
+                continue
+            up = self._connect_upstream()
+            try:
+                self._pump(up)
+            finally:
+                up.close()
+            if not self._stop.is_set():
+                # The device's port closed (its emulator stopped): wait for `attach`.
+                self._attached.clear()
+                self.upstream_lost.set()
 
-    def _pump(self, up: socket.socket) -> None:
+    def _pump(self, up) -> None:
+        """Moves frames until the upstream closes (or, with `up` None, for one round)."""
         up_buf = b""
         while not self._stop.is_set():
-            readable, _, _ = select.select([up, self.server] + self._clients, [], [], 0.05)
+            self._apply_faults()
+            waiting = [self.server] + self._clients + ([up] if up is not None else [])
+            readable, _, _ = select.select(waiting, [], [], 0.05)
             for s in readable:
                 if s is self.server:
                     conn, _ = self.server.accept()
+                    if time.monotonic() < self._refuse_until:
+                        conn.close()
+                        continue
                     conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                     self._clients.append(conn)
                     self._buffers[conn] = b""
                 elif s is up:
-                    data = up.recv(4096)
+                    try:
+                        data = up.recv(4096)
+                    except OSError:
+                        data = b""
                     if not data:
-                        raise RuntimeError("the device's SLCAN port closed")
+                        return
                     up_buf += data
                     *lines, up_buf = up_buf.split(b"\r")
+                    if time.monotonic() < self._mute_until:
+                        continue
                     for line in lines:
                         line = line.lstrip(b"\x07")
                         if line[:1] and line[:1] in FRAME_COMMANDS:
                             self._send_all(line + b"\r", exclude=None)
-                else:
+                elif s in self._clients:
                     self._from_client(s, up)
+            if up is None:
+                return
 
-    def _from_client(self, s: socket.socket, up: socket.socket) -> None:
+    def _apply_faults(self) -> None:
+        with self._lock:
+            breaking, self._breaking = self._breaking, False
+            protected = set(self._protected)
+        if breaking:
+            for c in list(self._clients):
+                if c not in protected:
+                    self._drop(c)
+
+    def _from_client(self, s: socket.socket, up) -> None:
         try:
             data = s.recv(4096)
         except OSError:
@@ -100,7 +176,11 @@ class SlcanHub:
         *lines, self._buffers[s] = buf.split(b"\r")
         for line in lines:
             if line[:1] and line[:1] in FRAME_COMMANDS:
-                up.sendall(line + b"\r")
+                if up is not None:
+                    try:
+                        up.sendall(line + b"\r")
+                    except OSError:
+                        pass  # the device is going; its port's closing shows next round
                 self._send_all(line + b"\r", exclude=s)
             else:
                 self._send(s, b"\r")

@@ -3,7 +3,7 @@
 import pytest
 
 from canopen_handwheel import core
-from canopen_handwheel.core import Config, Configure, Core, WriteFeed
+from canopen_handwheel.core import Config, Configure, Configured, Core, WriteFeed
 
 NODE = 16
 TPDO1, EMCY, HB = 0x180 + NODE, 0x080 + NODE, 0x700 + NODE
@@ -55,10 +55,10 @@ class Run:
     def bad(self):
         return self.c.pins().frames_bad
 
-    def configure(self):
+    def configure(self, event_timer_ms=100):
         a = self.c.next_action(self.at())
         assert isinstance(a, Configure)
-        self.c.done(a, True, None, self.at())
+        self.c.done(a, True, None, self.at(), Configured(event_timer_ms))
 
 
 def test_first_record_is_a_baseline_then_deltas_go_to_the_named_axis():
@@ -429,7 +429,7 @@ def test_records_lost_from_sequence_gaps():
 def test_configure_first_retried_while_it_fails():
     r = Run()
     a = r.c.next_action(r.at())
-    assert a == Configure(master=1, timeout_ms=500)
+    assert a == Configure(master=1, timeout_ms=500, event_timer_ms=None)
     assert r.c.next_action(r.at()) is None  # one at a time
     r.c.done(a, False, None, r.at())
     assert r.c.next_action(r.at(0.1)) is None
@@ -480,7 +480,7 @@ def test_no_feed_enable_while_unconfigured_stale_or_not_operational():
     r.record(0, status=0)
     a = r.c.next_action(r.at())
     assert isinstance(a, Configure)  # configuration comes first
-    r.c.done(a, True, None, r.at())
+    r.c.done(a, True, None, r.at(), Configured(100))
     r.hb(core.STOPPED)
     assert r.c.next_action(r.at()) is None
     r.hb(core.OPERATIONAL)
@@ -495,13 +495,105 @@ def test_preoperational_device_is_configured_and_started_again():
     assert isinstance(r.c.next_action(r.at()), Configure)
 
 
-def test_shutdown_disables_the_feed_only_when_on():
+def test_shutdown_disables_the_feed_whatever_was_seen():
+    """Before any record, with the feed on, off, stale, or a write of 1 unconfirmed."""
     r = Run()
-    assert r.c.shutdown_action() is None
+    assert r.c.shutdown_action() == WriteFeed(0)
     r.record(0, status=EN)
     assert r.c.shutdown_action() == WriteFeed(0)
     r.record(0, status=0)
-    assert r.c.shutdown_action() is None
+    assert r.c.shutdown_action() == WriteFeed(0)
+    r.configure()
+    r.c.set_enable(True)
+    assert r.c.next_action(r.at()) == WriteFeed(1)  # pending, the record not seen yet
+    assert r.c.shutdown_action() == WriteFeed(0)
+    r.c.tick(r.at(5.0))
+    assert r.c.shutdown_action() == WriteFeed(0)
+
+
+def test_event_timer_plan():
+    """Keep the device's own unless the option says otherwise; never leave it at 0."""
+    assert core.event_timer_plan(100, None) is None
+    assert core.event_timer_plan(250, None) is None
+    assert core.event_timer_plan(0, None) == 100
+    assert core.event_timer_plan(100, 100) is None
+    assert core.event_timer_plan(100, 40) == 40
+    assert core.event_timer_plan(0, 40) == 40
+
+
+def test_staleness_follows_the_devices_event_timer():
+    """Assumed 100 ms until configured; then what the device reported (here 250 ms):
+    connected for up to 750 ms without a record, not longer."""
+    r = Run()
+    assert r.c.next_action(r.at()) == Configure(1, 500, None)
+    r.c.pending = None
+    r.record(0)
+    r.c.tick(r.at(0.31))
+    assert not r.c.pins().connected  # the assumed 100 ms
+    r.configure(event_timer_ms=250)
+    assert r.c.event_timer == pytest.approx(0.25) and r.c.stale_after == pytest.approx(0.75)
+    r.record(0)
+    r.c.tick(r.at(0.74))
+    assert r.c.pins().connected
+    r.c.tick(r.at(0.02))
+    assert not r.c.pins().connected
+
+
+def test_the_option_asks_for_the_event_timer_and_the_bucket_follows_it():
+    cfg = core.make_config(16, None, "xyz", 0.001, 2000, 100, max_detents_per_s=100)
+    assert cfg.event_timer_ms == 2000 and cfg.stale_after == pytest.approx(6.0)
+    r = Run(event_timer_ms=2000, max_detents_per_s=100)
+    assert r.c.next_action(r.at()) == Configure(1, 500, 2000)
+    r.c.pending = None
+    r.configure(event_timer_ms=20)  # what the device reports back rules
+    assert r.c.stale_after == pytest.approx(0.06)
+    assert r.c.allowance.cap == pytest.approx(100 * 0.5)  # the consumer timeout is longer
+
+
+@pytest.mark.parametrize("result", [None, Configured(0), Configured(9), Configured(60001)])
+def test_a_configuration_without_a_usable_event_timer_failed(result):
+    r = Run()
+    a = r.c.next_action(r.at())
+    r.c.done(a, True, None, r.at(), result)
+    assert not r.c.configured
+    assert r.c.next_action(r.at(0.1)) is None
+    assert isinstance(r.c.next_action(r.at(0.5)), Configure)
+
+
+def test_velocity_mode_unless_position_mode():
+    r = Run(axes="xy")
+    assert r.c.pins().jog_vel_mode
+    r.c.set_position_mode(True)
+    assert not r.c.pins().jog_vel_mode
+    assert not Core(Config(position_mode=True)).pins().jog_vel_mode
+
+
+def test_a_change_of_mode_never_moves_counts():
+    """Mode changes between, before and after records: the counts are those without them."""
+    plain, switched = Run(), Run()
+    for i, pos in enumerate([0, 3, 3, 10, 110, 111]):
+        plain.record(pos)
+        switched.c.set_position_mode(i % 2 == 0)
+        switched.record(pos)
+        switched.c.set_position_mode(i % 3 == 0)
+        assert switched.counts() == plain.counts()
+    assert plain.counts()["x"] == 111
+
+
+def test_the_heartbeat_pauses_while_the_loop_stalls():
+    assert core.beat_allowed(10.0, 10.25, 0.1)
+    assert not core.beat_allowed(10.0, 10.26, 0.1)
+    assert core.beat_allowed(10.0, 11.9, 1.0)  # two periods of a slow heartbeat
+    assert not core.beat_allowed(10.0, 12.1, 1.0)
+
+
+def test_next_beat_keeps_the_grid_and_skips_what_it_missed():
+    assert core.next_beat(1.0, 1.0, 0.1) == pytest.approx(1.1)
+    assert core.next_beat(1.0, 1.004, 0.1) == pytest.approx(1.1)  # sending took 4 ms
+    assert core.next_beat(1.0, 1.25, 0.1) == pytest.approx(1.3)  # 2 beats missed, no burst
+    assert core.next_beat(1.0, 0.9, 0.1) == pytest.approx(1.1)  # sent early: still the grid
+    with pytest.raises(ValueError):
+        core.next_beat(1.0, 1.0, 0.0)
 
 
 def test_consumer_plan():
@@ -533,6 +625,10 @@ def test_make_config_checks_every_option():
     assert cfg.max_detents_per_s == 2000 and cfg.rate_horizon == pytest.approx(1.0)
     cfg = core.make_config(16, None, "x", 0.001, 1000, 10, max_detents_per_s=500)
     assert cfg.max_detents_per_s == 500 and cfg.rate_horizon == pytest.approx(3.0)
+    assert cfg.event_timer_ms == 1000 and not cfg.position_mode
+    cfg = core.make_config(16, None, "x", 0.001, None, 100, position_mode=True)
+    assert cfg.event_timer_ms is None and cfg.event_timer == pytest.approx(0.1)
+    assert cfg.position_mode
     for kwargs in [
         dict(scale=0.0),
         dict(scale=float("nan")),
@@ -558,4 +654,4 @@ def test_pin_table():
     names = [n for n, _, _ in core.pin_table("xz")]
     assert "axis.x.jog-counts" in names and "halui.axis.z.select" in names
     assert "axis.y.jog-counts" not in names
-    assert len(names) == len(set(names)) == 2 * 5 + 11
+    assert len(names) == len(set(names)) == 2 * 5 + 12

@@ -61,6 +61,7 @@ step = st.one_of(
         st.floats(0, 0.2),
     ),
     st.tuples(st.just("enable"), st.booleans()),
+    st.tuples(st.just("mode"), st.booleans()),
     st.tuples(st.just("tick"), st.floats(0, 1.0)),
     st.tuples(st.just("done"), st.booleans(), st.sampled_from([None, core.ABORT_DEVICE_STATE])),
 )
@@ -73,7 +74,7 @@ def test_any_stream_is_safe(axes, steps):
     their axis that continues the previous possible record by the contract's rule (the same
     epoch within 6 records, or the next epoch directly after), with nothing in between; at
     most one jog-enable, only for the selected axis, only with `enable` and fresh enabled
-    records; every pin in its HAL range."""
+    records; every pin in its HAL range; a change of jog mode moves nothing."""
     c = Core(Config(axes=axes))
     t = 0.0
     prev = None  # previous TPDO1 record processed (decoded), None after an interruption
@@ -112,17 +113,20 @@ def test_any_stream_is_safe(axes, steps):
                 prev = None
         elif kind == "enable":
             c.set_enable(s[1])
+        elif kind == "mode":  # never motion (moved_ok stays empty)
+            c.set_position_mode(s[1])
         elif kind == "tick":
             t += s[1]
             c.tick(t)
         elif kind == "done":
             a = c.next_action(t)
             if a is not None:
-                c.done(a, s[1], s[2], t)
+                c.done(a, s[1], s[2], t, core.Configured(100))
         for L in axes:
             if c.counts[L] != before[L]:
                 assert L in moved_ok, (s, L, before, c.counts)
         p = c.pins()
+        assert p.jog_vel_mode == (not c.position_mode)
         on = [L for L in axes if p.jog_enable[L]]
         assert len(on) <= 1
         if on:

@@ -12,20 +12,82 @@ Environment (set by `cargo xtask test`):
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import can
 import canopen
 import pytest
 
-from rig import AXES, NMT, NODE_ID, ROOT, FrameRecorder, Qemu, Stimulus
+from rig import AXES, NMT, NODE_ID, ROOT, SDO_RX, FrameRecorder, Qemu, Stimulus
 from sim_machine import SimMachine
 from slcan_hub import SlcanHub
 
 SCALE = 0.001
 TOL = 1e-6
+# The sim machine's servo period ([EMCMOT]SERVO_PERIOD) and the device's event timer.
+SERVO_PERIOD = 0.001
+EVENT_TIMER = 0.1
+
+
+def start_emulator(tmp: Path, run: int) -> Qemu:
+    """The emulator of this run (`HANDWHEEL_EMULATOR`); the board keeps its flash file."""
+    if os.environ.get("HANDWHEEL_EMULATOR") == "board":
+        sys.path.insert(0, str(ROOT / "tools" / "board-emu"))
+        from launcher import BoardProcess
+
+        return BoardProcess(tmp / f"board-{run}.log", tmp / "flash.bin")
+    return Qemu(tmp / f"qemu-{run}.log")
+
+
+# A slow axis for the run-on tests, as in the field report: 2 mm/s, and 10 mm/s^2, so that
+# its stopping distance is 0.2 mm (two detents at x100) and it needs 0.2 s to stop.
+SLOW_V, SLOW_A = 2.0, 10.0
+# LinuxCNC's commanded position of X and the target its planner moves it to: the lead of the
+# one over the other is what velocity mode bounds (read in this order, so that a servo cycle
+# between the two reads can only overstate it, by one cycle's motion).
+COUNTS_X = "handwheel.axis.x.jog-counts"
+POS_X, TARGET_X = "axis.x.pos-cmd", "axis.x.teleop-pos-cmd"
+
+
+def stopping_distance(velocity: float, acceleration: float) -> float:
+    """How far an axis at `velocity` moves while braking at `acceleration`: v^2 / 2a."""
+    return velocity * velocity / (2 * acceleration)
+
+
+def moved(pos, axis, distance):
+    """`pos` (X, Y, Z) with `axis` moved by `distance`."""
+    out = list(pos)
+    out["xyz".index(axis)] += distance
+    return out
+
+
+def spin(machine, detents: int, pause: float, step: int = 1) -> float:
+    """Turns `detents` detents (forward; backward if negative) as `turn` commands of `step`
+    detents, `pause` apart; returns the time after the last one's reply, which comes after
+    its last edge. (The QEMU stimulus makes a command's edges at once and replies; the
+    emulated board makes them 600 us apart and replies 25 ms after the last.)"""
+    sign = 1 if detents > 0 else -1
+    left = abs(detents)
+    while left:
+        n = min(step, left)
+        machine.stim.turn(sign * n)
+        left -= n
+        time.sleep(pause)
+    return time.monotonic()
+
+
+def last_change(samples, column: int):
+    """The sample of a `Machine.watched` list at which column `column` took its final
+    value."""
+    final = samples[-1][column]
+    i = len(samples) - 1
+    while i > 0 and samples[i - 1][column] == final:
+        i -= 1
+    return samples[i]
 
 
 class Machine:
@@ -36,19 +98,16 @@ class Machine:
             Path(sys.executable).parent / "canopen-handwheel"
         )
         user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
-        if os.environ.get("HANDWHEEL_EMULATOR") == "board":
-            sys.path.insert(0, str(ROOT / "tools" / "board-emu"))
-            from launcher import BoardProcess
-
-            self.qemu: Qemu = BoardProcess(tmp / "board.log", tmp / "flash.bin")
-        else:
-            self.qemu = Qemu(tmp / "qemu.log")
+        self.tmp = tmp
+        self.runs = 1
+        self.qemu = start_emulator(tmp, self.runs)
         self.hub = SlcanHub(self.qemu.can_port)
         self.bus = can.Bus(interface="slcan", channel=self.hub.channel, sleep_after_open=0)
         self.frames = FrameRecorder()
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(self.frames)
         self.network.connect()
+        self.hub.protect_current()  # the listener survives `break_clients`
         self.stim = Stimulus(self.qemu.stim_port, self.qemu)
         self.cnc = SimMachine(component, self.hub.channel, tmp / "linuxcnc.log", user=user)
         self.cnc.connect()
@@ -112,6 +171,76 @@ class Machine:
         mark = self.frames.mark()
         self.network.send_message(NMT, bytes([command, NODE_ID]))
         return mark
+
+    def sdo_writes(self, index: int, sub: int, since: int = 0) -> list:
+        """The values of expedited SDO downloads to index:sub seen since `since`."""
+        out = []
+        where = bytes([index & 0xFF, index >> 8, sub])
+        for f in self.frames.frames(SDO_RX, since):
+            d = f.data
+            if len(d) == 8 and d[0] & 0xE3 == 0x23 and d[1:4] == where:
+                size = 4 - ((d[0] >> 2) & 3)
+                out.append(int.from_bytes(d[4 : 4 + size], "little"))
+        return out
+
+    # The component as a process ----------------------------------------------------------
+
+    def component_pid(self) -> int:
+        """The PID of the HAL component `handwheel` (from `halcmd show comp`)."""
+        out = self.halcmd("show", "comp", "handwheel")
+        m = re.search(r"User\s+handwheel\s+(\d+)", out)
+        assert m, out
+        return int(m.group(1))
+
+    def spawn(self, *options: str):
+        """Starts the component again (the one before must be gone): (pid, log path)."""
+        reply = self.cnc.must("spawn " + " ".join(options))
+        return reply["pid"], Path(reply["log"])
+
+    def watch(self, seconds: float, *pins: str) -> None:
+        """Samples `pins` in LinuxCNC's display for `seconds` (see `watched`)."""
+        self.cnc.must(f"watch {seconds} " + " ".join(pins))
+
+    def watched(self, quiet: float = 0.0):
+        """The samples of the last `watch`: [(t, value...)], every change of the pins with
+        its time.monotonic(), comparable with this process's. With `quiet`, the sampling
+        ends once nothing changed for that long (else at the end of its time)."""
+        return [tuple(s) for s in self.cnc.must(f"watched {quiet}")["samples"]]
+
+    def setp(self, pin: str, value) -> None:
+        self.halcmd("setp", pin, str(value))
+
+    @contextmanager
+    def slow_axis(self, axis: str, velocity: float, acceleration: float):
+        """The axis' MAX_VELOCITY and MAX_ACCELERATION set (LinuxCNC's `ini.L.*` pins) for
+        the block, the sim machine's back after it."""
+        before = {
+            n: float(self.halcmd("getp", f"ini.{axis}.{n}").strip())
+            for n in ("max_velocity", "max_acceleration")
+        }
+        self.setp(f"ini.{axis}.max_velocity", velocity)
+        self.setp(f"ini.{axis}.max_acceleration", acceleration)
+        try:
+            time.sleep(0.3)  # inihal passes the new limits on
+            yield
+        finally:
+            for n, v in before.items():
+                self.setp(f"ini.{axis}.{n}", v)
+            time.sleep(0.3)
+
+    # The device's emulator ----------------------------------------------------------------
+
+    def restart_emulator(self) -> None:
+        """Stops the emulator (the device is gone from the bus), starts a new one (the same
+        flash file for the board) and puts it on the hub, as a node replaced on a running
+        bus."""
+        self.stim.close()
+        self.qemu.stop()
+        assert self.hub.upstream_lost.wait(10), "the hub did not see the device go"
+        self.runs += 1
+        self.qemu = start_emulator(self.tmp, self.runs)
+        self.hub.attach(self.qemu.can_port)
+        self.stim = Stimulus(self.qemu.stim_port, self.qemu)
 
     def close(self) -> None:
         for step in (

@@ -17,6 +17,8 @@ const SYSTEM_PYTHON: &str = "/usr/bin/python3";
 pub const USER: &str = "handwheel-sim";
 /// The LinuxCNC suite, relative to the workspace root.
 pub const SUITE: &str = "tests/linuxcnc";
+/// The detent-to-motion benchmark (`cargo xtask bench`), relative to the workspace root.
+pub const BENCH: &str = "tests/linuxcnc/bench_motion.py";
 /// The console of `cargo xtask linuxcnc`, relative to the workspace root.
 pub const CONSOLE: &str = "host/linuxcnc/console.py";
 

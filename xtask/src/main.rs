@@ -62,10 +62,12 @@ tasks:
   docs [--check]                        re-render docs/wiring/handwheel.svg from handwheel.yml
                                         (WireViz, Graphviz), then check it against the pin
                                         map; --check: only the check (no Graphviz)
-  bench                                 1. feed protocol comparison (writes docs/feed-protocols.svg),
+  bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
-                                        worst-case stack, with their headroom";
+                                        worst-case stack, with their headroom, 4. detent to
+                                        motion in LinuxCNC 2.9 (QEMU handwheel) and the run-on
+                                        after a fast spin (`linuxcnc`: only that)";
 
 fn main() -> ExitCode {
     let args: Vec<String> = env::args().skip(1).collect();
@@ -81,7 +83,11 @@ fn main() -> ExitCode {
         Some("linuxcnc") => linuxcnc_console(rest),
         Some("linuxcnc-test") => linuxcnc_suite(rest),
         Some("demo") => demo(rest),
-        Some("bench") => bench(),
+        Some("bench") => match rest {
+            [] => bench(),
+            [part] if part == "linuxcnc" => linuxcnc_bench(),
+            _ => Err("usage: cargo xtask bench [linuxcnc]".into()),
+        },
         Some("docs") => docs(rest),
         _ => {
             eprintln!("{USAGE}");
@@ -232,9 +238,10 @@ fn random_frames() -> Result<(), String> {
     ])
 }
 
-/// The three benchmarks: 1. the feed protocol simulation (paper vs this project,
+/// The four benchmarks: 1. the feed protocol simulation (paper vs this project,
 /// with its plot), 2. the CPU cost of the release machine code in the emulator, 3. the
-/// release footprint by section and the worst-case stack, with their headroom.
+/// release footprint by section and the worst-case stack, with their headroom, 4. detent to
+/// motion in LinuxCNC and the run-on after a fast spin ([`linuxcnc_bench`]).
 fn bench() -> Result<(), String> {
     eprintln!("xtask: ## 1. Feed protocol");
     cargo(&[
@@ -252,7 +259,24 @@ fn bench() -> Result<(), String> {
     let stack = machine_bench(false)?;
     eprintln!("xtask: ## 3. Footprint and stack");
     footprint_check()?;
-    stack_check(&stack)
+    stack_check(&stack)?;
+    eprintln!("xtask: ## 4. Detent to motion in LinuxCNC");
+    linuxcnc_bench()
+}
+
+/// `tests/linuxcnc/bench_motion.py` (not part of the suite) with the QEMU handwheel, its
+/// figures on stdout.
+fn linuxcnc_bench() -> Result<(), String> {
+    Emulator::prepare()?;
+    let root = workspace_root();
+    let setup = linuxcnc::prepare(&root, &target_dir())?;
+    let mut pytest = Command::new(&setup.python);
+    pytest
+        .args(["-m", "pytest", "-q", "-s", linuxcnc::BENCH])
+        .current_dir(&root)
+        .env("HANDWHEEL_EMULATOR", "qemu");
+    setup.apply(&mut pytest);
+    pyenv::run(&mut pytest).map_err(|e| format!("the LinuxCNC benchmark failed: {e}"))
 }
 
 /// Runs the machine benchmark on the release ELF (built already): the full CPU report, or

@@ -1,11 +1,19 @@
 """The `canopen-handwheel` HAL component: the thin shell around `core.Core`.
 
 It creates the HAL pins, connects python-can and python-canopen, produces the master's
-heartbeat, hands every frame from the device to the core, carries out the core's actions
-(SDO writes, NMT start) on a worker thread so that the heartbeat never waits for an SDO
-timeout, and copies the core's pins to HAL. It decides nothing itself.
+heartbeat on a timer thread of its own (on the grid `core.next_beat` gives, whatever the main
+loop is doing), hands every frame from the device to the core, carries out the core's actions
+(SDO transfers, NMT start) on a worker thread so that nothing waits for an SDO timeout, and
+copies the core's pins to HAL. It decides nothing itself.
 
     loadusr -Wn handwheel canopen-handwheel --channel can0 --axes xyz
+
+Life cycle: SIGTERM (what `halcmd unload` and LinuxCNC's shutdown send) and SIGINT end it
+quietly with status 0 at any moment after its HAL component exists: the worker's current SDO
+transfer ends (a configuration stops between its transfers), 0x2000 = 0 is written (the bus
+is opened once more for it if it was down), the bus closed, the HAL component removed.
+LinuxCNC's `hal` module sets SIGTERM to raise KeyboardInterrupt when a component is created,
+so the handlers are installed again right after that.
 
 `hal` is imported lazily (`run(..., hal_module=...)` takes a stand-in), so that this module
 loads without LinuxCNC.
@@ -32,6 +40,8 @@ def log(message: str) -> None:
 
 
 def default_eds() -> str:
+    """The device's EDS as installed with the package (built from the repository's
+    `eds/handwheel.eds`, which `handwheel.eds` in the source tree links to)."""
     return str(resources.files(__package__).joinpath("handwheel.eds"))
 
 
@@ -81,9 +91,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--event-timer-ms",
         type=int,
-        default=100,
-        help="the device's TPDO1 event timer 0x1800:5 (100): no record for 3 "
-        "periods means disconnected",
+        default=None,
+        help="write the device's TPDO1 event timer 0x1800:5 at configuration (default: keep "
+        "the device's, 100 if it has none); no record for 3 periods means disconnected",
+    )
+    p.add_argument(
+        "--position-mode",
+        action="store_true",
+        help="start in exact position mode (every count moved, however long it takes) "
+        "instead of LinuxCNC's velocity mode; the position-mode pin switches at run time",
     )
     p.add_argument(
         "--max-detents-per-s",
@@ -102,6 +118,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.event_timer_ms,
             args.heartbeat_ms,
             args.max_detents_per_s,
+            args.position_mode,
         )
     except ValueError as e:
         p.error(str(e))
@@ -115,27 +132,37 @@ def config_from(args: argparse.Namespace) -> core.Config:
 class HalPins:
     """The HAL component and its pins, as `core.pin_table` names them."""
 
-    def __init__(self, hal, name: str, cfg: core.Config) -> None:
+    def __init__(
+        self, hal, name: str, cfg: core.Config, on_created: Optional[Callable[[], None]] = None
+    ) -> None:
         types = {"bit": hal.HAL_BIT, "s32": hal.HAL_S32, "u32": hal.HAL_U32, "float": hal.HAL_FLOAT}
         dirs = {"in": hal.HAL_IN, "out": hal.HAL_OUT}
         self.comp = hal.component(name)
+        if on_created is not None:
+            on_created()  # before `ready`, which `loadusr -W` waits for
         self.axes = cfg.axes
         for pin, t, d in core.pin_table(cfg.axes):
             self.comp.newpin(pin, types[t], dirs[d])
         for L in cfg.axes:
             self.comp[f"axis.{L}.jog-scale"] = cfg.scale
-            self.comp[f"axis.{L}.jog-vel-mode"] = False
+            self.comp[f"axis.{L}.jog-vel-mode"] = not cfg.position_mode
+        # An input the component may set while no signal drives it: the option's start value.
+        self.comp["position-mode"] = cfg.position_mode
         self.comp["state"] = -1
         self.comp.ready()
 
     def enable(self) -> bool:
         return bool(self.comp["enable"])
 
+    def position_mode(self) -> bool:
+        return bool(self.comp["position-mode"])
+
     def write(self, pins: core.Pins) -> None:
         c = self.comp
         for L in self.axes:
             c[f"axis.{L}.jog-counts"] = pins.jog_counts[L]
             c[f"axis.{L}.jog-enable"] = pins.jog_enable[L]
+            c[f"axis.{L}.jog-vel-mode"] = pins.jog_vel_mode
             c[f"halui.axis.{L}.select"] = pins.select[L]
         c["connected"] = pins.connected
         c["feed-enabled"] = pins.feed_enabled
@@ -155,11 +182,47 @@ class HalPins:
             pass
 
 
-class Link:
-    """python-can bus + python-canopen network with the device's node; frames from the
-    device go to `events` as ("frame", cob_id, data, time)."""
+class Heartbeat:
+    """The master's heartbeat (0x700 + master, state Operational) from a thread of its own,
+    due on the grid `core.next_beat` keeps, sent while `core.beat_allowed` (the main loop
+    calls `alive`); a failed send calls `on_error` and ends it."""
 
-    def __init__(self, args: argparse.Namespace, events: "queue.Queue") -> None:
+    def __init__(self, send: Callable[[int, bytes], None], master: int, period: float, on_error):
+        self.send = send
+        self.cob_id = 0x700 + master
+        self.period = period
+        self.on_error = on_error
+        self.loop_seen = time.monotonic()
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="heartbeat", daemon=True)
+        self.thread.start()
+
+    def alive(self) -> None:
+        """The main loop made progress."""
+        self.loop_seen = time.monotonic()
+
+    def _run(self) -> None:
+        due = time.monotonic()
+        while not self._stop.wait(max(0.0, due - time.monotonic())):
+            if core.beat_allowed(self.loop_seen, time.monotonic(), self.period):
+                try:
+                    self.send(self.cob_id, bytes([core.OPERATIONAL]))
+                except Exception as e:
+                    self.on_error(e)
+                    return
+            due = core.next_beat(due, time.monotonic(), self.period)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self.thread is not threading.current_thread():
+            self.thread.join(1)
+
+
+class Link:
+    """python-can bus + python-canopen network with the device's node and the master's
+    heartbeat; frames from the device go to `events` as ("frame", cob_id, data, time)."""
+
+    def __init__(self, args: argparse.Namespace, cfg: core.Config, events: "queue.Queue") -> None:
         import can
         import canopen
 
@@ -170,91 +233,141 @@ class Link:
         if args.interface == "slcan" and str(args.channel).startswith("socket://"):
             kwargs["sleep_after_open"] = 0
         self.bus = can.Bus(interface=args.interface, channel=args.channel, **kwargs)
-        self.network = canopen.Network(self.bus)
-        ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
-        link = self
+        try:
+            self.network = canopen.Network(self.bus)
+            # The receiving thread waits this long per call: closing the bus takes that.
+            self.network.NOTIFIER_CYCLE = 0.1
+            ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
+            link = self
 
-        class Feed(can.Listener):
-            def on_message_received(self, msg: "can.Message") -> None:
-                if msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame:
-                    return
-                if msg.arbitration_id in ids:
-                    events.put(("frame", msg.arbitration_id, bytes(msg.data), time.monotonic()))
+            class Feed(can.Listener):
+                def on_message_received(self, msg: "can.Message") -> None:
+                    if msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame:
+                        return
+                    if msg.arbitration_id in ids:
+                        t = time.monotonic()
+                        events.put(("frame", msg.arbitration_id, bytes(msg.data), t))
 
-            def on_error(self, exc: Exception) -> None:
-                link.failed.set()
+                def on_error(self, exc: Exception) -> None:
+                    link.failed.set()
 
-        self.network.listeners.append(Feed())
-        self.node = self.network.add_node(args.node, args.eds or default_eds())
-        self.network.connect()
+            self.network.listeners.append(Feed())
+            self.node = self.network.add_node(args.node, args.eds or default_eds())
+            self.network.connect()
+        except BaseException:
+            self.bus.shutdown()
+            raise
+        self.heartbeat = Heartbeat(self.send, cfg.master, cfg.heartbeat_period, self._send_failed)
+
+    def _send_failed(self, e: Exception) -> None:
+        log(f"sending the heartbeat: {e!r}")
+        self.failed.set()
 
     def send(self, cob_id: int, data: bytes) -> None:
         self.network.send_message(cob_id, data)
 
     def close(self) -> None:
+        self.heartbeat.stop()
         try:
             self.network.disconnect()
         except Exception as e:
             log(f"closing the bus: {e!r}")
 
 
+class Cancelled(Exception):
+    """The component is stopping: the rest of an action is left undone."""
+
+
 class Worker:
-    """Carries out the core's actions one at a time; reports ("done", action, ok, abort)."""
+    """Carries out the core's actions one at a time; reports ("done", action, ok, abort,
+    result). `cancel` makes a configuration stop before its next transfer."""
 
     def __init__(self, link: Link, events: "queue.Queue", node_id: int) -> None:
         self.link = link
         self.events = events
         self.node_id = node_id
         self.jobs: "queue.Queue" = queue.Queue()
+        self.cancelled = threading.Event()
         self.thread = threading.Thread(target=self._run, name="sdo-worker", daemon=True)
         self.thread.start()
 
-    def submit(self, action, done: Optional[threading.Event] = None) -> None:
-        self.jobs.put((action, done))
+    def submit(self, action) -> None:
+        self.jobs.put(action)
 
-    def stop(self) -> None:
+    def stop(self, timeout: float = 3.0) -> bool:
+        """Cancels what is under way and ends the thread; False if it is still busy after
+        `timeout` (an SDO transfer that does not end)."""
+        self.cancelled.set()
         self.jobs.put(None)
-        self.thread.join(3)
+        self.thread.join(timeout)
+        return not self.thread.is_alive()
 
     def _run(self) -> None:
-        import canopen
-
         while True:
-            job = self.jobs.get()
-            if job is None:
+            action = self.jobs.get()
+            if action is None or self.cancelled.is_set():
                 return
-            action, done = job
-            ok, abort = False, None
-            try:
-                self._carry_out(action)
-                ok = True
-            except canopen.SdoAbortedError as e:
-                abort = e.code
-                log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
-            except Exception as e:  # no answer, bus gone: the core retries
-                log(f"{describe(action)}: {e!r}")
-            self.events.put(("done", action, ok, abort))
-            if done is not None:
-                done.set()
+            ok, abort, result = carry_out(self.link, self.node_id, action, self.cancelled)
+            self.events.put(("done", action, ok, abort, result))
 
-    def _carry_out(self, action) -> None:
-        sdo = self.link.node.sdo
-        if isinstance(action, core.Configure):
-            count = sdo.upload(0x1016, 0)[0]
-            entries = {}
-            for sub in range(1, count + 1):
-                entries[sub] = int.from_bytes(sdo.upload(0x1016, sub), "little")
-            sub, value = core.consumer_plan(entries, action.master, action.timeout_ms)
-            sdo.download(0x1016, sub, value.to_bytes(4, "little"))
-            if sdo.upload(0x2001, 0)[0] != 0:
-                sdo.download(0x2001, 0, b"\x00")
-            # Feed off: a fresh start enables it again, stepping the selection epoch.
-            sdo.download(0x2000, 0, b"\x00")
-            self.link.send(0x000, bytes([NMT_START, self.node_id]))
-            log(f"device configured (0x1016:{sub} = 0x{value:08X}, feed off), NMT start sent")
-        elif isinstance(action, core.WriteFeed):
-            sdo.download(0x2000, 0, bytes([action.value]))
-            log(f"feed enable 0x2000 = {action.value}")
+
+def carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.Event] = None):
+    """Carries out one action over `link`: (ok, SDO abort code or None, result)."""
+    import canopen
+
+    try:
+        return True, None, _carry_out(link, node_id, action, cancelled)
+    except Cancelled:
+        return False, None, None
+    except canopen.SdoAbortedError as e:
+        log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
+        return False, e.code, None
+    except Exception as e:  # no answer, bus gone: the core retries
+        log(f"{describe(action)}: {e!r}")
+        return False, None, None
+
+
+def _carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.Event]):
+    sdo = link.node.sdo
+
+    def step() -> None:
+        if cancelled is not None and cancelled.is_set():
+            raise Cancelled
+
+    def u32(index: int, sub: int) -> int:
+        step()
+        return int.from_bytes(sdo.upload(index, sub), "little")
+
+    def write(index: int, sub: int, value: int, size: int) -> None:
+        step()
+        sdo.download(index, sub, value.to_bytes(size, "little"))
+
+    if isinstance(action, core.Configure):
+        count = u32(0x1016, 0)
+        entries = {sub: u32(0x1016, sub) for sub in range(1, count + 1)}
+        sub, value = core.consumer_plan(entries, action.master, action.timeout_ms)
+        write(0x1016, sub, value, 4)
+        timer = u32(0x1800, 5)
+        wanted = core.event_timer_plan(timer, action.event_timer_ms)
+        if wanted is not None:
+            write(0x1800, 5, wanted, 2)
+            timer = u32(0x1800, 5)
+        if u32(0x2001, 0) != 0:
+            write(0x2001, 0, 0, 1)
+        # Feed off: a fresh start enables it again, stepping the selection epoch.
+        write(0x2000, 0, 0, 1)
+        step()
+        link.send(0x000, bytes([NMT_START, node_id]))
+        log(
+            f"device configured (0x1016:{sub} = 0x{value:08X}, event timer {timer} ms, "
+            "feed off), NMT start sent"
+        )
+        return core.Configured(event_timer_ms=timer)
+    if isinstance(action, core.WriteFeed):
+        write(0x2000, 0, action.value, 1)
+        log(f"feed enable 0x2000 = {action.value}")
+        return None
+    raise TypeError(f"unknown action {action!r}")
 
 
 def describe(action) -> str:
@@ -265,40 +378,47 @@ def describe(action) -> str:
     return repr(action)
 
 
+# The longest the main loop handles frames before it writes the pins again (a flood of
+# records must not hold back the pins).
+DRAIN_TIME = 0.005
+
+
 def run(
     args: argparse.Namespace,
     hal_module=None,
     stop: Optional[threading.Event] = None,
     clock: Callable[[], float] = time.monotonic,
+    on_hal_component: Optional[Callable[[], None]] = None,
 ) -> int:
-    """The component's main loop until `stop` is set (or SIGTERM / SIGINT arrives)."""
+    """The component's main loop until `stop` is set (its `reason`, if it has one, is
+    logged); then the shutdown (0x2000 = 0, bus closed, HAL component removed).
+    `on_hal_component` runs right after the HAL component is created (`main` installs its
+    signal handlers there)."""
     if hal_module is None:
         import hal as hal_module  # LinuxCNC's; only present on a LinuxCNC machine
     cfg = config_from(args)
     stop = stop or threading.Event()
-    pins = HalPins(hal_module, args.name, cfg)
+    pins = HalPins(hal_module, args.name, cfg, on_hal_component)
     c = core.Core(cfg)
     events: "queue.Queue" = queue.Queue()
     link: Optional[Link] = None
     worker: Optional[Worker] = None
-    next_heartbeat = 0.0
     next_connect = 0.0
     log(
         f"{args.name}: node {args.node} on {args.interface} {args.channel}, axes "
-        f"{cfg.axes}, master heartbeat {cfg.master} every {args.heartbeat_ms} ms"
+        f"{cfg.axes}, master heartbeat {cfg.master} every {args.heartbeat_ms} ms, "
+        f"{'position' if cfg.position_mode else 'velocity'} mode"
     )
     try:
         while not stop.is_set():
             now = clock()
             if link is None and now >= next_connect:
-                try:
-                    link = Link(args, events)
+                link = open_link(args, cfg, events, "retrying")
+                if link is None:
+                    next_connect = now + 1.0
+                else:
                     worker = Worker(link, events, args.node)
                     log("bus open")
-                except Exception as e:
-                    log(f"cannot open the bus ({e!r}); retrying")
-                    link = None
-                    next_connect = now + 1.0
             if link is not None and link.failed.is_set():
                 log("bus failed; reconnecting")
                 drop(link, worker)
@@ -309,44 +429,68 @@ def run(
                 event = events.get(timeout=0.01)
             except queue.Empty:
                 event = None
+            drained = clock() + DRAIN_TIME
             while event is not None:
+                if link is not None:
+                    link.heartbeat.alive()
                 if event[0] == "frame":
                     _, cob_id, data, t = event
                     c.frame(cob_id, data, t)
                 elif event[0] == "done":
-                    _, action, ok, abort = event
-                    c.done(action, ok, abort, clock())
+                    _, action, ok, abort, result = event
+                    c.done(action, ok, abort, clock(), result)
                 try:
-                    event = events.get_nowait()
+                    event = events.get_nowait() if clock() < drained else None
                 except queue.Empty:
                     event = None
             now = clock()
             c.set_enable(pins.enable())
+            c.set_position_mode(pins.position_mode())
             c.tick(now)
             if link is not None:
-                try:
-                    if now >= next_heartbeat:
-                        link.send(0x700 + cfg.master, bytes([core.OPERATIONAL]))
-                        next_heartbeat = now + cfg.heartbeat_period
-                except Exception as e:
-                    log(f"sending: {e!r}")
-                    link.failed.set()
+                link.heartbeat.alive()
                 action = c.next_action(now)
                 if action is not None and worker is not None:
                     worker.submit(action)
             pins.write(c.pins())
+        log(f"{getattr(stop, 'reason', 'asked to stop')}: stopping")
     finally:
-        if link is not None and worker is not None:
-            action = c.shutdown_action()
-            if action is not None:
-                done = threading.Event()
-                worker.submit(action, done)
-                done.wait(1.5)
-        if link is not None:
-            drop(link, worker)
+        shut_down(args, cfg, c, events, link, worker)
         pins.exit()
         log("stopped")
     return 0
+
+
+def open_link(
+    args: argparse.Namespace, cfg: core.Config, events: "queue.Queue", then: str
+) -> Optional[Link]:
+    try:
+        return Link(args, cfg, events)
+    except Exception as e:
+        log(f"cannot open the bus ({e!r}); {then}")
+        return None
+
+
+def shut_down(args, cfg: core.Config, c: core.Core, events, link, worker) -> None:
+    """The end: the worker's current transfer finishes (a configuration stops between its
+    transfers), then `Core.shutdown_action` (0x2000 = 0) from here, on the bus as it is or,
+    if it was down, opened once more for it; then the bus is closed."""
+    if worker is not None and not worker.stop(timeout=1.5):
+        log("an SDO transfer did not end; not writing 0x2000")
+        link.close()
+        return
+    if link is not None and link.failed.is_set():
+        link.close()
+        link = None
+    if link is None:
+        link = open_link(args, cfg, events, "0x2000 not written")
+        if link is None:
+            return
+    action = c.shutdown_action()
+    ok, _, _ = carry_out(link, args.node, action)
+    if not ok:
+        log(f"{describe(action)} failed at exit")
+    link.close()
 
 
 def drop(link: Link, worker: Optional[Worker]) -> None:
@@ -355,16 +499,34 @@ def drop(link: Link, worker: Optional[Worker]) -> None:
     link.close()
 
 
+# How long a Python thread may keep the interpreter while another waits (CPython's default
+# is 5 ms): short, so that the heartbeat thread gets its turn within about a millisecond
+# while the receiving thread and the main loop are busy with a burst of records.
+SWITCH_INTERVAL = 0.001
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
+    sys.setswitchinterval(SWITCH_INTERVAL)
     stop = threading.Event()
 
     def on_signal(signum, frame):
+        # No output here: the main loop may be inside a write to stderr itself.
+        if not stop.is_set():
+            stop.reason = signal.Signals(signum).name
         stop.set()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    return run(args, stop=stop)
+    def install() -> None:
+        signal.signal(signal.SIGTERM, on_signal)
+        signal.signal(signal.SIGINT, on_signal)
+
+    install()
+    try:
+        # LinuxCNC's `hal` sets SIGTERM to raise KeyboardInterrupt when the component is
+        # created: ours again right after.
+        return run(args, stop=stop, on_hal_component=install)
+    except KeyboardInterrupt:  # only in the instant between the two (run cleaned up)
+        return 0
 
 
 if __name__ == "__main__":

@@ -70,13 +70,26 @@ Rules (the README's "Use with LinuxCNC" section states them for machine builders
   that motion is refused and counted, lost rather than applied.)
 - Freshness: records come at least every event-timer period in Operational; none for three
   periods means the device is gone: `connected` and every `jog-enable` drop, and the next
-  record is a baseline.
+  record is a baseline. The period is the device's own TPDO1 event timer (0x1800:5), read at
+  configuration (`event_timer_plan`: `--event-timer-ms` is written there first when given, and
+  100 ms when the device has none, since without it silence would not mean absence); until
+  the first configuration the option's value (100 ms by default) is assumed.
+- Jog mode: `axis.L.jog-vel-mode` is true (LinuxCNC's velocity mode: the axis never leads
+  the wheel by more than its stopping distance, what it cannot follow is dropped, so it stops
+  within that distance when the wheel stops) unless the `position-mode` input is true (every
+  count is moved, at the axis's speed limit however long that takes). The mode is nothing but
+  those pins: no count is held back or released, so a change of mode never becomes motion.
 - `jog-enable` of axis L: connected (fresh records), Operational (no heartbeat saying
   otherwise), the device reports feed enabled, `enable` is true, and L is the selected axis.
   After an impossible record, until the next possible one: no axis selected.
-- Configuration (0x1016 consumer entry for the component's heartbeat, feed format 0, feed
-  off, NMT start) on start, after every boot-up and when the device shows Pre-operational;
-  retried every `retry` seconds while it fails.
+- Configuration (0x1016 consumer entry for the component's heartbeat, the event timer, feed
+  format 0, feed off, NMT start) on start, after every boot-up and when the device shows
+  Pre-operational; retried every `retry` seconds while it fails.
+- The component's heartbeat is due on a fixed grid of its period (`next_beat`), produced by a
+  timer of its own rather than the main loop: a late beat is not made up by a burst. It
+  pauses while the main loop makes no progress (`beat_allowed`), so that a stalled
+  component loses the device's feed as a dead one does.
+- Shutdown: 0x2000 = 0 whatever the device last showed (`shutdown_action`).
 - Feed enable: 0x2000 = 1 while `enable` is true, the device is configured, Operational,
   fresh and reports feed disabled; 0x2000 = 0 when `enable` is false and it reports feed
   enabled. Refused writes (0x08000022 while the device still misses the heartbeat) are
@@ -126,6 +139,11 @@ MAX_DETENTS_PER_S_RANGE = (10, 100_000)
 
 # SDO abort: "data cannot be transferred because of the present device state".
 ABORT_DEVICE_STATE = 0x08000022
+
+# The event timer written when the device has none (0x1800:5 = 0), and assumed until the
+# first configuration when `--event-timer-ms` is not given (the device's default, too).
+DEFAULT_EVENT_TIMER_MS = 100
+EVENT_TIMER_MS_RANGE = (10, 60000)
 
 
 def wrap_s32(value: int) -> int:
@@ -181,13 +199,15 @@ def make_config(
     master: Optional[int],
     axes: str,
     scale: float,
-    event_timer_ms: int,
+    event_timer_ms: Optional[int],
     heartbeat_ms: int,
     max_detents_per_s: int = DEFAULT_MAX_DETENTS_PER_S,
+    position_mode: bool = False,
 ) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
-    (0x1016), so one late beat never stops the wheel."""
+    (0x1016), so one late beat never stops the wheel. `event_timer_ms` None: the device's
+    own (read at configuration)."""
     low, high = MAX_DETENTS_PER_S_RANGE
     if not low <= max_detents_per_s <= high:
         raise ValueError(f"--max-detents-per-s must be {low}..{high}")
@@ -195,18 +215,55 @@ def make_config(
         raise ValueError(f"--scale {scale}: a finite, non-zero number of machine units")
     if not 10 <= heartbeat_ms <= 10000:
         raise ValueError("--heartbeat-ms must be 10..10000")
-    if not 10 <= event_timer_ms <= 60000:
-        raise ValueError("--event-timer-ms must be 10..60000")
+    low, high = EVENT_TIMER_MS_RANGE
+    if event_timer_ms is not None and not low <= event_timer_ms <= high:
+        raise ValueError(f"--event-timer-ms must be {low}..{high}")
     return Config(
         node=node,
         master=resolve_master(node, master),
         axes=parse_axes(axes),
         scale=scale,
-        event_timer=event_timer_ms / 1000,
+        event_timer=(event_timer_ms or DEFAULT_EVENT_TIMER_MS) / 1000,
+        event_timer_ms=event_timer_ms,
         heartbeat_period=heartbeat_ms / 1000,
         consumer_timeout_ms=5 * heartbeat_ms,
         max_detents_per_s=max_detents_per_s,
+        position_mode=position_mode,
     )
+
+
+def event_timer_plan(device_ms: int, wanted_ms: Optional[int]) -> Optional[int]:
+    """What to write to the device's event timer 0x1800:5 at configuration, or None to
+    keep its value: `wanted_ms` (`--event-timer-ms`) when given and different, else
+    `DEFAULT_EVENT_TIMER_MS` when the device has none (0: records only on change, so that
+    silence would not tell that it is gone)."""
+    if wanted_ms is not None:
+        return wanted_ms if wanted_ms != device_ms else None
+    return DEFAULT_EVENT_TIMER_MS if device_ms == 0 else None
+
+
+# How long the component's main loop may go without progress before its heartbeat stops
+# (at least this, or two heartbeat periods if longer): the heartbeat has a thread of its
+# own, but it must not keep the device feeding a component that no longer reads its frames.
+LOOP_STALL_LIMIT = 0.25
+
+
+def beat_allowed(loop_seen: float, now: float, period: float) -> bool:
+    """Whether the heartbeat may go out at `now`, the main loop having last made progress
+    at `loop_seen`: not once the loop has stalled for longer than `LOOP_STALL_LIMIT` or two
+    periods. The device then stops the feed after its consumer timeout (five periods)."""
+    return now - loop_seen <= max(LOOP_STALL_LIMIT, 2 * period)
+
+
+def next_beat(due: float, now: float, period: float) -> float:
+    """When the component's heartbeat is next due, after the beat due at `due` went out at
+    `now`: the next point of the grid `due + k * period` after `now`. On time, that is one
+    period on (no drift from the time sending took); a sender held up for longer than a
+    period skips the beats it missed rather than sending them in a burst."""
+    if period <= 0:
+        raise ValueError("the heartbeat period must be positive")
+    late = max(0.0, now - due)
+    return due + (math.floor(late / period) + 1) * period
 
 
 @dataclass(frozen=True)
@@ -215,22 +272,32 @@ class Config:
     master: int = 1
     axes: str = DEVICE_AXES
     scale: float = 0.001
-    event_timer: float = 0.1  # s, the device's TPDO1 event timer (0x1800:5)
+    # s, the device's TPDO1 event timer (0x1800:5) as assumed until the device tells.
+    event_timer: float = DEFAULT_EVENT_TIMER_MS / 1000
+    event_timer_ms: Optional[int] = None  # `--event-timer-ms`: written at configuration
     heartbeat_period: float = 0.1  # s, the component's own heartbeat
     consumer_timeout_ms: int = 500  # what the device is told to allow (0x1016)
     retry: float = 0.5  # s between attempts of a failed or unconfirmed action
     max_detents_per_s: float = DEFAULT_MAX_DETENTS_PER_S  # the wheel's speed bound
+    position_mode: bool = False  # `--position-mode`: the `position-mode` pin's start value
 
     @property
     def stale_after(self) -> float:
+        """Three event-timer periods, of the assumed event timer (`Core.stale_after` uses
+        the device's once it is known)."""
         return 3 * self.event_timer
 
     @property
     def rate_horizon(self) -> float:
-        """How many seconds of turning at the bound one burst of records may carry: the
-        longer of the staleness time and the device's heartbeat consumer timeout (see the
-        module's "Plausibility")."""
-        return max(self.stale_after, self.consumer_timeout_ms / 1000)
+        """`Core.rate_horizon` for the assumed event timer."""
+        return rate_horizon(self.stale_after, self.consumer_timeout_ms)
+
+
+def rate_horizon(stale_after: float, consumer_timeout_ms: int) -> float:
+    """How many seconds of turning at the bound one burst of records may carry: the longer
+    of the staleness time and the device's heartbeat consumer timeout (see the module's
+    "Plausibility")."""
+    return max(stale_after, consumer_timeout_ms / 1000)
 
 
 @dataclass(frozen=True)
@@ -356,11 +423,21 @@ class Allowance:
 # Actions the shell carries out, one at a time; it reports back with `Core.done`.
 @dataclass(frozen=True)
 class Configure:
-    """Read 0x1016:1..2, write the `consumer_plan` entry, set 0x2001 = 0 if it is not,
-    0x2000 = 0 (feed off), then NMT start."""
+    """Read 0x1016:1..2, write the `consumer_plan` entry, read 0x1800:5 and write it as
+    `event_timer_plan` says (then read it back), set 0x2001 = 0 if it is not, 0x2000 = 0
+    (feed off), then NMT start. Its outcome (`Core.done`) carries a `Configured`."""
 
     master: int
     timeout_ms: int
+    event_timer_ms: Optional[int] = None  # `--event-timer-ms`, if given
+
+
+@dataclass(frozen=True)
+class Configured:
+    """What a successful `Configure` found: the device's event timer 0x1800:5 (ms) as read
+    back at its end."""
+
+    event_timer_ms: int
 
 
 @dataclass(frozen=True)
@@ -388,6 +465,7 @@ class Pins:
     records_lost: int = 0
     frames_bad: int = 0
     state: int = -1  # last heartbeat state byte, -1 before any
+    jog_vel_mode: bool = True  # LinuxCNC's velocity mode for every axis
 
 
 @dataclass
@@ -407,6 +485,8 @@ class Core:
     suspect: bool = False  # the last TPDO1 was impossible: no axis until a possible one
     epochs_shown: bool = False  # a non-zero epoch since the last configuration
     allowance: Allowance = field(init=False)
+    event_timer: float = field(init=False)  # s: the device's, once configured
+    position_mode: bool = field(init=False)  # the `position-mode` input
     # Actions.
     configured: bool = False
     config_due: float = 0.0  # configure at this time (if not configured)
@@ -416,8 +496,10 @@ class Core:
 
     def __post_init__(self) -> None:
         self.counts = {letter: 0 for letter in self.cfg.axes}
+        self.event_timer = self.cfg.event_timer
+        self.position_mode = self.cfg.position_mode
         rate = self.cfg.max_detents_per_s
-        self.allowance = Allowance(rate=rate, cap=rate * self.cfg.rate_horizon)
+        self.allowance = Allowance(rate=rate, cap=rate * self.rate_horizon)
 
     # Events ---------------------------------------------------------------------------
 
@@ -437,22 +519,37 @@ class Core:
             self.feed_due = 0.0  # act at once
         self.enable = enable
 
+    def set_position_mode(self, position_mode: bool) -> None:
+        """The `position-mode` input. It changes `jog_vel_mode` and nothing else."""
+        self.position_mode = position_mode
+
     def tick(self, now: float) -> None:
         """Time passes: staleness."""
         self.now = max(self.now, now)
         if self.record_time is not None and not self.fresh:
             self.baseline = True
 
-    def done(self, action: Action, ok: bool, abort: Optional[int], now: float) -> None:
-        """The outcome of the pending action (`abort`: the SDO abort code, if any)."""
+    def done(
+        self,
+        action: Action,
+        ok: bool,
+        abort: Optional[int],
+        now: float,
+        result: Optional[Configured] = None,
+    ) -> None:
+        """The outcome of the pending action (`abort`: the SDO abort code, if any; `result`:
+        what a successful `Configure` found). A configuration that reports no event timer,
+        or none the component can judge staleness by, failed."""
         self.tick(now)
         if action is not self.pending:
             return
         self.pending = None
         if isinstance(action, Configure):
-            if ok:
+            low, high = EVENT_TIMER_MS_RANGE
+            if ok and result is not None and low <= result.event_timer_ms <= high:
                 self.configured = True
                 self.feed_due = 0.0
+                self._set_event_timer(result.event_timer_ms / 1000)
             else:
                 self.config_due = self.now + self.cfg.retry
         elif isinstance(action, WriteFeed):
@@ -461,9 +558,24 @@ class Core:
 
     # Decisions ------------------------------------------------------------------------
 
+    def _set_event_timer(self, period: float) -> None:
+        self.event_timer = period
+        self.allowance.cap = self.cfg.max_detents_per_s * self.rate_horizon
+        if self.allowance.level is not None:
+            self.allowance.level = min(self.allowance.level, self.allowance.cap)
+
+    @property
+    def stale_after(self) -> float:
+        """Three periods of the device's event timer (the assumed one until configured)."""
+        return 3 * self.event_timer
+
+    @property
+    def rate_horizon(self) -> float:
+        return rate_horizon(self.stale_after, self.cfg.consumer_timeout_ms)
+
     @property
     def fresh(self) -> bool:
-        return self.record_time is not None and self.now - self.record_time <= self.cfg.stale_after
+        return self.record_time is not None and self.now - self.record_time <= self.stale_after
 
     @property
     def operational(self) -> bool:
@@ -490,7 +602,9 @@ class Core:
         action: Optional[Action] = None
         if not self.configured:
             if self.now >= self.config_due:
-                action = Configure(self.cfg.master, self.cfg.consumer_timeout_ms)
+                action = Configure(
+                    self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms
+                )
         elif self.operational and self.record is not None and self.now >= self.feed_due:
             if self.enable and not self.record.enabled:
                 action = WriteFeed(1)
@@ -499,11 +613,12 @@ class Core:
         self.pending = action
         return action
 
-    def shutdown_action(self) -> Optional[Action]:
-        """What to do before the component exits: disable the feed if it may be on."""
-        if self.fresh and self.record is not None and self.record.enabled:
-            return WriteFeed(0)
-        return None
+    def shutdown_action(self) -> Action:
+        """What to do before the component exits: disable the feed, whatever the last
+        record showed. A write of 0x2000 = 1 may have been accepted without a record
+        showing it yet, and a device that has been silent for a while may be back; one SDO
+        exchange too many costs nothing."""
+        return WriteFeed(0)
 
     def pins(self) -> Pins:
         selected = self.selected() if self.fresh else None
@@ -523,6 +638,7 @@ class Core:
             records_lost=self.records_lost,
             frames_bad=self.frames_bad,
             state=-1 if self.state is None else self.state,
+            jog_vel_mode=not self.position_mode,
         )
 
     # Frame handlers -------------------------------------------------------------------
@@ -623,11 +739,24 @@ AXIS_PINS = [
         "true only for the selected axis while connected, Operational, feed enabled and `enable`",
     ),
     ("axis.{L}.jog-scale", "float", "out", "`--scale`: machine units per multiplied unit"),
-    ("axis.{L}.jog-vel-mode", "bit", "out", "false: move the exact distance"),
+    (
+        "axis.{L}.jog-vel-mode",
+        "bit",
+        "out",
+        "true: velocity mode (the axis stops within its stopping distance when the wheel "
+        "stops); false while `position-mode` is true",
+    ),
     ("halui.axis.{L}.select", "bit", "out", "the device's switch selects this axis"),
 ]
 COMPONENT_PINS = [
     ("enable", "bit", "in", "feed allowed (e.g. machine on); the component writes 0x2000 = 1 / 0"),
+    (
+        "position-mode",
+        "bit",
+        "in",
+        "true: exact position mode (every count moved, however long it takes); starts as "
+        "`--position-mode` sets it",
+    ),
     ("connected", "bit", "out", "feed records arrive (none for three event-timer periods: false)"),
     ("feed-enabled", "bit", "out", "the device reports feed enabled (status bit 0)"),
     ("encoder-error", "bit", "out", "illegal quadrature transition in this epoch (status bit 1)"),

@@ -1,0 +1,134 @@
+"""Detent to motion in LinuxCNC 2.9: `cargo xtask bench`, part 4 (not part of the suite;
+xtask runs this file alone, with the QEMU handwheel).
+
+1. Latency, over `DETENTS` single detents at x10 on X (alternating direction, 40 ms apart):
+   from the `turn 1` command to the component's `handwheel.axis.x.jog-counts` and to
+   LinuxCNC's commanded position `axis.x.pos-cmd` (its first change), sampled in LinuxCNC's
+   display (`watch`, every ~0.1 ms). The QEMU stimulus makes the detent's four edges while
+   handling the command and replies right after the last one, so the last edge lies between
+   the command and its reply: the figures from the command are an upper bound, those from
+   the reply a lower one.
+2. Run-on after a fast spin: 60 detents at x100 in 0.3 s (6 mm asked of an axis made to do
+   2 mm/s with 10 mm/s^2, stopping distance 0.2 mm) in velocity mode and in position mode:
+   how far and how long the axis moves after the last edge, and the largest lead of the
+   planner's target over the commanded position.
+3. The component's heartbeat (100 ms) over the whole run, as the test's listener receives
+   it through the SLCAN hub: the spread of its periods.
+"""
+
+import statistics
+import time
+
+from conftest import (
+    COUNTS_X,
+    POS_X,
+    SERVO_PERIOD,
+    SLOW_A,
+    SLOW_V,
+    TARGET_X,
+    spin,
+    stopping_distance,
+)
+
+DETENTS = 120
+PAUSE = 0.04
+
+
+def first_change_after(samples, column: int, t: float):
+    """The time of the first change of `column` after time `t` (None if none)."""
+    before = None
+    for s in samples:
+        if s[0] <= t:
+            before = s[column]
+            continue
+        if before is not None and s[column] != before:
+            return s[0]
+        before = s[column]
+    return None
+
+
+def percentile(values, p: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(p / 100 * (len(ordered) - 1))))]
+
+
+def figures(name: str, values_s) -> str:
+    ms = [v * 1000 for v in values_s]
+    return (
+        f"  {name:44s} median {statistics.median(ms):6.2f}  p99 {percentile(ms, 99):6.2f}"
+        f"  max {max(ms):6.2f} ms"
+    )
+
+
+def test_detent_to_motion(machine):
+    beats_from = machine.frames.mark()
+    machine.select("x", 10)
+    machine.ready_to_jog("x")
+    time.sleep(0.3)
+    commands = []
+    machine.watch(DETENTS * (PAUSE + 0.01) + 1.0, COUNTS_X, POS_X)
+    time.sleep(0.1)
+    for i in range(DETENTS):
+        sent = time.monotonic()
+        machine.stim.turn(1 if i % 2 == 0 else -1)
+        commands.append((sent, time.monotonic()))
+        time.sleep(PAUSE)
+    reply = machine.cnc.must("watched")
+    samples = [tuple(s) for s in reply["samples"]]
+    to_counts, to_pos, round_trip, counts_after_reply, pos_after_reply = [], [], [], [], []
+    for sent, answered in commands:
+        tc = first_change_after(samples, 1, sent)
+        tp = first_change_after(samples, 2, sent)
+        assert tc is not None and tp is not None, (sent, samples[-5:])
+        to_counts.append(tc - sent)
+        to_pos.append(tp - sent)
+        round_trip.append(answered - sent)
+        counts_after_reply.append(tc - answered)
+        pos_after_reply.append(tp - answered)
+    print()
+    print(f"## Detent to motion: {DETENTS} single detents at x10 on X, {PAUSE * 1000:.0f} ms apart")
+    print(
+        f"  sampling: {reply['polls']} polls in {samples[-1][0] - samples[0][0]:.1f} s, "
+        f"longest gap {reply['max_gap'] * 1000:.2f} ms"
+    )
+    print(figures("stimulus command to its reply (last edge)", round_trip))
+    print(figures("command to handwheel.axis.x.jog-counts", to_counts))
+    print(figures("command to axis.x.pos-cmd (motion starts)", to_pos))
+    print(figures("reply to handwheel.axis.x.jog-counts", counts_after_reply))
+    print(figures("reply to axis.x.pos-cmd", pos_after_reply))
+
+    bound = stopping_distance(SLOW_V, SLOW_A) + SLOW_V * SERVO_PERIOD
+    print(
+        f"## Run-on after a fast spin: 60 detents at x100 in 0.3 s (6 mm) on X at "
+        f"{SLOW_V:g} mm/s, {SLOW_A:g} mm/s^2 (v^2/2a + v*T = {bound:.3f} mm)"
+    )
+    machine.select("x", 100)
+    machine.ready_to_jog("x")
+    for position_mode in (0, 1):
+        machine.setp("handwheel.position-mode", position_mode)
+        machine.wait(
+            lambda s, m=position_mode: s["pins"]["axis.x.jog-vel-mode"] == (m == 0), 2, "mode"
+        )
+        with machine.slow_axis("x", SLOW_V, SLOW_A):
+            start = machine.pos()[0]
+            machine.watch(8.0, COUNTS_X, POS_X, TARGET_X)
+            last_edge = spin(machine, 60, pause=0.004)
+            samples = machine.watched(quiet=0.5)
+        at_edge = [s for s in samples if s[0] <= last_edge][-1]
+        moving = [s for s in samples if s[2] != samples[-1][2]]
+        stops = moving[-1][0] if moving else last_edge
+        lead = max(target - pos for _, _, pos, target in samples)
+        print(
+            f"  {'position' if position_mode else 'velocity'} mode: moved "
+            f"{samples[-1][2] - start:.3f} mm of 6, after the last edge "
+            f"{samples[-1][2] - at_edge[2]:.3f} mm in {(stops - last_edge) * 1000:.0f} ms; "
+            f"largest lead {lead:.3f} mm"
+        )
+        machine.setp("handwheel.position-mode", 0)
+    beats = [f.t for f in machine.frames.frames(0x701, since=beats_from)]
+    periods = [(b - a) * 1000 for a, b in zip(beats, beats[1:])]
+    print(
+        f"## Master heartbeat (100 ms) as received through the hub: {len(periods)} periods, "
+        f"min {min(periods):.1f}, median {statistics.median(periods):.1f}, "
+        f"max {max(periods):.1f} ms"
+    )
