@@ -10,10 +10,10 @@ Boots the ELF in the emulator of `machine.py`, drives it like a CNC and an opera
   (previous, new) A/B level pair, feed disabled and enabled, with a cycle estimate and its
   CPU share at 20 kHz;
 - per priority level, the longest stretch an interrupt of that level was held off (PRIMASK,
-  BASEPRI, or a handler of the same or higher priority running), and from it the worst
-  latency from a wheel edge to its port read; with the CAN side at its busiest (an SDO
-  request, a TPDO and a log line every millisecond), the highest edge rate with no merged
-  edge;
+  BASEPRI, or a handler of the same or higher priority running) and by what (the handler
+  and the function that raised the mask), and from it the worst latency from a wheel edge
+  to its port read; with the CAN side at its busiest (an SDO request, a TPDO and a log line
+  every millisecond), the highest edge rate with no merged edge;
 - the path from an SDO request in receive FIFO 0 (RX0 interrupt entry) to its reply written
   to a transmit mailbox, over a spread of requests;
 - every handler's deepest stack use, by priority level.
@@ -41,10 +41,11 @@ SYSCLK_HZ = 72_000_000
 WAIT_STATES = 2
 # The fastest human spin (edges per second) the figures are quoted for.
 EDGE_RATE_HZ = 20_000
-# Limits on the worst edge (entry to return) and on the latency from an edge to its port
-# read; `cargo xtask test` enforces them from the report file.
-GOAL_CYCLES = 100
-LATENCY_GOAL_CYCLES = 5 * SYSCLK_HZ // 1_000_000
+# Limits on the worst edge (entry to return) and on the highest edge rate with no merged
+# edge while the CAN side is at its busiest (a 600-PPR encoder at 10 rev/s);
+# `cargo xtask test` enforces them from the report file.
+GOAL_CYCLES = 120
+RATE_GOAL_HZ = 24_000
 GPIOB_IDR = stm32.GPIOB + 0x08
 # Milliseconds of the busiest CAN side.
 BUSY_MS = 40
@@ -523,9 +524,8 @@ def cpu_report(results: Results) -> tuple[str, dict]:
         f"| exception entry + exit | - | {cycles.EXCEPTION_ENTRY + cycles.EXCEPTION_EXIT} |"
     )
     lines.append("")
-    held, latency = latency_report(results, edge_cycles)
+    held, latency, wait, rate = latency_report(results, edge_cycles)
     lines += held
-    figures_latency = latency
     lines += ["", "SDO request in FIFO 0 (RX0 entry) to its reply's transmit request:", ""]
     lines.append("| request | reply | handlers | instructions | cycles | + wait states |")
     lines.append("|---|---|---|---:|---:|---:|")
@@ -546,7 +546,9 @@ def cpu_report(results: Results) -> tuple[str, dict]:
     figures = {
         "edge_instructions": inv.instructions,
         "edge_cycles": edge_cycles,
-        "edge_latency": figures_latency,
+        "edge_latency": latency,
+        "edge_held": wait,
+        "merge_free_hz": int(rate),
         "edge_cycles_ws": edge_cycles + edge_ws,
         "sdo_instructions": worst_sdo.instructions,
         "sdo_cycles": worst_sdo.cycles,
@@ -559,9 +561,10 @@ def logical(priority: int) -> str:
     return "reset priority" if priority == 0 else f"priority {16 - (priority >> 4)}"
 
 
-def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int]:
-    """Per priority level, the longest it was held off; the worst latency from a wheel edge
-    to its port read; the highest edge rate with the CAN side at its busiest."""
+def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, int, float]:
+    """Per priority level, the longest it was held off and by what; the worst latency from a
+    wheel edge to its port read, the longest wait in it; the highest edge rate with no merged
+    edge with the CAN side at its busiest."""
     rig = results.rig
     m = rig.m
     wheel = rig.wheel_priority
@@ -571,20 +574,22 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int]:
         "BASEPRI in a handler of lower priority, or by a handler of the same or a higher "
         "priority running, entry and exit included):",
         "",
-        "| level | handlers | masked by PRIMASK/BASEPRI | in | a handler running | which |",
-        "|---|---|---:|---|---:|---|",
+        "| level | handlers | masked by PRIMASK/BASEPRI | in | raised by | a handler running "
+        "| which |",
+        "|---|---|---:|---|---|---:|---|",
     ]
     names: dict[int, list[str]] = {}
     for exception, name in m.image.handlers.items():
         if exception not in machine.FAULTS:
             names.setdefault(m.periph.priority(exception), []).append(name)
     for level in m.mask_levels:
-        masked, _, where, _ = m.longest_masks.get(level, (0, 0, "-", 0))
+        masked, _, where, at = m.longest_masks.get(level, (0, 0, "-", 0))
+        raised_by = m.image.function_at(at) if masked else "-"
         running = [i for i in m.invocations if i.priority <= level]
         top = max(running, key=exception_cycles, default=None)
         lines.append(
             f"| {logical(level)} | {', '.join(sorted(names.get(level, [])))} | {masked} | "
-            f"{where if masked else '-'} | {exception_cycles(top) if top else 0} | "
+            f"{where if masked else '-'} | {raised_by} | {exception_cycles(top) if top else 0} | "
             f"{top.name if top else '-'} |"
         )
     wheel_runs = [i for i in m.invocations if i.exception == rig.exti]
@@ -601,14 +606,17 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int]:
     after_read = max(i.cycles - i.reads[GPIOB_IDR] for i in wheel_runs)
     others = [i for i in m.invocations if i.priority <= wheel and i.exception != rig.exti]
     other = max(others, key=exception_cycles, default=None)
-    masked = m.longest_masks.get(wheel, (0, 0, "-", 0))[0]
+    masked, _, masked_in, masked_at = m.longest_masks.get(wheel, (0, 0, "-", 0))
+    masked_by = m.image.function_at(masked_at) if masked else "-"
     waits = {
         "the previous edge's handler after its read, then tail-chaining": after_read
         + cycles.TAIL_CHAIN,
         f"another handler at the wheel's priority or above ({other.name if other else '-'})": (
             exception_cycles(other) if other else 0
         ),
-        "PRIMASK or BASEPRI at the wheel's priority": masked,
+        f"PRIMASK or BASEPRI at the wheel's priority (raised by {masked_by} in {masked_in})": (
+            masked
+        ),
     }
     cause, wait = max(waits.items(), key=lambda kv: kv[1])
     latency = wait + cycles.EXCEPTION_ENTRY + to_read
@@ -619,23 +627,24 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int]:
         f"({cause}), + entry {cycles.EXCEPTION_ENTRY} + {to_read} cycles of the handler up to "
         f"and including its read of GPIOB_IDR. The waits: "
         + "; ".join(f"{k}: {v}" for k, v in waits.items())
-        + f". Limit {LATENCY_GOAL_CYCLES} cycles (5 us): "
-        + ("met." if latency <= LATENCY_GOAL_CYCLES else "NOT MET."),
+        + ".",
     ]
     busy = results.busy
     share = busy.worst_ms_cycles * 1000 / SYSCLK_HZ
     by_cpu = (1 - share) * SYSCLK_HZ / edge_cycles
     by_latency = SYSCLK_HZ / latency
+    rate = min(by_cpu, by_latency)
     lines += [
         "",
         f"Busiest CAN side ({busy.ms} ms, each with an SDO request, a TPDO and a log line: "
         f"{busy.sdo_replies} replies, {busy.tpdos} TPDOs, {busy.log_lines} log lines): its worst "
         f"millisecond took {busy.worst_ms_cycles} cycles ({100 * share:.1f} % of the CPU). "
-        f"Highest edge rate with no merged edge then: {min(by_cpu, by_latency) / 1000:.0f} kHz "
-        f"(edges at most one latency apart: {by_latency / 1000:.0f} kHz; the CPU the CAN side "
-        f"leaves, at {edge_cycles} cycles per edge: {by_cpu / 1000:.0f} kHz).",
+        f"Highest edge rate with no merged edge then: {rate / 1000:.1f} kHz "
+        f"(edges at most one latency apart: {by_latency / 1000:.1f} kHz; the CPU the CAN side "
+        f"leaves, at {edge_cycles} cycles per edge: {by_cpu / 1000:.0f} kHz). "
+        f"Limit {RATE_GOAL_HZ / 1000:.0f} kHz: " + ("met." if rate >= RATE_GOAL_HZ else "NOT MET."),
     ]
-    return lines, latency
+    return lines, latency, wait, rate
 
 
 @dataclass
@@ -699,7 +708,7 @@ def stack_report(results: Results) -> tuple[str, list[str]]:
             else "INCONSISTENT: a write below the lowest SP seen"
         )
         + ")",
-        f"  stack region (.uninit end to top of RAM) {region} B",
+        f"  stack region (its top to its end, _stack_start to _stack_end) {region} B",
     ]
     report += [
         f"frame\t{frame}",
@@ -721,7 +730,12 @@ def main(argv: list[str]) -> int:
         results = run(args.elf)
         cpu, figures = cpu_report(results)
         stack, report = stack_report(results)
-        report += [f"edge\t{figures['edge_cycles']}", f"latency\t{figures['edge_latency']}"]
+        report += [
+            f"edge\t{figures['edge_cycles']}",
+            f"latency\t{figures['edge_latency']}",
+            f"held\t{figures['edge_held']}",
+            f"rate\t{figures['merge_free_hz']}",
+        ]
     except ScenarioError as error:
         print(f"machine-bench: {error}", file=sys.stderr)
         return 1
@@ -729,7 +743,9 @@ def main(argv: list[str]) -> int:
         print(
             f"machine-bench: EXTI9_5 worst edge {figures['edge_instructions']} instructions, "
             f"{figures['edge_cycles']} cycles ({figures['edge_cycles_ws']} with wait states), "
-            f"latency to its port read {figures['edge_latency']} cycles; "
+            f"held off at most {figures['edge_held']} cycles, latency to its port read "
+            f"{figures['edge_latency']} cycles, merge-free with the CAN side busiest up to "
+            f"{figures['merge_free_hz'] / 1000:.1f} kHz; "
             f"SDO worst {figures['sdo_instructions']} instructions, {figures['sdo_cycles']} cycles"
         )
     else:
