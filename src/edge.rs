@@ -3,9 +3,9 @@
 //! The edge task (`wheel_edge` in `src/main.rs`, bound to EXTI9_5) and the CAN-side task
 //! share `handwheel_core::EdgeState` as an RTIC `#[shared]` resource. The CAN side reaches
 //! it through [`SharedEdge`], which makes the RTIC lock `handwheel_core`'s
-//! [`EdgeAccess`]: the lock raises BASEPRI to the edge's priority for the few instructions
-//! of a snapshot or a command, so RTIC guarantees that the two never touch the state at the
-//! same time.
+//! [`EdgeAccess`]: the resource's ceiling is the edge's priority, the highest there is, so the
+//! lock is the critical section (PRIMASK) for the few instructions of a snapshot or a
+//! command, and RTIC guarantees that the two never touch the state at the same time.
 
 use handwheel_core::{EdgeAccess, EdgeState};
 

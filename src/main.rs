@@ -375,6 +375,7 @@ mod app {
     ) {
         let mut joining = RateSwitch::new();
         joining.start(rate, Mono::now().ticks());
+        let mut reported = false;
         loop {
             watchdog.feed();
             let ticks = Mono::now().ticks();
@@ -385,6 +386,7 @@ mod app {
                     rate.kbit_per_second(),
                     handwheel_device::rate_switch::SYNC_LIMIT_MS
                 );
+                reported = true;
             }
             if !joining.under_way() {
                 break;
@@ -402,7 +404,7 @@ mod app {
             let sleep = joining.sleep_cap_ms().min(RECOVERY_POLL_MS);
             Mono::delay(sleep.millis()).await;
         }
-        if joining.off_bus() {
+        if reported {
             info!("CAN: on the bus");
         }
     }

@@ -4,7 +4,7 @@ and a CAN bus whose other node is the host. No I/O and no wall clock here: `run_
 moves emulated time on; `server.py` paces it and connects it to TCP.
 
 Memory map (RM0008 3.3, figure 2): flash 64 KiB at 0x0800_0000, of which the last 1 KiB
-page (the parameter page, `board/memory.x`) is served by the FPEC model and persisted in a
+page (the parameter page, `memory.x`) is served by the FPEC model and persisted in a
 file; the rest is read/execute only, so a stray write faults. SRAM 20 KiB at 0x2000_0000,
 the system memory with the unique device ID (RM0008 30.2) and the flash size register
 (30.1), the peripherals at 0x4000_0000 with their bit-band alias, and the Cortex-M3's
