@@ -401,8 +401,13 @@ mod app {
             {
                 leds.set(run, err);
             }
+            // The main loop's wait (one timer future in the image, not two); nothing raises
+            // events before the device starts, and the main loop looks at everything anyway.
             let sleep = joining.sleep_cap_ms().min(RECOVERY_POLL_MS);
-            Mono::delay(sleep.millis()).await;
+            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
+            if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
+                EVENTS.take();
+            }
         }
         if reported {
             info!("CAN: on the bus");
