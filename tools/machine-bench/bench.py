@@ -557,8 +557,9 @@ def cpu_report(results: Results) -> tuple[str, dict]:
 
 
 def logical(priority: int) -> str:
-    """RTIC's logical priority of an NVIC priority byte (4 priority bits)."""
-    return "reset priority" if priority == 0 else f"priority {16 - (priority >> 4)}"
+    """RTIC's logical priority of an NVIC priority byte (4 priority bits): byte 0, the reset
+    priority, is logical 16."""
+    return f"priority {16 - (priority >> 4)}"
 
 
 def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, int, float]:

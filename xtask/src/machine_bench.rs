@@ -182,12 +182,9 @@ impl MachineReport {
             self.thread
         );
         for level in &self.levels {
-            let name = if level.priority == 0 {
-                "reset priority".to_string()
-            } else {
-                // RTIC's logical priority for 4 NVIC priority bits.
-                format!("priority {}", 16 - u32::from(level.priority >> 4))
-            };
+            // RTIC's logical priority for 4 NVIC priority bits (byte 0, the reset priority,
+            // is logical 16).
+            let name = format!("priority {}", 16 - u32::from(level.priority >> 4));
             let _ = writeln!(
                 out,
                 "  {name:<14} {:<18} {:>6} B + {} B frame   ({})",
@@ -423,7 +420,7 @@ mod tests {
     #[test]
     fn renders_levels_and_headroom() {
         let text = MachineReport::parse(SAMPLE).unwrap().render(4096);
-        assert!(text.contains("reset priority"), "{text}");
+        assert!(text.contains("priority 16"), "{text}");
         assert!(text.contains("priority 4"), "{text}");
         assert!(text.contains("priority 1"), "{text}");
         assert!(text.contains("headroom 948 B"), "{text}");
