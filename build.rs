@@ -1,26 +1,29 @@
-//! Puts the memory map where the linker finds it and passes the linker scripts.
+//! Tells the linker where the memory map is and passes the linker scripts.
 //!
-//! The board build links `board/memory.x` (STM32F103C8); the QEMU variant
-//! (`--features qemu`) links `qemu/memory.x` (the emulated STM32F100: 8 KiB RAM). Either is
-//! copied to `OUT_DIR` as `memory.x`, the name cortex-m-rt's `link.x` includes. Neither may
-//! sit at the package root: the linker looks for an included script in its working
-//! directory (the root) before the search paths, so a root `memory.x` would win for both.
+//! `memory.x` at the package root is the board's map (STM32F103C8). cortex-m-rt's `link.x`
+//! INCLUDEs it by that name, and the linker looks for an included script in its working
+//! directory, the package root where cargo runs rustc, before its search paths; the root is
+//! put on the search path as well, for flip-link, which relinks in a directory of its own
+//! with a modified copy of this map.
+//!
+//! The QEMU variant (`--features qemu`, the emulated STM32F100 with 8 KiB RAM) cannot bring
+//! a `memory.x` of its own: the root's is found first whatever the search path says, and a
+//! second MEMORY command would define the regions twice. So it keeps the board's regions,
+//! which fit the emulated part but for the end of RAM, and adds `qemu/ram.x` after `link.x`:
+//! it moves the stack's top to the end of the emulated 8 KiB and checks that static RAM and
+//! a minimum stack fit below it. That variant is linked by plain rust-lld (`cargo xtask`
+//! sets the linker for it): flip-link would move static RAM to the top of the board's
+//! 20 KiB, which the emulated part does not have, and `qemu/ram.x` fails such a link.
 //!
 //! The link arguments live here (not in `.cargo/config.toml` rustflags) so that they apply to
 //! this package's binary and its on-target tests only, exactly once each.
-use std::{env, fs, path::PathBuf};
+use std::{env, path::PathBuf};
 
 fn main() {
-    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    let memory = if env::var_os("CARGO_FEATURE_QEMU").is_some() {
-        "qemu/memory.x"
-    } else {
-        "board/memory.x"
-    };
-    fs::copy(memory, out.join("memory.x")).expect("the memory map is readable");
-    println!("cargo:rustc-link-search={}", out.display());
-    println!("cargo:rerun-if-changed=board/memory.x");
-    println!("cargo:rerun-if-changed=qemu/memory.x");
+    let root = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets it"));
+    println!("cargo:rustc-link-search={}", root.display());
+    println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=qemu/ram.x");
     println!("cargo:rerun-if-changed=build.rs");
 
     // Only the MCU build links; a host `cargo check` of this package must not get these.
@@ -28,6 +31,12 @@ fn main() {
         // cortex-m-rt's script (it INCLUDEs memory.x), then defmt's symbol table.
         println!("cargo:rustc-link-arg=-Tlink.x");
         println!("cargo:rustc-link-arg=-Tdefmt.x");
+        if env::var_os("CARGO_FEATURE_QEMU").is_some() {
+            println!(
+                "cargo:rustc-link-arg=-T{}",
+                root.join("qemu/ram.x").display()
+            );
+        }
         // No page alignment of the output sections: the image is placed by memory.x alone.
         println!("cargo:rustc-link-arg=--nmagic");
     }

@@ -13,11 +13,9 @@
 //!   `storage::record`).
 //! - [`events`]: interrupt-to-task wake-ups.
 //! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
-//! - [`edge`]: the wheel's edge interrupt, outside RTIC, and the CAN side's link to it.
+//! - [`edge`]: the CAN side's access to the wheel state it shares with the edge task.
 //! - [`parts`]: the one `Board` both variants' `init` return, over their part types.
 //! - [`priority`]: the interrupt priorities the firmware programs itself.
-//!
-//! Module `cs` is the image's critical section: BASEPRI up to the CAN side, never the wheel.
 //!
 //! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
 //! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' 1 KiB
@@ -43,11 +41,12 @@ pub mod board;
 #[cfg(feature = "qemu")]
 pub use qemu::board;
 pub mod can;
-mod cs;
 pub mod edge;
 pub mod events;
 mod mem;
 pub use handwheel_device::node_config;
+#[cfg(feature = "stack-overflow-test")]
+pub mod overflow;
 mod panic;
 pub mod parts;
 pub mod priority;
@@ -56,5 +55,5 @@ pub mod qemu;
 pub mod storage;
 pub mod supervision;
 
-/// The STM32F103's peripheral access crate.
-pub use stm32f1::stm32f103 as pac;
+/// The STM32F103's peripheral access crate, as stm32f1xx-hal re-exports it.
+pub use stm32f1xx_hal::pac;

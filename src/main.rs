@@ -2,39 +2,43 @@
 //!
 //! | task | runs on | priority | shares |
 //! |---|---|---|---|
-//! | edge (not an RTIC task: `handwheel_firmware::edge`) | EXTI9_5 (wheel A/B, both edges) | 4 | atomics only |
-//! | edge kick (same module) | TIM4 vector, pended by `canopen` | 4 | the edge's decoder, at its priority |
-//! | `feed_due` | TIM2 vector, pended by the edge | 3 | - |
+//! | `wheel_edge` | EXTI9_5 (wheel A/B, both edges) | 16 | `wheel` |
+//! | `feed_due` | TIM2 vector, pended by `wheel_edge` | 3 | - |
 //! | `can_rx0` | USB_LP_CAN_RX0 | 3 | `can` |
 //! | `can_tx` | USB_HP_CAN_TX | 3 | `can` |
 //! | `can_sce` | CAN_SCE | 3 | `can` |
 //! | SysTick (the monotonic) | SysTick | 3 | its timer queue, in critical sections |
-//! | `canopen` | software (TIM3 dispatcher) | 2 | `device`, `wheel`, `can` |
+//! | `canopen` | software (TIM3 dispatcher) | 2 | `can`, `wheel` |
 //! | `idle` | thread mode | 0 | - |
 //!
-//! The wheel's edges preempt everything, and nothing ever masks them: an edge is only known
-//! by the levels read after it, so a late read merges two edges into an illegal jump. The
-//! edge interrupt owns its decoder and reaches the CAN side through lock-free atomics
-//! (`handwheel_core::edge`), so it is no RTIC task and no RTIC lock or critical section
-//! reaches its priority (the critical section masks by BASEPRI up to priority 3: `src/cs.rs`).
+//! The wheel's edges preempt every task: an edge is only known by the levels read after it,
+//! so a late read merges two edges into an illegal jump. `wheel_edge` runs at the highest
+//! priority the part has (16, NVIC priority 0), owns the pins (a local resource) and shares
+//! the decoder with the CAN side (`wheel`, `handwheel_core::EdgeState`): RTIC guarantees the
+//! exclusive access. At that ceiling RTIC's lock is the critical section (PRIMASK), the
+//! cheapest lock for the edge itself; the CAN side takes it for a copy of the totals or a
+//! decoder command, a few dozen cycles. What else holds the edge off is that same critical
+//! section, which stm32f1xx-hal brings (cortex-m's single-core one): defmt's RTT logger
+//! holds it for a log frame, the monotonic's timer queue and the wakers for a few
+//! instructions; see docs/PERFORMANCE.md for the longest stretch. The edge never wakes the
+//! CAN side itself: a detent pends `feed_due` (one NVIC store), which raises the wake-up
+//! below it.
 //! The CAN interrupts come next because the receive FIFO holds only three frames and the
 //! mailboxes only three; they only move frames between hardware and queues. Everything that
 //! touches the CANopen device runs in one task, `canopen` (priority 2), which also samples
-//! the selector switches and drives the LEDs: the device and the CAN side's half of the wheel
-//! are that task's local resources and need no lock, and nothing on the CAN side ever
-//! preempts another part of it.
+//! the selector switches and drives the LEDs: the device and the accumulator are that task's
+//! own and need no lock, and nothing on the CAN side ever preempts another part of it.
 //!
 //! SysTick (the monotonic) runs at priority 3, not at its reset priority above everything:
-//! its timer queue is guarded by critical sections, which must mask it. A tick is a counter
-//! increment and a queue check; it waits at most for one CAN interrupt or one critical
-//! section, far less than its 1 ms period, so no tick is missed.
+//! so it never delays an edge. A tick is a counter increment and a queue check; it waits at
+//! most for one CAN interrupt, the edge or a critical section, far less than its 1 ms
+//! period, so no tick is missed.
 //!
 //! The QEMU variant (`--features qemu`) is this same application, task for task, over the
 //! QEMU board layer (`handwheel_firmware::qemu`): there `can_rx0` is pended by the USART1
-//! interrupt that carries SLCAN from the host, and the edge interrupt by the USART2
-//! interrupt that carries stimulus commands. Those two handlers belong to the board layer,
-//! outside this app, at priority 3, and share nothing with it but lock-free queues and
-//! atomics.
+//! interrupt that carries SLCAN from the host, and `wheel_edge` by the USART2 interrupt that
+//! carries stimulus commands. Those two handlers belong to the board layer, outside this
+//! app, at priority 3, and share nothing with it but lock-free queues and atomics.
 #![no_std]
 #![no_main]
 
@@ -57,15 +61,15 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
-    use canopen_slave::{RxFilter, WideClock};
+    use canopen_slave::{BusState, RxFilter, WideClock};
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::{debug, info};
-    use handwheel_core::{DecoderConfig, LinkedWheel, WheelAccess};
-    use handwheel_device::{Duties, HandwheelDevice, RateSwitch};
+    use handwheel_core::{BitRate, DecoderConfig, EdgeState, LinkedWheel, WheelAccess};
+    use handwheel_device::{duties::RECOVERY_POLL_MS, Duties, HandwheelDevice, RateSwitch};
     use handwheel_firmware::{
-        board::{self, Leds, Selectors, SYSCLK_HZ},
+        board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
         can::{self, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
-        edge::{self, PendedEdge},
+        edge::{self, SharedEdge},
         events::EventSet,
         node_config, priority,
         storage::DeviceStorage,
@@ -75,8 +79,8 @@ mod app {
     use rtic_monotonics::systick::prelude::*;
 
     // The literals of the task attributes below and the levels the firmware programs itself
-    // (`priority`) must agree: the edge above the CAN side, the critical section at it.
-    const _: () = assert!(priority::WHEEL == 4 && priority::CAN == 3);
+    // (`priority`) must agree: the edge at the top, SysTick at the CAN side.
+    const _: () = assert!(priority::WHEEL == 16 && priority::CAN == 3);
 
     /// Watchdog timeout: several missed rounds of the CAN-side task (which sleeps at most
     /// `duties::MAX_SLEEP_MS`), longer than a flash page erase (up to 40 ms).
@@ -84,21 +88,24 @@ mod app {
 
     /// The CANopen handwheel with its parameter page.
     type Device = HandwheelDevice<DeviceStorage>;
-    /// The CAN side's half of the wheel, linked to the edge interrupt.
-    type Wheel = LinkedWheel<PendedEdge>;
 
     #[shared]
     struct Shared {
         /// bxCAN and its transmit queue.
         can: CanPort,
+        /// The decoder and its totals: written by every edge, read and configured by the
+        /// CAN side under its lock.
+        wheel: EdgeState,
     }
 
     #[local]
     struct Local {
+        /// The wheel's A/B inputs: only `wheel_edge` reads them.
+        wheel_inputs: WheelInputs,
         /// The CANopen device: only `canopen` touches it.
         device: Device,
-        /// The accumulator and the view of the edge's decoder: only `canopen` touches them.
-        wheel: Wheel,
+        /// The bit rate the controller was started at, which `canopen` waits to join.
+        bit_rate: BitRate,
         /// The acceptance filter the CAN port has now.
         rx_filter: RxFilter,
         rx_producer: RxProducer,
@@ -113,8 +120,8 @@ mod app {
         let mut core = cx.core;
         let mut board = board::init(cx.device);
         Mono::start(core.SYST, SYSCLK_HZ);
-        // SAFETY: SysTick's level is what the critical section masks (see the table above);
-        // no RTIC lock depends on it, as it is no RTIC task.
+        // SAFETY: no RTIC lock depends on SysTick's level, as it is no RTIC task; at the CAN
+        // side's level it never delays the wheel's edge task (see the table above).
         unsafe {
             core.SCB
                 .set_priority(SystemHandler::SysTick, priority::hardware(priority::CAN))
@@ -146,13 +153,12 @@ mod app {
             Some(node_id) => RxFilter::new(node_id),
             None => RxFilter::unconfigured(),
         };
+        // Asks the controller to join and returns at once: on a dominant bus it never would
+        // (`canopen` waits for it, feeding the watchdog started below).
         let can = can::start(board.can, settings.bit_rate, filter, Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
-        let config = DecoderConfig::default();
-        let wheel = match edge::start(board.wheel, config, &mut core.NVIC) {
-            Some(link) => LinkedWheel::new(link, config),
-            None => unreachable!("init runs once"),
-        };
+        // The decoder at rest on the levels read now, with the settings 0x2020 starts with.
+        let wheel = EdgeState::new(DecoderConfig::default(), board.wheel.levels());
 
         board.watchdog.start(WATCHDOG_MS);
         // The first spawn of a task cannot fail. Were it ever to, nothing would feed the
@@ -162,10 +168,12 @@ mod app {
         (
             Shared {
                 can: CanPort::new(can),
+                wheel,
             },
             Local {
+                wheel_inputs: board.wheel,
                 device,
-                wheel,
+                bit_rate: settings.bit_rate,
                 rx_filter: filter,
                 rx_producer,
                 rx_consumer,
@@ -185,11 +193,24 @@ mod app {
         }
     }
 
+    /// One wheel edge: acknowledge, read A and B in one port read, decode under the `wheel`
+    /// lock (at this ceiling the critical section, a few cycles) and, after a detent, pend
+    /// `feed_due` before leaving it. No log, no panic path, no wake-up.
+    #[task(binds = EXTI9_5, priority = 16, local = [wheel_inputs], shared = [wheel])]
+    fn wheel_edge(mut cx: wheel_edge::Context) {
+        let levels = cx.local.wheel_inputs.acknowledge_edge();
+        cx.shared.wheel.lock(|wheel| {
+            if wheel.on_edge(levels) {
+                rtic::pend(edge::FEED_DUE);
+            }
+        });
+    }
+
     /// Wakes `canopen` for a feed frame. Runs on TIM2's vector (the timer itself is unused),
-    /// pended by the edge interrupt, which thus costs one NVIC store instead of a wake-up
-    /// (a critical section the edge must not enter); below the wheel's priority, so an edge
-    /// preempts it, and above `canopen`'s, so the wake-up is immediate. Several edges before
-    /// it runs cost one wake.
+    /// pended by `wheel_edge`, which thus costs one NVIC store instead of a wake-up (a
+    /// critical section on every detent); below the wheel's priority, so an edge preempts
+    /// it, and above `canopen`'s, so the wake-up is immediate. Several edges before it runs
+    /// cost one wake.
     #[task(binds = TIM2, priority = 3)]
     fn feed_due(_: feed_due::Context) {
         EVENTS.raise(EventSet::FEED_DUE);
@@ -225,20 +246,22 @@ mod app {
 
     /// The CAN side: everything that touches the CANopen device, in one loop at one priority.
     ///
-    /// Each round feeds the watchdog, so if this loop stops (a hung lock, a dead executor),
-    /// the MCU resets. It sleeps until an interrupt raises an event, the device's next
-    /// deadline, the next selector sample (every 5 ms, which also times the wheel's
+    /// It first waits for the controller to join the bus (see [`join_bus`]), then starts
+    /// the device. Each round feeds the watchdog, so if this loop stops (a hung lock, a dead
+    /// executor), the MCU resets. It sleeps until an interrupt raises an event, the device's
+    /// next deadline, the next selector sample (every 5 ms, which also times the wheel's
     /// standstill) or the next LED update (every 50 ms).
     /// Sampling the switches and driving the LEDs here rather than in tasks of their own
     /// costs nothing in latency (they are 5 and 50 ms periodic, far slower than a round) and
-    /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The CAN
-    /// side's half of the wheel is this task's own (the edge's half is reached through
-    /// atomics); the transmit queue through one short lock per frame, never for a whole round.
+    /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The
+    /// accumulator is this task's own; the decoder it shares with `wheel_edge` is reached
+    /// under the `wheel` lock, a copy or a command at a time; the transmit queue through one
+    /// short lock per frame, never for a whole round.
     #[task(
         priority = 2,
         local = [
             device,
-            wheel,
+            bit_rate,
             rx_filter,
             rx_consumer,
             watchdog,
@@ -248,7 +271,7 @@ mod app {
             rate_switch: RateSwitch = RateSwitch::new(),
             clock: WideClock = WideClock::new(),
         ],
-        shared = [can]
+        shared = [can, wheel]
     )]
     async fn canopen(cx: canopen::Context) {
         // QEMU: the boot-up must not reach the master's socket before pyserial's flush on
@@ -256,14 +279,26 @@ mod app {
         // QEMU's watchdog is only a stand-in.
         #[cfg(feature = "qemu")]
         Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
+        #[cfg(feature = "stack-overflow-test")]
+        handwheel_firmware::overflow::run();
         let local = cx.local;
-        let (device, wheel, supervision) = (local.device, local.wheel, local.supervision);
+        let (device, supervision) = (local.device, local.supervision);
         let rate_switch = local.rate_switch;
         let mut tx = TxSink(cx.shared.can);
+        let wheel = &mut LinkedWheel::new(SharedEdge(cx.shared.wheel), DecoderConfig::default());
+        let mut duties = Duties::new(Mono::now().ticks());
+        join_bus(
+            *local.bit_rate,
+            device,
+            &mut duties,
+            local.watchdog,
+            local.leds,
+            &mut tx.0,
+        )
+        .await;
         // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
         // the sampling duty is due immediately).
         device.start(local.clock.now(Mono::now().ticks()), wheel, &mut tx);
-        let mut duties = Duties::new(Mono::now().ticks());
         loop {
             local.watchdog.feed();
             // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
@@ -321,9 +356,71 @@ mod app {
         }
     }
 
+    /// Boot on a dead bus: waits until the controller, asked to join in `init`, is on the bus
+    /// at `rate`, feeding the watchdog.
+    ///
+    /// On a dominant bus (no transceiver, a short) that takes as long as the fault lasts; the
+    /// device is held back meanwhile (its boot-up must be the first frame it sends, and no
+    /// frame passes anyway). Past `SYNC_LIMIT_MS` the node counts as off the bus: the log
+    /// says so once and the ERR LED is on (CiA 303-3 bus-off; RUN stays dark, the device is
+    /// not initialised yet). The controller joins by itself once the bus is free; this
+    /// returns then, within `RECOVERY_POLL_MS`. On a healthy bus it returns within a frame.
+    async fn join_bus(
+        rate: BitRate,
+        device: &Device,
+        duties: &mut Duties,
+        watchdog: &mut board::watchdog::Watchdog,
+        leds: &mut Leds,
+        can: &mut impl Mutex<T = CanPort>,
+    ) {
+        let mut joining = RateSwitch::new();
+        joining.start(rate, Mono::now().ticks());
+        let mut reported = false;
+        loop {
+            watchdog.feed();
+            let ticks = Mono::now().ticks();
+            if let Some(rate) = joining.poll(ticks, |rate| can.lock(|c| c.switch_bit_rate(rate))) {
+                defmt::error!(
+                    "CAN: no 11 recessive bits at {=u32} kbit/s within {=u32} ms of boot: \
+                     waiting for the bus",
+                    rate.kbit_per_second(),
+                    handwheel_device::rate_switch::SYNC_LIMIT_MS
+                );
+                reported = true;
+            }
+            if !joining.under_way() {
+                break;
+            }
+            let bus = if joining.off_bus() {
+                BusState::BusOff
+            } else {
+                BusState::ErrorActive
+            };
+            if let Some((run, err)) =
+                duties.leds(ticks, device.nmt_state(), device.error_indication(), bus)
+            {
+                leds.set(run, err);
+            }
+            // The main loop's wait (one timer future in the image, not two); nothing raises
+            // events before the device starts, and the main loop looks at everything anyway.
+            let sleep = joining.sleep_cap_ms().min(RECOVERY_POLL_MS);
+            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
+            if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
+                EVENTS.take();
+            }
+        }
+        if reported {
+            info!("CAN: on the bus");
+        }
+    }
+
     /// A new switch selection goes to the device (after the frames of the same round, so an
     /// SDO request that came first is answered under the old one).
-    fn apply_sample(sample: handwheel_device::Sample, device: &mut Device, wheel: &mut Wheel) {
+    fn apply_sample(
+        sample: handwheel_device::Sample,
+        device: &mut Device,
+        wheel: &mut impl WheelAccess,
+    ) {
         if sample.rest_learnt {
             debug!("wheel: rest learnt at standstill");
         }

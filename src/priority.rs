@@ -1,15 +1,17 @@
 //! Interrupt priorities that the firmware sets outside RTIC's task attributes.
 //!
 //! RTIC's `priority = n` attributes in `src/main.rs` must be literals; these constants name
-//! the same levels for the code that programs the NVIC itself (the wheel's edge interrupt,
-//! SysTick, the critical section). `src/main.rs` checks that they agree.
+//! the same levels for the code that programs the NVIC itself (SysTick, the QEMU board's
+//! USART handlers). `src/main.rs` checks that they agree.
 
 use crate::pac::NVIC_PRIO_BITS;
 
-/// The wheel's edge interrupt: above everything else, so nothing delays its port read.
-pub const WHEEL: u8 = 4;
-/// The CAN interrupts, the `feed_due` relay, SysTick, the QEMU board's USART handlers, and the
-/// critical section's mask.
+/// The wheel's edge task: the highest priority the part has (NVIC priority byte 0), so
+/// nothing but a critical section delays its port read. At this ceiling RTIC's lock of the
+/// shared wheel state is the critical section itself (PRIMASK) instead of a BASEPRI raise
+/// with its barriers: 12 cycles less on every edge (docs/PERFORMANCE.md).
+pub const WHEEL: u8 = 16;
+/// The CAN interrupts, the `feed_due` relay, SysTick and the QEMU board's USART handlers.
 pub const CAN: u8 = 3;
 
 /// The NVIC's priority byte for an RTIC logical priority (higher logical = more urgent =

@@ -77,8 +77,12 @@ mod tests {
             RxFilter::new(node),
             Mode::SilentLoopback,
         );
+        let mut port = CanPort::new(can);
+        // `can::start` only asks the controller to join; in loopback it sees its own
+        // recessive TX at once, so this takes a few bit times.
+        while !port.switch_bit_rate(BitRate::Kbit1000) {}
         State {
-            port: CanPort::new(can),
+            port,
             rx: RxQueue::new(),
         }
     }

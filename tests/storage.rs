@@ -104,8 +104,8 @@ mod tests {
         defmt::unwrap!(page.store(super::now(), &[0xFF, 0xFF, 0x55, 0x55]));
         // Program that half-word to 0x0000: allowed without an erase, and the second
         // record's CRC no longer matches.
-        let flash = page.into_flash().free();
-        super::program_half_word(&flash, PAGE_OFFSET + 28, 0x0000);
+        let mut flash = page.into_flash().free();
+        super::program_half_word(&mut flash, PAGE_OFFSET + 28, 0x0000);
         let page = DeviceStorage::new(FlashStorage::new(flash));
         defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[0x55, 0x55, 0x55, 0x55]);
         // Leave the board with nothing stored: it boots with its defaults.
@@ -141,22 +141,12 @@ fn crc(page: &[u8]) -> u32 {
     handwheel_firmware::storage::record::crc32(page)
 }
 
-/// Programs one half-word at `offset` from the start of flash, independently of
-/// `FlashStorage` (RM0008 3.3.3: unlock, PG, a half-word write, BSY, lock).
-fn program_half_word(flash: &handwheel_firmware::pac::FLASH, offset: u32, value: u16) {
-    for key in [0x4567_0123, 0xCDEF_89AB] {
-        // SAFETY: the documented unlock keys, in order; a wrong one would only lock FLASH_CR
-        // until reset.
-        flash.keyr().write(|w| unsafe { w.key().bits(key) });
-    }
-    flash.cr().modify(|_, w| w.pg().set_bit());
-    let at = (0x0800_0000 + offset) as *mut u16;
-    // SAFETY: `at` is a half-word inside the parameter page, which no code or data uses,
-    // and PG is set: the write programs it.
-    unsafe { core::ptr::write_volatile(at, value) };
-    cortex_m::asm::nop();
-    while flash.sr().read().bsy().bit_is_set() {}
-    flash
-        .cr()
-        .modify(|_, w| w.pg().clear_bit().lock().set_bit());
+/// Programs one half-word at `offset` from the start of flash with the HAL's writer directly,
+/// not through `FlashStorage` (RM0008 3.3.3: unlock, PG, a half-word write, BSY, lock).
+fn program_half_word(flash: &mut stm32f1xx_hal::flash::Parts, offset: u32, value: u16) {
+    use stm32f1xx_hal::flash::{FlashSize, SectorSize};
+    let mut writer = flash.writer(SectorSize::Sz1K, FlashSize::Sz64K);
+    // Programming over a half-word that is not erased takes only 0x0000 (PGERR otherwise),
+    // so the writer's read-back of other values would fail; 0x0000 reads back.
+    defmt::unwrap!(writer.write(offset, &value.to_le_bytes()).ok());
 }

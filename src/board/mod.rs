@@ -1,18 +1,34 @@
-//! The board: clocks, pins, and the peripherals the application gets handed.
+//! The board: clocks, pins, and the peripherals the application gets handed, brought up with
+//! stm32f1xx-hal.
 //!
 //! Everything specific to the Blue Pill class STM32F103C8 board sits behind this module and
 //! its siblings `can` and `storage`: a board variant (the QEMU build with HSI clock, USART
 //! SLCAN and simulated pins) replaces `init` and the types it returns, and the RTIC
 //! application above it stays as it is.
+//!
+//! The HAL does the clock tree (`rcc`), the pin modes, the AFIO remap of bxCAN to PB8/PB9,
+//! the wheel's EXTI lines (`ExtiPin`), the bxCAN clock and pins (`can::Can`), the flash
+//! writer and the watchdog. What it has no API for is done by hand here, each with its
+//! reason: the reset cause (RCC_CSR), the unique ID, and the one read of GPIOB's input
+//! register that yields A and B together (the HAL reads a pin at a time).
 
 pub mod pins;
 pub mod watchdog;
 
-use crate::pac::{self, gpioa::RegisterBlock as Port};
 use handwheel_core::AbLevels;
+use stm32f1xx_hal::{
+    afio::Remap,
+    can::Can,
+    gpio::{
+        self, Edge, ExtiPin, IOPinSpeed, Input, Output, OutputSpeed, PinState, PullUp, PushPull,
+    },
+    pac,
+    prelude::*,
+    rcc,
+};
 
 use crate::storage::FlashStorage;
-use pins::{PortConfig, WHEEL_A_BIT, WHEEL_B_BIT, WHEEL_EXTI_LINES};
+use pins::{WHEEL_A_BIT, WHEEL_B_BIT};
 use watchdog::Watchdog;
 
 /// The crystal on the board.
@@ -22,18 +38,22 @@ pub const SYSCLK_HZ: u32 = 72_000_000;
 /// APB1 clock, the bxCAN kernel clock that the bit timing table is computed for.
 pub const APB1_HZ: u32 = 36_000_000;
 
-/// bxCAN, clocked and out of reset, ready for `bxcan::Can::builder`. Its pins (PB8/PB9,
-/// remap 2) are set up by [`init`] with the rest of the pin map.
+/// The HAL's bxCAN (clocked, its pins PB8/PB9 in their remap-2 modes), for
+/// `bxcan::Can::builder`.
+///
+/// A wrapper, not the HAL's `Can` itself, for one reason: the HAL's `bxcan::FilterOwner`
+/// claims 28 filter banks on every part, the connectivity line's count; the STM32F103 has 14
+/// (RM0008 24.7.4). This is the one place that says so. (bxcan only uses the count to split
+/// banks between two instances, which this part does not have, and takes the banks in use
+/// from CAN_FMR; still, the firmware states the right number.)
 pub struct CanInstance {
-    _can: pac::CAN,
-    /// Held, never used: USB shares its packet SRAM with bxCAN (RM0008 24.1), so the two
-    /// must not run together.
-    _usb: pac::USB,
+    _can: Can<pac::CAN, PullUp>,
 }
 
 // SAFETY: the register block of bxCAN on this part is at CAN's address (RM0008 3.3, memory
-// map) with the layout of RM0008 24.9, which `bxcan::RegisterBlock` models; owning
-// `pac::CAN` makes `CanInstance` the one handle to it.
+// map) with the layout of RM0008 24.9, which `bxcan::RegisterBlock` models; `CanInstance`
+// owns the HAL's `Can`, which owns `pac::CAN` (and `pac::USB`, which shares bxCAN's SRAM),
+// so it is the one handle to it.
 unsafe impl bxcan::Instance for CanInstance {
     const REGISTERS: *mut bxcan::RegisterBlock = pac::CAN::PTR as *mut _;
 }
@@ -43,9 +63,6 @@ unsafe impl bxcan::Instance for CanInstance {
 unsafe impl bxcan::FilterOwner for CanInstance {
     const NUM_FILTER_BANKS: u8 = 14;
 }
-
-// SAFETY: the single bxCAN of the STM32F103 is a master instance (it has the filter banks).
-unsafe impl bxcan::MasterInstance for CanInstance {}
 
 /// The STM32F103 board's parts.
 pub enum Parts {}
@@ -59,181 +76,166 @@ pub type Board = crate::parts::Board<Parts>;
 
 /// Brings up clocks and pins. Takes the device peripherals that RTIC's `init` hands over.
 pub fn init(dp: pac::Peripherals) -> Board {
-    let rcc = dp.RCC;
-    start_clocks(&rcc, &dp.FLASH);
+    const _: () = assert!(HSE_HZ * 9 == SYSCLK_HZ && SYSCLK_HZ / 2 == APB1_HZ);
+    let mut flash = dp.FLASH.constrain();
+    // HSE, PLL x9, AHB /1, APB1 /2 (36 MHz, its maximum and the bxCAN clock the bit timing
+    // table assumes), APB2 /1, two flash wait states (RM0008 7.3, 3.3.3).
+    let mut rcc = dp.RCC.freeze(
+        rcc::Config::hse(HSE_HZ.Hz())
+            .sysclk(SYSCLK_HZ.Hz())
+            .hclk(SYSCLK_HZ.Hz())
+            .pclk1(APB1_HZ.Hz())
+            .pclk2(SYSCLK_HZ.Hz()),
+        &mut flash.acr,
+    );
     let reset_cause = ResetCause::take(&rcc);
-    rcc.apb2enr().modify(|_, w| {
-        w.afioen()
-            .set_bit()
-            .iopaen()
-            .set_bit()
-            .iopben()
-            .set_bit()
-            .iopcen()
-            .set_bit()
-    });
-    configure_port(&dp.GPIOA, pins::PORT_A);
-    configure_port(&dp.GPIOB, pins::PORT_B);
-    configure_port(&dp.GPIOC, pins::PORT_C);
 
-    // Wheel: both edges of both channels on EXTI6/EXTI7 (they share the EXTI9_5 vector),
-    // taken from port B. The CAN pins move to PB8/PB9; SWJ_CFG written as 0 keeps SWD.
-    // SAFETY: EXTI6/EXTI7 = 1 selects port B, a valid source.
-    dp.AFIO
-        .exticr2()
-        .modify(|_, w| unsafe { w.exti6().bits(1).exti7().bits(1) });
-    // SAFETY: CAN_REMAP = 0b10 is the documented PB8/PB9 mapping.
-    dp.AFIO
-        .mapr()
-        .modify(|_, w| unsafe { w.can_remap().bits(pins::CAN_REMAP_PB8_PB9) });
-    let exti = dp.EXTI;
-    // SAFETY: sets the two wheel lines' bits (rising edge), which exist on this part.
-    exti.rtsr()
-        .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
-    // SAFETY: sets the two wheel lines' bits (falling edge), which exist on this part.
-    exti.ftsr()
-        .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
-    // SAFETY: unmasks the two wheel lines, which exist on this part.
-    exti.imr()
-        .modify(|r, w| unsafe { w.bits(r.bits() | WHEEL_EXTI_LINES) });
+    let mut afio = dp.AFIO.constrain(&mut rcc);
+    let mut gpioa = dp.GPIOA.split(&mut rcc);
+    let mut gpiob = dp.GPIOB.split(&mut rcc);
+    let mut gpioc = dp.GPIOC.split(&mut rcc);
+
+    // Axis X..V on PA0..PA4, multiplier x1, x10, x100 on PA5..PA7: pulled up, active low.
+    let selectors = Selectors {
+        axis: [
+            gpioa.pa0.into_pull_up_input(&mut gpioa.crl).erase_number(),
+            gpioa.pa1.into_pull_up_input(&mut gpioa.crl).erase_number(),
+            gpioa.pa2.into_pull_up_input(&mut gpioa.crl).erase_number(),
+            gpioa.pa3.into_pull_up_input(&mut gpioa.crl).erase_number(),
+            gpioa.pa4.into_pull_up_input(&mut gpioa.crl).erase_number(),
+        ],
+        multiplier: [
+            gpioa.pa5.into_pull_up_input(&mut gpioa.crl).erase_number(),
+            gpioa.pa6.into_pull_up_input(&mut gpioa.crl).erase_number(),
+            gpioa.pa7.into_pull_up_input(&mut gpioa.crl).erase_number(),
+        ],
+    };
+    // DIP switches 1..8, pulled up, on = low.
+    let dip_pins = [
+        gpiob.pb12.into_pull_up_input(&mut gpiob.crh).erase_number(),
+        gpiob.pb13.into_pull_up_input(&mut gpiob.crh).erase_number(),
+        gpiob.pb14.into_pull_up_input(&mut gpiob.crh).erase_number(),
+        gpiob.pb15.into_pull_up_input(&mut gpiob.crh).erase_number(),
+        gpiob.pb0.into_pull_up_input(&mut gpiob.crl).erase_number(),
+        gpiob.pb1.into_pull_up_input(&mut gpiob.crl).erase_number(),
+        gpiob.pb10.into_pull_up_input(&mut gpiob.crh).erase_number(),
+        gpiob.pb11.into_pull_up_input(&mut gpiob.crh).erase_number(),
+    ];
+
+    // The LEDs start dark: RUN (PC13) sinks the on-board LED's current, ERR (PB5) sources.
+    let mut run = gpioc
+        .pc13
+        .into_push_pull_output_with_state(&mut gpioc.crh, PinState::High);
+    run.set_speed(&mut gpioc.crh, IOPinSpeed::Mhz2);
+    let mut err = gpiob
+        .pb5
+        .into_push_pull_output_with_state(&mut gpiob.crl, PinState::Low);
+    err.set_speed(&mut gpiob.crl, IOPinSpeed::Mhz2);
+
+    // Wheel: both edges of both channels on EXTI6/EXTI7 (they share the EXTI9_5 vector).
+    let mut exti = dp.EXTI;
+    let mut a = gpiob.pb6.into_pull_up_input(&mut gpiob.crl);
+    let mut b = gpiob.pb7.into_pull_up_input(&mut gpiob.crl);
+    a.make_interrupt_source(&mut afio);
+    b.make_interrupt_source(&mut afio);
+    a.trigger_on_edge(&mut exti, Edge::RisingFalling);
+    b.trigger_on_edge(&mut exti, Edge::RisingFalling);
+    a.enable_interrupt(&mut exti);
+    b.enable_interrupt(&mut exti);
+
+    // bxCAN on PB8 (RX, pulled up) and PB9 (TX) with AFIO remap 2 (MAPR's SWJ_CFG written as
+    // 0 keeps SWD); USB is handed over too, as it shares bxCAN's packet SRAM.
+    let can = Can::new(
+        dp.CAN.remap::<2>(&mut afio.mapr),
+        dp.USB,
+        (gpiob.pb9, gpiob.pb8.into_pull_up_input(&mut gpiob.crh)),
+        &mut rcc,
+    );
 
     // The pull-ups need a moment to lift the open lines after the mode change.
     cortex_m::asm::delay(SYSCLK_HZ / 10_000);
-    let dip = pins::dip_from_port(dp.GPIOB.idr().read().bits());
-
-    // bxCAN's clock on, and a reset pulse so that it starts from its reset values.
-    rcc.apb1enr().modify(|_, w| w.canen().set_bit());
-    rcc.apb1rstr().modify(|_, w| w.canrst().set_bit());
-    rcc.apb1rstr().modify(|_, w| w.canrst().clear_bit());
-    let can = CanInstance {
-        _can: dp.CAN,
-        _usb: dp.USB,
-    };
+    let dip = dip_pins.iter().enumerate().fold(0, |dip, (switch, pin)| {
+        dip | u8::from(pin.is_low()) << switch
+    });
 
     let watchdog = Watchdog::new(dp.IWDG, &dp.DBGMCU);
 
     Board {
-        wheel: WheelInputs { exti },
-        selectors: Selectors { port: dp.GPIOA },
+        wheel: WheelInputs { a, b },
+        selectors,
         dip,
-        leds: Leds {
-            port_b: dp.GPIOB,
-            port_c: dp.GPIOC,
-        },
-        can,
-        storage: FlashStorage::new(dp.FLASH),
+        leds: Leds { run, err },
+        can: CanInstance { _can: can },
+        storage: FlashStorage::new(flash),
         watchdog,
         reset_cause,
         unique_id: unique_id(),
     }
 }
 
-/// 72 MHz from the 8 MHz crystal: HSE, PLL x9, AHB /1, APB1 /2 (36 MHz, its maximum and the
-/// bxCAN clock the bit timing table assumes), APB2 /1, and the two flash wait states with the
-/// prefetch buffer that 48-72 MHz need (RM0008 7.3.1-7.3.2 for RCC, 3.3.3 for FLASH_ACR).
-fn start_clocks(rcc: &pac::RCC, flash: &pac::FLASH) {
-    const _: () = assert!(HSE_HZ * 9 == SYSCLK_HZ && SYSCLK_HZ / 2 == APB1_HZ);
-    rcc.cr().modify(|_, w| w.hseon().set_bit());
-    while rcc.cr().read().hserdy().bit_is_clear() {}
-    // Wait states before the clock rises.
-    // SAFETY: LATENCY = 2 is the documented setting for 48 < SYSCLK <= 72 MHz.
-    flash
-        .acr()
-        .modify(|_, w| unsafe { w.latency().bits(2) }.prftbe().set_bit());
-    rcc.cfgr().modify(|_, w| {
-        w.pllsrc().set_bit(); // HSE, undivided (PLLXTPRE stays 0)
-        w.pllmul().mul9();
-        w.hpre().div1();
-        w.ppre1().div2();
-        w.ppre2().div1()
-    });
-    rcc.cr().modify(|_, w| w.pllon().set_bit());
-    while rcc.cr().read().pllrdy().bit_is_clear() {}
-    rcc.cfgr().modify(|_, w| w.sw().pll());
-    while !rcc.cfgr().read().sws().is_pll() {}
-}
-
-/// Applies `config` to `port`: output levels first, so that an output starts at its level,
-/// then the pin modes, one read-modify-write per configuration register.
-fn configure_port(port: &Port, config: PortConfig) {
-    // SAFETY: BSRR only sets or clears output data bits.
-    port.bsrr().write(|w| unsafe { w.bits(config.bsrr()) });
-    let [low_mask, high_mask] = [config.cr_mask as u32, (config.cr_mask >> 32) as u32];
-    let [low_bits, high_bits] = [config.cr_bits as u32, (config.cr_bits >> 32) as u32];
-    if low_mask != 0 {
-        // SAFETY: the pin map's nibbles for its own pins of CRL; every other pin's nibble
-        // is kept.
-        port.crl()
-            .modify(|r, w| unsafe { w.bits(r.bits() & !low_mask | low_bits) });
-    }
-    if high_mask != 0 {
-        // SAFETY: as for CRL above, in CRH.
-        port.crh()
-            .modify(|r, w| unsafe { w.bits(r.bits() & !high_mask | high_bits) });
-    }
-}
-
-/// The wheel's A/B inputs and the EXTI controller that signals their edges.
+/// The wheel's A/B inputs (PB6, PB7), the EXTI sources of its interrupt.
 pub struct WheelInputs {
-    exti: pac::EXTI,
+    a: gpio::PB6<Input<PullUp>>,
+    b: gpio::PB7<Input<PullUp>>,
 }
 
 impl WheelInputs {
     /// Acknowledges an edge interrupt and returns the A/B levels after it.
     ///
-    /// The pending bits are cleared first and the port read second: an edge that lands
-    /// between the two sets the pending bit again and the interrupt runs once more, so no
-    /// edge is missed. Both channels come from one read of GPIOB's input register, so the
-    /// decoder always sees a consistent pair.
+    /// The pending bits are cleared first (the HAL's `ExtiPin`) and the port read second: an
+    /// edge that lands between the two sets the pending bit again and the interrupt runs once
+    /// more, so no edge is missed.
     #[inline(always)]
     pub fn acknowledge_edge(&mut self) -> AbLevels {
-        self.exti.pr().write(|w| w.pr6().clear().pr7().clear());
+        self.a.clear_interrupt_pending_bit();
+        self.b.clear_interrupt_pending_bit();
         self.levels()
     }
 
     /// The current A/B levels (also the decoder's starting point at boot).
+    ///
+    /// Register access by hand: the HAL reads one pin per read of the input data register,
+    /// and the decoder needs A and B from the same instant, so both come from one read.
     #[inline(always)]
     pub fn levels(&self) -> AbLevels {
         // SAFETY: a read of GPIOB's input data register, which is read-only and has no side
-        // effects; GPIOB's writes (LED, at init the pin modes) never touch the wheel's bits.
+        // effects; the pins it looks at are `self.a` and `self.b`, owned here.
         let idr = unsafe { (*pac::GPIOB::ptr()).idr().read().bits() };
         AbLevels::new(idr & (1 << WHEEL_A_BIT) != 0, idr & (1 << WHEEL_B_BIT) != 0)
     }
 }
 
-/// The axis and multiplier switches, read as one port.
+/// The axis and multiplier switch lines (HAL pins, read one by one every 5 ms).
 pub struct Selectors {
-    port: pac::GPIOA,
+    axis: [gpio::PEPin<'A', Input<PullUp>>; 5],
+    multiplier: [gpio::PEPin<'A', Input<PullUp>>; 3],
+}
+
+/// The mask of the active (low) lines among `pins`, line `i` in bit `i`.
+fn active_lines(pins: &[gpio::PEPin<'A', Input<PullUp>>]) -> u8 {
+    pins.iter()
+        .enumerate()
+        .fold(0, |mask, (i, pin)| mask | u8::from(pin.is_low()) << i)
 }
 
 impl handwheel_core::SelectorInput for Selectors {
-    /// All eight lines in one read of GPIOA.
     fn read_lines(&mut self) -> (u8, u8) {
-        pins::selector_from_port(self.port.idr().read().bits())
+        (active_lines(&self.axis), active_lines(&self.multiplier))
     }
 }
 
 /// The CiA 303-3 indicator LEDs.
 pub struct Leds {
-    port_b: pac::GPIOB,
-    port_c: pac::GPIOC,
+    run: gpio::PC13<Output<PushPull>>,
+    err: gpio::PB5<Output<PushPull>>,
 }
 
 impl Leds {
-    /// Lights (`true`) or darkens each LED.
+    /// Lights (`true`) or darkens each LED. PC13 sinks the on-board LED's current: low
+    /// lights it. (Each is one BSRR write: no read-modify-write of the port.)
     pub fn set(&mut self, run: bool, err: bool) {
-        // BSRR: bit n sets pin n, bit n + 16 clears it; no read-modify-write, so the
-        // wheel's reads of GPIOB never race with it. PC13 sinks the on-board LED's current:
-        // low lights it.
-        let bsrr = |bit: u32, high: bool| if high { 1 << bit } else { 1 << (bit + 16) };
-        // SAFETY: one set or clear bit of the RUN LED's own pin.
-        self.port_c
-            .bsrr()
-            .write(|w| unsafe { w.bits(bsrr(pins::RUN_LED_BIT, !run)) });
-        // SAFETY: one set or clear bit of the ERR LED's own pin.
-        self.port_b
-            .bsrr()
-            .write(|w| unsafe { w.bits(bsrr(pins::ERR_LED_BIT, err)) });
+        self.run.set_state(PinState::from(!run));
+        self.err.set_state(PinState::from(err));
     }
 }
 
@@ -258,7 +260,10 @@ pub enum ResetCause {
 
 impl ResetCause {
     /// Reads the reset flags and clears them for the next boot.
-    fn take(rcc: &pac::RCC) -> Self {
+    ///
+    /// Register access by hand (through the HAL's `Rcc`, which derefs to the PAC's RCC): the
+    /// HAL has no API for the reset cause.
+    fn take(rcc: &rcc::Rcc) -> Self {
         let csr = rcc.csr().read();
         let cause = if csr.iwdgrstf().bit_is_set() {
             Self::IndependentWatchdog
@@ -284,6 +289,8 @@ impl ResetCause {
 const UNIQUE_ID_ADDRESS: usize = 0x1FFF_F7E8;
 
 /// The MCU's 96-bit unique ID as three words, lowest address first.
+///
+/// Read by hand: the HAL has no API for the unique ID.
 pub fn unique_id() -> [u32; 3] {
     let base = UNIQUE_ID_ADDRESS as *const u32;
     core::array::from_fn(|word| {

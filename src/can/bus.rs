@@ -1,9 +1,10 @@
 //! bxCAN error state: reading what the controller reports. What a change means (event,
 //! EMCY, ERR LED) is decided by `canopen_slave::bus`.
 //!
-//! The error-state flags live in `CAN_ESR` and bxcan 0.8 has no accessor for them, nor for
-//! the `CAN_IER` bits that turn their changes into the status-change (SCE) interrupt; the
-//! little register glue for both is here.
+//! The error-state flags live in `CAN_ESR`, and neither bxcan 0.8 nor stm32f1xx-hal has an
+//! accessor for them, nor for the `CAN_IER` bits that turn their changes into the
+//! status-change (SCE) interrupt (bxcan's `Interrupts` has ERRIE, not EWGIE, EPVIE, BOFIE),
+//! nor a way to acknowledge it (MSR.ERRI); the little register glue for these is here.
 //!
 //! bxCAN interrupts when a flag is set (warning limit, error passive, bus-off), never when
 //! it clears. The SCE interrupt wakes the CAN-side task at once on the way down; the way back

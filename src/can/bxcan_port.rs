@@ -39,11 +39,15 @@ pub const fn btr(rate: BitRate) -> u32 {
     BTR_TABLE[rate.code() as usize]
 }
 
-/// Configures bit timing, the acceptance filters for `filter` and interrupts, and starts the
-/// controller.
+/// Configures bit timing, the acceptance filters for `filter` and interrupts, and asks the
+/// controller to join the bus.
 ///
-/// Returns once the controller is in normal mode, which needs 11 recessive bits on RX: on
-/// a silent bus that is immediate, on a busy one at most a frame's time.
+/// Returns at once: the controller joins by itself once it has seen 11 recessive bits on RX
+/// (RM0008 24.4.4), at once on a silent bus, after the frame under way on a busy one, never
+/// on a dominant one (no transceiver, a short). Until then frames wait in the mailboxes. The
+/// firmware looks with [`CanPort::switch_bit_rate`](super::CanPort::switch_bit_rate) at the
+/// same rate, which is done once the controller is on the bus, and holds the device back
+/// meanwhile (`src/main.rs`, "joining").
 pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: Mode) -> Bxcan {
     let loopback = mode == Mode::SilentLoopback;
     let mut can = bxcan::Can::builder(instance)
@@ -60,9 +64,10 @@ pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: M
             | Interrupts::FIFO0_OVERRUN,
     );
     bus::enable_status_interrupts();
-    // Also sets ABOM: after bus-off the controller rejoins on its own once it has seen
-    // 128 x 11 recessive bits.
-    nb::block!(can.enable_non_blocking()).unwrap_or_else(|never| match never {});
+    // Leaves sleep mode, to normal mode once the bus is seen idle; also sets ABOM: after
+    // bus-off the controller rejoins on its own once it has seen 128 x 11 recessive bits.
+    // `WouldBlock` only says that it has not joined yet.
+    let _ = can.enable_non_blocking();
     can
 }
 
@@ -141,11 +146,13 @@ impl CanLink for Bxcan {
     /// The controller goes through initialisation mode (RM0008 24.4.1), keeping filters and
     /// interrupts, and rejoins at the new rate after 11 recessive bits (24.4.2). bxcan's
     /// `modify_config` and `enable` wait for the acknowledges, the second for the bus, which
-    /// a dominant bus never gives; this glue only requests and looks, a step per call:
+    /// a dominant bus never gives, and neither bxcan nor the HAL has a step that does not
+    /// wait; so this stays register glue, which only requests and looks, a step per call:
     /// - on the bus at another rate: request initialisation mode (INRQ), which the
     ///   controller enters after the frame under way;
     /// - in initialisation mode (INAK, INRQ): program BTR and request normal mode;
-    /// - waiting to synchronise (INAK, INRQ clear): nothing, the hardware rejoins by itself;
+    /// - waiting to synchronise (INAK, INRQ clear; or, after `start`, SLAK with SLEEP clear):
+    ///   nothing, the hardware joins by itself;
     /// - in normal mode at `rate`: done.
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
         let timing = btr(rate);
@@ -166,8 +173,14 @@ impl CanLink for Bxcan {
             }
             return false;
         }
-        if msr.slak().bit_is_clear() && can.btr().read().bits() & !BTR_MODE_BITS == timing {
-            return true;
+        if can.btr().read().bits() & !BTR_MODE_BITS == timing {
+            if msr.slak().bit_is_clear() {
+                return true;
+            }
+            if can.mcr().read().sleep().bit_is_clear() {
+                // Woken (`start`), not yet synchronised.
+                return false;
+            }
         }
         can.mcr()
             .modify(|_, w| w.sleep().clear_bit().inrq().set_bit());

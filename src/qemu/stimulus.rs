@@ -10,7 +10,7 @@
 //! with the app but the simulated lines ([`sim`](super::sim)), which are atomics.
 //!
 //! A wheel edge is made the way the board sees one: the new A/B levels go to the simulated
-//! port and the EXTI9_5 interrupt is pended, so the shipping edge handler (`edge::EXTI9_5`)
+//! port and the EXTI9_5 interrupt is pended, so the shipping edge task (`wheel_edge`)
 //! reads and decodes them. It has the highest priority, so it runs at once (after the `isb`, which
 //! keeps back-to-back pends from merging); each edge is handled before the next is made, and
 //! `turn` replies after its last edge. Selector commands only set the lines: the `canopen`

@@ -169,8 +169,8 @@ def test_a_stalled_canopen_loop_is_reset_by_the_watchdog(brig):
     rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark, timeout=5)
     status = board.status()
     assert status["boot"] == "IndependentWatchdog"
-    # IWDG reload for 500 ms (RLR 625 at 40 kHz / 32: 500.8 ms), counted in emulated time
-    # from the last feed, at most one loop round (5 ms) before the storm began.
+    # IWDG reload for 500 ms (the HAL's choice: RLR 2500 at 40 kHz / 8, 500.2 ms), counted in
+    # emulated time from the last feed, at most one loop round (5 ms) before the storm began.
     after = float(status["reset_ms"]) - float(status["storm_ms"])
     assert 495 < after < 502, f"reset {after:.1f} ms after the loop stalled"
     board.wait_for_log(r"reset cause IndependentWatchdog")
@@ -402,3 +402,59 @@ def test_a_bit_rate_switch_on_a_dominant_bus_recovers_without_a_reset(brig):
     assert status["resets"] == "1" and status["boot"] == "PowerOn", status
     assert status["mode"] == "normal" and status["bitrate"] == "250000", status
     assert rig.read(0x1017) == 1000, "the node answers at 250 kbit/s"
+
+
+def test_boot_on_a_dominant_bus_shows_bus_off_and_joins_once_the_bus_is_free(board):
+    """No transceiver or a shorted bus at power-on: bxCAN never sees the 11 recessive bits it
+    needs to join. The node must not hang in its start-up: it keeps running (the watchdog is
+    fed, no reset), shows bus-off (CiA 303-3: ERR on, RUN dark before the boot-up), sends
+    nothing, and boots up by itself once the bus is free."""
+    board.control("dominant on")  # before the CPU starts: it starts with the SLCAN client
+    with raw_bus(board) as (_bus, frames):
+        time.sleep(1.5)  # three watchdog periods
+        status = board.status()
+        assert status["resets"] == "1" and status["boot"] == "PowerOn", status
+        assert int(status["feeds"]) >= 100, f"the watchdog is fed while waiting: {status}"
+        assert status["online"] == "0", status
+        now = float(status["ms"])
+        history = board.leds()
+        assert state_at(history, "err", now) is True, f"ERR on (bus-off): {history}"
+        assert state_at(history, "run", now) is not True, f"RUN dark: {history}"
+        err_on = [ms for ms, name, on in history if name == "err" and on]
+        assert err_on and err_on[0] < 200, f"ERR on within 200 ms of power-on: {history}"
+        assert not frames.frames(), "nothing passes a dominant bus"
+        board.wait_for_log(r"no 11 recessive bits at 1000 kbit/s within 50 ms of boot")
+
+        mark = frames.mark()
+        board.control("dominant off")
+        frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark, timeout=3)
+        assert frames.frames(since=mark)[0].data == bytes([BOOTUP]), "the boot-up comes first"
+        board.wait_for_log(r"CAN: on the bus")
+        time.sleep(0.3)
+        status = board.status()
+        assert status["resets"] == "1" and status["online"] == "1", status
+        assert state_at(board.leds(), "err", float(status["ms"])) is False, "ERR off again"
+        assert sdo_upload(_bus, frames, 16, 0x1017, 0) == 1000, "the node answers"
+
+
+def test_a_stack_overflow_faults_and_resets_instead_of_overwriting_statics(request, tmp_path):
+    """The test build `--image stack-overflow` digs 19 KiB into its stack right after boot,
+    more than its stack region, less than all of RAM. Linked by flip-link, the stack lies
+    below static RAM, so the dig runs off the start of RAM: the push below 0x20000000 faults
+    (HardFault), nothing comes back from the dig, and the watchdog resets the MCU, which
+    then does the same again. (Linked the classic way, the same dig stays inside RAM and
+    overwrites the statics instead: no fault, and the log says it came back.)"""
+    board = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin", image="stack-overflow")
+    with stopped_after(request, board), raw_bus(board):
+        board.wait_for_log(r"stack overflow test: digging 19456 bytes")
+        deadline = time.monotonic() + 10
+        while int(board.status()["resets"]) < 3:
+            assert time.monotonic() < deadline, f"no second reset: {board.status()}"
+            time.sleep(0.1)
+        status = board.status()
+        assert status["boot"] == "IndependentWatchdog", status
+        assert int(status["faults"]) >= 2, f"a fault per boot: {status}"
+        address = int(status["fault_addr"], 16)
+        # The first access below RAM: within one level of the dig (256 bytes and its frame).
+        assert 0x2000_0000 - 512 <= address < 0x2000_0000, f"just below RAM: {status}"
+        assert "back without a fault" not in board.log()

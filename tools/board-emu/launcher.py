@@ -19,15 +19,20 @@ from rig import Qemu  # noqa: E402
 
 class BoardProcess(Qemu):
     """One emulated board (`cargo xtask board`); `flash` is its parameter page file (kept
-    across `power`), `dip` its DIP switch. The process, its log and the stimulus port are the
-    rig's; the board adds its control line."""
+    across `power`), `dip` its DIP switch, `image` the firmware (default: the release image).
+    The process, its log and the stimulus port are the rig's; the board adds its control
+    line."""
 
     kind = "board"
 
-    def __init__(self, log_path: Path, flash: Path, dip: int | None = None) -> None:
+    def __init__(
+        self, log_path: Path, flash: Path, dip: int | None = None, image: str | None = None
+    ) -> None:
         extra = {"flash": str(flash)}
         if dip is not None:
             extra["dip"] = str(dip)
+        if image is not None:
+            extra["image"] = image  # `cargo xtask board --image`: release, stack-overflow
         super().__init__(log_path, "board", extra, "HANDWHEEL_BOARD_COMMAND")
         self.flash = flash
         self._control: socket.socket | None = None

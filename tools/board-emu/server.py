@@ -353,6 +353,8 @@ class Server:
             "erases": m.fpec.erases,
             "programs": m.fpec.programs,
             "locked": int(m.core.locked_up),
+            "faults": m.core.faults,
+            "fault_addr": "-" if m.core.fault_address is None else f"{m.core.fault_address:#010x}",
             "slips": self.slips,
             "exceptions": m.core.exceptions_taken,
             "tailchains": m.core.tail_chains,

@@ -12,11 +12,11 @@ edges through EXTI, bus errors, time), and prints:
   (previous, new) A/B level pair, feed disabled and enabled, with a cycle estimate and its
   CPU share at 20 kHz;
 - per priority level, the longest stretch an interrupt of that level was held off (PRIMASK,
-  BASEPRI, or a handler of the same or higher priority running); the latency from a wheel
-  edge to its port read, measured on the nesting core with edges made where the wheel
-  waits longest (and composed from those parts as a bound); with the CAN side at its
-  busiest (an SDO request, a TPDO and a log line every millisecond), the highest edge rate
-  with no merged edge;
+  BASEPRI, or a handler of the same or higher priority running) and by what (the handler
+  and the function that raised the mask); the latency from a wheel edge to its port read,
+  measured on the nesting core with edges made where the wheel waits longest (and composed
+  from those parts as a bound); with the CAN side at its busiest (an SDO request, a TPDO
+  and a log line every millisecond), the highest edge rate with no merged edge;
 - the path from an SDO request's arrival in receive FIFO 0 (RX0 interrupt entry) to its
   reply written to a transmit mailbox, over a spread of requests;
 - every handler's deepest stack use, by priority level.
@@ -49,10 +49,11 @@ MS = SYSCLK_HZ // 1000
 WAIT_STATES = 2
 # The fastest human spin (edges per second) the figures are quoted for.
 EDGE_RATE_HZ = 20_000
-# Limits on the worst edge (entry to return) and on the latency from an edge to its port
-# read; `cargo xtask test` enforces them from the report file.
-GOAL_CYCLES = 100
-LATENCY_GOAL_CYCLES = 5 * SYSCLK_HZ // 1_000_000
+# Limits on the worst edge (entry to return) and on the highest edge rate with no merged
+# edge while the CAN side is at its busiest (a 600-PPR encoder at 10 rev/s);
+# `cargo xtask test` enforces them from the report file.
+GOAL_CYCLES = 120
+RATE_GOAL_HZ = 24_000
 GPIOB_IDR = periph.GPIOB_BASE + 0x08
 # Milliseconds of the busiest CAN side, and of it again while edges are made at the
 # wheel's worst moments.
@@ -690,7 +691,7 @@ def cpu_report(results: Results) -> tuple[str, dict]:
         f"| exception entry + exit | - | {cycles.EXCEPTION_ENTRY + cycles.EXCEPTION_EXIT} |"
     )
     lines.append("")
-    held, latency, bound = latency_report(results, edge_cycles)
+    held, latency, bound, wait, rate = latency_report(results, edge_cycles)
     lines += held
     lines += ["", "SDO request in FIFO 0 (RX0 entry) to its reply's transmit request:", ""]
     lines.append("| request | reply | handlers | instructions | cycles | + wait states |")
@@ -714,6 +715,8 @@ def cpu_report(results: Results) -> tuple[str, dict]:
         "edge_cycles": edge_cycles,
         "edge_latency": latency,
         "edge_latency_bound": bound,
+        "edge_held": wait,
+        "merge_free_hz": int(rate),
         "edge_cycles_ws": edge_cycles + edge_ws,
         "sdo_instructions": worst_sdo.instructions,
         "sdo_cycles": worst_sdo.cycles,
@@ -722,14 +725,16 @@ def cpu_report(results: Results) -> tuple[str, dict]:
 
 
 def logical(priority: int) -> str:
-    """RTIC's logical priority of an NVIC priority byte (4 priority bits)."""
-    return "reset priority" if priority == 0 else f"priority {16 - (priority >> 4)}"
+    """RTIC's logical priority of an NVIC priority byte (4 priority bits): byte 0, the reset
+    priority, is logical 16."""
+    return f"priority {16 - (priority >> 4)}"
 
 
-def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, int]:
-    """Per priority level, the longest it was held off; the worst latency from a wheel edge
-    to its port read, measured and composed; the highest edge rate with the CAN side at its
-    busiest. Returns the lines, the measured latency and the composed bound."""
+def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, int, int, float]:
+    """Per priority level, the longest it was held off and by what; the worst latency from a
+    wheel edge to its port read, measured and composed; the highest edge rate with no merged
+    edge with the CAN side at its busiest. Returns the lines, the measured latency, the
+    composed bound, the longest wait in it and that rate."""
     rig = results.rig
     p = rig.p
     nvic = rig.m.nvic
@@ -740,20 +745,22 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, 
         "BASEPRI in a handler of lower priority, or by a handler of the same or a higher "
         "priority running, entry and exit included):",
         "",
-        "| level | handlers | masked by PRIMASK/BASEPRI | in | a handler running | which |",
-        "|---|---|---:|---|---:|---|",
+        "| level | handlers | masked by PRIMASK/BASEPRI | in | raised by | a handler running "
+        "| which |",
+        "|---|---|---:|---|---|---:|---|",
     ]
     names: dict[int, list[str]] = {}
     for exception, name in rig.image.handlers.items():
         if exception not in FAULTS:
             names.setdefault(nvic.priority(exception), []).append(name)
     for level in p.mask_levels:
-        masked, _, where, _ = p.longest_masks.get(level, (0, 0, "-", 0))
+        masked, _, where, at = p.longest_masks.get(level, (0, 0, "-", 0))
+        raised_by = rig.image.function_at(at) if masked else "-"
         running = [i for i in p.invocations if i.priority <= level]
         top = max(running, key=exception_cycles, default=None)
         lines.append(
             f"| {logical(level)} | {', '.join(sorted(names.get(level, [])))} | {masked} | "
-            f"{where if masked else '-'} | {exception_cycles(top) if top else 0} | "
+            f"{where if masked else '-'} | {raised_by} | {exception_cycles(top) if top else 0} | "
             f"{top.name if top else '-'} |"
         )
     wheel_runs = [i for i in p.invocations if i.exception == rig.exti]
@@ -770,14 +777,17 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, 
     after_read = max(i.cycles - i.reads[GPIOB_IDR] for i in wheel_runs)
     others = [i for i in p.invocations if i.priority <= wheel and i.exception != rig.exti]
     other = max(others, key=exception_cycles, default=None)
-    masked = p.longest_masks.get(wheel, (0, 0, "-", 0))[0]
+    masked, _, masked_in, masked_at = p.longest_masks.get(wheel, (0, 0, "-", 0))
+    masked_by = rig.image.function_at(masked_at) if masked else "-"
     waits = {
         "the previous edge's handler after its read, then tail-chaining": after_read
         + cycles.TAIL_CHAIN,
         f"another handler at the wheel's priority or above ({other.name if other else '-'})": (
             exception_cycles(other) if other else 0
         ),
-        "PRIMASK or BASEPRI at the wheel's priority": masked,
+        f"PRIMASK or BASEPRI at the wheel's priority (raised by {masked_by} in {masked_in})": (
+            masked
+        ),
     }
     cause, wait = max(waits.items(), key=lambda kv: kv[1])
     bound = wait + cycles.EXCEPTION_ENTRY + to_read
@@ -800,9 +810,7 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, 
         "",
         f"Worst latency from a wheel edge to its port read: {latency} cycles "
         f"({latency / SYSCLK_HZ * 1e6:.2f} us at 72 MHz), measured ({measured_cause}). "
-        f"Limit {LATENCY_GOAL_CYCLES} cycles (5 us): "
-        + ("met." if latency <= LATENCY_GOAL_CYCLES else "NOT MET.")
-        + f" Composed from the parts over every scenario, as a bound: {bound} cycles = the "
+        f"Composed from the parts over every scenario, as a bound: {bound} cycles = the "
         f"longest wait, {wait} cycles ({cause}), + entry {cycles.EXCEPTION_ENTRY} + {to_read} "
         "cycles of the handler up to and including its read (a tail-chain costs less than "
         "an exit and an entry). The waits: "
@@ -813,16 +821,18 @@ def latency_report(results: Results, edge_cycles: int) -> tuple[list[str], int, 
     share = busy.worst_ms_cycles * 1000 / SYSCLK_HZ
     by_cpu = (1 - share) * SYSCLK_HZ / edge_cycles
     by_latency = SYSCLK_HZ / latency
+    rate = min(by_cpu, by_latency)
     lines += [
         "",
         f"Busiest CAN side ({busy.ms} ms, each with an SDO request, a TPDO and a log line: "
         f"{busy.sdo_replies} replies, {busy.tpdos} TPDOs, {busy.log_lines} log lines): its worst "
         f"millisecond took {busy.worst_ms_cycles} cycles ({100 * share:.1f} % of the CPU). "
-        f"Highest edge rate with no merged edge then: {min(by_cpu, by_latency) / 1000:.0f} kHz "
-        f"(edges at most one latency apart: {by_latency / 1000:.0f} kHz; the CPU the CAN side "
-        f"leaves, at {edge_cycles} cycles per edge: {by_cpu / 1000:.0f} kHz).",
+        f"Highest edge rate with no merged edge then: {rate / 1000:.1f} kHz "
+        f"(edges at most one latency apart: {by_latency / 1000:.1f} kHz; the CPU the CAN side "
+        f"leaves, at {edge_cycles} cycles per edge: {by_cpu / 1000:.0f} kHz). "
+        f"Limit {RATE_GOAL_HZ / 1000:.0f} kHz: " + ("met." if rate >= RATE_GOAL_HZ else "NOT MET."),
     ]
-    return lines, latency, bound
+    return lines, latency, bound, wait, rate
 
 
 @dataclass
@@ -887,7 +897,7 @@ def stack_report(results: Results) -> tuple[str, list[str]]:
             else "INCONSISTENT: a write below the lowest SP seen"
         )
         + ")",
-        f"  stack region (.uninit end to top of RAM) {region} B",
+        f"  stack region (its top to its end, _stack_start to _stack_end) {region} B",
     ]
     report += [
         f"frame\t{frame}",
@@ -909,7 +919,12 @@ def main(argv: list[str]) -> int:
         results = run(args.elf)
         cpu, figures = cpu_report(results)
         stack, report = stack_report(results)
-        report += [f"edge\t{figures['edge_cycles']}", f"latency\t{figures['edge_latency']}"]
+        report += [
+            f"edge\t{figures['edge_cycles']}",
+            f"latency\t{figures['edge_latency']}",
+            f"held\t{figures['edge_held']}",
+            f"rate\t{figures['merge_free_hz']}",
+        ]
     except ScenarioError as error:
         print(f"machine-bench: {error}", file=sys.stderr)
         return 1
@@ -917,8 +932,10 @@ def main(argv: list[str]) -> int:
         print(
             f"machine-bench: EXTI9_5 worst edge {figures['edge_instructions']} instructions, "
             f"{figures['edge_cycles']} cycles ({figures['edge_cycles_ws']} with wait states), "
-            f"latency to its port read {figures['edge_latency']} cycles measured "
-            f"({figures['edge_latency_bound']} composed); "
+            f"held off at most {figures['edge_held']} cycles, latency to its port read "
+            f"{figures['edge_latency']} cycles measured ({figures['edge_latency_bound']} "
+            f"composed), merge-free with the CAN side busiest up to "
+            f"{figures['merge_free_hz'] / 1000:.1f} kHz; "
             f"SDO worst {figures['sdo_instructions']} instructions, {figures['sdo_cycles']} cycles"
         )
     else:

@@ -1,6 +1,6 @@
 """One emulated STM32F103 (the Blue Pill) for every tool that runs the release image.
 
-- `image`: the ELF loader and the memory map from the linker script (`board/memory.x`);
+- `image`: the ELF loader and the memory map from the linker script (the root `memory.x`);
 - `cortex`: the Cortex-M3 core around unicorn: the NVIC (nesting, tail-chaining,
   BASEPRI/PRIMASK), SysTick, the exception entry and return, and a precise mode that takes
   an exception at the exact instruction boundary and charges each instruction a cost;

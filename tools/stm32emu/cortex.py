@@ -35,7 +35,15 @@ measures handlers through it.
 
 from __future__ import annotations
 
-from unicorn import UC_ARCH_ARM, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, Uc, UcError
+from unicorn import (
+    UC_ARCH_ARM,
+    UC_HOOK_CODE,
+    UC_HOOK_MEM_INVALID,
+    UC_MODE_MCLASS,
+    UC_MODE_THUMB,
+    Uc,
+    UcError,
+)
 from unicorn import arm_const as arm
 
 CORE_HZ = 72_000_000
@@ -356,6 +364,13 @@ class Core:
         self.nvic = nvic
         self.vectors_at = vectors_at  # callable: exception number -> vector word
         self.locked_up = False  # in HardFault for good (a panic's UDF)
+        # Faults taken (cumulative over resets) and the data address of the last one that was
+        # an access to unmapped or read-only memory (B1.5.14: a precise BusFault, escalated to
+        # HardFault as the firmware enables no fault handler of its own), None if none was.
+        self.faults = 0
+        self.fault_address: int | None = None
+        self._access_address: int | None = None
+        uc.hook_add(UC_HOOK_MEM_INVALID, self._invalid_access)
         self.exceptions_taken = 0
         self.tail_chains = 0
         self.max_nesting = 0
@@ -376,6 +391,12 @@ class Core:
 
     def reg(self, r: int) -> int:
         return self.uc.reg_read(r)
+
+    def _invalid_access(self, _uc, _access, address, _size, _value, _user) -> bool:
+        """An access unicorn refuses (unmapped, or a write to read-only memory): note where,
+        and let the emulation stop with the error (the fault)."""
+        self._access_address = address
+        return False
 
     def mask_levels(self) -> tuple[int, int]:
         return self.reg(arm.UC_ARM_REG_PRIMASK), self.reg(arm.UC_ARM_REG_BASEPRI)
@@ -514,6 +535,7 @@ class Core:
         uc = self.uc
         pc = uc.reg_read(arm.UC_ARM_REG_PC)
         self.stop_reason = ""
+        self._access_address = None
         if self.cost is None:
             self.cycles += count
         else:
@@ -537,6 +559,8 @@ class Core:
                 return
             # A fault: the firmware's HardFault handler would spin; stay there.
             self.stop_reason = f"fault at {pc:#010x}: {error}"
+            self.faults += 1
+            self.fault_address = self._access_address
             self.locked_up = True
         finally:
             self.running = False

@@ -3,7 +3,7 @@
 `Image(elf)` reads the ELF with pyelftools: its loadable segments at their load
 addresses (the firmware's reset handler copies .data to RAM itself), the symbols with their
 sizes, the vector table (`.vector_table`) and the name of the handler each vector points at.
-The memory map is the linker script's MEMORY command (`board/memory.x`: FLASH, STORAGE and
+The memory map is the linker script's MEMORY command (the root `memory.x`: FLASH, STORAGE and
 RAM), checked against the ELF: the vector table at FLASH's origin, the initial stack pointer
 (`_stack_start`) at the end of RAM, every load segment inside FLASH. Nothing of the map is
 written again here; the chip's fixed addresses (peripherals, system memory) are in
@@ -20,9 +20,9 @@ from pathlib import Path
 from elftools.elf.elffile import ELFFile
 
 ROOT = Path(__file__).resolve().parents[2]
-# The board's linker memory map (the QEMU variant links qemu/memory.x; the board emulator
+# The board's linker memory map (the QEMU variant adds qemu/ram.x to it; the board emulator
 # and the benchmark run the board image).
-MEMORY_X = ROOT / "board" / "memory.x"
+MEMORY_X = ROOT / "memory.x"
 
 # Exceptions 2..6 are NMI and the faults: never taken by the firmware's own doing.
 FAULTS = range(2, 7)

@@ -5,12 +5,14 @@ moves emulated time on; the board emulator (`tools/board-emu/server.py`) paces i
 connects it to TCP, the machine benchmark (`tools/machine-bench`) measures it.
 
 Memory map: flash, its parameter page and SRAM as the linker script gives them (`image.py`
-reads `board/memory.x`: 63 KiB FLASH at 0x0800_0000, the 1 KiB STORAGE page after it, 20 KiB
-RAM at 0x2000_0000). The parameter page is served by the FPEC model and persisted in a file;
-the rest of the flash is read/execute only, so a stray write faults. The chip's own regions
-(RM0008 3.3, figure 2): the system memory with the unique device ID (RM0008 30.2) and the
-flash size register (30.1), the peripherals at 0x4000_0000 with their bit-band alias
-(PM0056 2.2.5), and the Cortex-M3's private peripheral bus (NVIC, SCB, SysTick, DBGMCU).
+reads the root `memory.x`: 63 KiB FLASH at 0x0800_0000, the 1 KiB STORAGE page after it,
+20 KiB RAM at 0x2000_0000). The parameter page is served by the FPEC model and persisted in
+a file; the rest of the flash is read/execute only, so a stray write faults, as does an
+access below RAM (a stack that overflows under flip-link's layout; `Core.faults`). The
+chip's own regions (RM0008 3.3, figure 2): the system memory with the unique device ID
+(RM0008 30.2) and the flash size register (30.1), the peripherals at 0x4000_0000 with their
+bit-band alias (PM0056 2.2.5), and the Cortex-M3's private peripheral bus (NVIC, SCB,
+SysTick, DBGMCU).
 """
 
 from __future__ import annotations

@@ -338,3 +338,20 @@ def test_on_pend_names_the_exception():
     nvic.set_pending(IRQ_BASE + 5)  # already pending: no second call
     nvic.write(cortex.SCB_ICSR, 1 << 26, 0xFFFF_FFFF)
     assert pends == [IRQ_BASE + 5, cortex.SYSTICK]
+
+
+def test_a_push_below_ram_is_a_fault_with_its_address(core):
+    """A stack that runs off the start of RAM (flip-link's layout puts it there): the push
+    faults (a precise BusFault, taken as HardFault), the core stays locked until a reset,
+    and the faulting address is kept for the board's `status`."""
+    push = CODE + 0x40
+    core.uc.mem_write(push, halfwords(0xB401, B_SELF))  # push {r0}; b .
+    core.uc.reg_write(arm.UC_ARM_REG_SP, RAM)
+    core.uc.reg_write(arm.UC_ARM_REG_PC, push | 1)
+    assert (core.faults, core.fault_address) == (0, None)
+    run(core, slices=2)
+    assert core.locked_up
+    assert core.faults == 1
+    assert core.fault_address == RAM - 4
+    run(core, slices=2)
+    assert core.faults == 1, "a locked core runs nothing more"

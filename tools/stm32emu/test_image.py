@@ -32,7 +32,7 @@ def test_a_script_without_a_region_or_with_a_gap_is_refused():
         MemoryMap.parse(SCRIPT.replace("0x0800FC00", "0x0800F800"))
 
 
-def test_the_board_script_is_the_part_the_board_has():  # board/memory.x, STM32F103C8
+def test_the_board_script_is_the_part_the_board_has():  # memory.x, STM32F103C8
     memory = MemoryMap.load(MEMORY_X)
     assert memory.flash_end - memory.flash_base == 64 * 1024
     assert memory.ram.length == 20 * 1024

@@ -3,10 +3,13 @@
 //! NVIC, bxCAN, FPEC, IWDG, GPIO/EXTI modelled), paced in real time, with SLCAN and a
 //! control line on TCP like `cargo xtask qemu`.
 //!
-//! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N]` runs it in the
-//! foreground: SLCAN on P (the CPU starts when the first client connects), the control line
-//! on Q, the firmware's RTT defmt stream decoded by `defmt-print` on stderr. `--flash` keeps
-//! the parameter page in FILE across runs (default: `target/board-emu/flash.bin`).
+//! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N] [--image NAME]`
+//! runs it in the foreground: SLCAN on P (the CPU starts when the first client connects),
+//! the control line on Q, the firmware's RTT defmt stream decoded by `defmt-print` on
+//! stderr. `--flash` keeps the parameter page in FILE across runs (default:
+//! `target/board-emu/flash.bin`). `--image stack-overflow` runs the test build that
+//! overflows its stack on purpose (feature `stack-overflow-test`) instead of the release
+//! image.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -18,12 +21,36 @@ pub const PACKAGE: &str = "tools/board-emu";
 /// The chip model it runs (its unit tests run with the board's).
 pub const CHIP: &str = "tools/stm32emu";
 
+/// Which firmware image the board runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Image {
+    /// The release image, the one that ships.
+    #[default]
+    Release,
+    /// The release profile with feature `stack-overflow-test`: it overflows its stack on
+    /// purpose right after boot.
+    StackOverflow,
+}
+
+impl Image {
+    fn parse(name: &str) -> Result<Self, String> {
+        match name {
+            "release" => Ok(Self::Release),
+            "stack-overflow" => Ok(Self::StackOverflow),
+            other => Err(format!(
+                "--image: `{other}` is not `release` or `stack-overflow`"
+            )),
+        }
+    }
+}
+
 /// `cargo xtask board` arguments: the two ports, and the board's own options.
 #[derive(Debug, PartialEq, Eq)]
 pub struct Args {
     pub ports: qemu::Ports,
     pub flash: Option<PathBuf>,
     pub dip: Option<u8>,
+    pub image: Image,
 }
 
 impl Args {
@@ -31,6 +58,7 @@ impl Args {
         let mut rest = Vec::new();
         let mut flash = None;
         let mut dip = None;
+        let mut image = Image::Release;
         let mut it = args.iter();
         while let Some(arg) = it.next() {
             let (flag, inline) = match arg.split_once('=') {
@@ -38,12 +66,14 @@ impl Args {
                 None => (arg.as_str(), None),
             };
             match flag {
-                "--flash" | "--dip" => {
+                "--flash" | "--dip" | "--image" => {
                     let value = inline
                         .or_else(|| it.next().cloned())
                         .ok_or_else(|| format!("{flag} needs a value"))?;
                     if flag == "--flash" {
                         flash = Some(PathBuf::from(value));
+                    } else if flag == "--image" {
+                        image = Image::parse(&value)?;
                     } else {
                         dip = Some(
                             value
@@ -58,10 +88,16 @@ impl Args {
         let ports = qemu::Ports::from_args(&rest).map_err(|e| {
             e.replace(
                 "cargo xtask qemu --can-port <P> --stim-port <Q>",
-                "cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] [--dip N]",
+                "cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] [--dip N] \
+                 [--image release|stack-overflow]",
             )
         })?;
-        Ok(Self { ports, flash, dip })
+        Ok(Self {
+            ports,
+            flash,
+            dip,
+            image,
+        })
     }
 }
 
@@ -129,6 +165,26 @@ mod tests {
         assert_eq!(args.ports, qemu::Ports { can: 1, stim: 2 });
         assert_eq!(args.flash, Some(PathBuf::from("f.bin")));
         assert_eq!(args.dip, Some(33));
+        assert_eq!(args.image, Image::Release);
+        let overflow = Args::from_args(&strings(&[
+            "--can-port",
+            "1",
+            "--stim-port",
+            "2",
+            "--image=stack-overflow",
+        ]))
+        .unwrap();
+        assert_eq!(overflow.image, Image::StackOverflow);
+        assert!(Args::from_args(&strings(&[
+            "--can-port",
+            "1",
+            "--stim-port",
+            "2",
+            "--image",
+            "debug"
+        ]))
+        .unwrap_err()
+        .contains("debug"));
         assert!(Args::from_args(&strings(&[
             "--can-port",
             "1",

@@ -8,7 +8,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Where the STM32F103C8's memories sit (see `board/memory.x`).
+/// Where the STM32F103C8's memories sit (see `memory.x`).
 const FLASH: std::ops::Range<u32> = 0x0800_0000..0x0801_0000;
 const RAM: std::ops::Range<u32> = 0x2000_0000..0x2000_5000;
 

@@ -4,13 +4,14 @@
 //! moves pin levels and frames in and out of these types:
 //!
 //! - [`decoder`]: A/B quadrature to counts and detents, from the levels read in the EXTI ISR.
-//! - [`edge`]: the edge interrupt's own state and its lock-free channel to the CAN side.
+//! - [`edge`]: the wheel state the edge task and the CAN side share (the decoder and its
+//!   totals), and how the CAN side reaches it.
 //! - [`standstill`]: notices a wheel at rest, so that the decoder learns its rest levels.
 //! - [`selector`]: debounced 5-position axis switch and 3-position multiplier switch.
 //! - [`feed`]: the feed status bits and the unit step, shared by the two below.
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
-//! - [`wheel`]: the CAN side's wheel: a view of the edge's decoder and the accumulator.
+//! - [`wheel`]: the CAN side's wheel: a view of the shared decoder and the accumulator.
 //! - [`outbox`]: holds each selection epoch's final state until the bus takes it, so that
 //!   no epoch ends unseen while the bus is blocked.
 //! - [`pdo`]: the 8-byte feed record and the paper's 1-byte unit-step format.
@@ -33,7 +34,7 @@ pub use bittiming::{BitRate, BitTiming, BitTimingError};
 pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
 };
-pub use edge::{EdgeChannel, EdgeDecoder, EdgeLink, EdgeSnapshot, LocalEdge};
+pub use edge::{EdgeAccess, EdgeSnapshot, EdgeState, LocalEdge};
 pub use feed::{FeedState, FeedStatus, UnitStep};
 pub use outbox::{FeedOutbox, HELD_EPOCHS, MAX_DROP_GAP};
 pub use pdo::{CounterStride, FeedRecord, FeedRecordError, UnitStepEncoder};

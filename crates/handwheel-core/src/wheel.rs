@@ -1,14 +1,15 @@
-//! The CAN side's half of the wheel: a view of the edge task's decoder and the feed
+//! The CAN side's half of the wheel: a view of the decoder the edge task runs, and the feed
 //! accumulator, which belongs to the CAN side alone.
 //!
-//! The edge interrupt owns the decoder ([`edge`](crate::edge)); the CAN side reaches the
-//! wheel only through [`WheelAccess`], whose implementation on the MCU and on the host is the
-//! same [`LinkedWheel`] over a different [`EdgeLink`]: the firmware's pends the edge's
-//! interrupt, the host's ([`LocalEdge`]) runs the edge code in place.
+//! The decoder lives in the [`EdgeState`](crate::edge::EdgeState) the edge and the CAN side
+//! share; the CAN side reaches the wheel only through [`WheelAccess`], whose implementation
+//! on the MCU and on the host is the same [`LinkedWheel`] over a different
+//! [`EdgeAccess`]: the firmware's locks the RTIC resource, the host's ([`LocalEdge`]) owns
+//! the state in place.
 
 use crate::accumulator::FeedAccumulator;
 use crate::decoder::{AbLevels, DecoderConfig};
-use crate::edge::{EdgeLink, EdgeSnapshot, LocalEdge, SettingsWord};
+use crate::edge::{EdgeAccess, EdgeSnapshot, LocalEdge};
 
 /// The CAN side's view of the edge's decoder: the last snapshot, the settings it asked for,
 /// and the bases that a reset of the application moves (0x2020 counts from there).
@@ -16,11 +17,10 @@ use crate::edge::{EdgeLink, EdgeSnapshot, LocalEdge, SettingsWord};
 pub struct DecoderView {
     snapshot: EdgeSnapshot,
     config: DecoderConfig,
-    configured: u32,
     count_base: i32,
     illegal_base: u32,
     rests_learnt: u32,
-    /// Commands not yet posted to the channel.
+    /// Commands not yet applied to the edge state.
     settings_pending: bool,
     settle_pending: Option<u32>,
 }
@@ -35,7 +35,6 @@ impl DecoderView {
                 illegal: 0,
             },
             config,
-            configured: 0,
             count_base: 0,
             illegal_base: 0,
             rests_learnt: 0,
@@ -49,7 +48,6 @@ impl DecoderView {
     /// [`QuadratureDecoder::configure`](crate::QuadratureDecoder::configure)).
     pub fn configure(&mut self, config: DecoderConfig) {
         self.config = config;
-        self.configured = self.configured.wrapping_add(1);
         self.settings_pending = true;
     }
 
@@ -104,12 +102,12 @@ pub struct Handwheel {
     pub feed: FeedAccumulator,
 }
 
-/// [`Handwheel`] joined to its edge task over an [`EdgeLink`].
+/// [`Handwheel`] joined to the shared edge state over an [`EdgeAccess`].
 ///
 /// Every access first takes the edge's new detents and illegal transitions into the
-/// accumulator (in the order of the CAN side's calls: motion before a change of selection or
-/// enable belongs to the old one), then runs the access, then posts the decoder commands it
-/// made.
+/// accumulator under one short lock (in the order of the CAN side's calls: motion before a
+/// change of selection or enable belongs to the old one), then runs the access without the
+/// lock, then applies the decoder commands it made under a second one.
 #[derive(Debug)]
 pub struct LinkedWheel<L> {
     link: L,
@@ -117,7 +115,7 @@ pub struct LinkedWheel<L> {
     feed_changed: bool,
 }
 
-impl<L: EdgeLink> LinkedWheel<L> {
+impl<L: EdgeAccess> LinkedWheel<L> {
     /// The CAN side of a wheel whose edge task started with `config`.
     pub fn new(link: L, config: DecoderConfig) -> Self {
         Self {
@@ -136,7 +134,7 @@ impl<L: EdgeLink> LinkedWheel<L> {
         &self.wheel.feed
     }
 
-    /// The link, for the edge itself on the host.
+    /// The edge access, for the edge itself on the host.
     pub fn link_mut(&mut self) -> &mut L {
         &mut self.link
     }
@@ -145,10 +143,9 @@ impl<L: EdgeLink> LinkedWheel<L> {
     /// every access runs it, and one copy is smaller than one per call site.
     #[inline(never)]
     fn sync(&mut self) {
-        let channel = self.link.channel();
-        let now = channel.snapshot();
+        let (now, rests_learnt) = self.link.lock(|e| (e.snapshot(), e.rests_learnt()));
         let view = &mut self.wheel.decoder;
-        view.rests_learnt = channel.rests_learnt();
+        view.rests_learnt = rests_learnt;
         let detents = now.detents.wrapping_sub(view.snapshot.detents);
         let errors = now.illegal != view.snapshot.illegal;
         view.snapshot = now;
@@ -160,29 +157,30 @@ impl<L: EdgeLink> LinkedWheel<L> {
         self.feed_changed |= moved | flagged;
     }
 
-    /// Posts what the last access asked of the decoder, and kicks the edge to apply it.
+    /// Applies what the last access asked of the decoder, under one lock.
     #[inline(never)]
     fn post(&mut self) {
         let view = &mut self.wheel.decoder;
-        let settings = core::mem::take(&mut view.settings_pending)
-            .then(|| SettingsWord::new(view.config, view.configured));
+        let settings = core::mem::take(&mut view.settings_pending).then_some(view.config);
         let settle = view.settle_pending.take();
         if settings.is_none() && settle.is_none() {
             return;
         }
-        let channel = self.link.channel();
-        if let Some(word) = settings {
-            channel.post_settings(word);
-        }
-        if let Some(edges) = settle {
-            channel.post_settle(edges);
-        }
-        self.link.kick();
+        let learnt = self.link.lock(|e| {
+            if let Some(config) = settings {
+                e.configure(config);
+            }
+            if let Some(edges) = settle {
+                let _ = e.settle_if_unmoved(edges);
+            }
+            e.rests_learnt()
+        });
+        view.rests_learnt = learnt;
     }
 }
 
 impl LinkedWheel<LocalEdge> {
-    /// A wheel run on the host: edge task and CAN side in one value.
+    /// A wheel run on the host: edge state and CAN side in one value.
     pub fn local(config: DecoderConfig, initial: AbLevels) -> Self {
         Self::new(LocalEdge::new(config, initial), config)
     }
@@ -195,7 +193,7 @@ impl LinkedWheel<LocalEdge> {
     }
 }
 
-impl<L: EdgeLink> WheelAccess for LinkedWheel<L> {
+impl<L: EdgeAccess> WheelAccess for LinkedWheel<L> {
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
         self.sync();
         let result = f(&mut self.wheel);
@@ -326,13 +324,9 @@ mod tests {
         assert_eq!(view_edges, 2);
         levels = levels.next_forward();
         let _ = wheel.link_mut().on_edge(levels);
-        wheel.link_mut().channel.post_settle(view_edges);
-        wheel.link_mut().kick();
-        assert_eq!(
-            wheel.link_mut().channel.rests_learnt(),
-            0,
-            "moved: no settle"
-        );
+        let settled = wheel.link_mut().lock(|e| e.settle_if_unmoved(view_edges));
+        assert!(!settled, "moved: no settle");
+        assert_eq!(wheel.link_mut().state().rests_learnt(), 0);
         // Asked with the present snapshot, it settles.
         wheel.with_wheel(|w| w.decoder.request_settle());
         assert_eq!(wheel.with_wheel(|w| w.decoder.rests_learnt()), 1);

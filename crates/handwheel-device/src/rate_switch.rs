@@ -64,6 +64,11 @@ impl RateSwitch {
         newly.then_some(rate)
     }
 
+    /// A switch is under way: its controller is not on the bus at the rate yet.
+    pub const fn under_way(&self) -> bool {
+        self.pending.is_some()
+    }
+
     /// The node is off the bus: a switch has not found 11 recessive bits within
     /// [`SYNC_LIMIT_MS`]. The firmware reports this as bus-off.
     pub const fn off_bus(&self) -> bool {
@@ -92,7 +97,9 @@ mod tests {
         let mut s = RateSwitch::new();
         assert_eq!(s.sleep_cap_ms(), u32::MAX, "nothing to do");
         assert_eq!(s.poll(0, |_| panic!("no switch, no step")), None);
+        assert!(!s.under_way());
         s.start(RATE, 100);
+        assert!(s.under_way());
         assert_eq!(s.sleep_cap_ms(), SWITCH_POLL_MS);
         let mut asked = None;
         assert_eq!(
@@ -104,7 +111,9 @@ mod tests {
         );
         assert_eq!(asked, Some(RATE));
         assert_eq!(s.poll(101, |_| false), None);
+        assert!(s.under_way());
         assert_eq!(s.poll(102, |_| true), None);
+        assert!(!s.under_way(), "on the bus: done");
         assert_eq!(s.sleep_cap_ms(), u32::MAX);
         assert!(!s.off_bus());
         assert_eq!(s.poll(103, |_| panic!("done, no more steps")), None);
