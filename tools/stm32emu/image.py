@@ -3,11 +3,13 @@
 `Image(elf)` reads the ELF with pyelftools: its loadable segments at their load
 addresses (the firmware's reset handler copies .data to RAM itself), the symbols with their
 sizes, the vector table (`.vector_table`) and the name of the handler each vector points at.
-The memory map is the linker script's MEMORY command (the root `memory.x`: FLASH, STORAGE and
-RAM), checked against the ELF: the vector table at FLASH's origin, the initial stack pointer
-(`_stack_start`) at the end of RAM, every load segment inside FLASH. Nothing of the map is
-written again here; the chip's fixed addresses (peripherals, system memory) are in
-`machine.py` with their RM0008 sections.
+The memory map is the linker script's MEMORY command (the root `memory.x`: FLASH, STORAGE
+and RAM), checked against the ELF: the vector table at FLASH's origin, every load segment
+inside FLASH, and flip-link's RAM layout (the image is linked by it, see `memory.x`): the
+initial stack pointer (`_stack_start`) inside RAM with all static RAM between it and RAM's
+end, so that the stack grows down towards RAM's start. Nothing of the map is written again
+here; the chip's fixed addresses (peripherals, system memory) are in `machine.py` with
+their RM0008 sections.
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from elftools.elf.constants import SH_FLAGS
 from elftools.elf.elffile import ELFFile
+
+SHF_ALLOC = SH_FLAGS.SHF_ALLOC
 
 ROOT = Path(__file__).resolve().parents[2]
 # The board's linker memory map (the QEMU variant adds qemu/ram.x to it; the board emulator
@@ -89,6 +94,23 @@ class MemoryMap:
         return self.storage.end
 
 
+def check_stack_layout(
+    memory: MemoryMap, initial_sp: int, statics: list[tuple[str, int, int]]
+) -> None:
+    """flip-link's layout: the initial SP inside RAM and every static RAM section (name,
+    address, size) between it and RAM's end, so that a stack overflow runs off RAM's start
+    (and faults) instead of into the statics. Raises ValueError otherwise."""
+    ram = memory.ram
+    if not ram.origin < initial_sp <= ram.end:
+        raise ValueError(f"the initial SP {initial_sp:#x} is not inside RAM")
+    for name, address, size in statics:
+        if address < initial_sp or address + size > ram.end:
+            raise ValueError(
+                f"{name} ({address:#x}, {size} B) is not between the initial SP "
+                f"{initial_sp:#x} and RAM's end: not flip-link's layout"
+            )
+
+
 def readable(symbol: str) -> str:
     """A Rust symbol without its hash and mangling noise, short enough for a table."""
     name = re.sub(r"17h[0-9a-f]{16}E$", "", symbol)
@@ -134,6 +156,14 @@ class Image:
                 raise ValueError(f"{path} has no .vector_table")
             table_address = section["sh_addr"]
             data = section.data()
+            # Static RAM: the allocated sections the linker placed in RAM (.data, .bss, ...).
+            self.statics: list[tuple[str, int, int]] = [
+                (sec.name, sec["sh_addr"], sec["sh_size"])
+                for sec in elf.iter_sections()
+                if sec["sh_flags"] & SHF_ALLOC
+                and sec["sh_size"] > 0
+                and sec["sh_addr"] in self.memory.ram
+            ]
         # Index = exception number; [0] is the initial SP.
         self.vectors = [int.from_bytes(data[i : i + 4], "little") for i in range(0, len(data), 4)]
         self.initial_sp = self.vectors[0]
@@ -152,8 +182,10 @@ class Image:
         memory = self.memory
         if table_address != memory.flash.origin:
             raise ValueError(f"{path}: the vector table is not at FLASH's origin")
-        if self.initial_sp != memory.ram.end:
-            raise ValueError(f"{path}: the initial SP {self.initial_sp:#x} is not RAM's end")
+        try:
+            check_stack_layout(memory, self.initial_sp, self.statics)
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None
         for address, data in self.segments:
             if address not in memory.flash or address + len(data) > memory.flash.end:
                 raise ValueError(f"{path}: a load segment at {address:#x} is outside FLASH")

@@ -2,7 +2,7 @@
 
 import pytest
 
-from stm32emu.image import MEMORY_X, Image, MemoryMap
+from stm32emu.image import MEMORY_X, Image, MemoryMap, check_stack_layout
 from stm32emu.test_machine import ELF
 
 SCRIPT = """
@@ -38,10 +38,24 @@ def test_the_board_script_is_the_part_the_board_has():  # memory.x, STM32F103C8
     assert memory.ram.length == 20 * 1024
 
 
+def test_the_stack_must_lie_below_static_ram():  # flip-link's layout
+    memory = MemoryMap.parse(SCRIPT)
+    statics = [(".data", 0x2000_4600, 0x40), (".bss", 0x2000_4640, 0x9C0)]
+    check_stack_layout(memory, 0x2000_4600, statics)
+    with pytest.raises(ValueError, match="initial SP"):
+        check_stack_layout(memory, 0x2000_5004, statics)
+    # The classic layout: statics at RAM's start, the stack from RAM's end down onto them.
+    classic = [(".data", 0x2000_0000, 0x40), (".bss", 0x2000_0040, 0x9C0)]
+    with pytest.raises(ValueError, match="flip-link"):
+        check_stack_layout(memory, 0x2000_5000, classic)
+
+
 @pytest.mark.skipif(not ELF.exists(), reason=f"no release image at {ELF}")
 def test_the_release_image_fits_the_map_and_names_its_handlers():
     image = Image(str(ELF))
-    assert image.initial_sp == image.memory.ram.end
+    assert image.initial_sp == image.symbols["_stack_start"] < image.memory.ram.end
+    assert image.symbols["_stack_end"] == image.memory.ram.origin
+    assert {name for name, _, _ in image.statics} >= {".data", ".bss", ".uninit"}
     assert image.handlers[16 + 23] == "EXTI9_5"
     assert image.exception_of("USB_LP_CAN_RX0") == 16 + 20
     assert image.function_at(image.symbols["EXTI9_5"] & ~1) == "EXTI9_5"
