@@ -33,6 +33,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from unicorn.arm_const import UC_ARM_REG_PRIMASK
+
 HERE = Path(__file__).resolve().parent
 # This folder (cycles, probe) and tools/ (the chip model, package `stm32emu`).
 sys.path[:0] = [str(HERE), str(HERE.parent)]
@@ -166,9 +168,10 @@ class Rig:
         m.set_ab(3)
         paint(self)
         # Edges made at the wheel's worst moments: the one in flight (core clock, cause),
-        # and per cause the worst wait for its port read and a count. As the edge kick is
-        # entered over the whole run (it runs a few times: settings at start-up, a settle
-        # at standstill); at other moments only in `latency_phase`.
+        # and per cause the worst wait for its port read and a count. As a handler at the
+        # wheel's priority or above is entered, over the whole run (none but the edge's own
+        # in this image); as a critical section that holds the wheel off starts, in the
+        # scenarios that measure no path (`run`); at every moment only in `latency_phase`.
         self.armed = {"same"}
         self.injected: tuple[int, str] | None = None
         self.latencies: dict[str, tuple[int, int]] = {}
@@ -384,9 +387,17 @@ class Rig:
             self.inject(self.p.cycles, "the previous edge's handler after its port read")
 
     def _masked(self, level: int) -> None:
-        if "mask" in self.armed:
-            where = self.p.current.name if self.p.current else "thread mode"
-            self.inject(self.p.cycles, f"a critical section starts ({where})")
+        current = self.p.current
+        # The edge's own lock (PRIMASK, at its ceiling) is a wait "after the port read":
+        # an edge made there would make the next edge's lock make one more, for ever.
+        if current is not None and current.exception == self.exti:
+            return
+        where = current.name if current else "thread mode"
+        primask = bool(self.m.uc.reg_read(UC_ARM_REG_PRIMASK) & 1)
+        cause = f"{'PRIMASK' if primask else 'BASEPRI'} is raised in {where}"
+        holds_wheel = level == self.m.nvic.priority(self.exti)
+        if "mask" in self.armed or ("held" in self.armed and holds_wheel):
+            self.inject(self.p.cycles, cause)
 
 
 def sdo_upload(index: int, sub: int) -> bytes:
@@ -497,6 +508,9 @@ def run(elf: str) -> Results:
             sample = rig.expect_sdo(label, request, reply)
         paths.append(sample)
 
+    # From here to the busiest CAN side no path is measured: an edge is also made wherever a
+    # critical section that holds the wheel off starts (defmt's log frames among them).
+    rig.armed = {"same", "held"}
     # Bus trouble: 16 transmit errors make the node error passive (TEC 128: EMCY 0x8120);
     # then the errors cease and TEC is put back to 0 at once (on a bus it comes down by one
     # per frame sent), so that what follows runs on a healthy bus as before.
@@ -526,6 +540,7 @@ def run(elf: str) -> Results:
     heartbeats = rig.sent(start, HEARTBEAT)
     if not heartbeats or heartbeats[0].data != b"\x05":
         raise ScenarioError(f"no operational heartbeat in 1.1 s: {[str(f) for f in heartbeats]}")
+    rig.armed = {"same"}
     busy = busy_can_side(rig, BUSY_MS, "busy")
     latency_phase(rig)
     return Results(edges, paths, rig, busy)
@@ -602,9 +617,9 @@ def busy_can_side(rig: Rig, ms: int, label: str) -> Busy:
 def latency_phase(rig: Rig) -> None:
     """The busiest CAN side again, with wheel edges (glitches: the levels stay) made where
     the wheel waits for its port read, on the nesting core: right after an edge's handler
-    read the port; as a critical section starts; as a handler of lower priority is entered
-    (the edge preempts it); as the edge kick is entered (armed over the whole run). The
-    wait of each, from the edge to its handler's port read, goes to `rig.latencies`."""
+    read the port; as a critical section starts (PRIMASK holds the edge off to its end,
+    BASEPRI does not); as a handler of lower priority is entered (the edge preempts it).
+    The wait of each, from the edge to its handler's port read, goes to `rig.latencies`."""
     rig.armed = {"same", "read", "mask", "lower"}
     busy_can_side(rig, LATENCY_MS, "latency")
     rig.armed = {"same"}
