@@ -1,4 +1,4 @@
-"""Connecting the way the top-level README shows it: one `can.Bus`, a `canopen.Network`,
+"""Connecting the way docs/QEMU.md shows it: one `can.Bus`, a `canopen.Network`,
 `network.connect()`, and the boot-up arrives, without the master ever sending `O` again.
 
 python-can writes its `O` (or `C`, `Sn`, `O` with `bitrate=`) right after connecting, while
@@ -27,8 +27,8 @@ from rig import (
 
 
 def _connect_and_check_bootup(qemu, **bus_kwargs):
-    # The README's snippet. `connect_bus` retries only the TCP connection while QEMU is not
-    # listening yet (the README has the user start the emulator first); it never re-sends `O`.
+    # The snippet of docs/QEMU.md. `connect_bus` retries only the TCP connection while QEMU is
+    # not listening yet (the page has the user start the emulator first); it never re-sends `O`.
     bus = connect_bus(qemu, **bus_kwargs)
     connected = time.monotonic()
     frames = FrameRecorder()

@@ -22,7 +22,8 @@ LOAD = b"load"
 CANNOT_STORE = 0x08000020
 DEVICE_STATE = 0x08000022
 LSS_RESPONSE = 0x7E4
-# README "Storing parameters": a 154-byte record, six to the 1 KiB page; eight erases at once.
+# docs/OBJECT-DICTIONARY.md "Storing parameters": a 154-byte record, six to the 1 KiB page;
+# eight erases at once.
 RECORDS_PER_PAGE = 6
 ERASE_BURST = 8
 

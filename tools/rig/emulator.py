@@ -176,7 +176,7 @@ def _refused(error: BaseException) -> bool:
 
 
 def connect_bus(qemu: Qemu, **bus_kwargs) -> can.BusABC:
-    """python-can's slcan bus on the CAN port, as the top-level README connects (extra
+    """python-can's slcan bus on the CAN port, as docs/QEMU.md connects (extra
     `bus_kwargs` such as `bitrate` go to `can.Bus`). QEMU listens (and waits for this
     client) only once it is up: retry while the connection is refused, and only then. Never
     probe the port with a throw-away connection: QEMU would take it as its client."""

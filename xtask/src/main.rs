@@ -1,6 +1,6 @@
 //! Project tasks, run as `cargo xtask <task>` (an alias in `.cargo/config.toml`).
 //!
-//! `cargo xtask test` is the one test command of the README and of `.ci/run`: everything a
+//! `cargo xtask test` is the one test command of `docs/TESTING.md` and of `.ci/run`: everything a
 //! change must pass, in the order that fails fastest, ending with the interop suite
 //! (python-canopen against the firmware's QEMU variant).
 
@@ -63,7 +63,8 @@ tasks:
                                         live python-canopen master
   docs [--check]                        re-render docs/wiring/handwheel.svg from handwheel.yml
                                         (WireViz, Graphviz), then check it against the pin
-                                        map; --check: only the check (no Graphviz)
+                                        map and every relative link in the Markdown files;
+                                        --check: only the checks (no Graphviz)
   bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
@@ -541,7 +542,7 @@ fn python_lint() -> Result<(), String> {
         pyenv::run(&mut ruff).map_err(|e| {
             format!(
                 "Python lint: {e}\n(fix with target/lint-venv/bin/ruff format and ruff check \
-                 --fix; README, \"Python lint\")"
+                 --fix; docs/TESTING.md, \"Python: rig, tests, lint\")"
             )
         })?;
     }
@@ -562,7 +563,7 @@ fn host_tests(pytest_args: &[String]) -> Result<(), String> {
 }
 
 /// `cargo xtask docs [--check]`: re-renders the wiring diagram (unless `--check`), then
-/// checks it against the firmware's and the README's pin maps.
+/// checks it against the firmware's and the README's pin maps, and the Markdown files' links.
 fn docs(args: &[String]) -> Result<(), String> {
     let check_only = match args {
         [] => false,
@@ -580,14 +581,16 @@ fn docs(args: &[String]) -> Result<(), String> {
 }
 
 /// The wiring diagram's checks (`tools/wiring/test_wiring.py`) in `target/wiring-venv`: the
-/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp.
+/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; and
+/// every relative link in the Markdown files (`tools/doclinks/test_doclinks.py`).
 fn wiring_check() -> Result<(), String> {
     let root = workspace_root();
     let python = wiring::python(&root, &target_dir())?;
     pyenv::run(&mut wiring::tests(&python, &root, &[])).map_err(|e| {
         format!(
-            "the wiring diagram's checks failed: {e}\n(after changing docs/wiring/handwheel.yml, \
-             re-render with `cargo xtask docs`)"
+            "the documents' checks failed: {e}\n(after changing docs/wiring/handwheel.yml, \
+             re-render with `cargo xtask docs`; a broken Markdown link: fix the link or the \
+             heading it names)"
         )
     })
 }

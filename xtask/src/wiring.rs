@@ -1,6 +1,7 @@
 //! The wiring diagram (`tools/wiring`): `docs/wiring/handwheel.yml`, rendered by WireViz
 //! through Graphviz into `docs/wiring/handwheel.svg`, and its checks against the firmware's
-//! pin map (the table in `src/board/pins.rs`) and the README's.
+//! pin map (the table in `src/board/pins.rs`) and the README's; with them, the check that
+//! every relative link in the repository's Markdown files resolves (`tools/doclinks`).
 //!
 //! `cargo xtask docs` re-renders the SVG (WireViz from the pinned venv `target/wiring-venv`,
 //! Graphviz's `dot` installed with apt-get when root and missing), then runs the checks;
@@ -14,6 +15,8 @@ use crate::{host, pyenv};
 
 /// The package (render script, checks), relative to the workspace root.
 pub const PACKAGE: &str = "tools/wiring";
+/// The Markdown link check (standard library and pytest), relative to the workspace root.
+pub const LINKS: &str = "tools/doclinks";
 /// Its pinned requirements (WireViz, PyYAML, pytest and their dependencies).
 pub const REQUIREMENTS: &str = "tools/wiring/requirements.txt";
 
@@ -35,11 +38,20 @@ pub fn render(python: &Path, root: &Path) -> Command {
     cmd
 }
 
-/// The checks under pytest (no cache folder left in the source tree).
+/// The checks under pytest (no cache folder left in the source tree): the wiring diagram's
+/// and the documents' links.
 pub fn tests(python: &Path, root: &Path, extra: &[&str]) -> Command {
     let mut cmd = Command::new(python);
-    cmd.args(["-m", "pytest", "-p", "no:cacheprovider", PACKAGE, "-q"])
-        .args(extra)
-        .current_dir(root);
+    cmd.args([
+        "-m",
+        "pytest",
+        "-p",
+        "no:cacheprovider",
+        PACKAGE,
+        LINKS,
+        "-q",
+    ])
+    .args(extra)
+    .current_dir(root);
     cmd
 }

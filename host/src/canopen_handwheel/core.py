@@ -9,7 +9,7 @@ only) and deterministic in the times it is given, so it is tested without a bus 
 (`host/tests`), and the interop suite checks the device's records with the same functions
 (`Record`, `record_fault`, `continuity`, `pair_fault`).
 
-Rules (the README's "Use with LinuxCNC" section states them for machine builders):
+Rules (host/README.md, "What it does", states them for machine builders):
 
 - Feed bookkeeping. The feed record (TPDO1) carries the cumulative position, the axis, the
   multiplier, status bits 0-4 and in bits 5-7 the low three bits of the device's selection
