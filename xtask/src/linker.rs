@@ -9,7 +9,6 @@
 //! config, so `cargo xtask` needs no flip-link on `PATH`.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// The flip-link release installed with `cargo install --locked`.
 pub const FLIP_LINK_VERSION: &str = "0.1.12";
@@ -47,35 +46,7 @@ pub fn flip_link(tools_root: &Path) -> Result<PathBuf, String> {
     if bin.is_file() && installed(tools_root, "flip-link", FLIP_LINK_VERSION) {
         return Ok(bin);
     }
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let version = format!("={FLIP_LINK_VERSION}");
-    eprintln!(
-        "xtask: cargo install flip-link --locked --version {version} --root {}",
-        tools_root.display()
-    );
-    let status = Command::new(cargo)
-        .args([
-            "install",
-            "flip-link",
-            "--locked",
-            "--version",
-            &version,
-            "--root",
-        ])
-        .arg(tools_root)
-        .status()
-        .map_err(|e| format!("cannot run cargo install: {e}"))?;
-    if !status.success() {
-        return Err(format!("installing flip-link failed ({status})"));
-    }
-    if bin.is_file() {
-        Ok(bin)
-    } else {
-        Err(format!(
-            "flip-link not found at {} after install",
-            bin.display()
-        ))
-    }
+    crate::qemu::cargo_install(tools_root, "flip-link", FLIP_LINK_VERSION)
 }
 
 #[cfg(test)]

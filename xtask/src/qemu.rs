@@ -148,32 +148,32 @@ pub fn defmt_print(tools_root: &Path) -> Result<PathBuf, String> {
     if installed {
         return Ok(bin);
     }
+    cargo_install(tools_root, "defmt-print", DEFMT_PRINT_VERSION)
+}
+
+/// `cargo install --locked --version =<version> --root <tools_root> <name>`; returns
+/// `<tools_root>/bin/<name>`, which must exist afterwards. The one way xtask installs a tool.
+pub fn cargo_install(tools_root: &Path, name: &str, version: &str) -> Result<PathBuf, String> {
+    let bin = tools_root.join("bin").join(name);
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let version = format!("={DEFMT_PRINT_VERSION}");
+    let version = format!("={version}");
     eprintln!(
-        "xtask: cargo install defmt-print --locked --version {version} --root {}",
+        "xtask: cargo install {name} --locked --version {version} --root {}",
         tools_root.display()
     );
     let status = Command::new(cargo)
-        .args([
-            "install",
-            "defmt-print",
-            "--locked",
-            "--version",
-            &version,
-            "--root",
-        ])
+        .args(["install", name, "--locked", "--version", &version, "--root"])
         .arg(tools_root)
         .status()
         .map_err(|e| format!("cannot run cargo install: {e}"))?;
     if !status.success() {
-        return Err(format!("installing defmt-print failed ({status})"));
+        return Err(format!("installing {name} failed ({status})"));
     }
     if bin.is_file() {
         Ok(bin)
     } else {
         Err(format!(
-            "defmt-print not found at {} after install",
+            "{name} not found at {} after install",
             bin.display()
         ))
     }
