@@ -327,6 +327,8 @@ mod app {
             }
             supervise(supervision, rate_switch.off_bus(), device, wheel, &mut tx.0);
             device.poll(now, wheel, &mut tx);
+            let transmit = tx.0.lock(|can| can.transmit_state());
+            device.watch_transmit(now, transmit, wheel, &mut tx);
             if let Some(rate) = device.take_bit_rate_switch(now) {
                 info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
                 rate_switch.start(rate, ticks);

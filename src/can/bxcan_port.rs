@@ -2,7 +2,7 @@
 //! and receive FIFO 0.
 
 use bxcan::filter::{ListEntry16, Mask16};
-use bxcan::{Fifo, Interrupts, StandardId};
+use bxcan::{Fifo, Interrupts, Mailbox, StandardId};
 use canopen_slave::RxFilter;
 use handwheel_core::{BitRate, BitTiming};
 
@@ -133,6 +133,18 @@ impl CanLink for Bxcan {
 
     fn acknowledge_transmit(&mut self) {
         self.clear_tx_interrupt();
+    }
+
+    fn idle(&self) -> bool {
+        self.is_transmitter_idle()
+    }
+
+    fn abort_pending(&mut self) {
+        // A mailbox whose frame is on the bus finishes it (RM0008 24.7.1: ABRQ has no effect
+        // then); the others are emptied, and their interrupt counts as progress.
+        for mailbox in [Mailbox::Mailbox0, Mailbox::Mailbox1, Mailbox::Mailbox2] {
+            let _ = self.abort(mailbox);
+        }
     }
 
     fn acknowledge_status(&mut self) {

@@ -63,6 +63,9 @@ pub struct CanStats {
     pub tx_displaced: u32,
     /// Frames refused because the transmit queue was full (the sender keeps them).
     pub tx_refused: u32,
+    /// Times the transmit path moved: a frame taken by the controller, or a mailbox done
+    /// (wrapping). Unchanged while frames wait: the bus takes nothing.
+    pub tx_progress: u32,
 }
 
 /// The device's way to the transmit queue: one short lock of the [`CanPort`] per frame.
@@ -78,5 +81,10 @@ impl<M: rtic::Mutex<T = CanPort>> canopen_slave::FrameSink for TxSink<M> {
         self.0
             .lock(|port| port.send(frame))
             .map_err(|_| canopen_slave::SinkFull)
+    }
+
+    /// Discards the queue and aborts the mailboxes (a reset of communication).
+    fn discard_pending(&mut self) {
+        self.0.lock(|port| port.discard_pending());
     }
 }

@@ -4,6 +4,7 @@
 
 use canopen_slave::RxFilter;
 use handwheel_core::BitRate;
+use handwheel_device::TransmitState;
 
 use super::{CanStats, Frame, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
 
@@ -32,6 +33,10 @@ pub trait CanLink {
     fn receive(&mut self) -> Option<Received>;
     /// The transmit interrupt came: acknowledge it.
     fn acknowledge_transmit(&mut self);
+    /// No frame waits in the controller.
+    fn idle(&self) -> bool;
+    /// Withdraws every frame the controller holds that is not on the bus yet.
+    fn abort_pending(&mut self);
     /// The status-change interrupt came: acknowledge it.
     fn acknowledge_status(&mut self);
     /// Passes exactly what `filter` accepts from now on.
@@ -72,13 +77,30 @@ impl<L: CanLink> CanPort<L> {
     /// The transmit interrupt: the controller has room again.
     pub fn on_transmit_room(&mut self) {
         self.link.acknowledge_transmit();
+        self.stats.tx_progress = self.stats.tx_progress.wrapping_add(1);
         self.pump();
+    }
+
+    /// Discards every frame not on the bus yet: the queue and what the controller holds (a
+    /// reset of communication, or a transmit path blocked for too long).
+    pub fn discard_pending(&mut self) {
+        self.queue.clear();
+        self.link.abort_pending();
+    }
+
+    /// Whether frames wait, and how many times the path moved (for the device's stall watch).
+    pub fn transmit_state(&self) -> TransmitState {
+        TransmitState {
+            waiting: !self.queue.is_empty() || !self.link.idle(),
+            completed: self.stats.tx_progress,
+        }
     }
 
     fn pump(&mut self) {
         while let Some(next) = self.queue.front() {
             match self.link.transmit(next) {
                 Ok(displaced) => {
+                    self.stats.tx_progress = self.stats.tx_progress.wrapping_add(1);
                     self.queue.pop_front();
                     if let Some(displaced) = displaced {
                         // The pop above made room, so this cannot fail.

@@ -41,6 +41,11 @@ impl<const N: usize> TxQueue<N> {
         self.frames.pop_front()
     }
 
+    /// Discards every frame waiting.
+    pub fn clear(&mut self) {
+        self.frames.clear();
+    }
+
     /// Frames waiting.
     pub fn len(&self) -> usize {
         self.frames.len()

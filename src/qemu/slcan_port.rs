@@ -169,6 +169,13 @@ impl CanLink for Controller {
     /// whenever the channel is open.
     fn acknowledge_transmit(&mut self) {}
 
+    /// Nothing waits in a serial link: what it takes is written out.
+    fn idle(&self) -> bool {
+        true
+    }
+
+    fn abort_pending(&mut self) {}
+
     /// Never raised: a serial link has no error states.
     fn acknowledge_status(&mut self) {}
 

@@ -115,17 +115,30 @@ pub struct SinkFull;
 pub trait FrameSink {
     /// Queue `frame` for transmission.
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull>;
+
+    /// Discards every frame queued and not yet on the bus. A reset of communication or of the
+    /// node calls it before the boot-up: what the node said before the reset must not arrive
+    /// after it, and the boot-up must not wait behind it (nor be refused by a full queue).
+    fn discard_pending(&mut self) {}
 }
 
 impl<const N: usize> FrameSink for heapless::Vec<Frame, N> {
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
         self.push(frame).map_err(|_| SinkFull)
     }
+
+    fn discard_pending(&mut self) {
+        self.clear();
+    }
 }
 
 impl<const N: usize> FrameSink for heapless::Deque<Frame, N> {
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
         self.push_back(frame).map_err(|_| SinkFull)
+    }
+
+    fn discard_pending(&mut self) {
+        self.clear();
     }
 }
 

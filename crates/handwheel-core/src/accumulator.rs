@@ -35,6 +35,8 @@ pub enum StopReason {
     MasterLost,
     /// The device left Operational (NMT stop, pre-operational or reset).
     NotOperational,
+    /// The device's frames waited for the bus too long: what it reports would arrive late.
+    TransmitBlocked,
 }
 
 /// The feed accumulator.
@@ -181,7 +183,7 @@ impl FeedAccumulator {
         // while disabled), so disabling is all a stop has to do. It comes first: the epoch
         // it closes ended enabled, without the loss (never both in one record).
         let disabled = self.set_enabled(false);
-        let lost = reason == StopReason::MasterLost && self.latch(FeedStatus::MASTER_LOST);
+        let lost = reason != StopReason::NotOperational && self.latch(FeedStatus::MASTER_LOST);
         lost || disabled
     }
 
@@ -287,6 +289,28 @@ impl FeedAccumulator {
     /// dropped, their motion reaches no axis, and the sequence number shows the gap.
     pub fn stop_records(&mut self) {
         self.outbox.stop();
+    }
+
+    /// Reset node: back to power-on values, except what lets the host tell that a reset
+    /// happened: the selection (hardware state) stays, the epoch steps and the record
+    /// sequence goes on with a break ([`FeedOutbox::break_continuity`]), so that the first
+    /// record after the reset never continues one from before it.
+    pub fn reset(&mut self) {
+        let selection = self.selection;
+        let epoch = self.epoch.wrapping_add(1);
+        let mut outbox = core::mem::take(&mut self.outbox);
+        outbox.stop();
+        outbox.break_continuity();
+        *self = Self::new();
+        self.selection = selection;
+        self.epoch = epoch;
+        self.outbox = outbox;
+    }
+
+    /// Records that were handed out may not reach the bus (the transmit path discarded them):
+    /// nothing after this continues what came before.
+    pub fn break_records(&mut self) {
+        self.outbox.break_continuity();
     }
 
     /// The outbox, for diagnostics.

@@ -15,7 +15,8 @@ impl FeedStatus {
     pub const ENCODER_ERROR: Self = Self(1 << 1);
     /// Unit steps were dropped at the backlog bound in this epoch.
     pub const STEPS_DROPPED: Self = Self(1 << 2);
-    /// The feed was stopped because the master's heartbeat was lost; cleared by enabling.
+    /// The feed was stopped by a loss of communication (the master's heartbeat timed out, or
+    /// the device's frames could not reach the bus); cleared by enabling.
     pub const MASTER_LOST: Self = Self(1 << 3);
     /// The wheel was turned while disabled or without an axis in this epoch.
     pub const IGNORED_MOTION: Self = Self(1 << 4);

@@ -1,5 +1,6 @@
 //! Feed records on their way to the bus: every selection epoch's final state is sent before
-//! anything of the next epoch, even when the bus is blocked.
+//! anything of the next epoch, even when the bus is blocked, and every record or epoch that
+//! can no longer reach the host shows as a gap in the sequence number.
 //!
 //! A feed record describes state, so the present state is all a record has to carry while the
 //! selection stays the same. Across a change of epoch (axis, multiplier, enable, format, a
@@ -11,18 +12,19 @@
 //! the present state again. So each epoch costs at most one held record, however long the
 //! bus is blocked, and every epoch's last position is delivered once the bus is back.
 //!
-//! The store is bounded ([`HELD_EPOCHS`]). When it is full the oldest held record is dropped,
-//! and the sequence number moves on as if that record had been sent and lost: a host sees the
-//! gap and starts afresh there, so the motion of a dropped epoch reaches no axis, never
-//! another one. A run of drops moves the sequence by at most [`MAX_DROP_GAP`], so that drops
-//! can never wrap the sequence byte round to "no gap".
+//! The sequence number counts records and losses. It steps by one for every record handed
+//! out, and by one for every *loss*: a held record dropped because the store is full
+//! ([`HELD_EPOCHS`]), an epoch that ends while no record can hold it (the device is not
+//! Operational, or no record went out since the start), what is held when records stop. A
+//! *break* ([`FeedOutbox::break_continuity`]: a start, a stop, a reset, a blocked transmit
+//! path) counts as losses up to the run's limit. A run of losses between two records moves the
+//! sequence by at most [`MAX_DROP_GAP`], so that losses can never wrap the byte round to "no
+//! gap"; a break always moves it that far. The host's rule (README "Feed record") reads a gap
+//! of 7 or more as "start afresh": nothing after a break is ever taken as a continuation of
+//! what came before it, and every epoch that ended unseen hides behind at least one missing
+//! number.
 //!
-//! Records flow only while the device is Operational ([`FeedOutbox::start`]). Leaving it
-//! ([`FeedOutbox::stop`]) drops what is held (it would reach the host only at the next start,
-//! as stale motion) and moves the sequence on by at least one, so that the next start is a
-//! new baseline for the host. While stopped, epochs end unrecorded: there is nobody to tell.
-//!
-//! The sequence number is the outbox's: +1 for each record sent or dropped.
+//! The state machine is checked exhaustively against the host's rule by `crates/feed-check`.
 
 use crate::feed::{FeedState, FeedStatus};
 use crate::selector::Multiplier;
@@ -40,7 +42,7 @@ const UNUSED: FeedState = FeedState {
 /// than this while the bus is blocked loses the motion of the oldest ones (to no axis).
 pub const HELD_EPOCHS: usize = 8;
 
-/// Most the sequence number moves for one run of dropped records.
+/// Most the sequence number moves for one run of losses, and what a break moves it by.
 pub const MAX_DROP_GAP: u8 = 8;
 
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
@@ -79,11 +81,12 @@ impl FeedOutbox {
     }
 
     /// The feed leaves an epoch whose final state is `closing`: hold it for the bus, unless
-    /// nothing is held and the last record sent already said exactly this, or no record went
-    /// out since the start (the host starts afresh from the first one anyway). A full store
-    /// drops its oldest record first.
+    /// nothing is held and the last record sent already said exactly this. While no record
+    /// can hold it (stopped, or nothing sent since the start) the epoch ends as a loss. A full
+    /// store drops its oldest record first (a loss).
     pub fn close_epoch(&mut self, closing: FeedState) {
         let Some(last_sent) = self.last_sent.filter(|_| self.reporting) else {
+            self.count_loss();
             return;
         };
         if self.len == 0 && last_sent == closing {
@@ -91,7 +94,8 @@ impl FeedOutbox {
         }
         if self.len == HELD_EPOCHS {
             let _ = self.pop();
-            self.count_drop();
+            self.dropped = self.dropped.wrapping_add(1);
+            self.count_loss();
         }
         let tail = (self.head + self.len) % HELD_EPOCHS;
         if let Some(slot) = self.held.get_mut(tail) {
@@ -122,35 +126,44 @@ impl FeedOutbox {
         self.len != 0 || record != live
     }
 
-    /// Records may flow (the device entered Operational). Epochs are held from the first
-    /// record on: before it, the host has nothing to continue from.
+    /// Records may flow (the device entered Operational): a break (unless nothing was ever
+    /// sent or lost: the first start after power-on, whose boot-up tells the host already),
+    /// and epochs are held from the first record on (before it, the host has nothing to
+    /// continue from).
     pub fn start(&mut self) {
         self.reporting = true;
         self.last_sent = None;
+        if self.sequence != 0 || self.drops_in_run != 0 {
+            self.break_continuity();
+        }
     }
 
     /// Records stop (the device left Operational): everything held is dropped (its motion
-    /// reaches no axis), and the sequence moves on by one for each dropped record, or by one
-    /// if none was held, so that the next record after a start is never taken as a
-    /// continuation.
+    /// reaches no axis), and a break, so that the next record after a start is never taken as
+    /// a continuation.
     pub fn stop(&mut self) {
         if !self.reporting {
             return;
         }
         self.reporting = false;
-        let mut any = false;
+        self.last_sent = None;
         while self.pop().is_some() {
-            any = true;
-            self.count_drop();
+            self.dropped = self.dropped.wrapping_add(1);
         }
-        if !any && self.drops_in_run < MAX_DROP_GAP {
-            self.drops_in_run += 1;
-            self.sequence = self.sequence.wrapping_add(1);
+        self.break_continuity();
+    }
+
+    /// Nothing after this continues what came before: the next record's sequence number is
+    /// at least [`MAX_DROP_GAP`] after the last one handed out. For a reset of the node or of
+    /// communication, and for records that were discarded before they reached the bus.
+    pub fn break_continuity(&mut self) {
+        while self.drops_in_run < MAX_DROP_GAP {
+            self.count_loss();
         }
     }
 
-    fn count_drop(&mut self) {
-        self.dropped = self.dropped.wrapping_add(1);
+    /// One loss: the sequence moves on, at most [`MAX_DROP_GAP`] for a run of them.
+    fn count_loss(&mut self) {
         if self.drops_in_run < MAX_DROP_GAP {
             self.drops_in_run += 1;
             self.sequence = self.sequence.wrapping_add(1);
@@ -162,7 +175,7 @@ impl FeedOutbox {
         self.len
     }
 
-    /// Held records dropped since start, wrapping.
+    /// Held records dropped (store full, or records stopped) since power-on, wrapping.
     pub const fn dropped(&self) -> u32 {
         self.dropped
     }
@@ -289,41 +302,52 @@ mod tests {
     }
 
     #[test]
-    fn stop_drops_what_is_held_with_a_gap() {
+    fn stop_drops_what_is_held_and_breaks() {
         let mut out = started();
         assert!(!out.sent(state(0, Axis::X, 0)));
         out.close_epoch(state(5, Axis::X, 0));
         out.stop();
-        assert_eq!((out.held(), out.dropped(), out.sequence()), (0, 1, 2));
+        assert_eq!(out.held(), 0);
+        assert_eq!(out.dropped(), 1);
+        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP, "a full break after the record");
         let live = state(5, Axis::X, 1);
         assert_eq!(out.next(live), live);
     }
 
     #[test]
-    fn stop_with_nothing_held_still_breaks_continuity_once() {
+    fn every_stop_and_start_is_a_break() {
         let mut out = FeedOutbox::new();
         out.stop();
         assert_eq!(out.sequence(), 0, "never started: nothing to break");
         out.start();
+        assert_eq!(out.sequence(), 0, "the first start after power-on has the boot-up");
         assert!(!out.sent(state(0, Axis::X, 0)));
         out.stop();
         out.stop();
-        assert_eq!((out.dropped(), out.sequence()), (0, 2));
+        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
+        out.start();
+        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP, "the run is full already");
+        assert!(!out.sent(state(0, Axis::X, 0)));
+        out.start();
+        assert_eq!(
+            out.sequence(),
+            2 + 2 * MAX_DROP_GAP,
+            "a start after a record breaks too"
+        );
+        assert_eq!(out.dropped(), 0);
     }
 
     #[test]
-    fn nothing_is_held_while_stopped_or_before_the_first_record() {
+    fn epochs_that_end_unrecorded_take_numbers() {
         let mut out = FeedOutbox::new();
         out.close_epoch(state(0, Axis::X, 0));
         out.close_epoch(state(0, Axis::Y, 1));
-        assert_eq!(out.held(), 0);
+        assert_eq!((out.held(), out.sequence()), (0, 2), "stopped: two losses");
         out.start();
+        assert_eq!(out.sequence(), MAX_DROP_GAP, "the start fills the run");
         out.close_epoch(state(0, Axis::Z, 2));
-        assert_eq!(
-            out.held(),
-            0,
-            "no record yet: the first one is the host's baseline"
-        );
+        assert_eq!(out.held(), 0, "no record yet: nothing to continue from");
+        assert_eq!(out.sequence(), MAX_DROP_GAP, "the run is full");
         assert!(!out.sent(state(0, Axis::Z, 3)));
         out.close_epoch(state(4, Axis::Z, 3));
         assert_eq!(out.held(), 1);
@@ -331,5 +355,19 @@ mod tests {
         out.start();
         out.close_epoch(state(4, Axis::Y, 4));
         assert_eq!(out.held(), 0, "a new start: nothing sent since");
+    }
+
+    #[test]
+    fn a_break_moves_the_sequence_by_the_full_gap_once_per_run() {
+        let mut out = started();
+        assert!(!out.sent(state(0, Axis::X, 0)));
+        out.close_epoch(state(3, Axis::X, 0));
+        out.close_epoch(state(3, Axis::Y, 1));
+        assert_eq!(out.held(), 2);
+        out.break_continuity();
+        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
+        assert_eq!(out.held(), 2, "a break keeps what is held: it still goes out in order");
+        out.break_continuity();
+        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
     }
 }

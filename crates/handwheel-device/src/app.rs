@@ -2,7 +2,7 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedAccumulator, FeedStatus, Handwheel,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedStatus, Handwheel,
     StopReason, UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
 };
 
@@ -190,11 +190,8 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         self.app.nmt = nmt;
         self.app.master_lost = master_lost;
         self.wheel.with_wheel(|w| {
-            let selection = w.feed.selection();
             w.decoder.reset(WheelParameters::DEFAULT.decoder);
-            w.feed = FeedAccumulator::new();
-            // The selector is hardware state, not application state: it survives the reset.
-            let _ = w.feed.set_selection(selection);
+            w.feed.reset();
         });
     }
 

@@ -4,7 +4,7 @@
 use canopen_slave::{
     Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, RxFilter, Storage,
 };
-use handwheel_core::{BitRate, FeedStatus, Selection, WheelAccess};
+use handwheel_core::{BitRate, FeedStatus, Selection, StopReason, WheelAccess};
 
 use crate::app::{AppContext, FeedApp};
 use crate::node_config::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
@@ -16,6 +16,56 @@ pub const EMCY_ENCODER: u16 = 0x7300;
 /// Error register bit for the encoder error: generic only, CiA 301 has no sensor bit.
 const ERROR_REGISTER_GENERIC: u8 = 0x01;
 
+/// How long frames may wait for the bus, none of them getting out, before the device counts
+/// its transmit path as blocked: it then stops the feed, discards what waits and breaks the
+/// record sequence, so that no motion reaches the host later than this after it was reported.
+pub const TRANSMIT_STALL_MS: u64 = 100;
+
+/// What the firmware's transmit path reports each round: whether frames wait (in the queue
+/// or the controller), and a count of frames that left it (wrapping).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct TransmitState {
+    /// Frames wait for the bus.
+    pub waiting: bool,
+    /// Frames that left the transmit path (sent or aborted), wrapping.
+    pub completed: u32,
+}
+
+/// Notices a transmit path that takes nothing for [`TRANSMIT_STALL_MS`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+struct StallWatch {
+    /// Since when frames wait with none completing.
+    since: Option<Instant>,
+    completed: u32,
+    /// This stall was handled already.
+    handled: bool,
+}
+
+impl StallWatch {
+    /// Whether the path counts as blocked now (once per stall).
+    fn observe(&mut self, now: Instant, state: TransmitState) -> bool {
+        if !state.waiting || state.completed != self.completed {
+            self.completed = state.completed;
+            self.since = state.waiting.then_some(now);
+            self.handled = false;
+            return false;
+        }
+        let since = *self.since.get_or_insert(now);
+        if self.handled || now.as_micros() < since.as_micros() + TRANSMIT_STALL_MS * 1000 {
+            return false;
+        }
+        self.handled = true;
+        true
+    }
+
+    /// When the path counts as blocked if nothing gets out.
+    fn deadline(&self) -> Option<Instant> {
+        self.since
+            .filter(|_| !self.handled)
+            .map(|since| since.add_millis(TRANSMIT_STALL_MS))
+    }
+}
+
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
 /// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
 /// through a [`WheelAccess`] on every call.
@@ -23,6 +73,7 @@ pub struct HandwheelDevice<S> {
     engine: Device<S>,
     app: FeedApp,
     encoder_error_raised: bool,
+    stall: StallWatch,
 }
 
 impl<S: Storage> HandwheelDevice<S> {
@@ -47,6 +98,11 @@ impl<S: Storage> HandwheelDevice<S> {
             engine: Device::new(config, OD, storage),
             app: FeedApp::new(),
             encoder_error_raised: false,
+            stall: StallWatch {
+                since: None,
+                completed: 0,
+                handled: false,
+            },
         }
     }
 
@@ -103,13 +159,48 @@ impl<S: Storage> HandwheelDevice<S> {
         }
     }
 
-    /// When [`HandwheelDevice::poll`] has work next.
+    /// The transmit path's state, after every round: frames that wait for the bus for
+    /// [`TRANSMIT_STALL_MS`] with none getting out would carry stale motion. The feed stops
+    /// (as on master loss: disabled, status bit 3), what waits is discarded and the record
+    /// sequence breaks, so the host never credits motion that left the device that late.
+    /// Returns `true` when that happened.
+    pub fn watch_transmit(
+        &mut self,
+        now: Instant,
+        state: TransmitState,
+        wheel: &mut impl WheelAccess,
+        tx: &mut dyn FrameSink,
+    ) -> bool {
+        if !self.stall.observe(now, state) {
+            return false;
+        }
+        #[cfg(feature = "defmt")]
+        defmt::warn!("CAN: nothing sent for {=u64} ms: feed stopped", TRANSMIT_STALL_MS);
+        let operational = self.engine.nmt_state() == NmtState::Operational;
+        self.app.step_in_flight = None;
+        self.app.feed_due |= wheel.with_wheel(|w| {
+            let changed = w.feed.stop(StopReason::TransmitBlocked);
+            // What is held and queued is stale now: dropped, and a break, as when
+            // leaving Operational and entering it again.
+            w.feed.stop_records();
+            if operational {
+                w.feed.start_records();
+            }
+            w.feed.break_records();
+            changed
+        });
+        tx.discard_pending();
+        true
+    }
+
+    /// When [`HandwheelDevice::poll`] (or [`HandwheelDevice::watch_transmit`]) has work next.
     pub fn next_deadline(&self) -> Option<Instant> {
-        let feed_pending = self.app.feed_due;
-        match self.engine.next_deadline() {
-            Some(t) if !feed_pending => Some(t),
-            _ if feed_pending => Some(Instant::ZERO),
-            other => other,
+        if self.app.feed_due {
+            return Some(Instant::ZERO);
+        }
+        match (self.engine.next_deadline(), self.stall.deadline()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         }
     }
 

@@ -33,6 +33,6 @@ pub mod rate_switch;
 pub mod record;
 
 pub use app::WheelParameters;
-pub use device::{HandwheelDevice, EMCY_ENCODER};
+pub use device::{HandwheelDevice, TransmitState, EMCY_ENCODER, TRANSMIT_STALL_MS};
 pub use duties::{Duties, Sample};
 pub use rate_switch::RateSwitch;

@@ -424,11 +424,16 @@ fn nothing_is_stored_while_the_feed_is_enabled() {
 fn reset_node_keeps_the_selector_but_zeroes_the_feed() {
     let mut b = Bench::operational_enabled(Axis::W, Multiplier::X10);
     b.turn(2);
+    let (sequence, epoch) = (b.read_u32(0x2031, 0) as u8, b.read_u32(0x2010, 3) as u8);
     b.nmt(0x81);
     assert_eq!(b.read_u32(0x6004, 0), 0);
     assert_eq!(b.read_u32(0x2010, 1), 4, "W still selected");
     assert_eq!(b.read_u32(0x2010, 2), 10);
-    assert_eq!(b.read_u32(0x2031, 0), 0);
+    // The sequence and the epoch go on, with a break: the first record after the reset can
+    // never be taken for a continuation of one before it.
+    let gap = (b.read_u32(0x2031, 0) as u8).wrapping_sub(sequence);
+    assert_eq!(gap, handwheel_core::MAX_DROP_GAP, "a full break");
+    assert_ne!(b.read_u32(0x2010, 3) as u8, epoch);
 }
 
 fn unit_step_mode(axis: Axis, mult: Multiplier) -> Bench {

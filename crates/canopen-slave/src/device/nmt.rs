@@ -97,6 +97,11 @@ impl<S: Storage> Device<S> {
                 self.inner.comm.restore(index, sub, value, now);
             }
         }
+        if kind != Boot::PowerOn {
+            // CiA 301's reset of communication: nothing said before it goes out after it,
+            // and the boot-up is the first frame (a full queue would refuse it).
+            tx.discard_pending();
+        }
         let bootup = Frame::from_parts(node.cob_id(cob::HEARTBEAT), [0; 8], 1);
         self.inner.emit(tx, bootup);
         self.inner.comm.heartbeat.restart(now);
