@@ -108,7 +108,7 @@ pub struct Handwheel {
 /// accumulator under one short lock (in the order of the CAN side's calls: motion before a
 /// change of selection or enable belongs to the old one), then runs the access without the
 /// lock, then applies the decoder commands it made under a second one.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct LinkedWheel<L> {
     link: L,
     wheel: Handwheel,

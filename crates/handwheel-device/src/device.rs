@@ -69,6 +69,7 @@ impl StallWatch {
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
 /// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
 /// through a [`WheelAccess`] on every call.
+#[derive(Clone, Debug)]
 pub struct HandwheelDevice<S> {
     engine: Device<S>,
     app: FeedApp,

@@ -1,0 +1,93 @@
+//! The settings the checker explores: each a set of budgets small enough to exhaust, chosen
+//! to reach one kind of trouble (full queues and outbox, wrap-around, resets, channel faults,
+//! time) in few steps.
+
+use crate::host::RuleConfig;
+use crate::model::Bounds;
+
+const fn rule(sequence_bits: u8, epoch_bits: u8) -> RuleConfig {
+    RuleConfig {
+        sequence_bits,
+        epoch_bits,
+        ..RuleConfig::shipped(100)
+    }
+}
+
+const BASE: Bounds = Bounds {
+    name: "",
+    rule: rule(8, 3),
+    transmit_capacity: 3,
+    turns: 0,
+    switches: 0,
+    feed_writes: 0,
+    nmt: 0,
+    power_cycles: 0,
+    ticks: 0,
+    tick_ms: 50,
+    event_timer_ms: 100,
+    channel_faults: 0,
+    replay_depth: 0,
+    host_stalls: 0,
+    late_ms: 500,
+};
+
+/// What `cargo xtask test` explores.
+pub const ALL: &[Bounds] = &[
+    // Stops, starts and selection changes while the transmit path is full: the epoch field
+    // lowered to 2 bits, so that 4 unseen epochs bring it round.
+    Bounds {
+        name: "nmt and outbox",
+        rule: rule(8, 2),
+        turns: 3,
+        switches: 4,
+        feed_writes: 1,
+        nmt: 2,
+        ..BASE
+    },
+    // Resets and power cycles with the sequence lowered to 5 bits (the smallest width in
+    // which a break of 8 still reads as a gap), so that it wraps within a few breaks.
+    Bounds {
+        name: "resets and wrap",
+        rule: rule(5, 3),
+        turns: 2,
+        switches: 1,
+        feed_writes: 2,
+        nmt: 3,
+        power_cycles: 1,
+        ..BASE
+    },
+    // Lost, doubled and replayed frames.
+    Bounds {
+        name: "channel faults",
+        turns: 3,
+        switches: 2,
+        feed_writes: 1,
+        nmt: 1,
+        channel_faults: 2,
+        replay_depth: 4,
+        ..BASE
+    },
+    // Time: holds longer than the stall limit, event-timer records, staleness, a host that
+    // stalls and reads a backlog.
+    Bounds {
+        name: "time and stalls",
+        turns: 2,
+        switches: 1,
+        feed_writes: 1,
+        ticks: 10,
+        host_stalls: 1,
+        channel_faults: 1,
+        replay_depth: 2,
+        ..BASE
+    },
+    // The shipped widths and transmit path (16 queued + 3 mailboxes).
+    Bounds {
+        name: "shipped sizes",
+        transmit_capacity: 19,
+        turns: 3,
+        switches: 3,
+        feed_writes: 1,
+        nmt: 2,
+        ..BASE
+    },
+];

@@ -1,0 +1,49 @@
+//! Runs the feed contract's checker over every setting of `bounds::ALL` and prints what it
+//! explored; exits 1 with the shortest path to the first breach.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use feed_check::bounds;
+use feed_check::model::FeedModel;
+use stateright::{Checker, Model};
+
+fn main() -> ExitCode {
+    let mut failed = false;
+    let started = Instant::now();
+    let mut total = 0;
+    for bounds in bounds::ALL {
+        let t = Instant::now();
+        let checker = FeedModel { bounds: *bounds }
+            .checker()
+            .threads(2)
+            .spawn_bfs()
+            .join();
+        let states = checker.unique_state_count();
+        total += states;
+        println!(
+            "feed-check: {:<24} {:>9} states, depth {:>3}, {:.1} s",
+            bounds.name,
+            states,
+            checker.max_depth(),
+            t.elapsed().as_secs_f64()
+        );
+        for property in (FeedModel { bounds: *bounds }).properties() {
+            if let Some(path) = checker.discovery(property.name) {
+                failed = true;
+                let last = path.last_state().violation.clone().unwrap_or_default();
+                println!("  BREACH: {last}");
+                println!("  after: {:?}", path.into_actions());
+            }
+        }
+    }
+    println!(
+        "feed-check: {total} states in all, {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    if failed {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    }
+}

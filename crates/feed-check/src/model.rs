@@ -1,0 +1,633 @@
+//! The model: the real device (`HandwheelDevice` with its engine, accumulator and outbox), a
+//! transmit path of bounded size in front of the bus, a channel that passes, loses,
+//! duplicates and replays frames, the host's rule ([`HostRule`]) and the truth: every detent
+//! the device counted, on which axis and when.
+//!
+//! Every action is one thing the outside world can do: the operator turns or switches, a
+//! master sends NMT or writes 0x2000, the device loses power, time passes, the bus takes a
+//! frame (or loses, doubles or replays one), the host stalls or resumes. Not taking a frame
+//! is the bus being held. The property is checked in every state the actions reach, within
+//! the budgets of a [`Bounds`].
+
+use std::collections::VecDeque;
+use std::fmt::{self, Write as _};
+use std::hash::{Hash, Hasher};
+
+use canopen_slave::{Frame, FrameSink, Instant, MemoryStorage, NodeId, SinkFull};
+use handwheel_core::{AbLevels, Axis, DecoderConfig, LinkedWheel, LocalEdge, Multiplier, Selection};
+use handwheel_device::{HandwheelDevice, TransmitState};
+use stateright::{Model, Property};
+
+use crate::host::{Credit, HostRule, RuleConfig, AXES};
+
+/// The device's node-ID in the model.
+pub const NODE: u8 = 16;
+const TPDO1: u16 = 0x180 + NODE as u16;
+const HEARTBEAT: u16 = 0x700 + NODE as u16;
+const SDO_RX: u16 = 0x600 + NODE as u16;
+
+/// NMT commands a master may send.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Nmt {
+    /// 0x01.
+    Start,
+    /// 0x02.
+    Stop,
+    /// 0x80.
+    PreOperational,
+    /// 0x81.
+    ResetNode,
+    /// 0x82.
+    ResetCommunication,
+}
+
+impl Nmt {
+    /// Every command.
+    pub const ALL: [Self; 5] = [
+        Self::Start,
+        Self::Stop,
+        Self::PreOperational,
+        Self::ResetNode,
+        Self::ResetCommunication,
+    ];
+
+    const fn byte(self) -> u8 {
+        match self {
+            Self::Start => 0x01,
+            Self::Stop => 0x02,
+            Self::PreOperational => 0x80,
+            Self::ResetNode => 0x81,
+            Self::ResetCommunication => 0x82,
+        }
+    }
+}
+
+/// One thing the world does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Action {
+    /// The operator turns one detent forward.
+    Turn,
+    /// The operator moves the axis switch to the other axis (X <-> Y).
+    SwitchAxis,
+    /// A master writes 0x2000 = 1 (without waiting for the answer).
+    Enable,
+    /// A master writes 0x2000 = 0.
+    Disable,
+    /// A master sends an NMT command.
+    Nmt(Nmt),
+    /// The device loses power and boots again (what waits for the bus is lost with it).
+    PowerCycle,
+    /// Time passes by the bounds' tick.
+    Tick,
+    /// The bus takes the next frame and the host receives it.
+    Pass,
+    /// The bus takes the next frame and the host never receives it.
+    Lose,
+    /// The bus takes the next frame and the host receives it twice.
+    Duplicate,
+    /// The host receives again the feed record it received this many records ago.
+    Replay(u8),
+    /// The host stops reading (frozen, starved): frames wait in its socket.
+    HostStall,
+    /// The host reads again: the backlog, then its receive path is empty.
+    HostResume,
+}
+
+/// What one exploration may do: how often each kind of action, and the settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Bounds {
+    /// A name for the report.
+    pub name: &'static str,
+    /// The host's rule and its widths.
+    pub rule: RuleConfig,
+    /// Frames the transmit path holds (software queue and mailboxes: 16 + 3 on the board).
+    pub transmit_capacity: usize,
+    /// Detents turned at most.
+    pub turns: u8,
+    /// Axis switch moves at most.
+    pub switches: u8,
+    /// 0x2000 writes at most.
+    pub feed_writes: u8,
+    /// NMT commands at most.
+    pub nmt: u8,
+    /// Power cycles at most.
+    pub power_cycles: u8,
+    /// Ticks at most, and how long one is.
+    pub ticks: u8,
+    /// Milliseconds per tick.
+    pub tick_ms: u64,
+    /// The device's TPDO1 event timer (0x1800:5), ms; 0: none.
+    pub event_timer_ms: u16,
+    /// Frames lost, duplicated or replayed at most.
+    pub channel_faults: u8,
+    /// How far back a replay may reach, in feed records delivered.
+    pub replay_depth: u8,
+    /// Host stalls at most.
+    pub host_stalls: u8,
+    /// The bound the property sets on lateness: nothing is credited later than this after
+    /// it was turned.
+    pub late_ms: u64,
+}
+
+/// Where a frame came from, which the host cannot see.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Tag {
+    /// Which run of positions: +1 at every power cycle and reset node (the position
+    /// restarts at 0).
+    pub era: u8,
+    /// When the device made the frame.
+    pub made_ms: u64,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+struct Wire {
+    id: u16,
+    data: [u8; 8],
+    len: u8,
+    tag: Tag,
+}
+
+/// The device and its wheel: real code, compared and hashed through their `Debug` form
+/// (neither needs `Hash` for the firmware's sake).
+#[derive(Clone)]
+struct Real {
+    device: HandwheelDevice<MemoryStorage>,
+    wheel: LinkedWheel<LocalEdge>,
+    levels: AbLevels,
+}
+
+impl Real {
+    fn fingerprint(&self) -> String {
+        let mut s = String::with_capacity(4096);
+        let _ = write!(s, "{:?}{:?}{:?}", self.device, self.wheel, self.levels);
+        s
+    }
+}
+
+impl PartialEq for Real {
+    fn eq(&self, other: &Self) -> bool {
+        self.fingerprint() == other.fingerprint()
+    }
+}
+
+impl Hash for Real {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        self.fingerprint().hash(state);
+    }
+}
+
+impl fmt::Debug for Real {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("device")
+    }
+}
+
+/// Detents the device counted, per era, by position: the axis (index into [`AXES`]) and
+/// when.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, Default)]
+struct Truth {
+    moves: Vec<Vec<(usize, u64)>>,
+    /// Per era, the position up to which motion was credited.
+    credited_upto: Vec<i32>,
+}
+
+/// One state of the world.
+#[derive(Clone, Debug, PartialEq, Hash)]
+pub struct World {
+    real: Real,
+    now_ms: u64,
+    era: u8,
+    axis: usize,
+    /// Frames the device handed out that the bus has not taken.
+    transmit: VecDeque<Wire>,
+    transmit_completed: u32,
+    /// Feed records the host received, newest last, for replays.
+    delivered: VecDeque<Wire>,
+    host: HostRule<Tag>,
+    host_stalled: bool,
+    host_backlog: VecDeque<Wire>,
+    truth: Truth,
+    used: [u8; 8],
+    /// The first breach of the property, if any.
+    pub violation: Option<String>,
+}
+
+impl Eq for World {}
+
+/// Budget slots in [`World::used`].
+#[derive(Clone, Copy)]
+enum Budget {
+    Turns,
+    Switches,
+    FeedWrites,
+    Nmt,
+    PowerCycles,
+    Ticks,
+    ChannelFaults,
+    HostStalls,
+}
+
+/// A transmit path of bounded size.
+struct Sink<'a> {
+    queue: &'a mut VecDeque<Wire>,
+    capacity: usize,
+    tag: Tag,
+    discarded: bool,
+}
+
+impl FrameSink for Sink<'_> {
+    fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
+        if self.queue.len() >= self.capacity {
+            return Err(SinkFull);
+        }
+        let mut data = [0; 8];
+        data[..frame.data().len()].copy_from_slice(frame.data());
+        self.queue.push_back(Wire {
+            id: frame.id(),
+            data,
+            len: frame.data().len() as u8,
+            tag: self.tag,
+        });
+        Ok(())
+    }
+
+    fn discard_pending(&mut self) {
+        self.queue.clear();
+        self.discarded = true;
+    }
+}
+
+/// The model of one [`Bounds`].
+#[derive(Clone, Debug)]
+pub struct FeedModel {
+    /// Its bounds.
+    pub bounds: Bounds,
+}
+
+impl FeedModel {
+    fn budget(&self, b: Budget) -> u8 {
+        match b {
+            Budget::Turns => self.bounds.turns,
+            Budget::Switches => self.bounds.switches,
+            Budget::FeedWrites => self.bounds.feed_writes,
+            Budget::Nmt => self.bounds.nmt,
+            Budget::PowerCycles => self.bounds.power_cycles,
+            Budget::Ticks => self.bounds.ticks,
+            Budget::ChannelFaults => self.bounds.channel_faults,
+            Budget::HostStalls => self.bounds.host_stalls,
+        }
+    }
+
+    /// The world after boot and a master's configuration: X selected at x1, event timer,
+    /// no inhibit time, no producer heartbeat, Operational, feed enabled, and everything
+    /// the device said received by the host.
+    pub fn initial(&self) -> World {
+        let levels = AbLevels::from_bits(0);
+        let real = Real {
+            device: HandwheelDevice::new(
+                NodeId::new(NODE).expect("a valid node-ID"),
+                0x5EED,
+                MemoryStorage::new(),
+            ),
+            wheel: LinkedWheel::local(DecoderConfig::default(), levels),
+            levels,
+        };
+        let mut w = World {
+            real,
+            now_ms: 0,
+            era: 0,
+            axis: 0,
+            transmit: VecDeque::new(),
+            transmit_completed: 0,
+            delivered: VecDeque::new(),
+            host: HostRule::new(self.bounds.rule),
+            host_stalled: false,
+            host_backlog: VecDeque::new(),
+            truth: Truth {
+                moves: vec![Vec::new()],
+                credited_upto: vec![0],
+            },
+            used: [0; 8],
+            violation: None,
+        };
+        self.with_device(&mut w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
+        self.select(&mut w);
+        let timer = self.bounds.event_timer_ms.to_le_bytes();
+        for (index, sub, data) in [
+            (0x1017u16, 0u8, &[0u8, 0][..]),
+            (0x1800, 3, &[0, 0][..]),
+            (0x1800, 5, &timer[..]),
+        ] {
+            self.sdo_write(&mut w, index, sub, data);
+        }
+        self.nmt(&mut w, Nmt::Start);
+        self.sdo_write(&mut w, 0x2000, 0, &[1]);
+        while !w.transmit.is_empty() {
+            self.pass(&mut w, 1);
+        }
+        w
+    }
+
+    /// Runs `f` on the device with the transmit path as its sink, then polls it and lets it
+    /// watch the transmit path.
+    fn with_device(
+        &self,
+        w: &mut World,
+        f: impl FnOnce(&mut Real, Instant, &mut dyn FrameSink),
+    ) {
+        let now = Instant::from_millis(w.now_ms);
+        let mut sink = Sink {
+            queue: &mut w.transmit,
+            capacity: self.bounds.transmit_capacity,
+            tag: Tag {
+                era: w.era,
+                made_ms: w.now_ms,
+            },
+            discarded: false,
+        };
+        f(&mut w.real, now, &mut sink);
+        w.real.device.poll(now, &mut w.real.wheel, &mut sink);
+        let state = TransmitState {
+            waiting: !sink.queue.is_empty(),
+            completed: w.transmit_completed,
+        };
+        w.real
+            .device
+            .watch_transmit(now, state, &mut w.real.wheel, &mut sink);
+    }
+
+    fn select(&self, w: &mut World) {
+        let axis = [Axis::X, Axis::Y][w.axis];
+        self.with_device(w, |r, _, _| {
+            r.device.set_selection(
+                Selection {
+                    axis: Some(axis),
+                    multiplier: Multiplier::X1,
+                },
+                &mut r.wheel,
+            )
+        });
+    }
+
+    fn receive(&self, w: &mut World, id: u16, data: &[u8]) {
+        let frame = Frame::new(id, data).expect("a valid frame");
+        self.with_device(w, |r, now, tx| {
+            r.device.on_frame(now, &frame, &mut r.wheel, tx)
+        });
+    }
+
+    fn nmt(&self, w: &mut World, command: Nmt) {
+        if command == Nmt::ResetNode {
+            w.era += 1;
+            w.truth.moves.push(Vec::new());
+            w.truth.credited_upto.push(0);
+        }
+        self.receive(w, 0x000, &[command.byte(), NODE]);
+    }
+
+    fn sdo_write(&self, w: &mut World, index: u16, sub: u8, value: &[u8]) {
+        let cmd = 0x23 | (((4 - value.len()) as u8) << 2);
+        let mut data = [cmd, index as u8, (index >> 8) as u8, sub, 0, 0, 0, 0];
+        data[4..4 + value.len()].copy_from_slice(value);
+        self.receive(w, SDO_RX, &data);
+    }
+
+    fn turn(&self, w: &mut World) {
+        let before = w.real.wheel.feed().position();
+        for _ in 0..4 {
+            w.real.levels = w.real.levels.next_forward();
+            let _ = w.real.wheel.on_edge(w.real.levels);
+        }
+        let after = w.real.wheel.feed().position();
+        let era = usize::from(w.era);
+        for _ in before..after {
+            w.truth.moves[era].push((w.axis, w.now_ms));
+        }
+        self.with_device(w, |_, _, _| {});
+    }
+
+    fn power_cycle(&self, w: &mut World) {
+        let storage = w.real.device.engine().storage().clone();
+        w.era += 1;
+        w.truth.moves.push(Vec::new());
+        w.truth.credited_upto.push(0);
+        w.transmit.clear();
+        w.real.device = HandwheelDevice::new(
+            NodeId::new(NODE).expect("a valid node-ID"),
+            0x5EED,
+            storage,
+        );
+        w.real.wheel = LinkedWheel::local(DecoderConfig::default(), w.real.levels);
+        self.with_device(w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
+        self.select(w);
+    }
+
+    /// The bus takes the next frame; the host receives it `copies` times.
+    fn pass(&self, w: &mut World, copies: usize) {
+        let Some(frame) = w.transmit.pop_front() else {
+            return;
+        };
+        w.transmit_completed = w.transmit_completed.wrapping_add(1);
+        if frame.id == TPDO1 {
+            w.delivered.push_back(frame.clone());
+            if w.delivered.len() > 8 {
+                w.delivered.pop_front();
+            }
+        }
+        for _ in 0..copies {
+            self.to_host(w, frame.clone());
+        }
+        // The transmit interrupt wakes the device: what it could not queue goes now.
+        self.with_device(w, |_, _, _| {});
+    }
+
+    fn to_host(&self, w: &mut World, frame: Wire) {
+        if w.host_stalled {
+            w.host_backlog.push_back(frame);
+            return;
+        }
+        self.host_handles(w, &frame);
+        w.host.drained(w.now_ms);
+    }
+
+    fn host_handles(&self, w: &mut World, frame: &Wire) {
+        if frame.id == HEARTBEAT && frame.len == 1 {
+            w.host.heartbeat(frame.data[0]);
+        } else if frame.id == TPDO1 && frame.len == 8 {
+            if let Some(credit) = w.host.record(frame.data, frame.tag, w.now_ms) {
+                if w.violation.is_none() {
+                    w.violation = self.judge(w, &credit).err();
+                }
+            }
+        }
+    }
+
+    /// The property for one credit: motion of the credited axis only, forward, counted by the
+    /// device in one era, never credited before, and no older than the bound.
+    fn judge(&self, w: &mut World, credit: &Credit<Tag>) -> Result<(), String> {
+        let (from, from_tag) = &credit.from;
+        let (to, to_tag) = &credit.to;
+        let axis = ["X", "Y"][credit.axis];
+        if from_tag.era != to_tag.era {
+            return Err(format!(
+                "{axis} credited {} across a reset (era {} -> {})",
+                credit.delta, from_tag.era, to_tag.era
+            ));
+        }
+        if credit.delta < 0 {
+            return Err(format!("{axis} credited {}: backwards", credit.delta));
+        }
+        let era = usize::from(to_tag.era);
+        if from.position < w.truth.credited_upto[era] {
+            return Err(format!(
+                "{axis} credited positions {}..{} again (credited up to {})",
+                from.position, to.position, w.truth.credited_upto[era]
+            ));
+        }
+        for p in from.position..to.position {
+            let Some(&(turned_axis, at)) = w.truth.moves[era].get(p as usize) else {
+                return Err(format!("{axis} credited position {}: never turned", p + 1));
+            };
+            if turned_axis != credit.axis {
+                return Err(format!(
+                    "{axis} credited a detent turned on {}",
+                    ["X", "Y"][turned_axis]
+                ));
+            }
+            if w.now_ms - at > self.bounds.late_ms {
+                return Err(format!(
+                    "{axis} credited a detent {} ms after it was turned",
+                    w.now_ms - at
+                ));
+            }
+        }
+        w.truth.credited_upto[era] = to.position;
+        Ok(())
+    }
+
+    fn spend(&self, w: &mut World, b: Budget) -> bool {
+        let slot = &mut w.used[b as usize];
+        if *slot >= self.budget(b) {
+            return false;
+        }
+        *slot += 1;
+        true
+    }
+
+    fn left(&self, w: &World, b: Budget) -> bool {
+        w.used[b as usize] < self.budget(b)
+    }
+}
+
+impl Model for FeedModel {
+    type State = World;
+    type Action = Action;
+
+    fn init_states(&self) -> Vec<World> {
+        vec![self.initial()]
+    }
+
+    fn actions(&self, w: &World, actions: &mut Vec<Action>) {
+        if w.violation.is_some() {
+            return;
+        }
+        let b = |kind| self.left(w, kind);
+        if b(Budget::Turns) {
+            actions.push(Action::Turn);
+        }
+        if b(Budget::Switches) {
+            actions.push(Action::SwitchAxis);
+        }
+        if b(Budget::FeedWrites) {
+            actions.extend([Action::Enable, Action::Disable]);
+        }
+        if b(Budget::Nmt) {
+            actions.extend(Nmt::ALL.map(Action::Nmt));
+        }
+        if b(Budget::PowerCycles) {
+            actions.push(Action::PowerCycle);
+        }
+        if b(Budget::Ticks) {
+            actions.push(Action::Tick);
+        }
+        if !w.transmit.is_empty() {
+            actions.push(Action::Pass);
+            if b(Budget::ChannelFaults) {
+                actions.extend([Action::Lose, Action::Duplicate]);
+            }
+        }
+        if b(Budget::ChannelFaults) {
+            let depth = w.delivered.len().min(usize::from(self.bounds.replay_depth));
+            actions.extend((1..=depth as u8).map(Action::Replay));
+        }
+        if b(Budget::HostStalls) && !w.host_stalled {
+            actions.push(Action::HostStall);
+        }
+        if w.host_stalled {
+            actions.push(Action::HostResume);
+        }
+    }
+
+    fn next_state(&self, last: &World, action: Action) -> Option<World> {
+        let mut w = last.clone();
+        let ok = match action {
+            Action::Turn => self.spend(&mut w, Budget::Turns),
+            Action::SwitchAxis => self.spend(&mut w, Budget::Switches),
+            Action::Enable | Action::Disable => self.spend(&mut w, Budget::FeedWrites),
+            Action::Nmt(_) => self.spend(&mut w, Budget::Nmt),
+            Action::PowerCycle => self.spend(&mut w, Budget::PowerCycles),
+            Action::Tick => self.spend(&mut w, Budget::Ticks),
+            Action::Lose | Action::Duplicate | Action::Replay(_) => {
+                self.spend(&mut w, Budget::ChannelFaults)
+            }
+            Action::HostStall => self.spend(&mut w, Budget::HostStalls),
+            Action::Pass | Action::HostResume => true,
+        };
+        if !ok {
+            return None;
+        }
+        match action {
+            Action::Turn => self.turn(&mut w),
+            Action::SwitchAxis => {
+                w.axis = (w.axis + 1) % AXES;
+                self.select(&mut w);
+            }
+            Action::Enable => self.sdo_write(&mut w, 0x2000, 0, &[1]),
+            Action::Disable => self.sdo_write(&mut w, 0x2000, 0, &[0]),
+            Action::Nmt(command) => self.nmt(&mut w, command),
+            Action::PowerCycle => self.power_cycle(&mut w),
+            Action::Tick => {
+                w.now_ms += self.bounds.tick_ms;
+                self.with_device(&mut w, |_, _, _| {});
+            }
+            Action::Pass => self.pass(&mut w, 1),
+            Action::Duplicate => self.pass(&mut w, 2),
+            Action::Lose => {
+                w.transmit.pop_front();
+                w.transmit_completed = w.transmit_completed.wrapping_add(1);
+                self.with_device(&mut w, |_, _, _| {});
+            }
+            Action::Replay(back) => {
+                let index = w.delivered.len() - usize::from(back);
+                let frame = w.delivered[index].clone();
+                self.to_host(&mut w, frame);
+            }
+            Action::HostStall => w.host_stalled = true,
+            Action::HostResume => {
+                w.host_stalled = false;
+                while let Some(frame) = w.host_backlog.pop_front() {
+                    self.host_handles(&mut w, &frame);
+                }
+                w.host.drained(w.now_ms);
+            }
+        }
+        Some(w)
+    }
+
+    fn properties(&self) -> Vec<Property<Self>> {
+        vec![Property::always(
+            "every credit is motion of that axis, forward, once, in time",
+            |_, w: &World| w.violation.is_none(),
+        )]
+    }
+}
