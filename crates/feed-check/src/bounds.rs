@@ -29,6 +29,7 @@ const BASE: Bounds = Bounds {
     replay_depth: 0,
     host_stalls: 0,
     late_ms: 500,
+    warmups: &[],
 };
 
 /// What `cargo xtask test` explores.
@@ -38,8 +39,9 @@ pub const ALL: &[Bounds] = &[
     Bounds {
         name: "nmt and outbox",
         rule: rule(8, 2),
+        transmit_capacity: 2,
         turns: 3,
-        switches: 4,
+        switches: 3,
         feed_writes: 1,
         nmt: 2,
         ..BASE
@@ -49,11 +51,13 @@ pub const ALL: &[Bounds] = &[
     Bounds {
         name: "resets and wrap",
         rule: rule(5, 3),
+        transmit_capacity: 2,
         turns: 2,
         switches: 1,
-        feed_writes: 2,
-        nmt: 3,
+        feed_writes: 1,
+        nmt: 2,
         power_cycles: 1,
+        warmups: &[24, 25, 26, 27, 28, 29, 30, 31],
         ..BASE
     },
     // Lost, doubled and replayed frames.
@@ -73,11 +77,9 @@ pub const ALL: &[Bounds] = &[
         name: "time and stalls",
         turns: 2,
         switches: 1,
-        feed_writes: 1,
-        ticks: 10,
+        ticks: 7,
+        tick_ms: 100,
         host_stalls: 1,
-        channel_faults: 1,
-        replay_depth: 2,
         ..BASE
     },
     // The shipped widths and transmit path (16 queued + 3 mailboxes).

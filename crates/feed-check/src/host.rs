@@ -151,10 +151,11 @@ impl<T: Clone> HostRule<T> {
         self.last_drained = self.last_drained.max(now);
     }
 
-    /// The device's heartbeat: a boot-up forgets everything of the device.
+    /// The device's heartbeat: after a boot-up nothing links to what came before, but the
+    /// newest record stays the reference for "behind" (a reset keeps the sequence going, so
+    /// only copies of older records fall behind it).
     pub fn heartbeat(&mut self, state: u8) {
         if state & 0x7F == 0 {
-            self.reference = None;
             self.baseline = true;
             self.epochs_shown = false;
         }

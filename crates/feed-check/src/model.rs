@@ -127,6 +127,9 @@ pub struct Bounds {
     /// The bound the property sets on lateness: nothing is credited later than this after
     /// it was turned.
     pub late_ms: u64,
+    /// Detents turned (and their records received) before the exploration starts, one initial
+    /// state for each: where the sequence stands when the trouble begins.
+    pub warmups: &'static [u8],
 }
 
 /// Where a frame came from, which the host cannot see.
@@ -312,19 +315,18 @@ impl FeedModel {
         };
         self.with_device(&mut w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
         self.select(&mut w);
+        self.pass_all(&mut w);
         let timer = self.bounds.event_timer_ms.to_le_bytes();
-        for (index, sub, data) in [
-            (0x1017u16, 0u8, &[0u8, 0][..]),
-            (0x1800, 3, &[0, 0][..]),
-            (0x1800, 5, &timer[..]),
-        ] {
+        // No producer heartbeat (fewer frames to interleave; the boot-up still goes out), and
+        // the event timer of the bounds.
+        for (index, sub, data) in [(0x1017u16, 0u8, &[0u8, 0][..]), (0x1800, 5, &timer[..])] {
             self.sdo_write(&mut w, index, sub, data);
+            self.pass_all(&mut w);
         }
         self.nmt(&mut w, Nmt::Start);
+        self.pass_all(&mut w);
         self.sdo_write(&mut w, 0x2000, 0, &[1]);
-        while !w.transmit.is_empty() {
-            self.pass(&mut w, 1);
-        }
+        self.pass_all(&mut w);
         w
     }
 
@@ -422,11 +424,19 @@ impl FeedModel {
         self.select(w);
     }
 
-    /// The bus takes the next frame; the host receives it `copies` times.
+    fn pass_all(&self, w: &mut World) {
+        while !w.transmit.is_empty() {
+            self.pass(w, 1);
+        }
+    }
+
+    /// The bus takes the next frame (a millisecond passes: generously a frame's time); the
+    /// host receives it `copies` times.
     fn pass(&self, w: &mut World, copies: usize) {
         let Some(frame) = w.transmit.pop_front() else {
             return;
         };
+        w.now_ms += 1;
         w.transmit_completed = w.transmit_completed.wrapping_add(1);
         if frame.id == TPDO1 {
             w.delivered.push_back(frame.clone());
@@ -524,7 +534,24 @@ impl Model for FeedModel {
     type Action = Action;
 
     fn init_states(&self) -> Vec<World> {
-        vec![self.initial()]
+        let start = self.initial();
+        if self.bounds.warmups.is_empty() {
+            return vec![start];
+        }
+        self.bounds
+            .warmups
+            .iter()
+            .map(|&turns| {
+                let mut w = start.clone();
+                for _ in 0..turns {
+                    self.turn(&mut w);
+                    self.pass_all(&mut w);
+                    // The inhibit time (2 ms) lets the record of the next detent go.
+                    w.now_ms += 2;
+                }
+                w
+            })
+            .collect()
     }
 
     fn actions(&self, w: &World, actions: &mut Vec<Action>) {
@@ -604,6 +631,7 @@ impl Model for FeedModel {
             Action::Duplicate => self.pass(&mut w, 2),
             Action::Lose => {
                 w.transmit.pop_front();
+                w.now_ms += 1;
                 w.transmit_completed = w.transmit_completed.wrapping_add(1);
                 self.with_device(&mut w, |_, _, _| {});
             }
