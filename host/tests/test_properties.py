@@ -97,12 +97,13 @@ def test_any_stream_is_safe(axes, steps):
             prev = None
             return None
         new = fields(data)
+        if data == ref:
+            return None  # a duplicate: nothing
         if ref is not None and c.fresh:
             ahead = (new[4] - ref[7]) % 256
             if ahead == 0:
-                if data != ref:
-                    prev = None  # impossible
-                return None  # a duplicate: nothing
+                prev = None  # impossible
+                return None
             if ahead >= 128:
                 return None  # behind: ignored
         late = drained_at is None or t - drained_at > core.BACKLOG_LIMIT

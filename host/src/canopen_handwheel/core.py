@@ -43,8 +43,9 @@ Rules (host/README.md, "What it does", states them for machine builders):
   none completing (it then also discards what waits and breaks the sequence).
 - Ordering. A record is compared with the reference `prev`, the last record accepted (while
   it is fresh; after a boot-up or staleness there is none): a = rec's sequence minus prev's
-  (mod 256). a = 0 with the same 8 bytes is the same frame delivered twice (a known CAN
-  effect): ignored entirely (no loss, no new reference, no freshness, no count). a = 0
+  (mod 256). The same 8 bytes as prev are the same frame delivered twice (a known CAN
+  effect): ignored entirely (no loss, no new reference, no freshness, no count; also once
+  prev is stale, so that copies never keep a silent device connected). a = 0
   with other bytes cannot come from the device: impossible (below). 128 <= a <= 255: rec
   lies behind prev (a replay or a stale copy of an earlier record): ignored entirely (never
   a reference, no loss), counted in `frames-bad`. Otherwise g = a - 1 numbers are missing
@@ -91,13 +92,13 @@ Rules (host/README.md, "What it does", states them for machine builders):
   published with their gate, not lost to the order of the writes.
 - The delta is applied to rec's axis when rec is enabled, the axis is a configured letter,
   the previous record is still valid (no boot-up, no staleness, no bad record since), rec
-  was handled in time (Backlog) and the device has shown a non-zero epoch since the component last configured it (start, boot-up,
-  Pre-operational). Firmware from before the epoch bits sends 0 there: its records all look
-  like one epoch, and an outage can hide a switch to another axis behind them, so such a
-  device moves nothing (and each of its enables, a change of the enable bit within what looks
-  like one epoch, counts as bad). Configuration switches the feed off (0x2000 = 0), so the
-  enable that follows steps the epoch: of the two records around it, one shows a non-zero
-  epoch.
+  was handled in time (Backlog) and the device has shown a non-zero epoch since the
+  component last configured it (start, boot-up, Pre-operational). Firmware from before the
+  epoch bits sends 0 there: its records all look like one epoch, and an outage can hide a
+  switch to another axis behind them, so such a device moves nothing (and each of its
+  enables, a change of the enable bit within what looks like one epoch, counts as bad).
+  Configuration switches the feed off (0x2000 = 0), so the enable that follows steps the
+  epoch: of the two records around it, one shows a non-zero epoch.
 - Plausibility. A record the device can never send is counted in `frames-bad` and the next
   record is a baseline: a TPDO1 of the wrong length, an axis byte above 5, a multiplier
   other than 1, 10, 100, feed enabled together with master lost (a stop disables, and only
@@ -739,8 +740,7 @@ class Core:
         axes = self.cfg.axes
         changed = {L for L in axes if target.jog_counts[L] != last.jog_counts[L]}
         gates = {
-            L: bool(self.credit_open.get(L)) if L in changed else last.jog_enable[L]
-            for L in axes
+            L: bool(self.credit_open.get(L)) if L in changed else last.jog_enable[L] for L in axes
         }
         steps: List[Pins] = []
         if gates != last.jog_enable:
@@ -793,12 +793,12 @@ class Core:
             return
         prev = self.record
         fresh = prev is not None and self.fresh
+        if prev is not None and data == prev.encode():
+            return  # the same frame twice (a known CAN effect), fresh or not: nothing at all
         if fresh and prev is not None:
             ahead = (rec.sequence - prev.sequence) % SEQUENCE_MODULO
             if ahead == 0:
-                if data != prev.encode():
-                    self._impossible()  # one number, two records
-                # else: the same frame twice (a known CAN effect): nothing at all
+                self._impossible()  # one number, two records
                 return
             if ahead >= BEHIND_FROM:
                 self._bad()  # an earlier record again: never a reference, no loss
