@@ -10,7 +10,7 @@ nothing itself.
 Receiving: there is no python-can notifier thread. The main loop reads the bus with
 `recv`, hands the device's TPDO1, EMCY and heartbeat to the core and only the SDO responses
 to python-canopen (`network.notify`, which the worker's SDO client waits on), so nothing in
-python-canopen keeps a list per frame (its EMCY consumer would). When a non-blocking read
+python-canopen keeps a list per frame (its EMCY consumer would). When a read (waiting or not)
 finds nothing, every frame that reached the host before that read has been handled, and the
 loop tells the core (`Core.drained`); a frozen, starved or flooded loop therefore shows as a
 gap, and what it then reads from a backlog moves nothing. SLCAN lines are read in bulk from
@@ -588,9 +588,11 @@ def shut_down(args, cfg: core.Config, c: core.Core, link, worker) -> None:
     meanwhile, for the SDO responses."""
     if worker is not None:
         worker.cancel()
+        wait = 1.5
         if link is not None and not link.failed.is_set():
-            link.pump(c, lambda: not worker.thread.is_alive(), 1.5)
-        if not worker.stop(timeout=0.1):
+            link.pump(c, lambda: not worker.thread.is_alive(), wait)
+            wait = 0.1
+        if not worker.stop(timeout=wait):
             log("an SDO transfer did not end; not writing 0x2000")
             link.close()
             return

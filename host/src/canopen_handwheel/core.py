@@ -80,7 +80,7 @@ Rules (host/README.md, "What it does", states them for machine builders):
   last reported its receive path empty (`drained`) may have waited that long in a buffer
   (the component frozen, swapped, starved or flooded, a socket delivering a backlog): it
   is only a baseline, the reference for the next one, with no motion. The shell reports
-  `drained` only after a non-blocking read of the bus itself found nothing (the time taken
+  `drained` only after a read of the bus itself (waiting or not) found nothing (the time taken
   before that read), so a stall anywhere in its loop shows as a gap since the last report.
   Motion therefore reaches the core at most `BACKLOG_LIMIT` after its record reached the
   host, and `publish` withdraws credits not written within that time.
@@ -596,7 +596,7 @@ class Core:
     def drained(self, now: float) -> None:
         """The shell found its receive path empty at a moment not before `now`: every frame
         that reached the host before `now` has been handed to `frame`. The shell calls it
-        whenever a non-blocking read finds nothing, `now` being the time taken before that
+        whenever a read (waiting or not) finds nothing, `now` being the time taken before that
         read. A feed record handled more than `BACKLOG_LIMIT` after the last such report
         may have waited that long in a buffer: it is only a baseline."""
         if self.drained_at is None or now > self.drained_at:
