@@ -21,6 +21,7 @@ import pytest
 from rig import NODE_ID, ROOT, START_TIMEOUT, Qemu, Stimulus
 
 TPDO1_LINE = f"t{0x180 + NODE_ID:03X}8".encode()
+BOOTUP_LINE = f"t{0x700 + NODE_ID:03X}100".encode()
 EMCY_LINE = f"t{0x080 + NODE_ID:03X}8".encode() + b"0050010000000000\r"  # 0x5000, cleared never
 FRAME_COMMANDS = b"tTrR"
 
@@ -48,6 +49,7 @@ class Relay:
         self.server.listen(1)
         self.channel = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
         self.records = []  # (time.monotonic(), 8 bytes)
+        self.booted = threading.Event()  # the device's boot-up passed
         self.flooded = 0
         self._rate = 0.0
         self._flood_start = 0.0
@@ -99,6 +101,8 @@ class Relay:
                         *lines, up_buf = up_buf.split(b"\r")
                         for line in lines:
                             line = line.lstrip(b"\x07")
+                            if line == BOOTUP_LINE:
+                                self.booted.set()
                             if line[:1] and line[:1] in FRAME_COMMANDS:
                                 out += line + b"\r"
                                 if line.startswith(TPDO1_LINE) and len(line) == 21:
@@ -160,6 +164,8 @@ class Component:
 
     def __init__(self, qemu: Qemu, tmp: Path) -> None:
         self.relay = Relay(qemu)
+        # As `open_rig`: the stimulus port once the firmware has booted.
+        assert self.relay.booted.wait(START_TIMEOUT), "no boot-up"
         self.stim = Stimulus(qemu.stim_port, qemu)
         self.hal = HalLog(tmp / "hal.log")
         self.hal.path.write_text("")
