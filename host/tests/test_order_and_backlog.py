@@ -162,6 +162,23 @@ def test_one_number_with_other_bytes_is_impossible():
     assert w.x == 2
 
 
+def test_a_copy_after_the_master_was_lost_moves_nothing():
+    """The device reported master lost (feed off, the next epoch); a copy of an earlier
+    enabled record with motion arrives after that, read in time or from a backlog: no motion,
+    no gate, and the device's next record is measured against its own last one."""
+    for drained in (True, False):
+        w = Wheel()
+        w.send()
+        w.send(2)
+        enabled = w.send(3)
+        w.send(0, status=ML, epoch=2)
+        w.frame(TPDO1, w.sent[-3], drained=drained)
+        w.frame(TPDO1, enabled, drained=drained)
+        assert w.x == 5 and not any(w.pins().jog_enable.values())
+        w.send(0, status=ML, epoch=2)
+        assert w.x == 5 and w.pins().frames_bad == 2, drained
+
+
 def test_a_break_of_eight_numbers_never_continues():
     """Contract v2: after a break (NMT start after a stop, a reset, a blocked transmit path)
     the next record is at least 8 numbers on, whatever its epoch bits say."""
