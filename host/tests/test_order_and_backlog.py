@@ -8,6 +8,8 @@ import time
 import tracemalloc
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import fake_hal
 from canopen_handwheel import component, core
@@ -579,3 +581,68 @@ class SlcanLines:
     @staticmethod
     def encode(frames) -> bytes:
         return b"".join(f"t{c:03X}{len(d)}{d.hex().upper()}\r".encode() for c, d in frames)
+
+
+# The pin steps over random rounds -------------------------------------------------------------
+
+ROUND_EVENT = st.one_of(
+    st.tuples(st.just("turn"), st.integers(-20, 20)),
+    st.tuples(st.just("turn"), st.integers(-20, 20)),
+    st.tuples(st.just("axis"), st.integers(0, 3)),
+    st.tuples(st.just("feed"), st.booleans()),
+    st.tuples(st.just("bootup"), st.just(0)),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from([True, True, False]),  # the enable pin
+            st.lists(ROUND_EVENT, max_size=6),
+            st.sampled_from([0.01, 0.01, 0.05, 0.4]),  # to the next round (0.4: stale)
+        ),
+        min_size=1,
+        max_size=25,
+    )
+)
+def test_every_credit_made_with_its_gate_open_reaches_linuxcnc(rounds):
+    """Random rounds of the shell (the `enable` pin, then records of a device turning,
+    switching axes, switching its feed, booting up; silences between), each published and
+    written through HalPins with a servo period after every single pin write: LinuxCNC
+    moves every axis by exactly the counts credited while that axis's gate was open, and
+    the pins end as the core's."""
+    w = Wheel()
+    hal = w.hal = Hal()
+    axis, enabled, epoch = 1, True, 1
+    expected = {L: 0 for L in "xyzwv"}
+    w.send()
+    for enable, events, gap in rounds:
+        w.c.set_enable(enable)
+        hal.write(w.c.publish(w.t))
+        w.t += gap
+        w.c.drained(w.t)
+        for kind, value in events:
+            if kind == "bootup":
+                w.c.frame(HB, b"\x00", w.t)
+                w.c.frame(HB, b"\x05", w.t)
+                continue
+            if kind == "turn":
+                if enabled and axis:
+                    w.pos += value
+            elif kind == "axis" and value != axis:
+                axis, epoch = value, epoch + 1
+            elif kind == "feed" and value != enabled:
+                enabled, epoch = value, epoch + 1
+            w.seq = (w.seq + 1) & 0xFF
+            before = dict(w.c.counts)
+            w.c.frame(TPDO1, rec(w.pos, w.seq, axis, EN if enabled else 0, epoch), w.t)
+            for L in "xyzwv":
+                if w.c.counts[L] != before[L] and w.c.gate(L):
+                    expected[L] += w.c.counts[L] - before[L]
+        hal.write(w.c.publish(w.t))
+    assert hal.servo.moved == expected
+    final = w.c.pins()
+    for L in "xyzwv":
+        assert hal.comp.pins[f"axis.{L}.jog-counts"] == final.jog_counts[L]
+        assert hal.comp.pins[f"axis.{L}.jog-enable"] == final.jog_enable[L]
