@@ -723,7 +723,10 @@ class Core:
         change, then (a hold later) the gates take their final values. So counts credited
         while the gate was open reach LinuxCNC with the gate open even when the same round
         closes it (a boot-up, staleness, another axis selected), and counts credited while
-        it was closed never find it open. Credits older than `BACKLOG_LIMIT` that were not
+        it was closed never find it open (an axis's credits of one round go out together,
+        with the gate open if any of them was made with it open: `enable` is read between
+        rounds, so within one only a heartbeat can close the gate between two credits, and
+        those were turned while Operational). Credits older than `BACKLOG_LIMIT` that were not
         yet published (the component stalled between handling a frame and writing the
         pins) are withdrawn: the counts go back to what was published."""
         self.tick(now)
