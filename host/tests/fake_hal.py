@@ -1,9 +1,17 @@
 """A stand-in for LinuxCNC's `hal` module: the calls the component makes, with the pins in
 a dict (types and directions checked on every write). Like LinuxCNC 2.9's, creating a
-component sets SIGTERM to raise KeyboardInterrupt (when done in the main thread)."""
+component sets SIGTERM to raise KeyboardInterrupt (when done in the main thread).
 
+For a component in a process of its own (the interop suite's host tests), two variables of
+its environment: `FAKE_HAL_LOG`, a file that gets a line `<time.monotonic()> <pin> <value>`
+for every change of a pin's value, written at once (so that a test sees the order and time
+of every write), and `FAKE_HAL_SET`, `pin=value,...` for input pins, set at `ready()`
+(`1`/`0` for bits)."""
+
+import os
 import signal
 import threading
+import time
 
 HAL_BIT, HAL_FLOAT, HAL_S32, HAL_U32 = "bit", "float", "s32", "u32"
 HAL_IN, HAL_OUT, HAL_IO = "in", "out", "io"
@@ -21,6 +29,8 @@ class component:  # noqa: N801 - the real module's name
         self.exited = False
         self.running = threading.Event()
         self.running.set()
+        path = os.environ.get("FAKE_HAL_LOG")
+        self.log_fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND) if path else None
 
     def newpin(self, name, type_, dir_):
         assert not self.is_ready, "pins are made before ready()"
@@ -31,6 +41,12 @@ class component:  # noqa: N801 - the real module's name
 
     def ready(self):
         self.is_ready = True
+        for item in filter(None, os.environ.get("FAKE_HAL_SET", "").split(",")):
+            name, value = item.split("=")
+            t = self.types[name]
+            self.pins[name] = (
+                value == "1" if t == HAL_BIT else float(value) if t == HAL_FLOAT else int(value)
+            )
 
     def exit(self):
         self.exited = True
@@ -49,4 +65,6 @@ class component:  # noqa: N801 - the real module's name
             assert isinstance(value, int) and 0 <= value < 2**32, (name, value)
         else:
             assert isinstance(value, float), (name, value)
+        if self.log_fd is not None and self.pins[name] != value:
+            os.write(self.log_fd, f"{time.monotonic():.6f} {name} {value}\n".encode())
         self.pins[name] = value

@@ -2,6 +2,7 @@
 bus against a python-canopen `LocalNode` standing in for the device (its SDO server, the
 test sending the feed records), with the `hal` stand-in of fake_hal.py."""
 
+import os
 import queue
 import select
 import signal
@@ -11,6 +12,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Optional
 
 import can
 import canopen
@@ -290,6 +292,9 @@ class SlcanDevice:
         self.channel = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
         self.frames = []  # (time.monotonic(), cob_id, data)
         self.outbox = queue.Queue()
+        self.flood_line = b""  # sent `flood_rate` times a second (`flood`)
+        self.flood_rate = 0.0
+        self.flooded = 0
         self.done = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -303,7 +308,12 @@ class SlcanDevice:
             while not self.done.is_set():
                 while not self.outbox.empty():
                     out += self.outbox.get()
-                readable, writable, _ = select.select([conn], [conn] if out else [], [], 0.002)
+                now = time.monotonic()
+                if self.flood_rate:
+                    due = int((now - self.flood_start) * self.flood_rate)
+                    out += self.flood_line * max(0, due - self.flooded)
+                    self.flooded = max(self.flooded, due)
+                readable, writable, _ = select.select([conn], [conn] if out else [], [], 0.001)
                 now = time.monotonic()
                 if readable:
                     data = conn.recv(65536)
@@ -337,6 +347,14 @@ class SlcanDevice:
     def seen_at(self, cob_id):
         return [t for t, c, _ in list(self.frames) if c == cob_id]
 
+    def flood(self, frame, rate: float) -> None:
+        """Sends `frame` (cob_id, data) `rate` times a second from now on (0: stops)."""
+        self.flood_rate = 0.0
+        self.flood_line = self.encode([frame])
+        self.flooded = 0
+        self.flood_start = time.monotonic()
+        self.flood_rate = rate
+
     def close(self) -> None:
         self.done.set()
         self.thread.join(5)
@@ -353,11 +371,15 @@ sys.exit(component.main(sys.argv[1:]))
 """
 
 
-def start_component(*options: str) -> subprocess.Popen:
-    """`main` in a process of its own, as LinuxCNC starts it, with fake_hal as `hal`."""
+def start_component(*options: str, hal_log: Optional[Path] = None) -> subprocess.Popen:
+    """`main` in a process of its own, as LinuxCNC starts it, with fake_hal as `hal`
+    (`hal_log`: its log of pin changes, see fake_hal.py)."""
     script = COMPONENT_RUN.format(tests=str(Path(__file__).parent), src=str(ROOT / "host" / "src"))
+    env = dict(os.environ)
+    if hal_log is not None:
+        env["FAKE_HAL_LOG"] = str(hal_log)
     return subprocess.Popen(
-        [sys.executable, "-c", script] + list(options), stderr=subprocess.PIPE, text=True
+        [sys.executable, "-c", script] + list(options), stderr=subprocess.PIPE, text=True, env=env
     )
 
 
@@ -550,3 +572,138 @@ def test_readme_pin_table_is_the_components():
     expected = {"N." + n.replace("{L}", "L"): (t, d) for n, t, d, _ in core.AXIS_PINS}
     expected.update({"N." + n: (t, d) for n, t, d, _ in core.COMPONENT_PINS})
     assert rows == expected
+
+
+def pin_changes(log: Path, pin: str):
+    """(time, value) of every change of `pin` in a fake_hal log."""
+    out = []
+    for line in log.read_text().splitlines():
+        t, name, value = line.split(" ")
+        if name == pin:
+            out.append((float(t), value))
+    return out
+
+
+class SlcanFeed:
+    """The component in its own process on an SlcanDevice, and the device's feed records on
+    X (epoch 1, enabled) with consecutive sequence numbers: `record` for a turn, and one
+    every 50 ms from a thread of its own (the event timer)."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        self.log = tmp_path / "hal.log"
+        self.log.write_text("")
+        self.dev = SlcanDevice()
+        self.proc = start_component(
+            "--interface", "slcan", "--channel", self.dev.channel, hal_log=self.log
+        )
+        self.pos = 0
+        self.seq = 0
+        self.sent = []  # (time, position)
+        self.lock = threading.Lock()
+        self.ticking = threading.Event()
+        self.timer = threading.Thread(target=self._tick, daemon=True)
+        self.timer.start()
+
+    def record(self, detents: int = 0) -> None:
+        with self.lock:
+            self.pos += detents
+            self.seq = (self.seq + 1) & 0xFF
+            data = self.pos.to_bytes(4, "little", signed=True) + bytes([1, 1, 0x21, self.seq])
+            self.sent.append((time.monotonic(), self.pos))
+            self.dev.send(SlcanDevice.encode([(0x180 + NODE, data)]))
+
+    def _tick(self) -> None:
+        while not self.dev.done.wait(0.05):
+            if self.ticking.is_set():
+                self.record()
+
+    def counts(self) -> int:
+        changes = pin_changes(self.log, "axis.x.jog-counts")
+        return int(changes[-1][1]) if changes else 0
+
+    def wait_counts(self, value: int, timeout: float = 5.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.counts() != value:
+            assert self.proc.poll() is None, self.proc.communicate()[1]
+            assert time.monotonic() < deadline, (self.counts(), value)
+            time.sleep(0.01)
+
+    def rss(self) -> int:
+        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+        raise AssertionError("no VmRSS")
+
+    def close(self) -> str:
+        self.proc.send_signal(signal.SIGCONT)
+        self.proc.send_signal(signal.SIGTERM)
+        err = self.proc.communicate(timeout=10)[1]
+        self.dev.close()
+        return err
+
+
+def test_a_frozen_component_moves_nothing_from_its_backlog(tmp_path):
+    """Issue 26, finding 3 without the firmware: the component stopped (SIGSTOP) for 3 s
+    while 20 detents' records (in the first 0.3 s) and the event timer's records wait in its
+    socket; continued, it reads them all but moves nothing; the next record moves again."""
+    feed = SlcanFeed(tmp_path)
+    try:
+        deadline = time.monotonic() + 10
+        while len(feed.dev.seen_at(0x701)) < 2:
+            assert time.monotonic() < deadline and feed.proc.poll() is None, "no heartbeat"
+            time.sleep(0.01)
+        feed.ticking.set()
+        time.sleep(0.2)
+        for _ in range(2):
+            time.sleep(0.02)
+            feed.record(1)
+        feed.wait_counts(2)
+        feed.proc.send_signal(signal.SIGSTOP)
+        frozen = time.monotonic()
+        for _ in range(20):
+            time.sleep(0.015)
+            feed.record(1)
+        time.sleep(max(0.0, frozen + 3.0 - time.monotonic()))
+        feed.proc.send_signal(signal.SIGCONT)
+        resumed = time.monotonic()
+        time.sleep(1.0)
+        assert [c for c in pin_changes(feed.log, "axis.x.jog-counts") if c[0] > resumed] == []
+        feed.record(3)
+        feed.wait_counts(5)
+    finally:
+        err = feed.close()
+    assert "Traceback" not in err, err
+
+
+def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(tmp_path):
+    """Issue 26, finding 5 without the firmware: 5 000 EMCYs per second on the component's
+    SLCAN line while a detent's record comes every 0.2 s: every detent reaches jog-counts
+    within 0.1 s of its record being sent, and the resident memory grows less than 2 MB
+    (python-canopen's EMCY consumer kept about 500 B per EMCY)."""
+    feed = SlcanFeed(tmp_path)
+    try:
+        deadline = time.monotonic() + 10
+        while len(feed.dev.seen_at(0x701)) < 2:
+            assert time.monotonic() < deadline and feed.proc.poll() is None, "no heartbeat"
+            time.sleep(0.01)
+        feed.ticking.set()
+        feed.dev.flood((0x080 + NODE, bytes.fromhex("0050010000000000")), 5000)
+        time.sleep(1.0)
+        rss = feed.rss()
+        latencies = []
+        for i in range(1, 21):
+            feed.record(1)
+            feed.wait_counts(i)
+            pin_at = pin_changes(feed.log, "axis.x.jog-counts")[-1][0]
+            latencies.append(pin_at - feed.sent[-1][0])
+            time.sleep(0.2)
+        grown = feed.rss() - rss
+        rate = feed.dev.flooded / (time.monotonic() - feed.dev.flood_start)
+        feed.dev.flood((0, b""), 0)
+    finally:
+        err = feed.close()
+    print(f"flood {rate:.0f}/s: latency max {max(latencies) * 1000:.1f} ms, RSS +{grown} B")
+    assert rate > 4000, rate
+    assert max(latencies) < 0.1, latencies
+    assert grown < 2_000_000, grown
+    assert "Traceback" not in err, err

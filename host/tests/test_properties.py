@@ -39,6 +39,11 @@ def possible(position, axis, mult, status, seq):
     return axis <= 5 and mult in (1, 10, 100) and not (status & 1 and status & 8)
 
 
+def fields(data: bytes):
+    """(position, axis, mult, status, seq) of 8 record bytes."""
+    return (int.from_bytes(data[0:4], "little", signed=True), data[4], data[5], data[6], data[7])
+
+
 # One step of a hostile stream: (kind, ...).
 record_step = st.tuples(
     st.just("record"),
@@ -48,10 +53,13 @@ record_step = st.tuples(
     st.integers(0, 255),  # status
     st.integers(0, 255),  # sequence
     st.floats(0, 0.5),  # time since the last step
+    st.sampled_from([True, True, True, False]),  # handled at once (else: maybe late)
 )
 step = st.one_of(
     record_step,
     record_step,
+    # A TPDO1 sent before, again (a duplicate, a replay): how many records back.
+    st.tuples(st.just("again"), st.integers(0, 8), st.floats(0, 0.05)),
     st.tuples(st.just("hb"), st.sampled_from([0x00, 0x04, 0x05, 0x7F, 0x85]), st.floats(0, 0.2)),
     st.tuples(st.just("emcy"), st.binary(min_size=0, max_size=9), st.floats(0, 0.2)),
     st.tuples(
@@ -78,39 +86,71 @@ def test_any_stream_is_safe(axes, steps):
     c = Core(Config(axes=axes))
     t = 0.0
     prev = None  # previous TPDO1 record processed (decoded), None after an interruption
+    ref = None  # the bytes of the last record accepted (the ordering reference)
+    drained_at = None
+    sent = []  # every TPDO1 sent, for "again"
+
+    def tpdo1(data: bytes):
+        """The model's view of a TPDO1 handled at `t`: the letter it may move, if any."""
+        nonlocal prev, ref
+        if len(data) != 8 or not possible(*fields(data)):
+            prev = None
+            return None
+        new = fields(data)
+        if data == ref:
+            return None  # a duplicate: nothing
+        if ref is not None and c.fresh:
+            ahead = (new[4] - ref[7]) % 256
+            if ahead == 0:
+                prev = None  # impossible
+                return None
+            if ahead >= 128:
+                return None  # behind: ignored
+        late = drained_at is None or t - drained_at > core.BACKLOG_LIMIT
+        letter = applies(None if not c.fresh or late else prev, new, axes)
+        prev, ref = new, data
+        return letter
+
     for s in steps:
         before = dict(c.counts)
         kind = s[0]
         moved_ok = set()
-        if kind == "record":
-            _, pos, axis, mult, status, seq, dt = s
+        if kind in ("record", "again"):
+            if kind == "record":
+                _, pos, axis, mult, status, seq, dt, at_once = s
+                data = rec(pos, axis, mult, status, seq)
+            elif sent:
+                _, back, dt = s
+                data, at_once = sent[max(0, len(sent) - 1 - back)], True
+            else:
+                continue
+            sent.append(data)
             t += dt
             c.tick(t)
-            new = (pos, axis, mult, status, seq)
-            if not possible(*new):
-                prev = None
-            else:
-                letter = applies(None if not c.fresh else prev, new, axes)
-                if letter is not None:
-                    moved_ok = {letter}
-                prev = new
-            c.frame(TPDO1, rec(pos, axis, mult, status, seq), t)
+            if at_once:
+                c.drained(t)
+                drained_at = t
+            letter = tpdo1(data)
+            if letter is not None:
+                moved_ok = {letter}
+            c.frame(TPDO1, data, t)
         elif kind == "hb":
             t += s[2]
             c.frame(HB, bytes([s[1]]), t)
             if s[1] & 0x7F == 0:
-                prev = None
+                prev = ref = None
         elif kind == "emcy":
             t += s[2]
             c.frame(EMCY, s[1], t)
         elif kind == "raw":
             t += s[3]
-            c.frame(s[1], s[2], t)
+            c.tick(t)
             if s[1] == TPDO1:
-                moved_ok = set(axes)  # arbitrary bytes: the record steps check this
-                prev = None
+                letter = tpdo1(s[2])
+                moved_ok = {letter} if letter else set()
+            c.frame(s[1], s[2], t)
             if s[1] == HB and len(s[2]) == 1 and s[2][0] & 0x7F == 0:
-                prev = None
+                prev = ref = None
         elif kind == "enable":
             c.set_enable(s[1])
         elif kind == "mode":  # never motion (moved_ok stays empty)
@@ -161,6 +201,7 @@ def test_lost_records_cost_nothing(axis, start, moves, epoch):
     t = 0.0
     seq = 0
     pos = start
+    c.drained(t)
     c.frame(TPDO1, rec(pos, axis, 10, core.STATUS_ENABLED, seq, epoch), t)
     last_received, lost, lost_seen = pos, 0, 0
     for detents, received in moves:
@@ -168,6 +209,7 @@ def test_lost_records_cost_nothing(axis, start, moves, epoch):
         seq += 1
         t += T
         if received:
+            c.drained(t)
             c.frame(TPDO1, rec(pos, axis, 10, core.STATUS_ENABLED, seq, epoch), t)
             last_received, lost_seen = pos, lost
         else:
@@ -196,7 +238,7 @@ def test_silence_disconnects(steps, extra):
     last_record = None
     for s in steps:
         if s[0] == "record":
-            _, pos, axis, mult, status, seq, dt = s
+            _, pos, axis, mult, status, seq, dt, _ = s
             t += dt
             c.frame(TPDO1, rec(pos, axis, mult, status, seq), t)
             last_record = t
@@ -220,6 +262,7 @@ def test_bootup_anywhere_never_becomes_motion(moves, where):
     c = Core(Config())
     t = 0.0
     pos = 12345
+    c.drained(t)
     c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, 0, 1), t)
     expected = 0
     cut = where % len(moves)
@@ -227,6 +270,7 @@ def test_bootup_anywhere_never_becomes_motion(moves, where):
     for i, delta in enumerate(moves):
         t += 0.05
         if i == cut:
+            c.drained(t)
             c.frame(HB, b"\x00", t)
             pos, seq = 0, 0
             c.frame(TPDO1, rec(pos, 1, 1, 0, seq, 0), t)
@@ -235,5 +279,6 @@ def test_bootup_anywhere_never_becomes_motion(moves, where):
         pos = wrap_s32(pos + delta)
         expected += delta
         seq += 1
+        c.drained(t + 0.01)
         c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1), t + 0.01)
     assert c.counts["x"] == expected

@@ -2,9 +2,20 @@
 
 It creates the HAL pins, connects python-can and python-canopen, produces the master's
 heartbeat on a timer thread of its own (on the grid `core.next_beat` gives, whatever the main
-loop is doing), hands every frame from the device to the core, carries out the core's actions
-(SDO transfers, NMT start) on a worker thread so that nothing waits for an SDO timeout, and
-copies the core's pins to HAL. It decides nothing itself.
+loop is doing), reads the bus itself in the main loop and hands every frame from the device
+to the core, carries out the core's actions (SDO transfers, NMT start) on a worker thread so
+that nothing waits for an SDO timeout, and writes the core's pin steps to HAL. It decides
+nothing itself.
+
+Receiving: there is no python-can notifier thread. The main loop reads the bus with
+`recv`, hands the device's TPDO1, EMCY and heartbeat to the core and only the SDO responses
+to python-canopen (`network.notify`, which the worker's SDO client waits on), so nothing in
+python-canopen keeps a list per frame (its EMCY consumer would). When a read (waiting or not)
+finds nothing, every frame that reached the host before that read has been handled, and the
+loop tells the core (`Core.drained`); a frozen, starved or flooded loop therefore shows as a
+gap, and what it then reads from a backlog moves nothing. SLCAN lines are read in bulk from
+the port (`slcan_bus`), not a byte per call as python-can does, so that a flood of frames
+costs little.
 
     loadusr -Wn handwheel canopen-handwheel --channel can0 --axes xyz
 
@@ -22,7 +33,10 @@ loads without LinuxCNC.
 from __future__ import annotations
 
 import argparse
+import collections
+import os
 import queue
+import select
 import signal
 import sys
 import threading
@@ -218,11 +232,78 @@ class Heartbeat:
             self.thread.join(1)
 
 
+def slcan_bus(channel: str, **kwargs):
+    """python-can's SLCAN bus (`can.Bus(interface="slcan")`), receiving in bulk: every read
+    takes what the port holds (`os.read` on its descriptor, a serial port or a socket) and
+    parses all complete lines at once. python-can reads one byte per call (two `select`s and
+    a `recv` per byte on a `socket://` line), about 3 000 frames/s at most on a busy PC. Lines
+    other than standard data frames (`t`), and lines too long for one, are ignored. `recv(0)`
+    returns None only when no parsed frame is left and the port has nothing to read."""
+    import can
+    from can.interfaces.slcan import slcanBus
+
+    class BulkSlcanBus(slcanBus):
+        LONGEST_LINE = 64
+
+        def __init__(self, *args, **kw) -> None:
+            super().__init__(*args, **kw)
+            self._frames: "collections.deque" = collections.deque()
+            self._partial = b""
+            try:
+                self._fd = self.serialPortOrig.fileno()
+            except Exception:  # a URL handler without a descriptor: python-can's reading
+                self._fd = None
+
+        def _recv_internal(self, timeout):
+            if self._fd is None:
+                return super()._recv_internal(timeout)
+            deadline = None if timeout is None else time.monotonic() + timeout
+            while not self._frames:
+                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+                try:
+                    ready, _, _ = select.select([self._fd], [], [], wait)
+                    if not ready:
+                        return None, False
+                    data = os.read(self._fd, 65536)
+                except (OSError, ValueError) as e:
+                    raise can.CanOperationError(f"reading the SLCAN line: {e!r}") from e
+                if not data:
+                    raise can.CanOperationError("the SLCAN line closed")
+                self._parse(data)
+            return self._frames.popleft(), False
+
+        def _parse(self, data: bytes) -> None:
+            *lines, rest = (self._partial + data).split(b"\r")
+            self._partial = rest if len(rest) <= self.LONGEST_LINE else b""
+            for line in lines:
+                line = line.lstrip(b"\x07")
+                if line[:1] != b"t" or len(line) < 5:
+                    continue
+                try:
+                    can_id = int(line[1:4], 16)
+                    dlc = int(line[4:5])
+                    payload = bytes.fromhex(line[5:].decode("ascii"))
+                except ValueError:
+                    continue
+                if dlc > 8 or len(payload) != dlc:
+                    continue
+                self._frames.append(
+                    can.Message(
+                        arbitration_id=can_id,
+                        data=payload,
+                        is_extended_id=False,
+                        timestamp=time.time(),
+                    )
+                )
+
+    return BulkSlcanBus(channel=channel, **kwargs)
+
+
 class Link:
     """python-can bus + python-canopen network with the device's node and the master's
-    heartbeat; frames from the device go to `events` as ("frame", cob_id, data, time)."""
+    heartbeat. No notifier: `receive` (the main loop) reads the bus."""
 
-    def __init__(self, args: argparse.Namespace, cfg: core.Config, events: "queue.Queue") -> None:
+    def __init__(self, args: argparse.Namespace, cfg: core.Config) -> None:
         import can
         import canopen
 
@@ -230,30 +311,17 @@ class Link:
         kwargs = {}
         if args.bitrate is not None:
             kwargs["bitrate"] = args.bitrate
-        if args.interface == "slcan" and str(args.channel).startswith("socket://"):
-            kwargs["sleep_after_open"] = 0
-        self.bus = can.Bus(interface=args.interface, channel=args.channel, **kwargs)
+        if args.interface == "slcan":
+            if str(args.channel).startswith("socket://"):
+                kwargs["sleep_after_open"] = 0
+            self.bus = slcan_bus(args.channel, **kwargs)
+        else:
+            self.bus = can.Bus(interface=args.interface, channel=args.channel, **kwargs)
         try:
             self.network = canopen.Network(self.bus)
-            # The receiving thread waits this long per call: closing the bus takes that.
-            self.network.NOTIFIER_CYCLE = 0.1
-            ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
-            link = self
-
-            class Feed(can.Listener):
-                def on_message_received(self, msg: "can.Message") -> None:
-                    if msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame:
-                        return
-                    if msg.arbitration_id in ids:
-                        t = time.monotonic()
-                        events.put(("frame", msg.arbitration_id, bytes(msg.data), t))
-
-                def on_error(self, exc: Exception) -> None:
-                    link.failed.set()
-
-            self.network.listeners.append(Feed())
+            self.device_ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
             self.node = self.network.add_node(args.node, args.eds or default_eds())
-            self.network.connect()
+            self.sdo_response = self.node.sdo.tx_cobid
         except BaseException:
             self.bus.shutdown()
             raise
@@ -265,6 +333,45 @@ class Link:
 
     def send(self, cob_id: int, data: bytes) -> None:
         self.network.send_message(cob_id, data)
+
+    def receive(self, c: core.Core, clock: Callable[[], float], wait: float, budget: float):
+        """Reads the bus for up to `budget` seconds (the first read waits up to `wait`):
+        the device's frames to the core, SDO responses to python-canopen; when a read finds
+        nothing, `Core.drained` with the time taken before that read (and the heartbeat is
+        told that the loop keeps up). A bus that raises is marked failed."""
+        end = clock() + budget
+        timeout = wait
+        while True:
+            before = clock()
+            try:
+                msg = self.bus.recv(timeout)
+            except Exception as e:  # python-can's errors, a closed line
+                if not self.failed.is_set():
+                    log(f"receiving: {e!r}")
+                self.failed.set()
+                return
+            if msg is None:
+                c.drained(before)
+                self.heartbeat.alive()
+                return
+            timeout = 0.0
+            if not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame):
+                cob_id = msg.arbitration_id
+                if cob_id in self.device_ids:
+                    c.frame(cob_id, bytes(msg.data), clock())
+                elif cob_id == self.sdo_response:
+                    self.network.notify(cob_id, msg.data, msg.timestamp)
+            if clock() >= end:
+                return
+
+    def pump(self, c: core.Core, until: Callable[[], bool], timeout: float) -> bool:
+        """Receives (for the SDO client) until `until()` or `timeout`; whether it came."""
+        deadline = time.monotonic() + timeout
+        while not until():
+            if time.monotonic() > deadline or self.failed.is_set():
+                return until()
+            self.receive(c, time.monotonic, 0.01, DRAIN_TIME)
+        return True
 
     def close(self) -> None:
         self.heartbeat.stop()
@@ -294,11 +401,16 @@ class Worker:
     def submit(self, action) -> None:
         self.jobs.put(action)
 
+    def cancel(self) -> None:
+        """A configuration under way stops before its next transfer; the thread ends after
+        the current one."""
+        self.cancelled.set()
+        self.jobs.put(None)
+
     def stop(self, timeout: float = 3.0) -> bool:
         """Cancels what is under way and ends the thread; False if it is still busy after
         `timeout` (an SDO transfer that does not end)."""
-        self.cancelled.set()
-        self.jobs.put(None)
+        self.cancel()
         self.thread.join(timeout)
         return not self.thread.is_alive()
 
@@ -378,9 +490,18 @@ def describe(action) -> str:
     return repr(action)
 
 
-# The longest the main loop handles frames before it writes the pins again (a flood of
-# records must not hold back the pins).
+# The longest the main loop reads frames before it writes the pins again (a flood of frames
+# must not hold back the pins), and the longest its first read of a round waits when idle.
 DRAIN_TIME = 0.005
+IDLE_WAIT = 0.01
+
+
+def write_steps(pins: HalPins, steps, sleep: Callable[[float], None] = time.sleep) -> None:
+    """Writes `Core.publish`'s steps in order, `core.GATE_HOLD` apart."""
+    for i, step in enumerate(steps):
+        if i:
+            sleep(core.GATE_HOLD)
+        pins.write(step)
 
 
 def run(
@@ -400,7 +521,7 @@ def run(
     stop = stop or threading.Event()
     pins = HalPins(hal_module, args.name, cfg, on_hal_component)
     c = core.Core(cfg)
-    events: "queue.Queue" = queue.Queue()
+    events: "queue.Queue" = queue.Queue()  # the worker's outcomes
     link: Optional[Link] = None
     worker: Optional[Worker] = None
     next_connect = 0.0
@@ -413,7 +534,7 @@ def run(
         while not stop.is_set():
             now = clock()
             if link is None and now >= next_connect:
-                link = open_link(args, cfg, events, "retrying")
+                link = open_link(args, cfg, "retrying")
                 if link is None:
                     next_connect = now + 1.0
                 else:
@@ -425,70 +546,71 @@ def run(
                 link, worker = None, None
                 c.done(c.pending, False, None, now)
                 next_connect = now + 1.0
-            try:
-                event = events.get(timeout=0.01)
-            except queue.Empty:
-                event = None
-            drained = clock() + DRAIN_TIME
-            while event is not None:
-                if link is not None:
-                    link.heartbeat.alive()
-                if event[0] == "frame":
-                    _, cob_id, data, t = event
-                    c.frame(cob_id, data, t)
-                elif event[0] == "done":
-                    _, action, ok, abort, result = event
-                    c.done(action, ok, abort, clock(), result)
+            if link is not None:
+                link.receive(c, clock, IDLE_WAIT, DRAIN_TIME)
+            else:
+                stop.wait(IDLE_WAIT)
+            while True:
                 try:
-                    event = events.get_nowait() if clock() < drained else None
+                    _, action, ok, abort, result = events.get_nowait()
                 except queue.Empty:
-                    event = None
+                    break
+                c.done(action, ok, abort, clock(), result)
             now = clock()
             c.set_enable(pins.enable())
             c.set_position_mode(pins.position_mode())
             c.tick(now)
             if link is not None:
-                link.heartbeat.alive()
                 action = c.next_action(now)
                 if action is not None and worker is not None:
                     worker.submit(action)
-            pins.write(c.pins())
+            write_steps(pins, c.publish(clock()))
         log(f"{getattr(stop, 'reason', 'asked to stop')}: stopping")
     finally:
-        shut_down(args, cfg, c, events, link, worker)
+        shut_down(args, cfg, c, link, worker)
         pins.exit()
         log("stopped")
     return 0
 
 
-def open_link(
-    args: argparse.Namespace, cfg: core.Config, events: "queue.Queue", then: str
-) -> Optional[Link]:
+def open_link(args: argparse.Namespace, cfg: core.Config, then: str) -> Optional[Link]:
     try:
-        return Link(args, cfg, events)
+        return Link(args, cfg)
     except Exception as e:
         log(f"cannot open the bus ({e!r}); {then}")
         return None
 
 
-def shut_down(args, cfg: core.Config, c: core.Core, events, link, worker) -> None:
+def shut_down(args, cfg: core.Config, c: core.Core, link, worker) -> None:
     """The end: the worker's current transfer finishes (a configuration stops between its
     transfers), then `Core.shutdown_action` (0x2000 = 0) from here, on the bus as it is or,
-    if it was down, opened once more for it; then the bus is closed."""
-    if worker is not None and not worker.stop(timeout=1.5):
-        log("an SDO transfer did not end; not writing 0x2000")
-        link.close()
-        return
+    if it was down, opened once more for it; then the bus is closed. The bus is read here
+    meanwhile, for the SDO responses."""
+    if worker is not None:
+        worker.cancel()
+        wait = 1.5
+        if link is not None and not link.failed.is_set():
+            link.pump(c, lambda: not worker.thread.is_alive(), wait)
+            wait = 0.1
+        if not worker.stop(timeout=wait):
+            log("an SDO transfer did not end; not writing 0x2000")
+            link.close()
+            return
     if link is not None and link.failed.is_set():
         link.close()
         link = None
     if link is None:
-        link = open_link(args, cfg, events, "0x2000 not written")
+        link = open_link(args, cfg, "0x2000 not written")
         if link is None:
             return
     action = c.shutdown_action()
-    ok, _, _ = carry_out(link, args.node, action)
-    if not ok:
+    outcome = []
+    thread = threading.Thread(
+        target=lambda: outcome.append(carry_out(link, args.node, action)), daemon=True
+    )
+    thread.start()
+    link.pump(c, lambda: not thread.is_alive(), 3.0)
+    if not outcome or not outcome[0][0]:
         log(f"{describe(action)} failed at exit")
     link.close()
 

@@ -1,27 +1,59 @@
 """The component's decisions, free of HAL and CAN: what a frame means, what the pins show,
 what to tell the device next.
 
-`Core` is fed events (frames from the device, the `enable` pin, the time, the outcome of the
-actions it asked for) and answers with a `Pins` snapshot and at most one `Action` at a time.
-The shell (`component.py`) carries out actions over python-canopen and copies the pins to
-HAL; it makes no decision of its own. Everything here is plain Python (standard library
-only) and deterministic in the times it is given, so it is tested without a bus or LinuxCNC
+`Core` is fed events and answers with pin snapshots and at most one `Action` at a time. The
+shell (`component.py`) carries out actions over python-canopen and writes the pins to HAL;
+it makes no decision of its own. Everything here is plain Python (standard library only)
+and deterministic in the times it is given, so it is tested without a bus or LinuxCNC
 (`host/tests`), and the interop suite checks the device's records with the same functions
 (`Record`, `record_fault`, `continuity`, `pair_fault`).
+
+The event API (stable; `replay` runs a list of these events through a `Core`):
+
+- `frame(cob_id, data, now)`: a frame the shell read at `now` (identifiers other than the
+  device's TPDO1, EMCY and heartbeat are ignored);
+- `drained(now)`: the shell's receive path was found empty at a moment not before `now`,
+  so every frame that reached the host before `now` has been handed to `frame`;
+- `tick(now)`: time passes (staleness);
+- `set_enable(bool)`, `set_position_mode(bool)`: the input pins;
+- `next_action(now)` -> the `Action` to carry out (`Configure`, `WriteFeed`) or None, and
+  `done(action, ok, abort, now, result)`: its outcome;
+- `publish(now)` -> the list of `Pins` snapshots to write now, in order, at least
+  `GATE_HOLD` apart; `pins()` is the state they end in; `shutdown_action()`.
 
 Rules (host/README.md, "What it does", states them for machine builders):
 
 - Feed bookkeeping. The feed record (TPDO1) carries the cumulative position, the axis, the
   multiplier, status bits 0-4 and in bits 5-7 the low three bits of the device's selection
   epoch (0x2010:3), which steps on every change of axis, multiplier, enable and feed format
-  and on every stop. The device promises: (a) within one epoch axis, multiplier and enable
-  do not change and the position moves only while enabled, by that axis's feed (detents
-  times the multiplier; none without an axis); (b) every epoch's final state goes out as a
-  record before any record of a later epoch, unless it is dropped, and a dropped record takes
-  a sequence number as if it had been sent and lost (at most 8 per run of drops); (c) the
-  sequence byte steps by one per record sent or dropped. `continuity(prev, rec)` is the rule,
-  with g = the sequence numbers between the two records (mod 256) and d = rec's epoch minus
-  prev's (mod 8):
+  and on every stop. The device promises (the contract, version 2): (a) within one epoch
+  axis, multiplier and enable do not change and the position moves only while enabled, by
+  that axis's feed (detents times the multiplier; none without an axis); (b) every epoch's
+  final state goes out as a record before any record of a later epoch, unless it is lost,
+  and every loss event (a held epoch dropped, an epoch ended while no record could hold it,
+  leaving Operational) takes a sequence number as if a record had been sent and lost, a run
+  of them between two records at most 8; (c) the sequence byte steps by one per record
+  handed to the transmit queue and per loss event; a break (NMT start after a stop, reset
+  node, reset communication, a blocked transmit path) fills the run to 8, so the next
+  record is at least 8 numbers after the last one handed out; (d) a reset node or reset
+  communication discards what waits for the bus, so its boot-up is the first frame after
+  it; sequence and epoch continue across it, and only a power cycle restarts them at 0
+  (after a boot-up); (e) the device stops the feed (status bit 3) after its heartbeat
+  consumer timeout, and when its frames have waited for the bus for more than 100 ms with
+  none completing (it then also discards what waits and breaks the sequence).
+- Ordering. A record is compared with the reference `prev`, the last record accepted (while
+  it is fresh; after a boot-up or staleness there is none): a = rec's sequence minus prev's
+  (mod 256). The same 8 bytes as prev are the same frame delivered twice (a known CAN
+  effect): ignored entirely (no loss, no new reference, no freshness, no count; also once
+  prev is stale, so that copies never keep a silent device connected). a = 0
+  with other bytes cannot come from the device: impossible (below). 128 <= a <= 255: rec
+  lies behind prev (a replay or a stale copy of an earlier record): ignored entirely (never
+  a reference, no loss), counted in `frames-bad`. Otherwise g = a - 1 numbers are missing
+  (`records-lost` grows by g). This holds while baselines are pending too, so a copy never
+  becomes the reference that the next genuine record is measured against. It needs a copy
+  to be less than 128 numbers old (older ones look ahead: a large gap, a baseline).
+- Continuity. `continuity(prev, rec)` is the rule, with g as above and d = rec's epoch
+  minus prev's (mod 8):
   - d = 0 and g <= 6: the same epoch. Every epoch takes at least one sequence number, so the
     g missing numbers hide at most g epochs and rec lies at most g + 1 <= 7 epochs after
     prev; d = 0 mod 8 then means none. By (a) the wrapping difference of the positions is
@@ -33,23 +65,40 @@ Rules (host/README.md, "What it does", states them for machine builders):
     of its epoch, so the difference is exactly the motion of rec's epoch so far, which by (a)
     is rec's axis's (a difference on a disabled or axis-less record is impossible).
   - anything else: rec is a new baseline; what moved in epochs the host did not see goes to
-    no axis.
+    no axis. A break (c) gives g >= 7: never a continuation.
   So every applied delta is motion made inside rec's own epoch, and that is feed of rec's
-  axis: motion of one axis is never credited to another. Lost records, dropped records and
-  outages can only cost motion, never move it elsewhere. The argument needs the host to see
-  a record of every 256 consecutive sequence numbers or go stale first (a wrapped sequence
-  byte looks like a small gap). Runs of drops take at most 8 numbers each, so that would
-  take losing at least 28 records sent in a row (over 50 ms of records at the 2 ms inhibit
-  time) without three event-timer periods passing with none received.
+  axis: motion of one axis is never credited to another, and (ordering) never twice or
+  backwards from a copy. Lost records, loss events and outages can only cost motion, never
+  move it elsewhere. The argument needs the host to see a record of every 256 consecutive
+  sequence numbers or go stale first (a wrapped sequence byte looks like a small gap; a
+  true advance of 128..255 reads as behind and is ignored, which costs motion until
+  staleness makes the next record a baseline, but moves nothing). Runs of loss events take
+  at most 8 numbers each, so that would take losing at least 28 records sent in a row (over
+  50 ms of records at the 2 ms inhibit time) without three event-timer periods passing with
+  none received.
+- Backlog (lateness). A record handled more than `BACKLOG_LIMIT` (0.1 s) after the shell
+  last reported its receive path empty (`drained`) may have waited that long in a buffer
+  (the component frozen, swapped, starved or flooded, a socket delivering a backlog): it
+  is only a baseline, the reference for the next one, with no motion. The shell reports
+  `drained` only after a read of the bus itself (waiting or not) found nothing (the time taken
+  before that read), so a stall anywhere in its loop shows as a gap since the last report.
+  Motion therefore reaches the core at most `BACKLOG_LIMIT` after its record reached the
+  host, and `publish` withdraws credits not written within that time.
+- Pin writes (`publish`). No servo period may see counts without their gate: gates that must
+  be open for new counts are opened first, then the counts are written, and a gate is
+  closed only a hold (`GATE_HOLD`, at least a servo period) after counts credited while it
+  was open; counts credited while the gate was closed are written with it closed. Detents
+  handled in the same round as a boot-up, staleness or a change of axis are therefore
+  published with their gate, not lost to the order of the writes.
 - The delta is applied to rec's axis when rec is enabled, the axis is a configured letter,
-  the previous record is still valid (no boot-up, no staleness, no bad record since) and the
-  device has shown a non-zero epoch since the component last configured it (start, boot-up,
-  Pre-operational). Firmware from before the epoch bits sends 0 there: its records all look
-  like one epoch, and an outage can hide a switch to another axis behind them, so such a
-  device moves nothing (and each of its enables, a change of the enable bit within what looks
-  like one epoch, counts as bad). Configuration switches the feed off (0x2000 = 0), so the
-  enable that follows steps the epoch: of the two records around it, one shows a non-zero
-  epoch.
+  the previous record is still valid (no boot-up, no staleness, no bad record since), rec
+  was handled in time (Backlog) and the device has shown a non-zero epoch since the
+  component last configured it (start, boot-up, Pre-operational). Firmware from before the
+  epoch bits sends 0 there: its records all look like one epoch, and an outage can hide a
+  switch to another axis behind them, so such a device moves nothing (and each of its
+  enables, a change of the enable bit within what looks like one epoch, counts as bad).
+  Configuration switches the feed off (0x2000 = 0), so the enable that follows steps the
+  epoch: of the two records around it, one shows a non-zero epoch.
 - Plausibility. A record the device can never send is counted in `frames-bad` and the next
   record is a baseline: a TPDO1 of the wrong length, an axis byte above 5, a multiplier
   other than 1, 10, 100, feed enabled together with master lost (a stop disables, and only
@@ -87,23 +136,26 @@ Rules (host/README.md, "What it does", states them for machine builders):
   Pre-operational; retried every `retry` seconds while it fails.
 - The component's heartbeat is due on a fixed grid of its period (`next_beat`), produced by a
   timer of its own rather than the main loop: a late beat is not made up by a burst. It
-  pauses while the main loop makes no progress (`beat_allowed`), so that a stalled
-  component loses the device's feed as a dead one does.
+  pauses while the main loop has not found its receive path empty for a while
+  (`beat_allowed`), so that a stalled component, or one that cannot keep up with what it
+  receives, loses the device's feed as a dead one does.
 - Shutdown: 0x2000 = 0 whatever the device last showed (`shutdown_action`).
 - Feed enable: 0x2000 = 1 while `enable` is true, the device is configured, Operational,
   fresh and reports feed disabled; 0x2000 = 0 when `enable` is false and it reports feed
   enabled. Refused writes (0x08000022 while the device still misses the heartbeat) are
   retried.
-- Lost records: the gaps in the sequence byte between consecutive fresh records (records the
-  device dropped included).
-- Bad data never raises: impossible records as above and an EMCY or heartbeat of the wrong
-  length are counted in `frames-bad`.
+- Lost records: the gaps in the sequence byte between consecutive fresh records (the
+  device's loss events included; duplicates and records behind are no loss).
+- Bounded work: every frame costs a constant amount of work and no memory is kept per frame
+  (of an EMCY only its code); the shell hands python-canopen nothing but SDO responses.
+- Bad data never raises: impossible records as above, records behind the reference and an
+  EMCY or heartbeat of the wrong length are counted in `frames-bad`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Tuple
 
 # Device heartbeat states.
@@ -125,6 +177,22 @@ EPOCH_MODULO = 8
 # The device's axis byte: 0 none, 1..5 these letters.
 DEVICE_AXES = "xyzwv"
 MULTIPLIERS = (1, 10, 100)
+
+# Ordering: a record whose sequence byte is 128..255 numbers after the reference's (mod 256)
+# lies behind it (an earlier record delivered again, a replay or a stale copy).
+SEQUENCE_MODULO = 256
+BEHIND_FROM = 128
+
+# Backlog: a feed record handled longer than this after the shell last found its receive
+# path empty (`Core.drained`) may have waited in a buffer that long (a frozen, starved or
+# flooded component): it is only a baseline. Credits not published to the pins within it
+# (the component stalled between handling a frame and writing the pins) are withdrawn.
+BACKLOG_LIMIT = 0.1
+
+# Pin steps (`Core.publish`): consecutive steps are written at least this far apart, so that
+# every servo period of LinuxCNC (1 ms by default; up to 5 ms covered) that sees the counts
+# of a step also sees its gates.
+GATE_HOLD = 0.005
 
 # The largest sequence gap still read as "the same epoch": each epoch takes at least one
 # sequence number, so 6 missing numbers hide at most 6 epochs and the record after them is
@@ -468,6 +536,11 @@ class Pins:
     jog_vel_mode: bool = True  # LinuxCNC's velocity mode for every axis
 
 
+def _with(pins: Pins, counts: Dict[str, int], gates: Dict[str, bool]) -> Pins:
+    """`pins` with these counts and gates."""
+    return replace(pins, jog_counts=dict(counts), jog_enable=dict(gates))
+
+
 @dataclass
 class Core:
     cfg: Config
@@ -484,6 +557,12 @@ class Core:
     frames_bad: int = 0
     suspect: bool = False  # the last TPDO1 was impossible: no axis until a possible one
     epochs_shown: bool = False  # a non-zero epoch since the last configuration
+    drained_at: Optional[float] = None  # the shell's receive path last found empty
+    # Publishing (`publish`): the pins last handed to the shell, and the credits since.
+    published: Optional[Pins] = None
+    credit_time: Optional[float] = None  # the earliest credit not yet published
+    credit_open: Dict[str, bool] = field(default_factory=dict)  # credited with the gate open
+    withdrawn: int = 0  # credits withdrawn because they were not published in time
     allowance: Allowance = field(init=False)
     event_timer: float = field(init=False)  # s: the device's, once configured
     position_mode: bool = field(init=False)  # the `position-mode` input
@@ -513,6 +592,16 @@ class Core:
             self._emcy(bytes(data))
         elif cob_id == 0x700 + node:
             self._heartbeat(bytes(data), now)
+
+    def drained(self, now: float) -> None:
+        """The shell found its receive path empty at a moment not before `now`: every frame
+        that reached the host before `now` has been handed to `frame`. The shell calls it
+        whenever a read (waiting or not) finds nothing, `now` being the time taken before that
+        read. A feed record handled more than `BACKLOG_LIMIT` after the last such report
+        may have waited that long in a buffer: it is only a baseline."""
+        if self.drained_at is None or now > self.drained_at:
+            self.drained_at = now
+        self.tick(now)
 
     def set_enable(self, enable: bool) -> None:
         if enable != self.enable:
@@ -620,6 +709,57 @@ class Core:
         exchange too many costs nothing."""
         return WriteFeed(0)
 
+    def gate(self, letter: str) -> bool:
+        """`jog-enable` of axis `letter` as the core sees it now."""
+        selected = self.selected() if self.fresh else None
+        return self.enable and self.operational and self.feed_enabled and letter == selected
+
+    def publish(self, now: float) -> List[Pins]:
+        """What the shell writes to the pins now: a list of snapshots, to be written in
+        order, each completely, consecutive ones at least `GATE_HOLD` apart (the last one is
+        `pins()`). The steps keep every servo period from seeing counts without their gate:
+        first the gates that must be open for the new counts are opened and those of axes
+        whose new counts were credited with their gate closed are closed, then the counts
+        change, then (a hold later) the gates take their final values. So counts credited
+        while the gate was open reach LinuxCNC with the gate open even when the same round
+        closes it (a boot-up, staleness, another axis selected), and counts credited while
+        it was closed never find it open (an axis's credits of one round go out together,
+        with the gate open if any of them was made with it open: `enable` is read between
+        rounds, so within one only a heartbeat can close the gate between two credits, and
+        those were turned while Operational). Credits older than `BACKLOG_LIMIT` that were not
+        yet published (the component stalled between handling a frame and writing the
+        pins) are withdrawn: the counts go back to what was published."""
+        self.tick(now)
+        target = self.pins()
+        last = self.published
+        if last is None:
+            self._published(target)
+            return [target]
+        if self.credit_time is not None and self.now - self.credit_time > BACKLOG_LIMIT:
+            self.withdrawn += 1
+            self.counts = dict(last.jog_counts)
+            self.credit_open = {}
+            target = self.pins()
+        axes = self.cfg.axes
+        changed = {L for L in axes if target.jog_counts[L] != last.jog_counts[L]}
+        gates = {
+            L: bool(self.credit_open.get(L)) if L in changed else last.jog_enable[L] for L in axes
+        }
+        steps: List[Pins] = []
+        if gates != last.jog_enable:
+            steps.append(_with(target, last.jog_counts, gates))
+        if changed:
+            steps.append(_with(target, target.jog_counts, gates))
+        if not steps or gates != target.jog_enable:
+            steps.append(target)
+        self._published(steps[-1])
+        return steps
+
+    def _published(self, pins: Pins) -> None:
+        self.published = pins
+        self.credit_time = None
+        self.credit_open = {}
+
     def pins(self) -> Pins:
         selected = self.selected() if self.fresh else None
         jog = self.enable and self.operational and self.feed_enabled
@@ -655,9 +795,20 @@ class Core:
             self._impossible()
             return
         prev = self.record
-        continuous = prev is not None and self.fresh and not self.baseline
-        if prev is not None and self.fresh:
-            self.records_lost = wrap_s32(self.records_lost + sequence_gap(prev, rec))
+        fresh = prev is not None and self.fresh
+        if prev is not None and data == prev.encode():
+            return  # the same frame twice (a known CAN effect), fresh or not: nothing at all
+        if fresh and prev is not None:
+            ahead = (rec.sequence - prev.sequence) % SEQUENCE_MODULO
+            if ahead == 0:
+                self._impossible()  # one number, two records
+                return
+            if ahead >= BEHIND_FROM:
+                self._bad()  # an earlier record again: never a reference, no loss
+                return
+            self.records_lost = wrap_s32(self.records_lost + ahead - 1)
+        late = self.drained_at is None or self.now - self.drained_at > BACKLOG_LIMIT
+        continuous = fresh and not self.baseline and not late
         if rec.epoch != 0:
             self.epochs_shown = True
         delta: Optional[int] = None
@@ -669,7 +820,8 @@ class Core:
             self._bad()  # faster than a wheel turns
             delta = None
         letter = self._letter(rec.axis)
-        if delta and self.epochs_shown and letter is not None:
+        credited = bool(delta and self.epochs_shown and letter is not None)
+        if credited and delta is not None and letter is not None:
             self.counts[letter] = wrap_s32(self.counts[letter] + delta)
         self.record = rec
         self.record_time = now
@@ -678,6 +830,11 @@ class Core:
         if self.state in (None, BOOTUP):
             # PDOs only flow in Operational; the heartbeat will say so too.
             self.state = OPERATIONAL
+        if credited and letter is not None:
+            if self.credit_time is None:
+                self.credit_time = self.now
+            if self.gate(letter):
+                self.credit_open[letter] = True
 
     def _impossible(self) -> None:
         """A TPDO1 the device can never send: counted, and it breaks continuity; the
@@ -786,3 +943,46 @@ def pin_table(axes: str) -> List[Tuple[str, str, str]]:
     table = [(n.format(L=L), t, d) for L in axes for (n, t, d, _) in AXIS_PINS]
     table += [(n, t, d) for (n, t, d, _) in COMPONENT_PINS]
     return table
+
+
+# Replaying events ----------------------------------------------------------------------------
+
+Event = tuple  # ("frame", cob_id, data, t) | ("drained", t) | ("tick", t) | ("enable", bool)
+
+
+def replay_core(events, cfg: Optional[Config] = None) -> Core:
+    """A `Core` (of `cfg`, default `Config()`) after `events`, each handled as the shell
+    does in a round of its own: the event, then `publish` at its time. Events:
+    ("frame", cob_id, data, t), ("drained", t), ("tick", t), ("enable", bool),
+    ("position-mode", bool). Times never go backwards in a real run; the core takes the
+    latest time it was given. A malformed event raises `ValueError` (a vector's mistake,
+    not the bus's)."""
+    c = Core(cfg or Config())
+    for event in events:
+        kind = event[0] if isinstance(event, (tuple, list)) and event else None
+        if kind == "frame" and len(event) == 4:
+            _, cob_id, data, t = event
+            c.frame(int(cob_id), bytes(data), float(t))
+            c.publish(float(t))
+        elif kind == "drained" and len(event) == 2:
+            c.drained(float(event[1]))
+            c.publish(float(event[1]))
+        elif kind == "tick" and len(event) == 2:
+            c.tick(float(event[1]))
+            c.publish(float(event[1]))
+        elif kind == "enable" and len(event) == 2:
+            c.set_enable(bool(event[1]))
+        elif kind == "position-mode" and len(event) == 2:
+            c.set_position_mode(bool(event[1]))
+        else:
+            raise ValueError(f"not an event: {event!r}")
+    return c
+
+
+def replay(events, cfg: Optional[Config] = None) -> Dict[str, int]:
+    """The per-axis counts (`jog-counts` as published) after `events` (see `replay_core`):
+    the entry point for test vectors, e.g. every delivered record stream of a model checker
+    with the truth per axis to compare against."""
+    c = replay_core(events, cfg)
+    assert c.published is not None
+    return dict(c.published.jog_counts)
