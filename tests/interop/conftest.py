@@ -50,6 +50,9 @@ _HELD_BUS_PASSES_THE_MASTER = (
 BOARD_ONLY = {
     "test_nmt_stop_and_start_in_an_outage_never_give_y_turn_to_x": _HELD_BUS_PASSES_THE_MASTER,
     "test_reset_node_in_an_outage_never_moves_x_backwards": _HELD_BUS_PASSES_THE_MASTER,
+    "test_reset_node_within_the_stall_limit_boots_up_first_and_breaks_the_sequence": (
+        _HELD_BUS_PASSES_THE_MASTER
+    ),
 }
 
 # Which emulator a test runs on: the QEMU variant, and the board image on the emulated board.

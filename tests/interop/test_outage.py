@@ -88,14 +88,21 @@ def let_pass(rig, ms: float) -> None:
 
 def select_unseen(rig, axis: str) -> None:
     """Moves the axis switch and waits until the firmware's debouncing took the change: its
-    log line `selection: axis N` (decoded from RTT on the board, semihosting in QEMU), since
-    `rig.select` cannot confirm over SDO while the node's frames are held."""
+    log line `selection: axis N`, since `rig.select` cannot confirm over SDO while the
+    node's frames are held."""
     start = len(rig.qemu.log())
     rig.stim.axis(axis)
-    line = re.compile(rf"selection: axis {AXES[axis]}, ")
+    wait_log(rig, rf"selection: axis {AXES[axis]}, ", start)
+
+
+def wait_log(rig, pattern: str, start: int) -> None:
+    """Waits for the firmware's log line `pattern` after character `start` of its log
+    (decoded from RTT on the board, from semihosting in QEMU): what the node did while its
+    frames are held. Polled every millisecond: some waits must fit in a short hold."""
+    line = re.compile(pattern)
     deadline = time.monotonic() + SELECT_TIMEOUT
     while not line.search(rig.qemu.log(), start):
-        assert time.monotonic() < deadline, f"the selection never showed axis {axis}"
+        assert time.monotonic() < deadline, f"no log line /{pattern}/"
         time.sleep(0.001)
 
 
@@ -106,6 +113,36 @@ def turn_one_by_one(rig, detents: int) -> None:
         rig.stim.turn(1)
         if not on_board(rig):
             time.sleep(0.005)
+
+
+def enabled_at_rest(rig, axis: str) -> int:
+    """Feed on for `axis` (x1) with the wheel at rest; returns the recording mark of the
+    first enabled record, at position 0: the host's baseline, so that every detent after it
+    is credited."""
+    rig.feed_on(axis)
+    first = rig.frames.wait_for(
+        lambda f: f.id == TPDO1 and feed_record(f)[3] & ENABLED and feed_record(f)[0] == 0,
+        what="the first enabled record",
+    )
+    return first.seq
+
+
+def sequence_to(rig, target: int) -> int:
+    """Brings the feed record sequence (0x2031, the next record's) to `target` (at most 35
+    records ahead of 220) and leaves the event timer off (records only on motion); returns
+    the detents it turned. Records every 2 ms (the inhibit time) bring it near quickly, then
+    one record a detent lands on it."""
+    rig.write(0x1800, 5, 2, 2)
+    deadline = time.monotonic() + 10
+    while rig.read(0x2031) < 220:
+        assert time.monotonic() < deadline, "the event timer sends no records"
+    rig.write(0x1800, 5, 0, 2)
+    turned = 0
+    while (sequence := rig.read(0x2031)) != target:
+        assert sequence >= 220 or sequence < target, f"the sequence went past it: {sequence}"
+        rig.stim.turn(1)
+        turned += 1
+    return turned
 
 
 def settle(rig, since: int) -> None:
@@ -201,77 +238,6 @@ def stream(frames) -> str:
     return f"records ({len(out)}, the last 40): " + ", ".join(out[-40:])
 
 
-# Findings 1 and 2 of issue 26 ---------------------------------------------------------------
-
-
-@pytest.mark.parametrize("leave", [NMT_PRE_OPERATIONAL, NMT_STOP], ids=["preop", "stop"])
-def test_nmt_stop_and_start_in_an_outage_never_give_y_turn_to_x(rig, leave):
-    """Issue 26, finding 1, as reported: Operational, feed on X x1, turn 3; the bus held; 25
-    single detents (the transmit queue and mailboxes fill); NMT pre-operational (or stop) and
-    start; a write of 0x2000 = 1 without waiting for its reply; Y, turn 7; then X, Y, X, Y,
-    X (six switch changes in all); turn 2; the bus free. Truth: X 30, Y 7. Before the fix the
-    start closed epochs without taking sequence numbers, so one missing number hid eight
-    epochs and the host credited X 36, Y 0."""
-    mark = rig.feed_on("x")
-    rig.stim.turn(3)
-    rig.wait_position(3, since=mark)
-    hold_bus(rig, True)
-    turn_one_by_one(rig, 25)
-    rig.nmt(leave)
-    rig.nmt(NMT_START)
-    rig.network.send_message(SDO_RX, ENABLE_REQUEST)
-    select_unseen(rig, "y")
-    rig.stim.turn(7)
-    for axis in "xyxyx":
-        select_unseen(rig, axis)
-    rig.stim.turn(2)
-    hold_bus(rig, False)
-    settle(rig, mark)
-    seen = rig.frames.frames(since=mark)
-    credit = Credit.of(seen)
-    print(f"credited {credit.named()}, steps {credit.steps}")
-    credit.assert_safe({"x": 30, "y": 7}, seen)
-
-
-def test_reset_node_in_an_outage_never_moves_x_backwards(rig):
-    """Issue 26, finding 2, as reported: the transmit queue full, NMT reset node, arranged
-    so that the last record delivered before it has sequence 255 (the sequence at 239 when
-    the bus is held, the heartbeat off: then one feed record waits in a mailbox and 16 in the
-    queue); then start, a blind enable and 4 detents. Before the fix the full queue refused
-    the boot-up, and the first record after the reset (sequence 0, the same epoch bits)
-    continued sequence 255: the host moved X from where it was back to 4."""
-    mark = rig.feed_on("x")
-    rig.write(0x1017, 0, 0, 2)  # no heartbeat: only feed records fill the transmit side
-    # Records every 2 ms (the inhibit time) bring the sequence near 239 quickly; then
-    # records only on motion, one a detent, to land on it.
-    rig.write(0x1800, 5, 2, 2)
-    deadline = time.monotonic() + 10
-    while rig.read(0x2031) < 220:
-        assert time.monotonic() < deadline, "the event timer sends no records"
-    rig.write(0x1800, 5, 0, 2)
-    turned = 0
-    while (sequence := rig.read(0x2031)) < 239:
-        rig.stim.turn(1)
-        turned += 1
-    assert sequence == 239, f"the sequence went past 238: the next record has {sequence}"
-    last = rig.frames.frames(TPDO1)[-1]
-    assert feed_record(last)[4] == 238
-    hold_bus(rig, True)
-    turn_one_by_one(rig, 20)  # 17 of them fill the queue and the mailbox
-    rig.nmt(NMT_RESET_NODE)
-    rig.nmt(NMT_START)
-    rig.network.send_message(SDO_RX, ENABLE_REQUEST)
-    turn_one_by_one(rig, 4)
-    hold_bus(rig, False)
-    settle(rig, mark)
-    seen = rig.frames.frames(since=mark)
-    credit = Credit.of(seen)
-    print(f"turned {turned} + 24, credited {credit.named()}, steps {credit.steps[-3:]}")
-    credit.assert_safe({"x": turned + 24}, seen)
-
-
-# Holds shorter and longer than the transmit stall limit ----------------------------------
-
 # Quadrature levels, bit 0 = A, bit 1 = B; forward is A leading B: 0 -> 1 -> 3 -> 2 -> 0.
 FORWARD = [1, 3, 2, 0]
 
@@ -305,6 +271,104 @@ def fill_transmit_side(rig) -> int:
 
 # A hold shorter than the stall limit: the frames wait for less than that.
 SHORT_HOLD_MS = 95
+
+
+# Findings 1 and 2 of issue 26 ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("leave", [NMT_PRE_OPERATIONAL, NMT_STOP], ids=["preop", "stop"])
+def test_nmt_stop_and_start_in_an_outage_never_give_y_turn_to_x(rig, leave):
+    """Issue 26, finding 1, as reported: Operational, feed on X x1, turn 3; the bus held; 25
+    single detents (the transmit queue and mailboxes fill); NMT pre-operational (or stop) and
+    start; a write of 0x2000 = 1 without waiting for its reply; Y, turn 7; then X, Y, X, Y,
+    X (six switch changes in all); turn 2; the bus free. Truth: X 30, Y 7. Before the fix the
+    start closed epochs without taking sequence numbers, so one missing number hid eight
+    epochs and the host credited X 36, Y 0."""
+    mark = enabled_at_rest(rig, "x")
+    rig.stim.turn(3)
+    rig.wait_position(3, since=mark)
+    hold_bus(rig, True)
+    turn_one_by_one(rig, 25)
+    rig.nmt(leave)
+    rig.nmt(NMT_START)
+    rig.network.send_message(SDO_RX, ENABLE_REQUEST)
+    select_unseen(rig, "y")
+    rig.stim.turn(7)
+    for axis in "xyxyx":
+        select_unseen(rig, axis)
+    rig.stim.turn(2)
+    hold_bus(rig, False)
+    settle(rig, mark)
+    seen = rig.frames.frames(since=mark)
+    credit = Credit.of(seen)
+    print(f"credited {credit.named()}, steps {credit.steps}")
+    credit.assert_safe({"x": 30, "y": 7}, seen)
+    assert credit.on("x") >= 3, f"the 3 detents before the hold reach X: {stream(seen)}"
+
+
+def test_reset_node_in_an_outage_never_moves_x_backwards(rig):
+    """Issue 26, finding 2, as reported: the transmit queue full, NMT reset node, arranged
+    so that the last record delivered before it has sequence 255 (the sequence at 239 when
+    the bus is held, the heartbeat off: then one feed record waits in a mailbox and 16 in the
+    queue); then start, a blind enable and 4 detents. Before the fix the full queue refused
+    the boot-up, and the first record after the reset (sequence 0, the same epoch bits)
+    continued sequence 255: the host moved X from where it was back to 4."""
+    mark = enabled_at_rest(rig, "x")
+    rig.write(0x1017, 0, 0, 2)  # no heartbeat: only feed records fill the transmit side
+    turned = sequence_to(rig, 239)
+    last = rig.frames.frames(TPDO1)[-1]
+    assert feed_record(last)[4] == 238
+    hold_bus(rig, True)
+    turn_one_by_one(rig, 20)  # 17 of them fill the queue and the mailbox
+    rig.nmt(NMT_RESET_NODE)
+    rig.nmt(NMT_START)
+    rig.network.send_message(SDO_RX, ENABLE_REQUEST)
+    turn_one_by_one(rig, 4)
+    hold_bus(rig, False)
+    settle(rig, mark)
+    seen = rig.frames.frames(since=mark)
+    credit = Credit.of(seen)
+    print(f"turned {turned} + 24, credited {credit.named()}, steps {credit.steps[-3:]}")
+    credit.assert_safe({"x": turned + 24}, seen)
+    assert credit.on("x") >= turned, f"the detents before the hold reach X: {stream(seen)}"
+
+
+def test_reset_node_within_the_stall_limit_boots_up_first_and_breaks_the_sequence(rig):
+    """Finding 2 inside a hold shorter than the transmit stall limit, so that the reset's own
+    handling is what is tested: the last record before the hold has sequence 255, SDO
+    replies fill the transmit side, then NMT reset node, start, a blind enable and a detent;
+    the hold ends by itself after 95 ms. Before the fix the full queue refused the boot-up
+    and the first record after the reset (sequence 0, the same epoch bits) continued 255: X
+    moved back. The reset must discard what waits, so the boot-up is the first frame after
+    the hold, and nothing after it continues what came before: X never moves back, and the
+    detent after the enable is credited."""
+    mark = enabled_at_rest(rig, "x")
+    rig.write(0x1017, 0, 0, 2)  # no heartbeat: the last frame before the hold is a record
+    turned = sequence_to(rig, 0)
+    assert feed_record(rig.frames.frames(TPDO1)[-1])[4] == 255
+    held = rig.frames.mark()
+    start = emulated_ms(rig)
+    rig.qemu.control(f"hold {SHORT_HOLD_MS}")
+    fill_transmit_side(rig)
+    log = len(rig.qemu.log())
+    rig.nmt(NMT_RESET_NODE)
+    rig.nmt(NMT_START)
+    rig.network.send_message(SDO_RX, ENABLE_REQUEST)
+    wait_log(rig, r"SDO write 0x2000:0", log)  # the enable is in before the detent
+    quick_detents(rig, 1)
+    done = emulated_ms(rig) - start
+    assert done < SHORT_HOLD_MS, f"the detent came {done:.1f} ms into the hold"
+    settle(rig, mark)
+    seen = rig.frames.frames(since=mark)
+    credit = Credit.of(seen)
+    print(f"turned {turned} + 1, credited {credit.named()}, steps {credit.steps[-3:]}")
+    credit.assert_safe({"x": turned + 1}, seen)
+    first = rig.frames.frames(since=held)[0]
+    assert (first.id, first.data) == (HEARTBEAT, bytes([BOOTUP])), f"first after the hold: {first}"
+    assert credit.on("x") == turned + 1, f"credited {credit.named()}: {stream(seen)}"
+
+
+# Holds shorter and longer than the transmit stall limit ----------------------------------
 
 
 def test_a_turn_on_another_axis_in_a_short_hold_reaches_that_axis(rig):
@@ -367,7 +431,7 @@ def test_a_long_hold_stops_the_feed_and_credits_nothing_late(rig):
     axis after it (a record that waited that long carries stale motion), the feed is stopped
     (a record with status bit 3, feed disabled; 0x2000 reads 0), and the master can enable it
     again: the next turn is credited exactly."""
-    mark = rig.feed_on("x")
+    mark = enabled_at_rest(rig, "x")
     rig.stim.turn(2)
     rig.wait_position(2, since=mark)
     hold_bus(rig, True)
