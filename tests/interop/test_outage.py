@@ -150,14 +150,24 @@ def settle(rig, since: int) -> None:
     reply queues behind it (one transmit queue, first in first out), and the next feed
     record after the reply carries the present state. The request goes out raw and its reply
     is told by its content: a reply to an SDO request sent blind during the outage may still
-    be on its way, and python-canopen's client would take it for the answer."""
-    mark = rig.frames.mark()
-    rig.network.send_message(SDO_RX, UPLOAD_DEVICE_TYPE)
-    reply = rig.frames.wait_for(
-        lambda f: f.id == SDO_TX and f.data[:4] == UPLOAD_REPLY,
-        since=mark,
-        what="the reply to the upload of 0x1000",
-    )
+    be on its way, and python-canopen's client would take it for the answer. Asked again
+    while no reply comes (a queue still full refuses it)."""
+    for attempt in range(10):
+        mark = rig.frames.mark()
+        rig.network.send_message(SDO_RX, UPLOAD_DEVICE_TYPE)
+        try:
+            reply = rig.frames.wait_for(
+                lambda f: f.id == SDO_TX and f.data[:4] == UPLOAD_REPLY,
+                timeout=0.5,
+                since=mark,
+                what="the reply to the upload of 0x1000",
+            )
+            break
+        except AssertionError:
+            # A transmit queue still full as the outage ends refuses the reply: ask again,
+            # as a master does.
+            if attempt == 9:
+                raise
     # The feed is at rest once the event timer repeats a record unchanged.
     rig.frames.wait_for(
         lambda f: f.id == TPDO1 and repeats(rig.frames.frames(TPDO1, since=since), f),
