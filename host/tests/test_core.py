@@ -312,11 +312,12 @@ def test_the_epoch_must_show_again_after_a_boot_up():
     r.record(5, epoch=1)
     assert r.counts()["x"] == 5
     r.hb(core.BOOTUP)
-    r.record(0, seq=0, epoch=0)
-    r.record(3, seq=1, epoch=0)
+    # A reset keeps the sequence going, with a break of 8.
+    r.record(0, seq=10, epoch=0)
+    r.record(3, seq=11, epoch=0)
     assert r.counts()["x"] == 5
-    r.record(3, seq=2, epoch=1)
-    r.record(4, seq=3, epoch=1)
+    r.record(3, seq=12, epoch=1)
+    r.record(4, seq=13, epoch=1)
     assert r.counts()["x"] == 6
 
 
@@ -327,10 +328,30 @@ def test_bootup_makes_the_next_record_a_baseline_and_asks_for_configuration():
     r.record(110)
     r.hb(core.BOOTUP)
     assert isinstance(r.c.next_action(r.at()), Configure)
-    r.record(0, seq=1)  # the reset device starts at 0
-    r.record(3, seq=2)
+    r.record(0, seq=10)  # a reset keeps the sequence going, with a break of 8
+    r.record(3, seq=11)
     assert r.counts()["x"] == 13
     assert r.c.pins().records_lost == 0
+
+
+def test_after_a_power_cycle_records_behind_the_last_one_wait_for_the_order_expiry():
+    """A power cycle restarts the sequence at 0: its records look like copies of earlier
+    ones (behind the newest), so they move nothing until ORDER_EXPIRY has passed since the
+    newest record; then the next one is a baseline and motion counts again."""
+    r = Run()
+    r.configure()
+    for p in range(6):
+        r.record(p)  # sequences 1..6
+    assert r.counts()["x"] == 5
+    r.hb(core.BOOTUP)
+    bad = r.c.pins().frames_bad
+    r.record(0, seq=0)
+    r.record(2, seq=1)
+    assert r.counts()["x"] == 5 and r.c.pins().frames_bad == bad + 2
+    r.at(core.ORDER_EXPIRY)
+    r.record(2, seq=2)
+    r.record(7, seq=3)
+    assert r.counts()["x"] == 10
 
 
 def test_stale_records_drop_everything_and_the_next_is_a_baseline():

@@ -256,9 +256,9 @@ def test_silence_disconnects(steps, extra):
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.integers(-50, 50), min_size=2, max_size=50), st.integers(1, 5))
 def test_bootup_anywhere_never_becomes_motion(moves, where):
-    """A device reset (boot-up, position back to 0, sequence and epoch too, the feed
-    enabled again) in the middle of a stream: the first record after it is a baseline, so
-    the axis gets the moves before and after it only."""
+    """A device reset (boot-up, position and epoch back to 0, the sequence on with a break
+    of 8, the feed enabled again) in the middle of a stream: the first record after it is a
+    baseline, so the axis gets the moves before and after it only."""
     c = Core(Config())
     t = 0.0
     pos = 12345
@@ -272,13 +272,13 @@ def test_bootup_anywhere_never_becomes_motion(moves, where):
         if i == cut:
             c.drained(t)
             c.frame(HB, b"\x00", t)
-            pos, seq = 0, 0
+            pos, seq = 0, (seq + 8) & 0xFF
             c.frame(TPDO1, rec(pos, 1, 1, 0, seq, 0), t)
-            seq += 1
+            seq = (seq + 1) & 0xFF
             c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1), t)
         pos = wrap_s32(pos + delta)
         expected += delta
-        seq += 1
+        seq = (seq + 1) & 0xFF
         c.drained(t + 0.01)
         c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1), t + 0.01)
     assert c.counts["x"] == expected

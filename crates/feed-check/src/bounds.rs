@@ -39,8 +39,8 @@ pub const ALL: &[Bounds] = &[
     Bounds {
         name: "nmt and outbox",
         rule: rule(8, 2),
-        transmit_capacity: 2,
-        turns: 3,
+        transmit_capacity: 1,
+        turns: 2,
         switches: 3,
         feed_writes: 1,
         nmt: 2,
@@ -51,7 +51,7 @@ pub const ALL: &[Bounds] = &[
     Bounds {
         name: "resets and wrap",
         rule: rule(5, 3),
-        transmit_capacity: 2,
+        transmit_capacity: 1,
         turns: 2,
         switches: 1,
         feed_writes: 1,
@@ -87,7 +87,7 @@ pub const ALL: &[Bounds] = &[
         name: "shipped sizes",
         transmit_capacity: 19,
         turns: 3,
-        switches: 3,
+        switches: 2,
         feed_writes: 1,
         nmt: 2,
         ..BASE

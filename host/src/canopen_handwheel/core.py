@@ -183,6 +183,13 @@ MULTIPLIERS = (1, 10, 100)
 SEQUENCE_MODULO = 256
 BEHIND_FROM = 128
 
+# How long the newest record stays the reference for "behind" (s). It outlives staleness and
+# a boot-up: a reset keeps the device's sequence going, so only copies of earlier records
+# fall behind it, and a copy that arrives after a silence or a reset never becomes a
+# reference that a later record could link to. A power cycle restarts the sequence: its
+# records count as behind until this has passed (or the sequence has moved past).
+ORDER_EXPIRY = 2.0
+
 # Backlog: a feed record handled longer than this after the shell last found its receive
 # path empty (`Core.drained`) may have waited in a buffer that long (a frozen, starved or
 # flooded component): it is only a baseline. Credits not published to the pins within it
@@ -549,6 +556,7 @@ class Core:
     state: Optional[int] = None  # last heartbeat state byte
     record: Optional[Record] = None  # last accepted record
     record_time: Optional[float] = None
+    order: Optional[Tuple[Record, float]] = None  # newest accepted record and when (ordering)
     emcy_code: int = 0
     # Bookkeeping.
     counts: Dict[str, int] = field(default_factory=dict)
@@ -796,17 +804,19 @@ class Core:
             return
         prev = self.record
         fresh = prev is not None and self.fresh
-        if prev is not None and data == prev.encode():
-            return  # the same frame twice (a known CAN effect), fresh or not: nothing at all
-        if fresh and prev is not None:
-            ahead = (rec.sequence - prev.sequence) % SEQUENCE_MODULO
+        order = self.order if self.order and self.now - self.order[1] <= ORDER_EXPIRY else None
+        if order is not None and data == order[0].encode():
+            return  # the same frame twice (a known CAN effect): nothing at all
+        if order is not None:
+            ahead = (rec.sequence - order[0].sequence) % SEQUENCE_MODULO
             if ahead == 0:
                 self._impossible()  # one number, two records
                 return
             if ahead >= BEHIND_FROM:
                 self._bad()  # an earlier record again: never a reference, no loss
                 return
-            self.records_lost = wrap_s32(self.records_lost + ahead - 1)
+            if fresh:
+                self.records_lost = wrap_s32(self.records_lost + ahead - 1)
         late = self.drained_at is None or self.now - self.drained_at > BACKLOG_LIMIT
         continuous = fresh and not self.baseline and not late
         if rec.epoch != 0:
@@ -825,6 +835,7 @@ class Core:
             self.counts[letter] = wrap_s32(self.counts[letter] + delta)
         self.record = rec
         self.record_time = now
+        self.order = (rec, self.now)
         self.suspect = False
         self.baseline = False
         if self.state in (None, BOOTUP):
