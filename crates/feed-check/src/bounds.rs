@@ -25,6 +25,7 @@ const BASE: Bounds = Bounds {
     ticks: 0,
     tick_ms: 50,
     event_timer_ms: 100,
+    inhibit_100us: 0,
     channel_faults: 0,
     replay_depth: 0,
     host_stalls: 0,
@@ -41,34 +42,34 @@ pub const ALL: &[Bounds] = &[
         rule: rule(8, 2),
         transmit_capacity: 1,
         turns: 2,
-        switches: 3,
+        switches: 2,
         feed_writes: 1,
         nmt: 2,
         ..BASE
     },
     // Resets and power cycles with the sequence lowered to 5 bits (the smallest width in
-    // which a break of 8 still reads as a gap), so that it wraps within a few breaks.
+    // which a break of 8 still reads as a gap), from where it is about to wrap.
     Bounds {
         name: "resets and wrap",
         rule: rule(5, 3),
         transmit_capacity: 1,
-        turns: 2,
-        switches: 1,
+        turns: 1,
         feed_writes: 1,
         nmt: 2,
         power_cycles: 1,
-        warmups: &[24, 25, 26, 27, 28, 29, 30, 31],
+        warmups: &[25, 26, 27, 28, 29, 30, 31],
         ..BASE
     },
     // Lost, doubled and replayed frames.
     Bounds {
         name: "channel faults",
-        turns: 3,
-        switches: 2,
+        transmit_capacity: 2,
+        turns: 2,
+        switches: 1,
         feed_writes: 1,
         nmt: 1,
         channel_faults: 2,
-        replay_depth: 4,
+        replay_depth: 3,
         ..BASE
     },
     // Time: holds longer than the stall limit, event-timer records, staleness, a host that
@@ -77,16 +78,17 @@ pub const ALL: &[Bounds] = &[
         name: "time and stalls",
         turns: 2,
         switches: 1,
-        ticks: 7,
+        ticks: 6,
         tick_ms: 100,
         host_stalls: 1,
         ..BASE
     },
-    // The shipped widths and transmit path (16 queued + 3 mailboxes).
+    // The shipped widths, inhibit time and transmit path (16 queued + 3 mailboxes).
     Bounds {
         name: "shipped sizes",
         transmit_capacity: 19,
-        turns: 3,
+        inhibit_100us: 20,
+        turns: 2,
         switches: 2,
         feed_writes: 1,
         nmt: 2,

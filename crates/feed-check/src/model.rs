@@ -118,6 +118,9 @@ pub struct Bounds {
     pub tick_ms: u64,
     /// The device's TPDO1 event timer (0x1800:5), ms; 0: none.
     pub event_timer_ms: u16,
+    /// TPDO1's inhibit time (0x1800:3), 100 us; 20 by default. 0 lets every change go at
+    /// once, which fills the transmit path in fewer steps.
+    pub inhibit_100us: u16,
     /// Frames lost, duplicated or replayed at most.
     pub channel_faults: u8,
     /// How far back a replay may reach, in feed records delivered.
@@ -319,7 +322,17 @@ impl FeedModel {
         let timer = self.bounds.event_timer_ms.to_le_bytes();
         // No producer heartbeat (fewer frames to interleave; the boot-up still goes out), and
         // the event timer of the bounds.
-        for (index, sub, data) in [(0x1017u16, 0u8, &[0u8, 0][..]), (0x1800, 5, &timer[..])] {
+        let inhibit = self.bounds.inhibit_100us.to_le_bytes();
+        let cob_id = |flags: u32| (flags | 0x180 | u32::from(NODE)).to_le_bytes();
+        let (invalid, valid) = (cob_id(0xC000_0000), cob_id(0x4000_0000));
+        for (index, sub, data) in [
+            (0x1017u16, 0u8, &[0u8, 0][..]),
+            (0x1800, 5, &timer[..]),
+            // The inhibit time may change only while the PDO is invalid (CiA 301).
+            (0x1800, 1, &invalid[..]),
+            (0x1800, 3, &inhibit[..]),
+            (0x1800, 1, &valid[..]),
+        ] {
             self.sdo_write(&mut w, index, sub, data);
             self.pass_all(&mut w);
         }
