@@ -55,6 +55,9 @@ tasks:
   lint                                  ruff check and ruff format --check over all Python
   interop [pytest args]                 only the interop suite (venv, QEMU variant, board, pytest)
   host [pytest args]                    only the LinuxCNC component's unit and property tests
+  feed-check [setting names]            the feed contract's exhaustive check (crates/feed-check):
+                                        the real device code against the host's rule; writes
+                                        the vectors `host` replays through core.py
   linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the QEMU handwheel in the
                                         terminal: DRO, machine state, wheel from the keyboard
   linuxcnc-test [--board] [pytest args] only the LinuxCNC suite (component in LinuxCNC 2.9), on
@@ -83,6 +86,7 @@ fn main() -> ExitCode {
         Some("lint") => python_lint(),
         Some("interop") => interop(rest),
         Some("host") => host_tests(rest),
+        Some("feed-check") => feed_check(rest),
         Some("linuxcnc") => linuxcnc_console(rest),
         Some("linuxcnc-test") => linuxcnc_suite(rest),
         Some("demo") => demo(rest),
@@ -112,6 +116,7 @@ fn test() -> Result<(), String> {
     cargo(&["fmt", "--manifest-path", FUZZ_MANIFEST, "--", "--check"])?;
     python_lint()?;
     cargo(&["test", "--locked"])?;
+    feed_check(&[])?;
     random_frames()?;
     host_tests(&[])?;
     wiring_check()?;
@@ -551,6 +556,31 @@ fn python_lint() -> Result<(), String> {
 
 /// The host component's unit and property tests (`host/tests`) in `target/host-venv`, made
 /// from the pinned `host/requirements.txt`.
+/// `cargo xtask feed-check`: the feed contract's exhaustive bounded check, in release mode (a
+/// few million states), then the vectors for the component's rule, whose path the host tests
+/// that follow read from `HANDWHEEL_FEED_VECTORS`.
+fn feed_check(only: &[String]) -> Result<(), String> {
+    let vectors = target_dir().join("feed-check").join("vectors.jsonl");
+    std::fs::create_dir_all(vectors.parent().unwrap_or(&target_dir()))
+        .map_err(|e| format!("cannot create {}: {e}", vectors.display()))?;
+    let path = vectors.to_string_lossy().into_owned();
+    let mut args = vec![
+        "run",
+        "--locked",
+        "--release",
+        "-q",
+        "-p",
+        "feed-check",
+        "--",
+        "--vectors",
+        path.as_str(),
+    ];
+    args.extend(only.iter().map(String::as_str));
+    cargo(&args)?;
+    env::set_var("HANDWHEEL_FEED_VECTORS", &vectors);
+    Ok(())
+}
+
 fn host_tests(pytest_args: &[String]) -> Result<(), String> {
     let root = workspace_root();
     let python = pyenv::ensure_from(

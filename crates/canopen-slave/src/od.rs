@@ -393,7 +393,9 @@ pub struct Od {
 /// `Debug` of a device several kilobytes long).
 impl core::fmt::Debug for Od {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Od").field("parts", &self.parts.len()).finish()
+        f.debug_struct("Od")
+            .field("parts", &self.parts.len())
+            .finish()
     }
 }
 

@@ -81,8 +81,7 @@ impl Record {
         let flags = bytes[6] & 0x1F;
         let valid = bytes[4] <= 5
             && matches!(bytes[5], 1 | 10 | 100)
-            && flags & (STATUS_ENABLED | STATUS_MASTER_LOST)
-                != STATUS_ENABLED | STATUS_MASTER_LOST;
+            && flags & (STATUS_ENABLED | STATUS_MASTER_LOST) != STATUS_ENABLED | STATUS_MASTER_LOST;
         valid.then(|| Self {
             position: i32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]),
             axis: bytes[4],

@@ -27,3 +27,4 @@
 pub mod bounds;
 pub mod host;
 pub mod model;
+pub mod vectors;

@@ -12,7 +12,26 @@ fn main() -> ExitCode {
     let mut failed = false;
     let started = Instant::now();
     let mut total = 0;
-    let only: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    if let Some(i) = args.iter().position(|a| a == "--vectors") {
+        let Some(path) = args.get(i + 1).cloned() else {
+            eprintln!("usage: feed-check [--vectors FILE] [setting name parts]");
+            return ExitCode::from(2);
+        };
+        args.drain(i..=i + 1);
+        let mut out = String::new();
+        for (n, b) in bounds::ALL.iter().enumerate() {
+            if (b.rule.sequence_bits, b.rule.epoch_bits) == (8, 3) {
+                feed_check::vectors::write(b, 400, 30, 0x5EED_0000 + n as u64, &mut out);
+            }
+        }
+        if let Err(e) = std::fs::write(&path, out) {
+            eprintln!("feed-check: cannot write {path}: {e}");
+            return ExitCode::FAILURE;
+        }
+        println!("feed-check: vectors for core.py in {path}");
+    }
+    let only = args;
     for bounds in bounds::ALL {
         if !only.is_empty() && !only.iter().any(|o| bounds.name.contains(o.as_str())) {
             continue;

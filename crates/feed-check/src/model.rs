@@ -14,7 +14,9 @@ use std::fmt::{self, Write as _};
 use std::hash::{Hash, Hasher};
 
 use canopen_slave::{Frame, FrameSink, Instant, MemoryStorage, NodeId, SinkFull};
-use handwheel_core::{AbLevels, Axis, DecoderConfig, LinkedWheel, LocalEdge, Multiplier, Selection};
+use handwheel_core::{
+    AbLevels, Axis, DecoderConfig, LinkedWheel, LocalEdge, Multiplier, Selection,
+};
 use handwheel_device::{HandwheelDevice, TransmitState};
 use stateright::{Model, Property};
 
@@ -216,6 +218,32 @@ pub struct World {
     used: [u8; 8],
     /// The first breach of the property, if any.
     pub violation: Option<String>,
+    /// What the host was given, in order, when recording test vectors (`None` while
+    /// checking, so that it does not tell equal states apart).
+    pub log: Option<Vec<HostEvent>>,
+}
+
+/// One event of the host's input, for the vectors `core.py` replays.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum HostEvent {
+    /// A frame handed to the host at a time (ms).
+    Frame {
+        /// Identifier.
+        id: u16,
+        /// Payload.
+        data: Vec<u8>,
+        /// When, ms.
+        at_ms: u64,
+    },
+    /// The host found its receive path empty (ms).
+    Drained(u64),
+}
+
+impl World {
+    /// The host's counts per axis (X, Y).
+    pub fn host_counts(&self) -> [i32; AXES] {
+        self.host.counts
+    }
 }
 
 impl Eq for World {}
@@ -288,6 +316,11 @@ impl FeedModel {
     /// no inhibit time, no producer heartbeat, Operational, feed enabled, and everything
     /// the device said received by the host.
     pub fn initial(&self) -> World {
+        self.initial_with(None)
+    }
+
+    /// [`FeedModel::initial`], recording the host's input in `log` if given.
+    pub fn initial_with(&self, log: Option<Vec<HostEvent>>) -> World {
         let levels = AbLevels::from_bits(0);
         let real = Real {
             device: HandwheelDevice::new(
@@ -315,6 +348,7 @@ impl FeedModel {
             },
             used: [0; 8],
             violation: None,
+            log,
         };
         self.with_device(&mut w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
         self.select(&mut w);
@@ -345,11 +379,7 @@ impl FeedModel {
 
     /// Runs `f` on the device with the transmit path as its sink, then polls it and lets it
     /// watch the transmit path.
-    fn with_device(
-        &self,
-        w: &mut World,
-        f: impl FnOnce(&mut Real, Instant, &mut dyn FrameSink),
-    ) {
+    fn with_device(&self, w: &mut World, f: impl FnOnce(&mut Real, Instant, &mut dyn FrameSink)) {
         let now = Instant::from_millis(w.now_ms);
         let mut sink = Sink {
             queue: &mut w.transmit,
@@ -427,11 +457,8 @@ impl FeedModel {
         w.truth.moves.push(Vec::new());
         w.truth.credited_upto.push(0);
         w.transmit.clear();
-        w.real.device = HandwheelDevice::new(
-            NodeId::new(NODE).expect("a valid node-ID"),
-            0x5EED,
-            storage,
-        );
+        w.real.device =
+            HandwheelDevice::new(NodeId::new(NODE).expect("a valid node-ID"), 0x5EED, storage);
         w.real.wheel = LinkedWheel::local(DecoderConfig::default(), w.real.levels);
         self.with_device(w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
         self.select(w);
@@ -470,10 +497,26 @@ impl FeedModel {
             return;
         }
         self.host_handles(w, &frame);
+        self.host_drained(w);
+    }
+
+    fn host_drained(&self, w: &mut World) {
         w.host.drained(w.now_ms);
+        let now = w.now_ms;
+        if let Some(log) = &mut w.log {
+            log.push(HostEvent::Drained(now));
+        }
     }
 
     fn host_handles(&self, w: &mut World, frame: &Wire) {
+        let now = w.now_ms;
+        if let Some(log) = &mut w.log {
+            log.push(HostEvent::Frame {
+                id: frame.id,
+                data: frame.data[..usize::from(frame.len)].to_vec(),
+                at_ms: now,
+            });
+        }
         if frame.id == HEARTBEAT && frame.len == 1 {
             w.host.heartbeat(frame.data[0]);
         } else if frame.id == TPDO1 && frame.len == 8 {
@@ -528,6 +571,25 @@ impl FeedModel {
         Ok(())
     }
 
+    fn warmed(&self, mut w: World, turns: u8) -> World {
+        for _ in 0..turns {
+            self.turn(&mut w);
+            self.pass_all(&mut w);
+            // The inhibit time (2 ms) lets the record of the next detent go.
+            w.now_ms += 2;
+        }
+        w
+    }
+
+    /// An initial state `like` (one of [`Model::init_states`]) made again with the host's
+    /// input recorded from power-on.
+    pub fn recorded(&self, like: &World) -> World {
+        let turns = like.truth.moves[0].len().saturating_sub(0) as u8;
+        let start = self.initial_with(Some(Vec::new()));
+        let base = start.truth.moves[0].len() as u8;
+        self.warmed(start, turns - base)
+    }
+
     fn spend(&self, w: &mut World, b: Budget) -> bool {
         let slot = &mut w.used[b as usize];
         if *slot >= self.budget(b) {
@@ -554,16 +616,7 @@ impl Model for FeedModel {
         self.bounds
             .warmups
             .iter()
-            .map(|&turns| {
-                let mut w = start.clone();
-                for _ in 0..turns {
-                    self.turn(&mut w);
-                    self.pass_all(&mut w);
-                    // The inhibit time (2 ms) lets the record of the next detent go.
-                    w.now_ms += 2;
-                }
-                w
-            })
+            .map(|&turns| self.warmed(start.clone(), turns))
             .collect()
     }
 
@@ -659,7 +712,7 @@ impl Model for FeedModel {
                 while let Some(frame) = w.host_backlog.pop_front() {
                     self.host_handles(&mut w, &frame);
                 }
-                w.host.drained(w.now_ms);
+                self.host_drained(&mut w);
             }
         }
         Some(w)

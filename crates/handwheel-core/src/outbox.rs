@@ -309,7 +309,11 @@ mod tests {
         out.stop();
         assert_eq!(out.held(), 0);
         assert_eq!(out.dropped(), 1);
-        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP, "a full break after the record");
+        assert_eq!(
+            out.sequence(),
+            1 + MAX_DROP_GAP,
+            "a full break after the record"
+        );
         let live = state(5, Axis::X, 1);
         assert_eq!(out.next(live), live);
     }
@@ -320,7 +324,11 @@ mod tests {
         out.stop();
         assert_eq!(out.sequence(), 0, "never started: nothing to break");
         out.start();
-        assert_eq!(out.sequence(), 0, "the first start after power-on has the boot-up");
+        assert_eq!(
+            out.sequence(),
+            0,
+            "the first start after power-on has the boot-up"
+        );
         assert!(!out.sent(state(0, Axis::X, 0)));
         out.stop();
         out.stop();
@@ -366,7 +374,11 @@ mod tests {
         assert_eq!(out.held(), 2);
         out.break_continuity();
         assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
-        assert_eq!(out.held(), 2, "a break keeps what is held: it still goes out in order");
+        assert_eq!(
+            out.held(),
+            2,
+            "a break keeps what is held: it still goes out in order"
+        );
         out.break_continuity();
         assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
     }

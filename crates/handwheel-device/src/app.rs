@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedStatus, Handwheel,
-    StopReason, UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedStatus, Handwheel, StopReason,
+    UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
 };
 
 use crate::od::{

@@ -176,7 +176,10 @@ impl<S: Storage> HandwheelDevice<S> {
             return false;
         }
         #[cfg(feature = "defmt")]
-        defmt::warn!("CAN: nothing sent for {=u64} ms: feed stopped", TRANSMIT_STALL_MS);
+        defmt::warn!(
+            "CAN: nothing sent for {=u64} ms: feed stopped",
+            TRANSMIT_STALL_MS
+        );
         let operational = self.engine.nmt_state() == NmtState::Operational;
         self.app.step_in_flight = None;
         self.app.feed_due |= wheel.with_wheel(|w| {
