@@ -6,19 +6,19 @@
 //! restart of the emulator, which is a power cycle: every boot starts from an erased page,
 //! the defaults and a full wear budget.
 
-use handwheel_device::page::{Flash, FlashError, PAGE_SIZE};
+use handwheel_device::page::{Flash, FlashError, PAGES, PAGE_SIZE};
 use handwheel_device::record::NodeSettings;
 
-/// The QEMU board's "parameter page" in RAM.
+/// The QEMU board's "parameter pages" in RAM.
 pub struct RamStorage {
-    bytes: [u8; PAGE_SIZE],
+    bytes: [[u8; PAGE_SIZE]; PAGES],
 }
 
 impl RamStorage {
     /// The erased page of a fresh boot.
     pub const fn new() -> Self {
         Self {
-            bytes: [0xFF; PAGE_SIZE],
+            bytes: [[0xFF; PAGE_SIZE]; PAGES],
         }
     }
 }
@@ -30,18 +30,19 @@ impl Default for RamStorage {
 }
 
 impl Flash for RamStorage {
-    fn page(&self) -> &[u8] {
-        &self.bytes
+    fn page(&self, page: usize) -> &[u8] {
+        self.bytes.get(page).map_or(&[], |p| &p[..])
     }
 
-    fn erase(&mut self) -> Result<(), FlashError> {
-        self.bytes.fill(0xFF);
+    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
+        self.bytes.get_mut(page).ok_or(FlashError::Page)?.fill(0xFF);
         Ok(())
     }
 
-    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+        let page = self.bytes.get_mut(page).ok_or(FlashError::Page)?;
         let end = offset.checked_add(bytes.len()).ok_or(FlashError::Program)?;
-        let dst = self.bytes.get_mut(offset..end).ok_or(FlashError::Program)?;
+        let dst = page.get_mut(offset..end).ok_or(FlashError::Program)?;
         dst.copy_from_slice(bytes);
         Ok(())
     }

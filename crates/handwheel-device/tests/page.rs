@@ -5,13 +5,15 @@
 use canopen_slave::{Instant, Storage, StorageError};
 use handwheel_core::BitRate;
 use handwheel_device::page::{
-    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGE_SIZE,
+    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGES,
+    PAGE_SIZE,
 };
 use handwheel_device::record::NodeSettings;
 use proptest::prelude::*;
 
-/// One flash page as NOR flash behaves: erase sets every bit, programming only clears bits
-/// (programming a half-word that is not erased is refused here: the page must never ask).
+/// The flash pages as NOR flash behaves: erase sets every bit of a page, programming only
+/// clears bits (programming a half-word that is not erased is refused here: the page must
+/// never ask). `bytes` holds the pages one after the other.
 #[derive(Clone, Debug)]
 struct SimFlash {
     bytes: Vec<u8>,
@@ -24,7 +26,7 @@ struct SimFlash {
 impl SimFlash {
     fn new() -> Self {
         Self {
-            bytes: vec![0xFF; PAGE_SIZE],
+            bytes: vec![0xFF; PAGES * PAGE_SIZE],
             erases: 0,
             programs: 0,
             fail: None,
@@ -33,23 +35,25 @@ impl SimFlash {
 }
 
 impl Flash for SimFlash {
-    fn page(&self) -> &[u8] {
-        &self.bytes
+    fn page(&self, page: usize) -> &[u8] {
+        &self.bytes[page * PAGE_SIZE..(page + 1) * PAGE_SIZE]
     }
 
-    fn erase(&mut self) -> Result<(), FlashError> {
+    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
         if let Some(error) = self.fail {
             return Err(error);
         }
         self.erases += 1;
-        self.bytes.fill(0xFF);
+        self.bytes[page * PAGE_SIZE..(page + 1) * PAGE_SIZE].fill(0xFF);
         Ok(())
     }
 
-    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
         if let Some(error) = self.fail {
             return Err(error);
         }
+        assert!(page < PAGES && offset + bytes.len() <= PAGE_SIZE, "inside a page");
+        let offset = page * PAGE_SIZE + offset;
         assert!(
             offset.is_multiple_of(2) && bytes.len().is_multiple_of(2),
             "half-words only"
