@@ -51,9 +51,8 @@ impl Flash for FlashStorage {
         // flash (asserted above): mapped, readable, and kept out of every linker section by
         // memory.x. They only change through the writer, which needs `&mut self`, so not
         // while this borrow lives.
-        let pages = unsafe {
-            core::slice::from_raw_parts(PAGE_ADDRESS as *const u8, PAGES * PAGE_SIZE)
-        };
+        let pages =
+            unsafe { core::slice::from_raw_parts(PAGE_ADDRESS as *const u8, PAGES * PAGE_SIZE) };
         pages
             .get(page * PAGE_SIZE..(page + 1) * PAGE_SIZE)
             .unwrap_or(&[])

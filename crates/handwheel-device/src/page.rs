@@ -5,9 +5,9 @@
 //! - **Unchanged means no write.** A store whose record (node-ID, bit rate, blob) equals the
 //!   stored one programs and erases nothing: a master may save as often as it likes.
 //! - **A log of records, erased only when full.** A changed store appends its record (layout
-//!   in [`record`]) after the last one in the active page. The handwheel's full parameter
-//!   set is a 154-byte record, so a page takes six changed stores; [`MARK_LEN`] bytes stay
-//!   free for a debt mark.
+//!   in [`record`]) after the last one in the active page's first [`RECORDS_END`] bytes. The
+//!   handwheel's full parameter set is a 154-byte record, so a page takes six changed
+//!   stores. The page's last [`MARK_SLOTS`] 16-byte slots hold debt marks.
 //! - **Never erase the only copy.** A record that does not fit moves to the other (spare)
 //!   page: it is programmed there first, one page generation newer, and only then is the
 //!   full page erased (the classic two-page EEPROM emulation). A boot takes the page of the
@@ -15,17 +15,19 @@
 //!   old state (the new record is incomplete) or the new one (it is complete), never an
 //!   older one or none: a cut inside the erase of the old page leaves it partly erased, but
 //!   older than the new page. A spare page that is not blank (a move cut off) is erased
-//!   before the move, after a debt mark in the active page has recorded that erase.
+//!   before the move, after a debt mark in a free slot of the active page has recorded that
+//!   erase (a mark cut off spoils only its own slot).
 //! - **A wear budget.** Erases are rationed by a token bucket in the form of a "generic cell
 //!   rate" debt: each erase adds [`ERASE_INTERVAL_MS`] (24 h) of debt, powered time pays it
 //!   back, and an erase that would push the debt past [`ERASE_BURST`] (8) intervals is
 //!   refused: nothing is written, [`StorageError::WearLimit`] (SDO abort 0x08000020, LSS
 //!   error 255 / 1). Every erase is preceded by an entry that carries the debt including it
-//!   (the moved record, or a debt mark), and a boot starts from the active page's last
-//!   entry, so neither a power cycle nor a power cut refills the bucket. Blank pages have
-//!   no debt. A move whose spare page needs an erase and whose active page has no room left
-//!   for a mark (only after several moves in a row cut off by power loss) is refused the
-//!   same way.
+//!   (the moved record, or a debt mark), and a boot starts from the larger of the active
+//!   page's last entry's and last mark's, so neither a power cycle nor a power cut refills
+//!   the bucket. Blank pages have no debt. A move whose spare page needs an erase while every
+//!   mark slot of the active page is used (only after [`MARK_SLOTS`] moves in a row cut off
+//!   by power loss) is refused the same way: the stored state stays, and stores that fit
+//!   still succeed.
 //!
 //! Arithmetic: a master storming changed stores gets 6 x (8 + 1) = 54 of them, then 6 per
 //! 24 h of powered time. Erases over a life of `h` powered hours are at most 8 + h / 24 (of
@@ -40,6 +42,15 @@ use canopen_slave::{Instant, Storage, StorageError};
 
 use crate::record::{self, Log, NodeSettings, Record, DEBT_MAX, MARK_LEN, RECORD_MAX};
 
+/// Debt-mark slots at the end of each page.
+pub const MARK_SLOTS: usize = 6;
+/// Bytes per mark slot: a mark and two erased bytes.
+const MARK_SLOT: usize = 16;
+/// Records go below this offset; the mark slots follow.
+pub const RECORDS_END: usize = PAGE_SIZE - MARK_SLOTS * MARK_SLOT;
+/// Erased bytes kept behind the last record, so that a walk of the records stops there.
+const RECORD_GAP: usize = 4;
+
 /// Bytes in a page.
 pub const PAGE_SIZE: usize = 1024;
 /// Pages the parameters take.
@@ -53,8 +64,10 @@ const DEBT_UNIT_SHIFT: u32 = 26;
 const INTERVAL_US: u64 = ERASE_INTERVAL_MS * 1000;
 // The largest debt must fit a record's 14-bit debt field.
 const _: () = assert!((ERASE_BURST * INTERVAL_US) >> DEBT_UNIT_SHIFT < DEBT_MAX as u64);
-// A record and a mark must fit the page, and programming goes by half-words.
-const _: () = assert!(RECORD_MAX + MARK_LEN <= PAGE_SIZE && RECORD_MAX.is_multiple_of(2));
+// Six of the handwheel's records (154 bytes) fit, a mark fits its slot, and programming
+// goes by half-words.
+const _: () = assert!(6 * 154 + RECORD_GAP <= RECORDS_END && MARK_LEN <= MARK_SLOT);
+const _: () = assert!(RECORD_MAX + RECORD_GAP <= RECORDS_END && RECORD_MAX.is_multiple_of(2));
 
 /// A failed erase or program.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -121,32 +134,69 @@ impl WearBudget {
     }
 }
 
-/// The pages as a boot reads them: which one is active (holds the stored state) and its log.
+/// The pages as a boot reads them: which one is active (holds the stored state), its log,
+/// its newest mark and its first free mark slot.
 struct View<'a> {
     active: usize,
     log: Log<'a>,
+    /// The debt and generation of the active page's newest intact mark.
+    mark: Option<(u16, u8)>,
+    /// The offset of the active page's first blank mark slot.
+    free_slot: Option<usize>,
+}
+
+impl View<'_> {
+    /// The debt a boot starts from: the larger of the last entry's and the newest mark's.
+    fn debt(&self) -> u16 {
+        let mark = self.mark.map_or(0, |(debt, _)| debt);
+        self.log.debt.unwrap_or(0).max(mark)
+    }
+
+    /// The active page's generation (0 for a page without entries).
+    fn generation(&self) -> u8 {
+        self.log
+            .generation
+            .or(self.mark.map(|(_, generation)| generation))
+            .unwrap_or(0)
+    }
+}
+
+/// One page as a boot reads it.
+fn read(page: &[u8]) -> View<'_> {
+    let mut view = View {
+        active: 0,
+        log: record::scan(page),
+        mark: None,
+        free_slot: None,
+    };
+    for at in (RECORDS_END..PAGE_SIZE).step_by(MARK_SLOT) {
+        if blank(page, at, MARK_SLOT) {
+            view.free_slot = view.free_slot.or(Some(at));
+        } else if let Some(mark) = page.get(at..).and_then(record::decode_mark) {
+            view.mark = Some(mark);
+        }
+    }
+    view
 }
 
 /// The active page: of two pages with intact entries, the one a generation newer (the other
 /// is the page a move left, erased or not); else the one with entries; else page 0.
 fn view<F: Flash>(flash: &F) -> View<'_> {
-    let first = record::scan(flash.page(0));
-    let second = record::scan(flash.page(1));
-    let newer = match (first.generation, second.generation) {
-        (Some(a), Some(b)) => b.wrapping_sub(a) % record::GENERATIONS == 1,
-        (None, Some(_)) => true,
+    let first = read(flash.page(0));
+    let mut second = read(flash.page(1));
+    let entries = |v: &View<'_>| v.log.generation.is_some() || v.mark.is_some();
+    let newer = match (entries(&first), entries(&second)) {
+        (true, true) => {
+            second.generation().wrapping_sub(first.generation()) % record::GENERATIONS == 1
+        }
+        (false, true) => true,
         _ => false,
     };
     if newer {
-        View {
-            active: 1,
-            log: second,
-        }
+        second.active = 1;
+        second
     } else {
-        View {
-            active: 0,
-            log: first,
-        }
+        first
     }
 }
 
@@ -169,7 +219,7 @@ impl<F: Flash> ParameterPage<F> {
     /// debt. Blobs are stored with the factory settings until
     /// [`ParameterPage::set_settings`].
     pub fn new(flash: F) -> Self {
-        let debt = view(&flash).log.debt.unwrap_or(0);
+        let debt = view(&flash).debt();
         Self {
             flash,
             settings: NodeSettings::DEFAULT,
@@ -190,7 +240,7 @@ impl<F: Flash> ParameterPage<F> {
 
     /// The wear debt a boot would start from now, in units of 2^26 us.
     pub fn stored_debt(&self) -> u16 {
-        view(&self.flash).log.debt.unwrap_or(0)
+        view(&self.flash).debt()
     }
 
     /// The flash, e.g. for tests that damage it.
@@ -216,7 +266,8 @@ impl<F: Flash> ParameterPage<F> {
         #[repr(align(4))]
         struct Aligned([u8; RECORD_MAX]);
         let mut buf = Aligned([0; RECORD_MAX]);
-        let View { active, log } = view(&self.flash);
+        let view = view(&self.flash);
+        let (active, log) = (view.active, view.log);
         let old = log.newest.unwrap_or(Record {
             settings: None,
             blob: &[],
@@ -230,10 +281,10 @@ impl<F: Flash> ParameterPage<F> {
             return Ok(());
         }
         let len = record::encoded_len(blob.len()).ok_or(StorageError::WriteFailed)?;
-        let generation = log.generation.unwrap_or(0);
+        let generation = view.generation();
         let page = self.flash.page(active);
-        // Room for the record and, behind it, a debt mark.
-        if blank(page, log.free, len + MARK_LEN) {
+        // Room for the record and a gap behind it, below the mark slots.
+        if log.free + len + RECORD_GAP <= RECORDS_END && blank(page, log.free, len) {
             let debt = record::debt_field(self.budget.stored(now), generation);
             record::encode(settings, blob, debt, &mut buf.0).ok_or(StorageError::WriteFailed)?;
             return self.program(active, log.free, &buf.0, len);
@@ -242,10 +293,10 @@ impl<F: Flash> ParameterPage<F> {
         // page's after the record is on the spare; both taken before anything is written.
         let spare = 1 - active;
         let spare_blank = blank(self.flash.page(spare), 0, PAGE_SIZE);
-        let mark_room = blank(page, log.free, MARK_LEN);
         let mut budget = self.budget;
         let erases = if spare_blank { 1 } else { 2 };
-        if (!spare_blank && !mark_room) || !(0..erases).all(|_| budget.take(now)) {
+        let slot = view.free_slot;
+        if (!spare_blank && slot.is_none()) || !(0..erases).all(|_| budget.take(now)) {
             return Err(StorageError::WearLimit);
         }
         self.budget = budget;
@@ -253,10 +304,10 @@ impl<F: Flash> ParameterPage<F> {
         let next = (generation + 1) % record::GENERATIONS;
         record::encode(settings, blob, record::debt_field(debt, next), &mut buf.0)
             .ok_or(StorageError::WriteFailed)?;
-        if !spare_blank {
+        if let (false, Some(slot)) = (spare_blank, slot) {
             // The mark makes the spare's erase part of the stored debt before it starts.
             let mark = record::encode_mark(record::debt_field(debt, generation));
-            self.program(active, log.free, &mark, MARK_LEN)?;
+            self.program(active, slot, &mark, MARK_LEN)?;
             self.erase(spare)?;
         }
         self.program(spare, 0, &buf.0, len)?;

@@ -23,8 +23,9 @@
 //! no room for appending (the next store erases). An erased page (all 0xFF) holds nothing.
 //!
 //! A *debt mark* is an entry of header and CRC only, node-ID 0, bit-rate code 1, length 0: it
-//! stores no state, only a newer debt (written before an erase of the other page, see
-//! `page`). Firmware before marks reads one as a damaged record and skips it.
+//! stores no state, only a newer debt (written before an erase of the other page, in slots
+//! at the page's end, see `page`). A record walk reads one as an entry without a record;
+//! firmware before marks reads one as a damaged record.
 
 use canopen_slave::NodeId;
 use handwheel_core::BitRate;
@@ -254,6 +255,16 @@ fn slot(bytes: &[u8]) -> Slot<'_> {
         _ => None,
     };
     Slot::Record(entry, len)
+}
+
+/// The debt and page generation of an intact debt mark at the start of `bytes`.
+pub fn decode_mark(bytes: &[u8]) -> Option<(u16, u8)> {
+    match slot(bytes) {
+        Slot::Record(Some(entry), MARK_LEN) if entry.record.is_none() => {
+            Some((entry.debt, entry.generation))
+        }
+        _ => None,
+    }
 }
 
 /// Reads the record at the start of `bytes`; `None` when there is no intact one.

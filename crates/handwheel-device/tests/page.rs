@@ -5,8 +5,7 @@
 use canopen_slave::{Instant, Storage, StorageError};
 use handwheel_core::BitRate;
 use handwheel_device::page::{
-    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGES,
-    PAGE_SIZE,
+    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGES, PAGE_SIZE,
 };
 use handwheel_device::record::NodeSettings;
 use proptest::prelude::*;
@@ -52,7 +51,10 @@ impl Flash for SimFlash {
         if let Some(error) = self.fail {
             return Err(error);
         }
-        assert!(page < PAGES && offset + bytes.len() <= PAGE_SIZE, "inside a page");
+        assert!(
+            page < PAGES && offset + bytes.len() <= PAGE_SIZE,
+            "inside a page"
+        );
         let offset = page * PAGE_SIZE + offset;
         assert!(
             offset.is_multiple_of(2) && bytes.len().is_multiple_of(2),
@@ -147,10 +149,39 @@ fn changed_stores_append_six_records_per_erase_until_the_budget_is_spent() {
     let mut buf = [0u8; 256];
     assert_eq!(page.load(&mut buf), 140);
     assert_eq!(&buf[..140], &last[..]);
-    // A record that still fits the page's tail needs no erase: "nothing stored" (14 bytes).
-    page.store(at_ms(accepted), &[]).unwrap();
-    assert_eq!(stored(&page), None);
+    // Six full records leave 4 of the page's 928 record bytes: even "nothing stored" (14
+    // bytes) needs a move now, and is refused.
+    assert_eq!(
+        page.store(at_ms(accepted), &[]),
+        Err(StorageError::WearLimit)
+    );
+    assert_eq!(page.flash().bytes, before);
     assert_eq!(u64::from(page.flash().erases), ERASE_BURST);
+}
+
+#[test]
+fn a_record_that_fits_needs_no_erase_even_with_the_budget_spent() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    let mut n = 0;
+    // Spend the budget, then fill the new page with five records.
+    while page.store(at_ms(0), &blob(n)).is_ok() {
+        n += 1;
+    }
+    let erases = page.flash().erases;
+    let mut page = ParameterPage::new(page.into_flash());
+    // The budget spent, the newest page holds six records: restore defaults has no room.
+    assert_eq!(page.store(at_ms(0), &[]), Err(StorageError::WearLimit));
+    // A page with room takes it without an erase: LSS settings only (14 bytes) on a page
+    // where a move just left one record.
+    let mut fresh = ParameterPage::new(SimFlash::new());
+    for i in 0..7 {
+        fresh.store(at_ms(0), &blob(i)).unwrap();
+    }
+    assert_eq!(fresh.flash().erases, 1);
+    fresh.store(at_ms(0), &[]).unwrap();
+    fresh.store_node(at_ms(0), 9, 0).unwrap();
+    assert_eq!(stored(&fresh), Some((settings(9, 0), Vec::new())));
+    assert_eq!((fresh.flash().erases, page.flash().erases), (1, erases));
 }
 
 #[test]
