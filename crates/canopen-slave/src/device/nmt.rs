@@ -92,16 +92,17 @@ impl<S: Storage> Device<S> {
             }
         }
         self.inner.comm.load_defaults(now);
-        if let Some(params) = blob.comm() {
-            for (index, sub, value) in params {
-                self.inner.comm.restore(index, sub, value, now);
-            }
-        }
+        let refused = blob
+            .comm()
+            .and_then(|params| self.inner.restore_stored(now, params, app));
         let bootup = Frame::from_parts(node.cob_id(cob::HEARTBEAT), [0; 8], 1);
         self.inner.emit(tx, bootup);
         self.inner.comm.heartbeat.restart(now);
         // The consumers start over (waiting for a first heartbeat): no loss is pending.
         self.inner.settle_heartbeat(app);
         self.set_state(now, NmtState::PreOperational, app, tx);
+        if let Some((first, count)) = refused {
+            self.report_refused_stored(first, count);
+        }
     }
 }
