@@ -27,7 +27,8 @@ Control line: the QEMU variant's stimulus commands with the same replies (`turn 
 that instant left half done as `Fpec.cut` says), `cut <n> <before|inside>` (cut the power at
 the n-th flash operation from now, 1 the next: before it starts or inside it; `cut off`
 disarms), `snapshot` (remember the parameter pages), `rollback` (the pages as remembered,
-then a power-on), `reset` (NRST), `buserr <tx> <rx>`
+then a power-on), `reload` (the pages as the `--flash` file holds them, e.g. after a test
+rewrote it, then a power-on), `reset` (NRST), `buserr <tx> <rx>`
 (transmit / receive errors seen by the node: TEC += 8 each, REC += 1 each), `busoff <ms>`
 (TEC past 255, and the bus stays faulty for ms before the automatic recovery can run),
 `hold <ms|off|on>` (the bus is taken by other traffic: the node's mailboxes wait),
@@ -339,12 +340,19 @@ class Server:
         elif name == "snapshot":
             self.snapshot = bytes(m.fpec.memory)
             ok()
-        elif name == "rollback":
-            if self.snapshot is None:
-                raise StimError("no snapshot")
+        elif name in ("rollback", "reload"):
+            if name == "rollback":
+                if self.snapshot is None:
+                    raise StimError("no snapshot")
+                pages = self.snapshot
+            else:
+                if not m.flash_file:
+                    raise StimError("no flash file")
+                with open(m.flash_file, "rb") as f:
+                    pages = f.read(len(m.fpec.memory)).ljust(len(m.fpec.memory), b"\xff")
             self.flush_log()
             m.fpec.pending = None
-            m.fpec.memory[:] = self.snapshot
+            m.fpec.memory[:] = pages
             m.save_flash()
             m.power_cut()
             ok()
