@@ -477,7 +477,8 @@ impl Comm {
             write(self, 0, 0)?;
         }
         for (&(_, sub), &value) in entries.clone() {
-            if !guarded_cob_id(index, sub) && !(mapping && sub == 0) {
+            let later = guarded_cob_id(index, sub) || (mapping && sub == 0);
+            if !later {
                 write(self, sub, value)?;
             }
         }

@@ -112,7 +112,7 @@ impl Flash for CutFlash {
     }
 
     fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
-        assert!(page < PAGES && offset % 2 == 0 && offset + bytes.len() <= PAGE_SIZE);
+        assert!(page < PAGES && offset.is_multiple_of(2) && offset + bytes.len() <= PAGE_SIZE);
         for (i, pair) in bytes.chunks_exact(2).enumerate() {
             let cut = self.start()?;
             let at = page * PAGE_SIZE + offset + 2 * i;
