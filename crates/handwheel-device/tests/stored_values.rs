@@ -66,10 +66,18 @@ fn saved_blob() -> Vec<u8> {
 
 /// A flash whose one record holds the saved blob with `changes` made, under valid CRCs.
 fn crafted(changes: &[(u16, u8, u32)]) -> CutFlash {
+    crafted_bytes(changes, &[])
+}
+
+/// [`crafted`], and bytes of the blob at given offsets set (the application section).
+fn crafted_bytes(changes: &[(u16, u8, u32)], bytes: &[(usize, u8)]) -> CutFlash {
     let mut blob = saved_blob();
     for &(index, sub, value) in changes {
         let at = slot(index, sub);
         blob[at..at + 4].copy_from_slice(&value.to_le_bytes());
+    }
+    for &(at, value) in bytes {
+        blob[at] = value;
     }
     let body = blob.len() - 2;
     let crc = crc16(&blob[..body]);
@@ -180,4 +188,24 @@ fn legitimate_moves_of_identifiers_are_restored() {
     assert_eq!(read_u32(&mut node, 0x1800, 1), 0x4000_0290);
     assert_eq!(read_u32(&mut node, 0x1801, 1), 0x4000_0391);
     assert_eq!(read_u32(&mut node, 0x1014, 0), 0xA0);
+}
+
+#[test]
+fn an_application_value_out_of_range_keeps_the_application_defaults() {
+    // The application section follows the communication section (32 parameters): version,
+    // unit-step mode, counts per detent, invert, backlog bound. Counts per detent 3 is what
+    // an SDO write of 0x2020:3 refuses.
+    let app = 4 + 4 * 32;
+    let (mut node, emcys) = boot(crafted_bytes(&[], &[(app + 2, 3)]));
+    assert_reported(&emcys, 0x2020, 3, 1);
+    assert_eq!(node.read_u16(0x2020, 3) & 0xFF, 4, "the default");
+    assert_eq!(
+        node.read_u16(0x1017, 0),
+        250,
+        "the communication parameters are restored"
+    );
+    // The application section as saved restores without a report.
+    let (mut node, emcys) = boot(crafted_bytes(&[], &[(app + 2, 2)]));
+    assert!(emcys.is_empty(), "{emcys:02x?}");
+    assert_eq!(node.read_u16(0x2020, 3) & 0xFF, 2);
 }

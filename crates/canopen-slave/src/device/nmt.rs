@@ -86,9 +86,10 @@ impl<S: Storage> Device<S> {
             self.inner.comm.emcy.reset();
             app.on_reset_application();
         }
+        let mut app_refused = None;
         if kind != Boot::ResetCommunication {
             if let Some(data) = blob.app() {
-                app.restore_application(data);
+                app_refused = app.restore_application(data).err();
             }
         }
         self.inner.comm.load_defaults(now);
@@ -101,8 +102,6 @@ impl<S: Storage> Device<S> {
         // The consumers start over (waiting for a first heartbeat): no loss is pending.
         self.inner.settle_heartbeat(app);
         self.set_state(now, NmtState::PreOperational, app, tx);
-        if let Some((first, count)) = refused {
-            self.report_refused_stored(first, count);
-        }
+        self.report_refused_stored(refused, app_refused);
     }
 }

@@ -38,12 +38,30 @@ impl<S: Storage> Inner<S> {
 }
 
 impl<S: Storage> Device<S> {
-    /// A stored value was refused at the restore: EMCY 0x6300 as an event (raised and cleared
-    /// at once), manufacturer bytes: the first refused object's index (little-endian) and
-    /// sub-index, and how many objects were refused.
-    pub(super) fn report_refused_stored(&mut self, first: Refused, count: u8) {
-        let [lo, hi] = first.index.to_le_bytes();
-        let info = [lo, hi, first.sub, count, 0];
+    /// Stored values refused at the restore (communication parameters: the first and how
+    /// many objects; the application's: the object it named): EMCY 0x6300 as an event
+    /// (raised and cleared at once), manufacturer bytes: the first refused object's index
+    /// (little-endian) and sub-index, and how many objects were refused.
+    pub(super) fn report_refused_stored(
+        &mut self,
+        comm: Option<(Refused, u8)>,
+        app: Option<(u16, u8)>,
+    ) {
+        if let Some((index, sub)) = app {
+            warn!(
+                "stored application {=u16:#06x}:{=u8} out of range: application defaults kept",
+                index, sub
+            );
+        }
+        let first = comm.map(|(r, _)| (r.index, r.sub)).or(app);
+        let Some((index, sub)) = first else {
+            return;
+        };
+        let count = comm
+            .map_or(0, |(_, n)| n)
+            .saturating_add(u8::from(app.is_some()));
+        let [lo, hi] = index.to_le_bytes();
+        let info = [lo, hi, sub, count, 0];
         if self
             .raise_error(EMCY_STORED_REFUSED, emcy::register::GENERIC, info)
             .is_ok()
