@@ -413,7 +413,6 @@ impl Comm {
         ctx: &mut WriteCtx<'_>,
         values: &[u32; STORED_LEN],
     ) -> Option<(Refused, u8)> {
-        let defaults = self.clone();
         let mut first = None;
         let mut count = 0u8;
         let mut refuse = |r: Refused| {
@@ -431,33 +430,55 @@ impl Comm {
         let mut k = 0;
         while let Some(&(index, _)) = STORED.get(k) {
             let end = k + STORED[k..].iter().take_while(|e| e.0 == index).count();
-            let snapshot = self.clone();
             let entries = STORED[k..end].iter().zip(&values[k..end]);
             if let Err(r) = self.restore_object(ctx, index, entries) {
-                *self = snapshot;
+                self.default_object(index, ctx.now);
                 refuse(r);
             }
             k = end;
         }
         // The identifiers at their defaults first: of two that clash, the changed one is
         // refused.
-        let guarded = STORED
-            .iter()
-            .zip(values)
-            .filter(|(e, _)| guarded_cob_id(e.0, e.1));
-        let unchanged = |&(&(index, sub), &value): &(&(u16, u8), &u32)| {
-            defaults.read(index, sub).ok() == Some(value)
-        };
-        let (first_pass, second_pass) = (guarded.clone().filter(unchanged), guarded);
-        for (&(index, sub), &value) in first_pass.chain(second_pass.filter(|e| !unchanged(e))) {
-            if let Err(abort) = self.write_stored(ctx, index, sub, value) {
-                refuse(Refused { index, sub, abort });
-                let default = defaults.read(index, sub).unwrap_or(COB_INVALID);
-                // Refused as well (it clashes with a restored identifier): stays invalid.
-                let _ = self.write_stored(ctx, index, sub, default);
+        for at_default in [true, false] {
+            for (&(index, sub), &value) in STORED.iter().zip(values) {
+                // Bit 30 (a TPDO's "no RTR") is not part of the identifier.
+                let same = |default: u32| (default ^ value) & !crate::tpdo::NO_RTR == 0;
+                let unchanged = self.default_value(index, sub).is_some_and(same);
+                if !guarded_cob_id(index, sub) || unchanged != at_default {
+                    continue;
+                }
+                if let Err(abort) = self.write_stored(ctx, index, sub, value) {
+                    refuse(Refused { index, sub, abort });
+                    let default = self.default_value(index, sub).unwrap_or(COB_INVALID);
+                    // Refused as well (it clashes with a restored identifier): stays invalid.
+                    let _ = self.write_stored(ctx, index, sub, default);
+                }
             }
         }
         first.map(|r| (r, count))
+    }
+
+    /// The table default of `(index, sub)` (with the node-ID added where the table says so).
+    fn default_value(&self, index: u16, sub: u8) -> Option<u32> {
+        let node = u32::from(self.node.map_or(0, NodeId::get));
+        match self.od.find(index, sub).ok()?.value() {
+            Value::Comm(v) => Some(v),
+            Value::CommPlusNodeId(v) => Some(v.wrapping_add(node)),
+            _ => None,
+        }
+    }
+
+    /// Object `index` back to its table defaults, but for its guarded COB-ID, which stays
+    /// given up until the identifiers are set.
+    fn default_object(&mut self, index: u16, now: Instant) {
+        let od = self.od;
+        for e in od.entries() {
+            if e.index() == index && !guarded_cob_id(index, e.sub()) {
+                if let Some(value) = self.default_value(index, e.sub()) {
+                    self.restore(index, e.sub(), value, now);
+                }
+            }
+        }
     }
 
     /// The stored sub-indices of one object (the guarded COB-ID left out); a mapping's count
