@@ -6,10 +6,8 @@ erase) from now, before it starts or inside it (`cut <n> <before|inside>`: a par
 page, a half-word with only some bits cleared; tools/stm32emu/periph.py), and rolls the
 parameter pages back to a snapshot between tries. After each cut the board boots from what
 the flash holds and must come up with the old or the new node-ID, bit rate and parameters,
-never the factory settings, and answer SDO. The host test
-`crates/handwheel-device/tests/power_cut.rs` tries every operation of every kind of store;
-here the LSS store that moves to the other page (the case the third hostile run lost) is cut
-at every operation, the other kinds at their first, middle and last operations.
+never the factory settings, and answer SDO: every operation of every kind of store, as the
+host test `crates/handwheel-device/tests/power_cut.rs` does with its own flash model.
 """
 
 from __future__ import annotations
@@ -132,9 +130,10 @@ def store(node: Node, kind: str) -> None:
         node.send(0x600 + node.node_id, bytes([0x23, 0x11, 0x10, 1]) + LOAD)
 
 
-def cut_tries(board: BoardProcess, node: Node, kind: str, points) -> int:
-    """Runs the store of `kind` from the snapshot once uncut (old and new states), then cut
-    at each (operation, where) of `points(ops)`; returns the cut points tried."""
+def cut_tries(board: BoardProcess, node: Node, kind: str, points, expected_ops: int) -> int:
+    """Runs the store of `kind` from the snapshot once uncut (old and new states; it takes
+    `expected_ops` flash operations), then cut at each (operation, where) of `points(ops)`;
+    returns the cut points tried."""
     board.control("snapshot")
     old = node.state()
     start = flash_ops(board)
@@ -142,7 +141,7 @@ def cut_tries(board: BoardProcess, node: Node, kind: str, points) -> int:
     store(node, kind)
     time.sleep(0.3)
     ops = flash_ops(board) - start
-    assert ops > 0, f"{kind} wrote nothing"
+    assert ops == expected_ops, f"{kind}: {ops} flash operations"
     board.control("power")
     node.booted(mark)
     new = node.state()
@@ -170,35 +169,40 @@ def prepare(node: Node, saves: int) -> None:
         node.save_heartbeat(200 + n)
 
 
-def test_an_lss_store_that_moves_survives_a_cut_at_every_flash_operation(board):
-    """Six records fill the active page; the LSS store of node-ID 42 at 250 kbit/s is
-    programmed to the other page (77 half-words), then the full page is erased: 78
-    operations, each cut before it and inside it. Every boot is node 16 at 1 Mbit/s with the
-    sixth heartbeat, or node 42 at 250 kbit/s with it; never the factory settings."""
-    with raw_bus(board) as (bus, frames):
-        node = Node(board, bus, frames)
-        node.booted(0)
-        prepare(node, 6)
-        every = lambda ops: [(n, w) for n in range(1, ops + 1) for w in ("before", "inside")]  # noqa: E731
-        tried = cut_tries(board, node, "lss", every)
-        print(f"LSS store that moves: {tried} cut points")
-        assert tried == 2 * 78
+def every(ops: int) -> list[tuple[int, str]]:
+    return [(n, w) for n in range(1, ops + 1) for w in ("before", "inside")]
 
 
-@pytest.mark.parametrize("kind,saves", [("save", 2), ("save", 6), ("load", 3), ("lss", 2)])
-def test_other_stores_survive_cuts_at_their_first_middle_and_last_operations(board, kind, saves):
+@pytest.mark.parametrize(
+    "kind,saves,dirty,ops",
+    [
+        ("lss", 6, False, 78),  # moves: 77 half-words to the other page, the full one erased
+        ("lss", 2, False, 77),  # appends
+        ("save", 2, False, 77),
+        ("save", 6, False, 78),
+        ("save", 6, True, 86),  # moves over a spare page a cut move left dirty: mark, erase
+        ("load", 3, False, 7),
+        ("load", 6, False, 8),
+    ],
+)
+def test_a_store_survives_a_cut_at_every_flash_operation(board, kind, saves, dirty, ops):
+    """Each kind of store, cut before and inside each of its flash operations. After six
+    records (a full page) a store moves: node 16 at 1 Mbit/s with the sixth heartbeat before,
+    node 42 at 250 kbit/s (LSS), heartbeat 777 (0x1010) or the defaults (0x1011) after; every
+    boot finds one of the two, never the factory settings in place of stored ones."""
     with raw_bus(board) as (bus, frames):
         node = Node(board, bus, frames)
         node.booted(0)
         prepare(node, saves)
-
-        def points(ops):
-            chosen = sorted({1, 2, ops // 2, ops - 1, ops} - {0})
-            return [(n, w) for n in chosen for w in ("before", "inside")]
-
-        tried = cut_tries(board, node, kind, points)
-        print(f"{kind} after {saves} saves: {tried} cut points")
-        assert tried >= 6
+        if dirty:
+            # A move cut inside its first half-word: the spare page is left not blank.
+            board.control("cut 1 inside")
+            mark = frames.mark()
+            store(node, "save")
+            node.booted(mark)
+        tried = cut_tries(board, node, kind, every, ops)
+        print(f"{kind} after {saves} saves{' (dirty spare)' if dirty else ''}: {tried} cut points")
+        assert tried == 2 * ops
 
 
 def test_a_stored_tpdo_cob_id_of_0x000_is_not_restored(board):

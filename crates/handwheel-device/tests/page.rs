@@ -1,11 +1,12 @@
-//! The parameter page over a simulated NOR flash page: unchanged stores write nothing,
-//! changed ones append and erase only a full page, and erases are bounded per powered time,
-//! across power cycles too.
+//! The parameter pages over simulated NOR flash pages: unchanged stores write nothing,
+//! changed ones append and erase only a full page (after moving to the other one), and
+//! erases are bounded per powered time, across power cycles too.
 
 use canopen_slave::{Instant, Storage, StorageError};
 use handwheel_core::BitRate;
 use handwheel_device::page::{
-    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGES, PAGE_SIZE,
+    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, MARK_SLOTS,
+    PAGES, PAGE_SIZE, RECORDS_END,
 };
 use handwheel_device::record::NodeSettings;
 use proptest::prelude::*;
@@ -295,6 +296,41 @@ fn a_store_cut_off_by_a_power_loss_leaves_the_previous_record() {
     page.store(at_ms(0), &blob(4)).unwrap();
     assert_eq!(page.flash().erases, 1);
     assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(4))));
+}
+
+#[test]
+fn a_spare_page_left_dirty_is_erased_after_a_debt_mark_or_the_move_is_refused() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    for n in 0..6 {
+        page.store(at_ms(0), &blob(n)).unwrap();
+    }
+    let mut flash = page.into_flash();
+    // The spare page is not blank (a move cut off by a power loss).
+    flash.bytes[PAGE_SIZE + 100] = 0x00;
+    // Every mark slot of the active page used (spoilt by cuts): no erase without a mark.
+    let mut used = flash.clone();
+    for slot in 0..MARK_SLOTS {
+        used.bytes[RECORDS_END + 16 * slot] = 0x00;
+    }
+    let mut page = ParameterPage::new(used);
+    assert_eq!(page.store(at_ms(0), &blob(9)), Err(StorageError::WearLimit));
+    assert_eq!((page.flash().erases, page.flash().programs), (0, 6 * 77));
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(5))));
+    // A free slot: the mark (7 half-words) with both erases in its debt, the spare's erase,
+    // the record on the spare page, the full page's erase.
+    let mut page = ParameterPage::new(flash);
+    page.store(at_ms(0), &blob(9)).unwrap();
+    assert_eq!(
+        (page.flash().erases, page.flash().programs),
+        (2, 6 * 77 + 7 + 77)
+    );
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(9))));
+    assert!(page.flash().page(0).iter().all(|&b| b == 0xFF));
+    let two_days = (2 * ERASE_INTERVAL_MS * 1000).div_ceil(1 << 26) as u16;
+    assert_eq!(
+        ParameterPage::new(page.into_flash()).stored_debt(),
+        two_days
+    );
 }
 
 #[test]
