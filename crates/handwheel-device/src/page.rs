@@ -25,8 +25,8 @@
 //!   (the moved record, or a debt mark), and a boot starts from the larger of the active
 //!   page's last entry's and last mark's, so neither a power cycle nor a power cut refills
 //!   the bucket. Blank pages have no debt. A move whose spare page needs an erase while every
-//!   mark slot of the active page is used (only after [`MARK_SLOTS`] moves in a row cut off
-//!   by power loss) is refused the same way: the stored state stays, and stores that fit
+//!   mark slot of the active page is used (only after [`MARK_SLOTS`] + 1 moves in a row cut
+//!   off by power loss) is refused the same way: the stored state stays, and stores that fit
 //!   still succeed.
 //!
 //! Arithmetic: a master storming changed stores gets 6 x (8 + 1) = 54 of them, then 6 per
