@@ -57,11 +57,11 @@ mod tests {
         // A second, changed record goes after the first: the first is still on the page.
         defmt::unwrap!(page.store(super::now(), &[1, 2]));
         defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[1, 2]);
-        defmt::assert_eq!(&page.flash().page()[10..15], &blob[..]);
+        defmt::assert_eq!(&page.flash().page(0)[10..15], &blob[..]);
         // Unchanged: the page stays as it is, byte for byte.
-        let before = super::crc(page.flash().page());
+        let before = super::crc(page.flash().page(0));
         defmt::unwrap!(page.store(super::now(), &[1, 2]));
-        defmt::assert_eq!(super::crc(page.flash().page()), before);
+        defmt::assert_eq!(super::crc(page.flash().page(0)), before);
         // A power cycle finds the newest.
         let page = DeviceStorage::new(page.into_flash());
         defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[1, 2]);
@@ -110,7 +110,7 @@ mod tests {
         defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[0x55, 0x55, 0x55, 0x55]);
         // Leave the board with nothing stored: it boots with its defaults.
         let mut flash = page.into_flash();
-        defmt::unwrap!(flash.erase());
+        super::erase_both(&mut flash);
         state.flash = Some(flash);
     }
 }
@@ -118,12 +118,18 @@ mod tests {
 use canopen_slave::Instant;
 use handwheel_firmware::storage::DeviceStorage;
 
-/// The page over the freshly erased flash page (taken from `state`).
+/// The pages over the freshly erased flash pages (taken from `state`).
 fn erased_page(state: &mut tests::State) -> DeviceStorage {
-    use handwheel_firmware::storage::Flash;
     let mut flash = defmt::unwrap!(state.flash.take());
-    defmt::unwrap!(flash.erase());
+    erase_both(&mut flash);
     DeviceStorage::new(flash)
+}
+
+/// Erases both parameter pages: records go to the first.
+fn erase_both(flash: &mut handwheel_firmware::storage::FlashStorage) {
+    use handwheel_firmware::storage::Flash;
+    defmt::unwrap!(flash.erase(0));
+    defmt::unwrap!(flash.erase(1));
 }
 
 /// Gives the flash back to `state` for the next test.

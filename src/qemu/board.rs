@@ -5,6 +5,7 @@
 use crate::pac::{self, Interrupt};
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
+use handwheel_device::page::{PAGES, PAGE_SIZE};
 
 use super::{
     sim,
@@ -73,7 +74,9 @@ pub fn init(dp: pac::Peripherals) -> Board {
         dip: 0,
         leds: Leds { _private: () },
         can,
-        storage: RamStorage::new(),
+        storage: RamStorage::new(defmt::unwrap!(cortex_m::singleton!(
+            : [[u8; PAGE_SIZE]; PAGES] = [[0xFF; PAGE_SIZE]; PAGES]
+        ))),
         watchdog: watchdog::Watchdog::new(),
         reset_cause: ResetCause::PowerOn,
         unique_id: UNIQUE_ID,

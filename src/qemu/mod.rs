@@ -12,7 +12,7 @@
 //!   with the methods the CAN tasks call on the bxCAN port.
 //! - [`stimulus`]: the test command line on USART2 that turns the simulated wheel (edge by
 //!   edge through the EXTI9_5 task) and sets the simulated switch lines.
-//! - [`storage`]: the parameter page in RAM (the board's `ParameterPage` over 1 KiB of RAM).
+//! - [`storage`]: the parameter pages in RAM (the board's `ParameterPage` over 2 KiB of RAM).
 //! - [`sim`]: the simulated input lines shared by `stimulus` and `board`.
 //! - [`usart`]: the few USART registers the transports need.
 //!

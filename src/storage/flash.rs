@@ -1,4 +1,4 @@
-//! The parameter page in flash: the last 1 KiB page of the STM32F103C8, erased and
+//! The parameter pages in flash: the last two 1 KiB pages of the STM32F103C8, erased and
 //! programmed with the HAL's flash writer for `handwheel_device::page`, which decides what
 //! to write and when.
 //!
@@ -7,18 +7,21 @@
 //! back what it wrote (verification on), and locks the controller again on every path
 //! (RM0008, "Flash memory programming").
 
-use handwheel_device::page::{Flash, FlashError, PAGE_SIZE};
+use handwheel_device::page::{Flash, FlashError, PAGES, PAGE_SIZE};
 use stm32f1xx_hal::flash::{self, FlashSize, SectorSize};
 
 /// Start of the main flash memory.
 const FLASH_START: u32 = flash::FLASH_START;
-/// Offset of the parameter page from the start of flash: the last 1 KiB page of the
-/// 64 KiB part. `memory.x` keeps the linker out of it (its STORAGE region).
-pub const PAGE_OFFSET: u32 = 63 * 1024;
-/// Absolute address of the parameter page.
+/// Offset of the first parameter page from the start of flash: the last two 1 KiB pages of
+/// the 64 KiB part (62 and 63) are the parameters'. `memory.x` keeps the linker out of them
+/// (its STORAGE region).
+pub const PAGE_OFFSET: u32 = 62 * 1024;
+/// Absolute address of the first parameter page.
 pub const PAGE_ADDRESS: u32 = FLASH_START + PAGE_OFFSET;
+// Both pages must lie inside the 64 KiB part.
+const _: () = assert!(PAGE_OFFSET as usize + PAGES * PAGE_SIZE == 64 * 1024);
 
-/// The parameter page, owning the flash controller (the HAL's constrained FLASH).
+/// The parameter pages, owning the flash controller (the HAL's constrained FLASH).
 pub struct FlashStorage {
     flash: flash::Parts,
 }
@@ -40,19 +43,25 @@ impl FlashStorage {
 }
 
 impl Flash for FlashStorage {
-    fn page(&self) -> &[u8] {
+    fn page(&self, page: usize) -> &[u8] {
         // A read of memory, not of a register: the HAL's `FlashWriter::read` gives the same
         // slice but borrows the controller mutably, which a shared read of the page does not
         // need.
-        // SAFETY: PAGE_ADDRESS..+PAGE_SIZE is the last page of the 64 KiB flash: mapped,
-        // readable, and kept out of every linker section by memory.x. It only changes
-        // through the writer, which needs `&mut self`, so not while this borrow lives.
-        unsafe { core::slice::from_raw_parts(PAGE_ADDRESS as *const u8, PAGE_SIZE) }
+        // SAFETY: PAGE_ADDRESS..+PAGES * PAGE_SIZE are the last two pages of the 64 KiB
+        // flash (asserted above): mapped, readable, and kept out of every linker section by
+        // memory.x. They only change through the writer, which needs `&mut self`, so not
+        // while this borrow lives.
+        let pages =
+            unsafe { core::slice::from_raw_parts(PAGE_ADDRESS as *const u8, PAGES * PAGE_SIZE) };
+        pages
+            .get(page * PAGE_SIZE..(page + 1) * PAGE_SIZE)
+            .unwrap_or(&[])
     }
 
-    fn erase(&mut self) -> Result<(), FlashError> {
+    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
+        let offset = page_offset(page)?;
         self.writer()
-            .page_erase(PAGE_OFFSET)
+            .page_erase(offset)
             .map_err(|error| match error {
                 flash::Error::UnlockError | flash::Error::LockError => FlashError::Controller,
                 _ => FlashError::Erase,
@@ -61,15 +70,25 @@ impl Flash for FlashStorage {
 
     /// Programs `bytes` (an even number: the writer takes half-words) at `offset` of the
     /// page; fails without writing past the page's end.
-    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+        let start = page_offset(page)?;
         if offset > PAGE_SIZE || bytes.len() > PAGE_SIZE - offset {
             return Err(FlashError::Program);
         }
         // `offset` is at most PAGE_SIZE, so this cannot overflow.
-        let at = PAGE_OFFSET + offset as u32;
+        let at = start + offset as u32;
         self.writer().write(at, bytes).map_err(|error| match error {
             flash::Error::UnlockError | flash::Error::LockError => FlashError::Controller,
             _ => FlashError::Program,
         })
     }
+}
+
+/// The offset of parameter page `page` from the start of flash.
+fn page_offset(page: usize) -> Result<u32, FlashError> {
+    if page >= PAGES {
+        return Err(FlashError::Page);
+    }
+    // Below PAGES, so the product is at most 1 KiB.
+    Ok(PAGE_OFFSET + (page * PAGE_SIZE) as u32)
 }

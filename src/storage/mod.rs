@@ -1,18 +1,19 @@
 //! Non-volatile parameters (0x1010 store, 0x1011 restore, LSS store).
 //!
 //! What is written, and when, is `handwheel_device::page`: a log of records (layout in
-//! [`record`]: node-ID, bit rate and the device's parameter blob under a CRC-32) in one page,
-//! nothing written when nothing changed, the page erased only when full and at most as often
-//! as its wear budget allows (8 erases at once, then one per 24 h of powered time; refused:
-//! SDO abort 0x08000020). The newest intact record is the stored state; an empty or corrupt
-//! page reads as nothing stored, so the device starts with its defaults.
+//! [`record`]: node-ID, bit rate and the device's parameter blob under a CRC-32) over two
+//! pages, nothing written when nothing changed, a full page erased only after the newest
+//! record was programmed to the other one, and at most as often as the wear budget allows
+//! (8 erases at once, then one per 24 h of powered time; refused: SDO abort 0x08000020). The
+//! newest intact record is the stored state; empty or corrupt pages read as nothing stored,
+//! so the device starts with its defaults.
 //!
-//! On the board the page is the last flash page (`flash`: erase and program). While flash
+//! On the board the pages are the last two flash pages (`flash`: erase and program). While flash
 //! is erased or programmed, the CPU stalls on every instruction fetch from flash, interrupts
 //! included: an erase (20-40 ms) would hold off the wheel's EXTI too, so the device refuses
 //! every store while the feed is enabled (0x08000022, `HandwheelDevice`'s application).
 //!
-//! The QEMU variant keeps the page in RAM (`crate::qemu::storage`): it survives NMT resets,
+//! The QEMU variant keeps the pages in RAM (`crate::qemu::storage`): they survive NMT resets,
 //! not a restart of the emulator.
 
 #[cfg(not(feature = "qemu"))]

@@ -1,8 +1,11 @@
 """The emulated board in real time: `machine.Machine` paced against the wall clock, its CAN
 bus on an SLCAN TCP port and its pins on a control TCP port, the defmt log (RTT up-channel
-0) written to stdout as raw bytes for `defmt-print` (or to a file).
+0) written to stdout as raw bytes for `defmt-print` (or to a file), or with `--defmt-print`
+decoded by a `defmt-print` the server runs itself (its output on stderr) and restarts at
+every power cut, so that a log frame the cut broke never reaches the next boot's decoder.
 
     python server.py --elf ELF --can-port P --stim-port Q [--flash FILE] [--dip N]
+        [--defmt-print PATH] [--cut-seed N]
 
 Like `cargo xtask qemu`, the CPU starts only once a client is on the CAN port, so the
 boot-up frame is the first thing the master reads. The control port listens at once.
@@ -20,7 +23,12 @@ runs at whatever the node's BTR gives), `V`/`N`/`F` report; `t`/`r` frames are p
 Control line: the QEMU variant's stimulus commands with the same replies (`turn <n>`,
 `ab <0..3>`, `axis <off|x|y|z|w|v>`, `mult <1|10|100>`; `ok` or `err <reason>`), plus:
 `dip <0..255>` (switch n on = bit n-1, read by the firmware at its next reset), `power`
-(power cycle: SRAM lost, the parameter page kept), `reset` (NRST), `buserr <tx> <rx>`
+(power cut and power-on: SRAM lost, the parameter pages kept, a flash operation running at
+that instant left half done as `Fpec.cut` says), `cut <n> <before|inside>` (cut the power at
+the n-th flash operation from now, 1 the next: before it starts or inside it; `cut off`
+disarms), `snapshot` (remember the parameter pages), `rollback` (the pages as remembered,
+then a power-on), `reload` (the pages as the `--flash` file holds them, e.g. after a test
+rewrote it, then a power-on), `reset` (NRST), `buserr <tx> <rx>`
 (transmit / receive errors seen by the node: TEC += 8 each, REC += 1 each), `busoff <ms>`
 (TEC past 255, and the bus stays faulty for ms before the automatic recovery can run),
 `hold <ms|off|on>` (the bus is taken by other traffic: the node's mailboxes wait),
@@ -36,6 +44,7 @@ from __future__ import annotations
 import argparse
 import selectors
 import socket
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -63,10 +72,58 @@ class Client:
             pass
 
 
+class Decoder:
+    """`defmt-print -e ELF` fed through a pipe, its output on this process's stderr, started
+    anew at every power cut (`restart`). A decoder that exits is restarted too: the board
+    never dies of a broken log pipe."""
+
+    def __init__(self, command: list[str]) -> None:
+        self.command = command
+        self.proc: subprocess.Popen | None = None
+        self.restarts = 0
+        self._start()
+
+    def _start(self) -> None:
+        self.proc = subprocess.Popen(self.command, stdin=subprocess.PIPE, stdout=sys.stderr)
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.proc.stdin.write(data)
+        except (BrokenPipeError, ValueError):
+            self.restart()
+
+    def flush(self) -> None:
+        try:
+            self.proc.stdin.flush()
+        except (BrokenPipeError, ValueError):
+            self.restart()
+
+    def restart(self) -> None:
+        """Ends the running decoder (it sees the end of its stream) and starts another."""
+        self.close()
+        self.restarts += 1
+        self._start()
+
+    def close(self) -> None:
+        try:
+            self.proc.stdin.close()
+        except (BrokenPipeError, ValueError):
+            pass
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
 class Server:
     def __init__(self, m: machine_mod.Machine, can_port: int, stim_port: int, log_out) -> None:
         self.m = m
         self.log_out = log_out
+        self.log_broken = False
+        self.snapshot: bytes | None = None
+        m.on_reset = self._on_reset
+        m.on_power_off = self.flush_log
         self.sel = selectors.DefaultSelector()
         self.can_listener = self._listen(can_port, "can-listen")
         self.stim_listener = self._listen(stim_port, "stim-listen")
@@ -265,7 +322,39 @@ class Server:
             m.set_dip(one(0, 255))
             ok()
         elif name == "power":
-            m.power_on()
+            self.flush_log()
+            m.power_cut()
+            ok()
+        elif name == "cut":
+            if args == ["off"]:
+                m.fpec.armed = None
+                ok()
+                return
+            if len(args) != 2 or not args[0].isdigit() or args[1] not in ("before", "inside"):
+                raise StimError("usage: cut <n> <before|inside> | cut off")
+            n = int(args[0])
+            if not 1 <= n <= 100_000:
+                raise StimError("out of range")
+            m.fpec.arm(n, args[1] == "inside")
+            ok()
+        elif name == "snapshot":
+            self.snapshot = bytes(m.fpec.memory)
+            ok()
+        elif name in ("rollback", "reload"):
+            if name == "rollback":
+                if self.snapshot is None:
+                    raise StimError("no snapshot")
+                pages = self.snapshot
+            else:
+                if not m.flash_file:
+                    raise StimError("no flash file")
+                with open(m.flash_file, "rb") as f:
+                    pages = f.read(len(m.fpec.memory)).ljust(len(m.fpec.memory), b"\xff")
+            self.flush_log()
+            m.fpec.pending = None
+            m.fpec.memory[:] = pages
+            m.save_flash()
+            m.power_cut()
             ok()
         elif name == "reset":
             m.pin_reset()
@@ -352,6 +441,9 @@ class Server:
             "feeds": m.iwdg.feeds,
             "erases": m.fpec.erases,
             "programs": m.fpec.programs,
+            "flashops": m.fpec.operations,
+            "cuts": m.fpec.cuts,
+            "armed": "-" if m.fpec.armed is None else m.fpec.armed[0] - m.fpec.operations,
             "locked": int(m.core.locked_up),
             "faults": m.core.faults,
             "fault_addr": "-" if m.core.fault_address is None else f"{m.core.fault_address:#010x}",
@@ -365,9 +457,21 @@ class Server:
 
     def flush_log(self) -> None:
         data = self.m.rtt_read()
-        if data:
+        if not data or self.log_broken or self.log_out is None:
+            return
+        try:
             self.log_out.write(data)
             self.log_out.flush()
+        except (BrokenPipeError, ValueError):
+            # The reader of stdout is gone (a decoder that gave up): the board runs on.
+            self.log_broken = True
+
+    def _on_reset(self, cause: str) -> None:
+        """A reset starts a new log stream (the firmware sets RTT up again), which a frame
+        cut off by it would garble: a decoder of ours starts anew with it."""
+        if isinstance(self.log_out, Decoder) and self.started:
+            self.flush_log()
+            self.log_out.restart()
 
     def serve(self) -> None:
         while not self.started:
@@ -402,10 +506,17 @@ def main() -> int:
     parser.add_argument("--flash", help="file holding the parameter page across runs")
     parser.add_argument("--dip", type=int, default=0)
     parser.add_argument("--log", help="write the raw defmt stream here instead of stdout")
+    parser.add_argument("--defmt-print", help="decode the log with this defmt-print (stderr)")
+    parser.add_argument("--cut-seed", type=int, default=1, help="seed of half-done flash ops")
     args = parser.parse_args()
-    m = machine_mod.Machine(args.elf, args.flash)
+    m = machine_mod.Machine(args.elf, args.flash, cut_seed=args.cut_seed)
     m.set_dip(args.dip)
-    out = open(args.log, "wb") if args.log else sys.stdout.buffer
+    if args.log:
+        out = open(args.log, "wb")
+    elif args.defmt_print:
+        out = Decoder([args.defmt_print, "-e", args.elf])
+    else:
+        out = sys.stdout.buffer
     server = Server(m, args.can_port, args.stim_port, out)
     print(
         f"board-emu: SLCAN on 127.0.0.1:{args.can_port}, control on 127.0.0.1:{args.stim_port}",

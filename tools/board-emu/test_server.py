@@ -75,3 +75,73 @@ def test_hold_and_dominant_take_ms_on_or_off(board):
         command(s, client, f"{name} 60001")
     assert client.sent == b"ok\nok\nok\nerr out of range\n" * 2
     assert s.status()["mode"] == "sleep", "the CPU has not run: bxCAN as out of reset"
+
+
+SAVE = (0x65766173).to_bytes(4, "little")
+
+
+def sdo_saves(m, ms: int) -> None:
+    """0x1017 = ms, then 0x1010:1 "save", as the master sends them (answers not awaited)."""
+    m.deliver(periph_frame(0x610, bytes([0x2B, 0x17, 0x10, 0]) + ms.to_bytes(2, "little")))
+    m.run_ms(20)
+    m.deliver(periph_frame(0x610, bytes([0x23, 0x10, 0x10, 1]) + SAVE))
+    m.run_ms(40)
+
+
+def periph_frame(can_id: int, data: bytes):
+    from stm32emu import periph
+
+    return periph.Frame(can_id, data.ljust(8, b"\0"))
+
+
+def test_cut_inside_a_flash_operation_reboots_with_the_old_record(board):
+    """`cut 1 inside`: the next half-word program is left half done and the power fails;
+    the board boots again (a second power-on) and the store before is what it finds."""
+    m, s = board
+    m.run_ms(50)
+    sdo_saves(m, 250)
+    client = Client()
+    command(s, client, "cut 1 inside")
+    assert s.status()["armed"] == 1
+    sdo_saves(m, 300)
+    m.run_ms(50)
+    status = s.status()
+    assert (status["cuts"], status["resets"], status["boot"]) == (1, 2, "PowerOn")
+    assert status["armed"] == "-"
+    before = len(m.transmitted)
+    m.deliver(periph_frame(0x610, bytes([0x40, 0x17, 0x10, 0])))
+    m.run_ms(20)
+    replies = [f.data for _, f in m.transmitted[before:] if f.can_id == 0x590]
+    assert int.from_bytes(replies[0][4:6], "little") == 250
+    command(s, client, "cut 0 before")
+    command(s, client, "cut off")
+    assert client.sent == b"ok\nerr out of range\nok\n"
+
+
+def test_power_never_kills_the_board_when_its_decoder_exits(board):
+    """A log decoder that exits (as defmt-print did on a frame cut by a power cycle) is
+    started again; `power` and the log go on."""
+    m, s = board
+    s.log_out = server.Decoder(["true"])  # exits at once: every write meets a closed pipe
+    s.started = True
+    client = Client()
+    for _ in range(3):
+        m.run_ms(30)
+        command(s, client, "power")
+        s.flush_log()
+    assert client.sent == b"ok\n" * 3
+    assert s.log_out.restarts >= 3 and m.stats.resets[-1].endswith("PowerOn")
+    s.log_out.close()
+
+
+def test_snapshot_and_rollback_restore_the_pages(board):
+    m, s = board
+    m.run_ms(50)
+    client = Client()
+    command(s, client, "rollback")
+    command(s, client, "snapshot")
+    sdo_saves(m, 250)
+    assert bytes(m.fpec.memory) != b"\xff" * 2048
+    command(s, client, "rollback")
+    assert bytes(m.fpec.memory) == b"\xff" * 2048
+    assert client.sent == b"err no snapshot\nok\nok\n"

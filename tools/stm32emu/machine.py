@@ -5,9 +5,10 @@ moves emulated time on; the board emulator (`tools/board-emu/server.py`) paces i
 connects it to TCP, the machine benchmark (`tools/machine-bench`) measures it.
 
 Memory map: flash, its parameter page and SRAM as the linker script gives them (`image.py`
-reads the root `memory.x`: 63 KiB FLASH at 0x0800_0000, the 1 KiB STORAGE page after it,
-20 KiB RAM at 0x2000_0000). The parameter page is served by the FPEC model and persisted in
-a file; the rest of the flash is read/execute only, so a stray write faults, as does an
+reads the root `memory.x`: 62 KiB FLASH at 0x0800_0000, the 2 KiB STORAGE pages after it,
+20 KiB RAM at 0x2000_0000). The parameter pages are served by the FPEC model and persisted
+in a file (every erase and program at once; `power_cut` leaves a running one half done); the
+rest of the flash is read/execute only, so a stray write faults, as does an
 access below RAM (a stack that overflows under flip-link's layout; `Core.faults`). The
 chip's own regions (RM0008 3.3, figure 2): the system memory with the unique device ID
 (RM0008 30.2) and the flash size register (30.1), the peripherals at 0x4000_0000 with their
@@ -71,7 +72,11 @@ class Machine:
     parameter page across power cycles (None: kept in memory only)."""
 
     def __init__(
-        self, elf: str | Image, flash_file: str | None = None, unique_id: bytes | None = None
+        self,
+        elf: str | Image,
+        flash_file: str | None = None,
+        unique_id: bytes | None = None,
+        cut_seed: int = 1,
     ):
         self.image = elf if isinstance(elf, Image) else Image(elf)
         memory = self.image.memory
@@ -92,7 +97,8 @@ class Machine:
             stored_page[: len(stored)] = stored
         for address, data in self.image.segments:
             uc.mem_write(address, data)
-        self.fpec = periph.Fpec(page.origin, stored_page)
+        self.fpec = periph.Fpec(page.origin, stored_page, cut_seed)
+        self.fpec.on_change = self.save_flash
         uc.mmio_map(page.origin, page.length, self._page_read, None, self._page_write, None)
         uc.mem_map(self.ram.origin, self.ram.length)
         uc.mem_map(SYSTEM_MEMORY, 0x1000, UC_PROT_READ)
@@ -140,6 +146,7 @@ class Machine:
         self.transmitted: list[tuple[float, periph.Frame]] = []
         self.on_frame = lambda frame: None  # frames the node put on the bus
         self.on_reset = lambda cause: None
+        self.on_power_off = lambda: None  # the last moment SRAM can be read (the RTT log)
         self.events: list[tuple[int, int, object]] = []  # (cycle, seq, callback)
         self.host_frames: list[tuple[int, periph.Frame]] = []  # (arrival cycle, frame)
         self.host_bus_free = 0
@@ -238,7 +245,6 @@ class Machine:
 
     def _page_write(self, _uc, offset, size, value, _user):
         self.fpec.write_memory(offset, size, value, self.now)
-        self.save_flash()
 
     def save_flash(self) -> None:
         if self.flash_file:
@@ -366,8 +372,17 @@ class Machine:
 
     # -- resets ------------------------------------------------------------------------------
 
+    def power_cut(self) -> bool:
+        """The supply fails and comes back: a flash operation still running is left half
+        done (`Fpec.cut`), then a power-on reset. Returns whether an operation was cut."""
+        half = self.fpec.cut(self.now)
+        self.save_flash()
+        self.power_on()
+        return half
+
     def power_on(self) -> None:
         """Power-on reset: SRAM content lost, PORRSTF and PINRSTF (RM0008 7.1.2)."""
+        self.on_power_off()
         self.uc.mem_write(self.ram.origin, bytes(self.ram.length))
         self.rcc.csr_flags = periph.Rcc.PORRSTF | periph.Rcc.PINRSTF
         self._reset("PowerOn")
@@ -495,6 +510,10 @@ class Machine:
             self.update_irqs()
         self._advance_to(self.now + elapsed)
         stall = self.fpec.take_stall()
+        if self.fpec.cut_requested:
+            # An armed cut (`Fpec.arm`): the supply fails at that operation.
+            self.power_cut()
+            return False
         if stall:
             self.stall_until = self.now + stall
         return False

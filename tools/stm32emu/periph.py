@@ -10,6 +10,7 @@ cycles from the board (`now`).
 
 from __future__ import annotations
 
+import random
 from dataclasses import dataclass
 
 CORE_HZ = 72_000_000
@@ -291,16 +292,31 @@ class Fpec:
     - SR: BSY (0), PGERR (2), WRPRTERR (4), EOP (5); PGERR, WRPRTERR and EOP are
       write-one-to-clear (4.4).
     The CPU stalls while BSY is set if it fetches from flash (PM0075 2.3.1), which it always
-    does here: the stall is charged to emulated time (`take_stall`)."""
+    does here: the stall is charged to emulated time (`take_stall`).
+
+    Power cuts (`cut(now)`, the board's power cycle): an operation still running is left
+    half done, with choices drawn from `seed` and the operation's number: a page erase has
+    a random half of its half-words erased and the rest unchanged, a half-word program only
+    some of the bits it clears. `arm(n, inside)` cuts power at the `n`-th operation from
+    now (1: the next), before it starts or inside it; the FPEC then does nothing more and
+    `cut_requested` asks the board to cut the power. `on_change` is called whenever the
+    pages' content changed (the board writes its flash file)."""
 
     ERASE_CYCLES = 20 * CORE_HZ // 1000  # 20 ms (datasheet t_ERASE 20-40 ms)
     PROGRAM_CYCLES = 52 * CORE_HZ // 1_000_000  # 52.5 us (datasheet t_prog 40-70 us)
 
-    def __init__(self, base: int, memory: bytearray) -> None:
+    def __init__(self, base: int, memory: bytearray, seed: int = 1) -> None:
         self.base = base
         self.memory = memory
+        self.seed = seed
         self.erases = 0
         self.programs = 0
+        self.operations = 0  # started: erases and half-word programs, refused ones not
+        self.cuts = 0  # power cuts that left an operation half done
+        self.armed: tuple[int, bool] | None = None  # (operation number, inside)
+        self.on_change = lambda: None
+        # The running operation: (end cycle, offset, old bytes); its result is in `memory`.
+        self.pending: tuple[int, int, bytes] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -312,6 +328,10 @@ class Fpec:
         self.sr = 0
         self.busy_until = 0
         self.stall = 0
+        self.dead = False  # power is being cut: nothing more happens
+        self.cut_requested = False
+        # A system reset other than a power cut lets a running operation finish.
+        self.pending = None
 
     def read(self, offset: int, now: int) -> int:
         if offset == 0x0C:
@@ -354,11 +374,13 @@ class Fpec:
             if self.cr & 0x40 and self.cr & 0x02:  # STRT with PER: erase the page at AR
                 self.cr &= ~0x40
                 start = (self.ar - self.base) & ~0x3FF
-                if 0 <= start < len(self.memory):
+                if not 0 <= start < len(self.memory):
+                    self.sr |= 0x10  # outside the managed pages: treated as protected
+                elif (cut_inside := self._begin()) is not None:
+                    old = bytes(self.memory[start : start + 1024])
                     self.memory[start : start + 1024] = b"\xff" * 1024
                     self.erases += 1
-                else:
-                    self.sr |= 0x10  # outside the managed pages: treated as protected
+                    self._started(now + self.ERASE_CYCLES, start, old, cut_inside)
                 self._busy(now, self.ERASE_CYCLES)
 
     def _busy(self, now: int, cycles: int) -> None:
@@ -386,10 +408,70 @@ class Fpec:
         value &= 0xFFFF
         if old != 0xFFFF and value != 0:
             self.sr |= 0x04
-        else:
+        elif (cut_inside := self._begin()) is not None:
             self.memory[offset : offset + 2] = value.to_bytes(2, "little")
             self.programs += 1
+            end = now + self.PROGRAM_CYCLES
+            self._started(end, offset, old.to_bytes(2, "little"), cut_inside)
         self._busy(now, self.PROGRAM_CYCLES)
+
+    # -- power cuts ---------------------------------------------------------------------------
+
+    def arm(self, n: int, inside: bool) -> None:
+        """Cut power at the `n`-th operation from now (1: the next), before or inside it."""
+        self.armed = (self.operations + n, inside)
+
+    def _begin(self) -> bool | None:
+        """Counts an operation: None when it must not happen (power is being cut), else
+        whether it is the armed one to cut inside."""
+        if self.dead:
+            return None
+        self.operations += 1
+        if self.armed is None or self.armed[0] != self.operations:
+            return False
+        inside = self.armed[1]
+        self.armed = None
+        self.dead = True
+        self.cut_requested = True
+        if not inside:
+            self.operations -= 1  # it never started
+            return None
+        return True
+
+    def _started(self, end: int, offset: int, old: bytes, cut_inside: bool) -> None:
+        self.pending = (end, offset, old)
+        if cut_inside:
+            self._half_done()
+        self.on_change()
+
+    def cut(self, now: int) -> bool:
+        """Power is lost at `now`: an operation still running is left half done. Returns
+        whether one was."""
+        half = self.pending is not None and now < self.pending[0]
+        if half:
+            self._half_done()
+            self.on_change()
+        self.pending = None
+        return half
+
+    def _half_done(self) -> None:
+        _, offset, old = self.pending
+        rng = random.Random(f"{self.seed}:{self.operations}")
+        new = self.memory[offset : offset + len(old)]
+        if len(old) == 2:
+            o, n = int.from_bytes(old, "little"), int.from_bytes(new, "little")
+            # Only some of the bits the program clears are cleared.
+            cleared = (o & ~n) & rng.getrandbits(16)
+            if o & ~n and cleared in (0, o & ~n):
+                cleared = (o & ~n) & ~(1 << ((o & ~n).bit_length() - 1))
+            half = o & ~cleared
+            self.memory[offset : offset + 2] = half.to_bytes(2, "little")
+        else:
+            for i in range(0, len(old), 2):
+                if rng.random() < 0.5:
+                    self.memory[offset + i : offset + i + 2] = old[i : i + 2]
+        self.pending = None
+        self.cuts += 1
 
 
 # -- bxCAN ----------------------------------------------------------------------------------

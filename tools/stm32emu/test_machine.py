@@ -53,11 +53,43 @@ def test_a_store_survives_a_power_cycle_through_the_flash_file(tmp_path):
     assert sdo(m, bytes([0x23, 0x10, 0x10, 1]) + SAVE)[0] == 0x60
     # The page is erased already: the record (154 bytes) is appended, no erase needed.
     assert m.fpec.erases == 0 and m.fpec.programs == 77
-    assert flash.read_bytes() != b"\xff" * 1024
+    assert flash.read_bytes()[:154] != b"\xff" * 154
     again = machine.Machine(str(ELF), str(flash))  # a new board from the same flash file
     again.run_ms(50)
     reply = sdo(again, bytes([0x40, 0x17, 0x10, 0, 0, 0, 0, 0]))
     assert int.from_bytes(reply[4:6], "little") == 250
+
+
+def save_heartbeat(m, ms: int) -> None:
+    assert sdo(m, bytes([0x2B, 0x17, 0x10, 0]) + ms.to_bytes(2, "little") + b"\0\0")[0] == 0x60
+    assert sdo(m, bytes([0x23, 0x10, 0x10, 1]) + SAVE)[0] == 0x60
+
+
+def test_a_power_cut_inside_the_erase_of_a_move_boots_the_moved_record(tmp_path):
+    """Six saves fill the first page; the seventh is programmed to the second page, then
+    the first is erased. Power fails in the middle of that erase (as the board's `power`
+    command does while the CPU waits for the flash): the first page is left partly erased,
+    the flash file says so at once, and the next boot finds the seventh value."""
+    flash = tmp_path / "flash.bin"
+    m = machine.Machine(str(ELF), str(flash), cut_seed=5)
+    m.run_ms(50)
+    for n in range(6):
+        save_heartbeat(m, 200 + n)
+    assert (m.fpec.erases, m.fpec.programs) == (0, 6 * 77)
+    m.deliver(periph.Frame(0x610, bytes([0x2B, 0x17, 0x10, 0, 0x2C, 0x01, 0, 0])))  # 300
+    m.run_ms(20)
+    m.deliver(periph.Frame(0x610, bytes([0x23, 0x10, 0x10, 1]) + SAVE))
+    while m.fpec.erases == 0:
+        m.step()
+    assert m.now < m.stall_until, "the CPU waits for the erase"
+    assert m.power_cut(), "an operation was running"
+    first = bytes(m.fpec.memory[:1024])
+    assert first != b"\xff" * 1024 and b"\xff\xff" in first, "partly erased"
+    assert flash.read_bytes() == bytes(m.fpec.memory)
+    m.run_ms(50)
+    assert m.stats.resets[-1].endswith("PowerOn") and len(m.stats.resets) == 2
+    reply = sdo(m, bytes([0x40, 0x17, 0x10, 0, 0, 0, 0, 0]))
+    assert int.from_bytes(reply[4:6], "little") == 300
 
 
 def test_the_watchdog_resets_a_starved_loop_and_rcc_csr_says_so():
@@ -167,6 +199,7 @@ def test_the_memory_map_is_the_linker_scripts():  # image.py, RM0008 30.1
     m = machine.Machine(str(ELF))
     memory = m.image.memory
     assert m.fpec.base == memory.storage.origin and len(m.fpec.memory) == memory.storage.length
+    assert len(m.fpec.memory) == 2048, "two parameter pages"
     size = int.from_bytes(m.uc.mem_read(machine.FLASH_SIZE_REGISTER, 2), "little")
     assert size == (memory.flash_end - memory.flash_base) // 1024 == 64
     start, data = m.image.segments[0]

@@ -173,6 +173,82 @@ def test_fpec_locked_ignores_programming():  # PM0075 4.5 LOCK
     assert f.memory[:2] == b"\xff\xff"
 
 
+def erasing(seed=1, fill=b"\x00"):
+    """An unlocked FPEC over two pages of `fill`, PER set and AR on the second page."""
+    f = Fpec(0x0800_F800, bytearray(fill * 2048), seed)
+    f.write(0x04, periph.FLASH_KEY1, ALL, 0)
+    f.write(0x04, periph.FLASH_KEY2, ALL, 0)
+    f.write(0x10, 0x02, ALL, 0)
+    f.write(0x14, 0x0800_FC00, ALL, 0)
+    return f
+
+
+def test_fpec_power_cut_inside_an_erase_leaves_a_seeded_part_erased():
+    changes = []
+    f = erasing(seed=7)
+    f.on_change = lambda: changes.append(bytes(f.memory))
+    f.write(0x10, 0x42, ALL, 1000)  # STRT at cycle 1000
+    assert changes == [b"\x00" * 1024 + b"\xff" * 1024], "written through at once"
+    assert f.cut(1000 + Fpec.ERASE_CYCLES // 2)
+    page = bytes(f.memory[1024:])
+    halves = [page[i : i + 2] for i in range(0, 1024, 2)]
+    assert set(halves) == {b"\x00\x00", b"\xff\xff"}, "erased or unchanged half-words"
+    assert 150 < halves.count(b"\xff\xff") < 362
+    assert f.memory[:1024] == b"\x00" * 1024, "the other page is untouched"
+    assert changes[-1] == bytes(f.memory) and f.cuts == 1
+    # The same seed cuts the same way; another seed another way.
+    again = erasing(seed=7)
+    again.write(0x10, 0x42, ALL, 1000)
+    again.cut(1001)
+    other = erasing(seed=8)
+    other.write(0x10, 0x42, ALL, 1000)
+    other.cut(1001)
+    assert again.memory == f.memory and other.memory != f.memory
+
+
+def test_fpec_power_cut_after_an_operation_changes_nothing():
+    f = erasing()
+    f.write(0x10, 0x42, ALL, 1000)
+    assert not f.cut(1000 + Fpec.ERASE_CYCLES)
+    assert f.memory[1024:] == b"\xff" * 1024 and f.cuts == 0
+
+
+def test_fpec_power_cut_inside_a_program_clears_only_some_bits():
+    f = unlocked_fpec()
+    f.write(0x10, 0x01, ALL, 0)  # PG
+    f.write_memory(0, 2, 0x0000, 500)
+    assert f.cut(501)
+    value = f.read_memory(0, 2)
+    assert value not in (0x0000, 0xFFFF), hex(value)
+    # What is left may still be programmed to 0x0000 (NOR flash: clearing bits only).
+    f.write_memory(0, 2, 0x0000, 10_000)
+    assert f.read_memory(0, 2) == 0
+
+
+def test_fpec_armed_cut_before_an_operation_stops_the_flash():
+    f = unlocked_fpec()
+    f.write(0x10, 0x01, ALL, 0)
+    f.arm(2, inside=False)
+    f.write_memory(0, 2, 0x1234, 0)
+    assert not f.cut_requested
+    f.write_memory(2, 2, 0x5678, 0)  # the second: never starts
+    f.write_memory(4, 2, 0x9ABC, 0)  # nor anything after it
+    assert f.cut_requested and f.operations == 1
+    assert f.memory[:6] == b"\x34\x12\xff\xff\xff\xff"
+    f.reset()  # the power-on after the cut
+    assert not f.dead and not f.cut_requested
+
+
+def test_fpec_armed_cut_inside_an_erase_leaves_it_half_done():
+    f = erasing(seed=3)
+    f.arm(1, inside=True)
+    f.write(0x10, 0x42, ALL, 0)
+    assert f.cut_requested and f.cuts == 1 and f.operations == 1
+    page = bytes(f.memory[1024:])
+    assert b"\xff\xff" in page and b"\x00\x00" in page
+    assert not f.cut(1), "nothing left running"
+
+
 # -- bxCAN (RM0008 24) ---------------------------------------------------------------------
 
 

@@ -6,7 +6,9 @@
 //! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N] [--image NAME]`
 //! runs it in the foreground: SLCAN on P (the CPU starts when the first client connects),
 //! the control line on Q, the firmware's RTT defmt stream decoded by `defmt-print` on
-//! stderr. `--flash` keeps the parameter page in FILE across runs (default:
+//! stderr (the server runs the decoder and starts it anew at every reset, so that a log
+//! frame cut off by a power cut never stops the log). `--flash` keeps the parameter pages
+//! in FILE across runs (default:
 //! `target/board-emu/flash.bin`). `--image stack-overflow` runs the test build that
 //! overflows its stack on purpose (feature `stack-overflow-test`) instead of the release
 //! image.
@@ -106,13 +108,14 @@ pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
     pyenv::emu_python(root, target_dir)
 }
 
-/// The emulator's command line for `elf`.
+/// The emulator's command line for `elf`, its log decoded by `defmt_print`.
 pub fn command(
     python: &Path,
     root: &Path,
     elf: &Path,
     args: &Args,
     default_flash: &Path,
+    defmt_print: &Path,
 ) -> Command {
     let mut cmd = Command::new(python);
     cmd.arg(root.join(PACKAGE).join("server.py"))
@@ -123,7 +126,9 @@ pub fn command(
         .arg("--stim-port")
         .arg(args.ports.stim.to_string())
         .arg("--flash")
-        .arg(args.flash.as_deref().unwrap_or(default_flash));
+        .arg(args.flash.as_deref().unwrap_or(default_flash))
+        .arg("--defmt-print")
+        .arg(defmt_print);
     if let Some(dip) = args.dip {
         cmd.arg("--dip").arg(dip.to_string());
     }

@@ -114,10 +114,11 @@ impl Application for App {
         1
     }
 
-    fn restore_application(&mut self, data: &[u8]) {
+    fn restore_application(&mut self, data: &[u8]) -> Result<(), (u16, u8)> {
         if let [flag] = *data {
             self.flag = flag;
         }
+        Ok(())
     }
 }
 

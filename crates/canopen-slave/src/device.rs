@@ -91,8 +91,12 @@ pub trait Application {
     }
 
     /// Applies stored application parameters, at start-up and after reset node. Not called
-    /// when none are stored.
-    fn restore_application(&mut self, _data: &[u8]) {}
+    /// when none are stored. `Err((index, sub))` names a stored value the application's
+    /// checked write of that object would refuse: the application keeps its defaults, and
+    /// the engine reports it as it reports a refused communication parameter (EMCY 0x6300).
+    fn restore_application(&mut self, _data: &[u8]) -> Result<(), (u16, u8)> {
+        Ok(())
+    }
 
     /// Whether the parameter memory may be written now. Asked before every 0x1010 save,
     /// 0x1011 restore and LSS "store configuration": writing flash stalls the CPU (a page

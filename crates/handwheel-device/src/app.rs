@@ -50,24 +50,40 @@ impl WheelParameters {
     }
 
     /// `None` for a blob of another version or with any field out of range.
+    #[cfg(test)]
     fn from_blob(blob: &[u8]) -> Option<Self> {
+        Self::check_blob(blob).ok()
+    }
+
+    /// The parameters of a stored blob, or the first object whose value is out of the range
+    /// its SDO write takes (0x1010:3, the application's section, for a blob of another
+    /// version or length).
+    fn check_blob(blob: &[u8]) -> Result<Self, (u16, u8)> {
         let &[version, unit_steps, cpd, invert, b0, b1] = blob else {
-            return None;
+            return Err((0x1010, 3));
         };
         let bound = u16::from_le_bytes([b0, b1]);
-        let valid = version == Self::BLOB_VERSION
-            && unit_steps <= 1
-            && invert <= 1
-            && (1..=crate::od::MAX_BACKLOG_BOUND).contains(&bound);
-        Some(Self {
+        let checks = [
+            (version == Self::BLOB_VERSION, (0x1010, 3)),
+            (unit_steps <= 1, (0x2001, 0)),
+            (CountsPerDetent::from_u8(cpd).is_some(), (0x2020, 3)),
+            (invert <= 1, (0x2020, 4)),
+            (
+                (1..=crate::od::MAX_BACKLOG_BOUND).contains(&bound),
+                (0x2040, 3),
+            ),
+        ];
+        if let Some(&(_, object)) = checks.iter().find(|(ok, _)| !ok) {
+            return Err(object);
+        }
+        Ok(Self {
             unit_steps: unit_steps == 1,
             decoder: DecoderConfig {
-                counts_per_detent: CountsPerDetent::from_u8(cpd)?,
+                counts_per_detent: CountsPerDetent::from_u8(cpd).ok_or((0x2020, 3))?,
                 invert: invert == 1,
             },
             backlog_bound: bound,
         })
-        .filter(|_| valid)
     }
 
     /// Pushes the parameters into the wheel.
@@ -233,10 +249,10 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         }
     }
 
-    fn restore_application(&mut self, data: &[u8]) {
-        if let Some(parameters) = WheelParameters::from_blob(data) {
-            self.set_parameters(parameters);
-        }
+    fn restore_application(&mut self, data: &[u8]) -> Result<(), (u16, u8)> {
+        let parameters = WheelParameters::check_blob(data)?;
+        self.set_parameters(parameters);
+        Ok(())
     }
 
     fn may_store(&mut self) -> bool {

@@ -1,35 +1,60 @@
-//! The parameter page: the engine's [`Storage`] over one erasable page (the last 1 KiB flash
-//! page on the board, a RAM page in the QEMU variant), written so that no master can wear
-//! it out.
+//! The parameter pages: the engine's [`Storage`] over [`PAGES`] erasable flash pages (the
+//! last two 1 KiB pages on the board, RAM in the QEMU variant), written so that no master
+//! can wear them out and no power cut loses what was stored.
 //!
 //! - **Unchanged means no write.** A store whose record (node-ID, bit rate, blob) equals the
 //!   stored one programs and erases nothing: a master may save as often as it likes.
 //! - **A log of records, erased only when full.** A changed store appends its record (layout
-//!   in [`record`]) after the last one; only a record that no longer fits erases the page and
-//!   starts it again. The handwheel's full parameter set is a 154-byte record, so a page
-//!   takes six changed stores per erase.
+//!   in [`record`]) after the last one in the active page's first [`RECORDS_END`] bytes. The
+//!   handwheel's full parameter set is a 154-byte record, so a page takes six changed
+//!   stores. The page's last [`MARK_SLOTS`] 16-byte slots hold debt marks.
+//! - **Never erase the only copy.** A record that does not fit moves to the other (spare)
+//!   page: it is programmed there first, one page generation newer, and only then is the
+//!   full page erased (the classic two-page EEPROM emulation). A boot takes the page of the
+//!   newer generation that holds an intact entry, so a power cut at any instant leaves the
+//!   old state (the new record is incomplete) or the new one (it is complete), never an
+//!   older one or none: a cut inside the erase of the old page leaves it partly erased, but
+//!   older than the new page. A spare page that is not blank (a move cut off) is erased
+//!   before the move, after a debt mark in a free slot of the active page has recorded that
+//!   erase (a mark cut off spoils only its own slot).
 //! - **A wear budget.** Erases are rationed by a token bucket in the form of a "generic cell
 //!   rate" debt: each erase adds [`ERASE_INTERVAL_MS`] (24 h) of debt, powered time pays it
 //!   back, and an erase that would push the debt past [`ERASE_BURST`] (8) intervals is
 //!   refused: nothing is written, [`StorageError::WearLimit`] (SDO abort 0x08000020, LSS
-//!   error 255 / 1). Every record carries the debt at its writing, and a boot starts from
-//!   the newest record's, so a power cycle does not refill the bucket. A fresh page (no
-//!   record) has no debt.
+//!   error 255 / 1). Every erase is preceded by an entry that carries the debt including it
+//!   (the moved record, or a debt mark), and a boot starts from the larger of the active
+//!   page's last entry's and last mark's, so neither a power cycle nor a power cut refills
+//!   the bucket. Blank pages have no debt. A move whose spare page needs an erase while every
+//!   mark slot of the active page is used (only after [`MARK_SLOTS`] + 1 moves in a row cut
+//!   off by power loss) is refused the same way: the stored state stays, and stores that fit
+//!   still succeed.
 //!
 //! Arithmetic: a master storming changed stores gets 6 x (8 + 1) = 54 of them, then 6 per
-//! 24 h of powered time. Erases over a life of `h` powered hours are at most 8 + h / 24:
-//! 20 years of continuous power are 7 313, below the 10 000 cycles the STM32F103's
-//! datasheet guarantees; the rated count would last 27 years of a master doing nothing but
-//! storing. The price: once a master has spent the whole budget, the debt is only repaid
-//! while the device is powered and stored again with the next record, so a device switched
-//! off every few hours can refuse stores that need an erase for longer than a day.
+//! 24 h of powered time. Erases over a life of `h` powered hours are at most 8 + h / 24 (of
+//! both pages together): 20 years of continuous power are 7 313, below the 10 000 cycles
+//! the STM32F103's datasheet guarantees for each page; the rated count would last 27 years
+//! of a master doing nothing but storing. The price: once a master has spent the whole
+//! budget, the debt is only repaid while the device is powered and stored again with the
+//! next record, so a device switched off every few hours can refuse stores that need an
+//! erase for longer than a day.
 
 use canopen_slave::{Instant, Storage, StorageError};
 
-use crate::record::{self, NodeSettings, Record, RECORD_MAX};
+use crate::record::{self, Log, NodeSettings, Record, DEBT_MAX, MARK_LEN, RECORD_MAX};
 
-/// Bytes in the page.
+/// Debt-mark slots at the end of each page.
+pub const MARK_SLOTS: usize = 6;
+/// Bytes per mark slot: a mark and two erased bytes.
+const MARK_SLOT: usize = 16;
+/// Records go below this offset; the mark slots follow.
+pub const RECORDS_END: usize = PAGE_SIZE - MARK_SLOTS * MARK_SLOT;
+/// Erased bytes kept behind the last record, so that a walk of the records stops there.
+const RECORD_GAP: usize = 4;
+
+/// Bytes in a page.
 pub const PAGE_SIZE: usize = 1024;
+/// Pages the parameters take.
+pub const PAGES: usize = 2;
 /// Debt one erase adds, and the time that pays it back: 24 hours.
 pub const ERASE_INTERVAL_MS: u64 = 24 * 60 * 60 * 1000;
 /// Erases the budget allows at once (from no debt).
@@ -37,10 +62,12 @@ pub const ERASE_BURST: u64 = 8;
 /// The debt in a record is in units of 2^26 us (about 67 s): a shift instead of a division.
 const DEBT_UNIT_SHIFT: u32 = 26;
 const INTERVAL_US: u64 = ERASE_INTERVAL_MS * 1000;
-// The largest debt must fit a record's 16-bit field.
-const _: () = assert!((ERASE_BURST * INTERVAL_US) >> DEBT_UNIT_SHIFT < u16::MAX as u64);
-// A record must fit the page, and programming goes by half-words.
-const _: () = assert!(RECORD_MAX <= PAGE_SIZE && RECORD_MAX.is_multiple_of(2));
+// The largest debt must fit a record's 14-bit debt field.
+const _: () = assert!((ERASE_BURST * INTERVAL_US) >> DEBT_UNIT_SHIFT < DEBT_MAX as u64);
+// Six of the handwheel's records (154 bytes) fit, a mark fits its slot, and programming
+// goes by half-words.
+const _: () = assert!(6 * 154 + RECORD_GAP <= RECORDS_END && MARK_LEN <= MARK_SLOT);
+const _: () = assert!(RECORD_MAX + RECORD_GAP <= RECORDS_END && RECORD_MAX.is_multiple_of(2));
 
 /// A failed erase or program.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -52,17 +79,20 @@ pub enum FlashError {
     Program,
     /// The flash controller would not unlock.
     Controller,
+    /// No such page.
+    Page,
 }
 
-/// One erasable page, as the firmware drives it.
+/// The erasable pages, as the firmware drives them; `page` is `0..PAGES`.
 pub trait Flash {
-    /// The page as it reads now: [`PAGE_SIZE`] bytes.
-    fn page(&self) -> &[u8];
-    /// Erases the page: every byte reads 0xFF after success.
-    fn erase(&mut self) -> Result<(), FlashError>;
-    /// Programs `bytes` (even length) at the even `offset`, into erased bytes only (the page
-    /// checks that they read 0xFF before asking).
-    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError>;
+    /// Page `page` as it reads now: [`PAGE_SIZE`] bytes (empty for a page that does not
+    /// exist).
+    fn page(&self, page: usize) -> &[u8];
+    /// Erases page `page`: every byte reads 0xFF after success.
+    fn erase(&mut self, page: usize) -> Result<(), FlashError>;
+    /// Programs `bytes` (even length) at the even `offset` of page `page`, into erased bytes
+    /// only (the caller checks that they read 0xFF before asking).
+    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError>;
 
     /// The engine loaded the stored parameters (at an initialisation), stored with these
     /// settings: for a board that wants to report them.
@@ -76,7 +106,7 @@ pub struct WearBudget {
 }
 
 impl WearBudget {
-    /// The budget at boot (engine time zero) with `debt` as stored in the newest record.
+    /// The budget at boot (engine time zero) with `debt` as stored in the newest entry.
     pub const fn from_stored(debt: u16) -> Self {
         Self {
             paid_at: Instant::from_micros((debt as u64) << DEBT_UNIT_SHIFT),
@@ -99,12 +129,84 @@ impl WearBudget {
     pub fn stored(&self, now: Instant) -> u16 {
         let debt = self.paid_at.as_micros().saturating_sub(now.as_micros());
         // At most ERASE_BURST intervals (`take`) or what a record held (`from_stored`): the
-        // units fit 16 bits (asserted at the top).
+        // units fit 14 bits (asserted at the top).
         ((debt + (1 << DEBT_UNIT_SHIFT) - 1) >> DEBT_UNIT_SHIFT) as u16
     }
 }
 
-/// The parameter page as the engine's storage.
+/// The pages as a boot reads them: which one is active (holds the stored state), its log,
+/// its newest mark and its first free mark slot.
+struct View<'a> {
+    active: usize,
+    log: Log<'a>,
+    /// The debt and generation of the active page's newest intact mark.
+    mark: Option<(u16, u8)>,
+    /// The offset of the active page's first blank mark slot.
+    free_slot: Option<usize>,
+}
+
+impl View<'_> {
+    /// The debt a boot starts from: the larger of the last entry's and the newest mark's.
+    fn debt(&self) -> u16 {
+        let mark = self.mark.map_or(0, |(debt, _)| debt);
+        self.log.debt.unwrap_or(0).max(mark)
+    }
+
+    /// The active page's generation (0 for a page without entries).
+    fn generation(&self) -> u8 {
+        self.log
+            .generation
+            .or(self.mark.map(|(_, generation)| generation))
+            .unwrap_or(0)
+    }
+}
+
+/// One page as a boot reads it.
+fn read(page: &[u8]) -> View<'_> {
+    let mut view = View {
+        active: 0,
+        log: record::scan(page),
+        mark: None,
+        free_slot: None,
+    };
+    for at in (RECORDS_END..PAGE_SIZE).step_by(MARK_SLOT) {
+        if blank(page, at, MARK_SLOT) {
+            view.free_slot = view.free_slot.or(Some(at));
+        } else if let Some(mark) = page.get(at..).and_then(record::decode_mark) {
+            view.mark = Some(mark);
+        }
+    }
+    view
+}
+
+/// The active page: of two pages with intact entries, the one a generation newer (the other
+/// is the page a move left, erased or not); else the one with entries; else page 0.
+fn view<F: Flash>(flash: &F) -> View<'_> {
+    let first = read(flash.page(0));
+    let mut second = read(flash.page(1));
+    let entries = |v: &View<'_>| v.log.generation.is_some() || v.mark.is_some();
+    let newer = match (entries(&first), entries(&second)) {
+        (true, true) => {
+            second.generation().wrapping_sub(first.generation()) % record::GENERATIONS == 1
+        }
+        (false, true) => true,
+        _ => false,
+    };
+    if newer {
+        second.active = 1;
+        second
+    } else {
+        first
+    }
+}
+
+/// Whether `len` bytes from `at` of `page` read erased.
+fn blank(page: &[u8], at: usize, len: usize) -> bool {
+    page.get(at..at + len)
+        .is_some_and(|bytes| bytes.iter().all(|&b| b == 0xFF))
+}
+
+/// The parameter pages as the engine's storage.
 pub struct ParameterPage<F> {
     flash: F,
     /// Stored with every blob: the node-ID and bit rate in force, or the last LSS store's.
@@ -113,10 +215,11 @@ pub struct ParameterPage<F> {
 }
 
 impl<F: Flash> ParameterPage<F> {
-    /// The page as found at boot; its budget starts from the newest record's debt. Blobs are
-    /// stored with the factory settings until [`ParameterPage::set_settings`].
+    /// The pages as found at boot; the budget starts from the active page's last entry's
+    /// debt. Blobs are stored with the factory settings until
+    /// [`ParameterPage::set_settings`].
     pub fn new(flash: F) -> Self {
-        let debt = record::scan(flash.page()).newest.map_or(0, |r| r.debt);
+        let debt = view(&flash).debt();
         Self {
             flash,
             settings: NodeSettings::DEFAULT,
@@ -131,8 +234,13 @@ impl<F: Flash> ParameterPage<F> {
 
     /// The stored state: settings and blob, or `None` when nothing is stored.
     pub fn stored(&self) -> Option<(NodeSettings, &[u8])> {
-        let newest = record::scan(self.flash.page()).newest?;
+        let newest = view(&self.flash).log.newest?;
         Some((newest.settings?, newest.blob))
+    }
+
+    /// The wear debt a boot would start from now, in units of 2^26 us.
+    pub fn stored_debt(&self) -> u16 {
+        view(&self.flash).debt()
     }
 
     /// The flash, e.g. for tests that damage it.
@@ -146,8 +254,8 @@ impl<F: Flash> ParameterPage<F> {
     }
 
     /// Makes `settings` and `blob` (`None`: the stored blob) the stored state: nothing when
-    /// they are the stored state already, else a record appended, or the page erased first
-    /// when it is full and the budget allows.
+    /// they are the stored state already, else a record appended to the active page, or
+    /// moved to the spare page when it does not fit and the budget allows.
     fn write(
         &mut self,
         now: Instant,
@@ -158,12 +266,13 @@ impl<F: Flash> ParameterPage<F> {
         #[repr(align(4))]
         struct Aligned([u8; RECORD_MAX]);
         let mut buf = Aligned([0; RECORD_MAX]);
-        let page = self.flash.page();
-        let log = record::scan(page);
+        let view = view(&self.flash);
+        let (active, log) = (view.active, view.log);
         let old = log.newest.unwrap_or(Record {
             settings: None,
             blob: &[],
             debt: 0,
+            generation: 0,
         });
         let blob = blob.unwrap_or(old.blob);
         let same_settings =
@@ -172,27 +281,60 @@ impl<F: Flash> ParameterPage<F> {
             return Ok(());
         }
         let len = record::encoded_len(blob.len()).ok_or(StorageError::WriteFailed)?;
-        let room = page
-            .get(log.free..log.free + len)
-            .is_some_and(|bytes| bytes.iter().all(|&b| b == 0xFF));
-        if !room && !self.budget.take(now) {
+        let generation = view.generation();
+        let page = self.flash.page(active);
+        // Room for the record and a gap behind it, below the mark slots.
+        if log.free + len + RECORD_GAP <= RECORDS_END && blank(page, log.free, len) {
+            let debt = record::debt_field(self.budget.stored(now), generation);
+            record::encode(settings, blob, debt, &mut buf.0).ok_or(StorageError::WriteFailed)?;
+            return self.program(active, log.free, &buf.0, len);
+        }
+        // The move: the spare page's erase if it is not blank (a move cut off), the active
+        // page's after the record is on the spare; both taken before anything is written.
+        let spare = 1 - active;
+        let spare_blank = blank(self.flash.page(spare), 0, PAGE_SIZE);
+        let mut budget = self.budget;
+        let erases = if spare_blank { 1 } else { 2 };
+        let slot = view.free_slot;
+        if (!spare_blank && slot.is_none()) || !(0..erases).all(|_| budget.take(now)) {
             return Err(StorageError::WearLimit);
         }
-        let debt = self.budget.stored(now);
-        record::encode(settings, blob, debt, &mut buf.0).ok_or(StorageError::WriteFailed)?;
-        let (at, erased) = if room {
-            (log.free, Ok(()))
-        } else {
-            (0, self.flash.erase())
-        };
-        let bytes = buf.0.get(..len).unwrap_or(&[]);
-        // The master learns of a failure from the answer (SDO 0x06060000, LSS error 2).
-        erased
-            .and_then(|()| self.flash.program(at, bytes))
+        self.budget = budget;
+        let debt = budget.stored(now);
+        let next = (generation + 1) % record::GENERATIONS;
+        record::encode(settings, blob, record::debt_field(debt, next), &mut buf.0)
+            .ok_or(StorageError::WriteFailed)?;
+        if let (false, Some(slot)) = (spare_blank, slot) {
+            // The mark makes the spare's erase part of the stored debt before it starts.
+            let mark = record::encode_mark(record::debt_field(debt, generation));
+            self.program(active, slot, &mark, MARK_LEN)?;
+            self.erase(spare)?;
+        }
+        self.program(spare, 0, &buf.0, len)?;
+        self.erase(active)
+    }
+
+    fn erase(&mut self, page: usize) -> Result<(), StorageError> {
+        self.flash
+            .erase(page)
+            .map_err(|_| StorageError::WriteFailed)
+    }
+
+    /// Programs the first `len` bytes of `bytes` at `offset` of `page`. The master learns
+    /// of a failure from the answer (SDO 0x06060000, LSS error 2).
+    fn program(
+        &mut self,
+        page: usize,
+        offset: usize,
+        bytes: &[u8],
+        len: usize,
+    ) -> Result<(), StorageError> {
+        let bytes = bytes.get(..len).ok_or(StorageError::WriteFailed)?;
+        self.flash
+            .program(page, offset, bytes)
             .map_err(|_| StorageError::WriteFailed)
     }
 }
-
 /// Byte-wise equality without `memcmp` (which the image does not otherwise need).
 fn same(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x == y)

@@ -10,7 +10,8 @@
 //!               (0x1011 restored the defaults; bit rate and blob length are then 0)
 //! 5       1     bit-rate code, 0..=7 (handwheel-core's BitRate table)
 //! 6       2     blob length n, little-endian, at most BLOB_MAX
-//! 8       2     wear debt when written, in units of 2^26 us (about 67 s; see `page`)
+//! 8       2     bits 0-13: wear debt when written, in units of 2^26 us (about 67 s; see
+//!               `page`); bits 14-15: the page's generation (which of two pages is newer)
 //! 10      n     the device's parameter blob (heartbeat, PDO configuration, ...), opaque here
 //! 10+n    4     CRC-32 (IEEE 802.3) of bytes 0..10+n, little-endian
 //! ```
@@ -20,6 +21,11 @@
 //! of the page: the last intact one is the stored state. A damaged record (a store cut off
 //! by a power loss) is skipped by its length; an unreadable header ends the walk and leaves
 //! no room for appending (the next store erases). An erased page (all 0xFF) holds nothing.
+//!
+//! A *debt mark* is an entry of header and CRC only, node-ID 0, bit-rate code 1, length 0: it
+//! stores no state, only a newer debt (written before an erase of the other page, in slots
+//! at the page's end, see `page`). A record walk reads one as an entry without a record;
+//! firmware before marks reads one as a damaged record.
 
 use canopen_slave::NodeId;
 use handwheel_core::BitRate;
@@ -28,6 +34,14 @@ use handwheel_core::BitRate;
 const MAGIC: [u8; 4] = *b"HWP2";
 const HEADER: usize = 10;
 const CRC_LEN: usize = 4;
+/// Length of a debt mark (header and CRC).
+pub const MARK_LEN: usize = HEADER + CRC_LEN;
+/// Largest wear debt a record holds (14 bits; the top two bits are the page generation).
+pub const DEBT_MAX: u16 = 0x3FFF;
+/// Page generations count modulo this.
+pub const GENERATIONS: u8 = 4;
+/// The node-ID and bit-rate bytes of a debt mark.
+const MARK: [u8; 2] = [0, 1];
 /// Largest device blob a record holds.
 pub const BLOB_MAX: usize = 256;
 /// Largest encoded record (even).
@@ -112,6 +126,15 @@ pub struct Record<'a> {
     pub blob: &'a [u8],
     /// The wear debt when the record was written, in units of 2^26 us.
     pub debt: u16,
+    /// The generation of the page the record was written to (0..=3).
+    pub generation: u8,
+}
+
+/// The debt field of a record or mark: `debt` (at most [`DEBT_MAX`]: larger is clamped) in
+/// bits 0-13, `generation` (modulo [`GENERATIONS`]) in bits 14-15.
+pub const fn debt_field(debt: u16, generation: u8) -> u16 {
+    let debt = if debt > DEBT_MAX { DEBT_MAX } else { debt };
+    debt | ((generation % GENERATIONS) as u16) << 14
 }
 
 /// The even length of the record of a `blob_len`-byte blob, or `None` beyond [`BLOB_MAX`].
@@ -124,8 +147,9 @@ pub const fn encoded_len(blob_len: usize) -> Option<usize> {
 
 /// Writes the record into the start of `out`; returns its even length, or `None` when the
 /// blob is longer than [`BLOB_MAX`]. `settings` `None` (nothing stored) writes node-ID 0, bit
-/// rate 0 and `blob` as given (empty, by the page's use). Bytes past the returned length are
-/// left as they were; a pad byte that makes the length even is 0xFF.
+/// rate 0 and `blob` as given (empty, by the page's use). `debt` is the raw debt field
+/// ([`debt_field`]). Bytes past the returned length are left as they were; a pad byte that
+/// makes the length even is 0xFF.
 pub fn encode(
     settings: Option<NodeSettings>,
     blob: &[u8],
@@ -151,6 +175,18 @@ pub fn encode(
     Some(len)
 }
 
+/// A debt mark with the raw debt field `debt` ([`debt_field`]).
+pub fn encode_mark(debt: u16) -> [u8; MARK_LEN] {
+    let mut out = [0; MARK_LEN];
+    out[..4].copy_from_slice(&MAGIC);
+    out[4..6].copy_from_slice(&MARK);
+    // Length 0 (bytes 6..8 stay zero).
+    out[8..HEADER].copy_from_slice(&debt.to_le_bytes());
+    let crc = crc32(&out[..HEADER]);
+    out[HEADER..].copy_from_slice(&crc.to_le_bytes());
+    out
+}
+
 /// The node-ID byte of a "nothing stored" record.
 const CLEARED: u8 = 0;
 
@@ -162,12 +198,20 @@ pub fn settings_bytes(settings: Option<NodeSettings>) -> [u8; 2] {
     }
 }
 
+/// An intact entry: a record, or a debt mark (`record` `None`).
+#[derive(Clone, Copy)]
+struct Entry<'a> {
+    record: Option<Record<'a>>,
+    debt: u16,
+    generation: u8,
+}
+
 /// What starts at some offset of the page.
 enum Slot<'a> {
     /// Erased flash (or too little room left for a header): the free tail.
     Erased,
-    /// A record of this even length: intact (`Some`) or damaged (`None`).
-    Record(Option<Record<'a>>, usize),
+    /// An entry of this even length: intact (`Some`) or damaged (`None`).
+    Record(Option<Entry<'a>>, usize),
     /// Neither: no record boundary can be trusted from here on.
     Garbage,
 }
@@ -189,25 +233,44 @@ fn slot(bytes: &[u8]) -> Slot<'_> {
     let (Some(data), Some(crc)) = (bytes.get(..body), bytes.get(body..body + CRC_LEN)) else {
         return Slot::Garbage;
     };
+    // Outer `None`: impossible settings; `Some(None)`: a mark.
     let settings = match (header[4], header[5], blob_len) {
-        (CLEARED, 0, 0) => Some(None),
-        (node, code, _) => NodeSettings::from_parts(node, code).map(Some),
+        (CLEARED, 0, 0) => Some(Some(None)),
+        (node, rate, 0) if [node, rate] == MARK => Some(None),
+        (node, code, _) => NodeSettings::from_parts(node, code).map(|s| Some(Some(s))),
     };
-    let record = match settings {
-        Some(settings) if crc32(data).to_le_bytes() == crc => Some(Record {
-            settings,
-            blob: &bytes[HEADER..body],
-            debt: u16::from_le_bytes([header[8], header[9]]),
+    let field = u16::from_le_bytes([header[8], header[9]]);
+    let (debt, generation) = (field & DEBT_MAX, (field >> 14) as u8);
+    let entry = match settings {
+        Some(settings) if crc32(data).to_le_bytes() == crc => Some(Entry {
+            record: settings.map(|settings| Record {
+                settings,
+                blob: &bytes[HEADER..body],
+                debt,
+                generation,
+            }),
+            debt,
+            generation,
         }),
         _ => None,
     };
-    Slot::Record(record, len)
+    Slot::Record(entry, len)
+}
+
+/// The debt and page generation of an intact debt mark at the start of `bytes`.
+pub fn decode_mark(bytes: &[u8]) -> Option<(u16, u8)> {
+    match slot(bytes) {
+        Slot::Record(Some(entry), MARK_LEN) if entry.record.is_none() => {
+            Some((entry.debt, entry.generation))
+        }
+        _ => None,
+    }
 }
 
 /// Reads the record at the start of `bytes`; `None` when there is no intact one.
 pub fn decode(bytes: &[u8]) -> Option<Record<'_>> {
     match slot(bytes) {
-        Slot::Record(record, _) => record,
+        Slot::Record(entry, _) => entry.and_then(|e| e.record),
         Slot::Erased | Slot::Garbage => None,
     }
 }
@@ -217,6 +280,10 @@ pub fn decode(bytes: &[u8]) -> Option<Record<'_>> {
 pub struct Log<'a> {
     /// The last intact record: the stored state (a "nothing stored" record included).
     pub newest: Option<Record<'a>>,
+    /// The debt of the last intact entry (record or mark).
+    pub debt: Option<u16>,
+    /// The page's generation: the last intact entry's.
+    pub generation: Option<u8>,
     /// Where the next record may go: the end of the last record walked, or the page's
     /// length when the walk met something unreadable. The bytes from here on may still be
     /// anything: check that they are erased before programming.
@@ -227,14 +294,20 @@ pub struct Log<'a> {
 pub fn scan(page: &[u8]) -> Log<'_> {
     let mut log = Log {
         newest: None,
+        debt: None,
+        generation: None,
         free: 0,
     };
     while let Some(rest) = page.get(log.free..) {
         match slot(rest) {
             Slot::Erased => break,
-            Slot::Record(record, len) => {
-                if record.is_some() {
-                    log.newest = record;
+            Slot::Record(entry, len) => {
+                if let Some(entry) = entry {
+                    if entry.record.is_some() {
+                        log.newest = entry.record;
+                    }
+                    log.debt = Some(entry.debt);
+                    log.generation = Some(entry.generation);
                 }
                 log.free += len;
             }

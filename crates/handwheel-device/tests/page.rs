@@ -1,17 +1,19 @@
-//! The parameter page over a simulated NOR flash page: unchanged stores write nothing,
-//! changed ones append and erase only a full page, and erases are bounded per powered time,
-//! across power cycles too.
+//! The parameter pages over simulated NOR flash pages: unchanged stores write nothing,
+//! changed ones append and erase only a full page (after moving to the other one), and
+//! erases are bounded per powered time, across power cycles too.
 
 use canopen_slave::{Instant, Storage, StorageError};
 use handwheel_core::BitRate;
 use handwheel_device::page::{
-    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, PAGE_SIZE,
+    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, MARK_SLOTS,
+    PAGES, PAGE_SIZE, RECORDS_END,
 };
 use handwheel_device::record::NodeSettings;
 use proptest::prelude::*;
 
-/// One flash page as NOR flash behaves: erase sets every bit, programming only clears bits
-/// (programming a half-word that is not erased is refused here: the page must never ask).
+/// The flash pages as NOR flash behaves: erase sets every bit of a page, programming only
+/// clears bits (programming a half-word that is not erased is refused here: the page must
+/// never ask). `bytes` holds the pages one after the other.
 #[derive(Clone, Debug)]
 struct SimFlash {
     bytes: Vec<u8>,
@@ -24,7 +26,7 @@ struct SimFlash {
 impl SimFlash {
     fn new() -> Self {
         Self {
-            bytes: vec![0xFF; PAGE_SIZE],
+            bytes: vec![0xFF; PAGES * PAGE_SIZE],
             erases: 0,
             programs: 0,
             fail: None,
@@ -33,23 +35,28 @@ impl SimFlash {
 }
 
 impl Flash for SimFlash {
-    fn page(&self) -> &[u8] {
-        &self.bytes
+    fn page(&self, page: usize) -> &[u8] {
+        &self.bytes[page * PAGE_SIZE..(page + 1) * PAGE_SIZE]
     }
 
-    fn erase(&mut self) -> Result<(), FlashError> {
+    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
         if let Some(error) = self.fail {
             return Err(error);
         }
         self.erases += 1;
-        self.bytes.fill(0xFF);
+        self.bytes[page * PAGE_SIZE..(page + 1) * PAGE_SIZE].fill(0xFF);
         Ok(())
     }
 
-    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
         if let Some(error) = self.fail {
             return Err(error);
         }
+        assert!(
+            page < PAGES && offset + bytes.len() <= PAGE_SIZE,
+            "inside a page"
+        );
+        let offset = page * PAGE_SIZE + offset;
         assert!(
             offset.is_multiple_of(2) && bytes.len().is_multiple_of(2),
             "half-words only"
@@ -143,10 +150,39 @@ fn changed_stores_append_six_records_per_erase_until_the_budget_is_spent() {
     let mut buf = [0u8; 256];
     assert_eq!(page.load(&mut buf), 140);
     assert_eq!(&buf[..140], &last[..]);
-    // A record that still fits the page's tail needs no erase: "nothing stored" (14 bytes).
-    page.store(at_ms(accepted), &[]).unwrap();
-    assert_eq!(stored(&page), None);
+    // Six full records leave 4 of the page's 928 record bytes: even "nothing stored" (14
+    // bytes) needs a move now, and is refused.
+    assert_eq!(
+        page.store(at_ms(accepted), &[]),
+        Err(StorageError::WearLimit)
+    );
+    assert_eq!(page.flash().bytes, before);
     assert_eq!(u64::from(page.flash().erases), ERASE_BURST);
+}
+
+#[test]
+fn a_record_that_fits_needs_no_erase_even_with_the_budget_spent() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    let mut n = 0;
+    // Spend the budget, then fill the new page with five records.
+    while page.store(at_ms(0), &blob(n)).is_ok() {
+        n += 1;
+    }
+    let erases = page.flash().erases;
+    let mut page = ParameterPage::new(page.into_flash());
+    // The budget spent, the newest page holds six records: restore defaults has no room.
+    assert_eq!(page.store(at_ms(0), &[]), Err(StorageError::WearLimit));
+    // A page with room takes it without an erase: LSS settings only (14 bytes) on a page
+    // where a move just left one record.
+    let mut fresh = ParameterPage::new(SimFlash::new());
+    for i in 0..7 {
+        fresh.store(at_ms(0), &blob(i)).unwrap();
+    }
+    assert_eq!(fresh.flash().erases, 1);
+    fresh.store(at_ms(0), &[]).unwrap();
+    fresh.store_node(at_ms(0), 9, 0).unwrap();
+    assert_eq!(stored(&fresh), Some((settings(9, 0), Vec::new())));
+    assert_eq!((fresh.flash().erases, page.flash().erases), (1, erases));
 }
 
 #[test]
@@ -260,6 +296,41 @@ fn a_store_cut_off_by_a_power_loss_leaves_the_previous_record() {
     page.store(at_ms(0), &blob(4)).unwrap();
     assert_eq!(page.flash().erases, 1);
     assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(4))));
+}
+
+#[test]
+fn a_spare_page_left_dirty_is_erased_after_a_debt_mark_or_the_move_is_refused() {
+    let mut page = ParameterPage::new(SimFlash::new());
+    for n in 0..6 {
+        page.store(at_ms(0), &blob(n)).unwrap();
+    }
+    let mut flash = page.into_flash();
+    // The spare page is not blank (a move cut off by a power loss).
+    flash.bytes[PAGE_SIZE + 100] = 0x00;
+    // Every mark slot of the active page used (spoilt by cuts): no erase without a mark.
+    let mut used = flash.clone();
+    for slot in 0..MARK_SLOTS {
+        used.bytes[RECORDS_END + 16 * slot] = 0x00;
+    }
+    let mut page = ParameterPage::new(used);
+    assert_eq!(page.store(at_ms(0), &blob(9)), Err(StorageError::WearLimit));
+    assert_eq!((page.flash().erases, page.flash().programs), (0, 6 * 77));
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(5))));
+    // A free slot: the mark (7 half-words) with both erases in its debt, the spare's erase,
+    // the record on the spare page, the full page's erase.
+    let mut page = ParameterPage::new(flash);
+    page.store(at_ms(0), &blob(9)).unwrap();
+    assert_eq!(
+        (page.flash().erases, page.flash().programs),
+        (2, 6 * 77 + 7 + 77)
+    );
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(9))));
+    assert!(page.flash().page(0).iter().all(|&b| b == 0xFF));
+    let two_days = (2 * ERASE_INTERVAL_MS * 1000).div_ceil(1 << 26) as u16;
+    assert_eq!(
+        ParameterPage::new(page.into_flash()).stored_debt(),
+        two_days
+    );
 }
 
 #[test]

@@ -70,7 +70,8 @@ fn the_layout_is_the_documented_one() {
         Some(Record {
             settings: None,
             blob: &[],
-            debt: 7
+            debt: 7,
+            generation: 0
         })
     );
 }

@@ -86,17 +86,16 @@ impl<S: Storage> Device<S> {
             self.inner.comm.emcy.reset();
             app.on_reset_application();
         }
+        let mut app_refused = None;
         if kind != Boot::ResetCommunication {
             if let Some(data) = blob.app() {
-                app.restore_application(data);
+                app_refused = app.restore_application(data).err();
             }
         }
         self.inner.comm.load_defaults(now);
-        if let Some(params) = blob.comm() {
-            for (index, sub, value) in params {
-                self.inner.comm.restore(index, sub, value, now);
-            }
-        }
+        let refused = blob
+            .comm()
+            .and_then(|params| self.inner.restore_stored(now, params, app));
         if kind != Boot::PowerOn {
             // CiA 301's reset of communication: nothing said before it goes out after it,
             // and the boot-up is the first frame (a full queue would refuse it).
@@ -108,5 +107,6 @@ impl<S: Storage> Device<S> {
         // The consumers start over (waiting for a first heartbeat): no loss is pending.
         self.inner.settle_heartbeat(app);
         self.set_state(now, NmtState::PreOperational, app, tx);
+        self.report_refused_stored(refused, app_refused);
     }
 }

@@ -35,6 +35,26 @@ pub(super) struct Comm {
     pub(super) emcy: Emcy,
 }
 
+/// A stored value the checked write path refused at a restore: the object keeps its
+/// default.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Refused {
+    pub(super) index: u16,
+    pub(super) sub: u8,
+    pub(super) abort: SdoAbort,
+}
+
+/// Whether `(index, sub)` is a COB-ID that may not change while valid (EMCY, TPDOs): a
+/// restore gives these up first and sets them last, as a master re-configuring them does.
+fn guarded_cob_id(index: u16, sub: u8) -> bool {
+    index == 0x1014 || (index & 0xFE00 == 0x1800 && sub == 1)
+}
+
+/// Whether `index` is a TPDO mapping object.
+fn mapping_object(index: u16) -> bool {
+    index & 0xFE00 == 0x1A00
+}
+
 /// What a checked write may need besides the objects.
 pub(super) struct WriteCtx<'a> {
     pub(super) now: Instant,
@@ -378,6 +398,133 @@ impl Comm {
         if let Some(o) = object(index) {
             (o.restore)(self, index, sub, value, now);
         }
+    }
+
+    /// Applies the stored communication parameters (`values`, in [`STORED`]'s order) over
+    /// the defaults through the checked write path, with the rules of an SDO write (the
+    /// entry's type and range, then the object's own checks): what a master could not have
+    /// written is not used. Object by object in the order a master configures them (the
+    /// guarded COB-IDs given up first and set last, those at their defaults before changed
+    /// ones; a mapping's entries before its count); an object with a refused value keeps its
+    /// default (a COB-ID whose default clashes with a restored one stays invalid). Returns
+    /// the first refusal and how many objects had one.
+    pub(super) fn restore_stored(
+        &mut self,
+        ctx: &mut WriteCtx<'_>,
+        values: &[u32; STORED_LEN],
+    ) -> Option<(Refused, u8)> {
+        let mut first = None;
+        let mut count = 0u8;
+        let mut refuse = |r: Refused| {
+            warn!(
+                "stored {=u16:#06x}:{=u8} not restored ({}): default kept",
+                r.index, r.sub, r.abort
+            );
+            first = first.or(Some(r));
+            count = count.saturating_add(1);
+        };
+        for &(index, sub) in STORED.iter().filter(|&&(i, s)| guarded_cob_id(i, s)) {
+            let given_up = self.read(index, sub).unwrap_or(COB_INVALID) | COB_INVALID;
+            self.restore(index, sub, given_up, ctx.now);
+        }
+        let mut k = 0;
+        while let Some(&(index, _)) = STORED.get(k) {
+            let end = k + STORED[k..].iter().take_while(|e| e.0 == index).count();
+            let entries = STORED[k..end].iter().zip(&values[k..end]);
+            if let Err(r) = self.restore_object(ctx, index, entries) {
+                self.default_object(index, ctx.now);
+                refuse(r);
+            }
+            k = end;
+        }
+        // The identifiers at their defaults first: of two that clash, the changed one is
+        // refused.
+        for at_default in [true, false] {
+            for (&(index, sub), &value) in STORED.iter().zip(values) {
+                // Bit 30 (a TPDO's "no RTR") is not part of the identifier.
+                let same = |default: u32| (default ^ value) & !crate::tpdo::NO_RTR == 0;
+                let unchanged = self.default_value(index, sub).is_some_and(same);
+                if !guarded_cob_id(index, sub) || unchanged != at_default {
+                    continue;
+                }
+                if let Err(abort) = self.write_stored(ctx, index, sub, value) {
+                    refuse(Refused { index, sub, abort });
+                    let default = self.default_value(index, sub).unwrap_or(COB_INVALID);
+                    // Refused as well (it clashes with a restored identifier): stays invalid.
+                    let _ = self.write_stored(ctx, index, sub, default);
+                }
+            }
+        }
+        first.map(|r| (r, count))
+    }
+
+    /// The table default of `(index, sub)` (with the node-ID added where the table says so).
+    fn default_value(&self, index: u16, sub: u8) -> Option<u32> {
+        let node = u32::from(self.node.map_or(0, NodeId::get));
+        match self.od.find(index, sub).ok()?.value() {
+            Value::Comm(v) => Some(v),
+            Value::CommPlusNodeId(v) => Some(v.wrapping_add(node)),
+            _ => None,
+        }
+    }
+
+    /// Object `index` back to its table defaults, but for its guarded COB-ID, which stays
+    /// given up until the identifiers are set.
+    fn default_object(&mut self, index: u16, now: Instant) {
+        let od = self.od;
+        for e in od.entries() {
+            if e.index() == index && !guarded_cob_id(index, e.sub()) {
+                if let Some(value) = self.default_value(index, e.sub()) {
+                    self.restore(index, e.sub(), value, now);
+                }
+            }
+        }
+    }
+
+    /// The stored sub-indices of one object (the guarded COB-ID left out); a mapping's count
+    /// (sub 0) is zeroed first and written last.
+    fn restore_object<'a>(
+        &mut self,
+        ctx: &mut WriteCtx<'_>,
+        index: u16,
+        entries: impl Iterator<Item = (&'a (u16, u8), &'a u32)> + Clone,
+    ) -> Result<(), Refused> {
+        let mapping = mapping_object(index);
+        let mut write = |c: &mut Self, sub: u8, value: u32| {
+            c.write_stored(ctx, index, sub, value)
+                .map_err(|abort| Refused { index, sub, abort })
+        };
+        if mapping {
+            write(self, 0, 0)?;
+        }
+        for (&(_, sub), &value) in entries.clone() {
+            let later = guarded_cob_id(index, sub) || (mapping && sub == 0);
+            if !later {
+                write(self, sub, value)?;
+            }
+        }
+        if let (true, Some((_, &count))) = (mapping, entries.clone().find(|e| e.0 .1 == 0)) {
+            write(self, 0, count)?;
+        }
+        Ok(())
+    }
+
+    /// A stored value through the SDO write path: as the entry's type (a value wider than
+    /// it is refused), its range, then the object's checks.
+    fn write_stored(
+        &mut self,
+        ctx: &mut WriteCtx<'_>,
+        index: u16,
+        sub: u8,
+        value: u32,
+    ) -> Result<(), SdoAbort> {
+        let size = self.od.find(index, sub)?.data_type().size().unwrap_or(4);
+        let bytes = value.to_le_bytes();
+        let (data, rest) = bytes.split_at(size.min(4));
+        if rest.iter().any(|&b| b != 0) {
+            return Err(SdoAbort::ValueTooHigh);
+        }
+        self.write_object(ctx.now, index, sub, data, &mut *ctx.app, &mut *ctx.storage)
     }
 
     /// Communication parameters back to the table's defaults (reset communication).

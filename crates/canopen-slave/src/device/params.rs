@@ -5,9 +5,71 @@
 //! ([`Application::may_store`](super::Application::may_store)): refused, 0x08000022. A
 //! storage that refuses for wear gives 0x08000020, one that fails 0x06060000.
 
-use super::objects::{Comm, WriteCtx};
+use super::objects::{Comm, Refused, WriteCtx, STORED_LEN};
+use super::{Application, Device, Inner};
+use crate::emcy;
 use crate::sdo::SdoAbort;
-use crate::storage::{self, Blob, StorageError, LOAD_SIGNATURE, SAVE_SIGNATURE};
+use crate::storage::{self, Blob, Storage, StorageError, LOAD_SIGNATURE, SAVE_SIGNATURE};
+use crate::time::Instant;
+
+/// EMCY "data set" (CiA 301 error code 0x63xx): a stored parameter was not restored.
+pub const EMCY_STORED_REFUSED: u16 = 0x6300;
+
+impl<S: Storage> Inner<S> {
+    /// The stored communication parameters over the defaults, checked as SDO writes
+    /// ([`Comm::restore_stored`]); the first refusal and the count of refused objects.
+    pub(super) fn restore_stored(
+        &mut self,
+        now: Instant,
+        params: impl Iterator<Item = (u16, u8, u32)>,
+        app: &mut dyn Application,
+    ) -> Option<(Refused, u8)> {
+        let mut values = [0; STORED_LEN];
+        for (dst, (_, _, value)) in values.iter_mut().zip(params) {
+            *dst = value;
+        }
+        let mut ctx = WriteCtx {
+            now,
+            app,
+            storage: &mut self.storage,
+        };
+        self.comm.restore_stored(&mut ctx, &values)
+    }
+}
+
+impl<S: Storage> Device<S> {
+    /// Stored values refused at the restore (communication parameters: the first and how
+    /// many objects; the application's: the object it named): EMCY 0x6300 as an event
+    /// (raised and cleared at once), manufacturer bytes: the first refused object's index
+    /// (little-endian) and sub-index, and how many objects were refused.
+    pub(super) fn report_refused_stored(
+        &mut self,
+        comm: Option<(Refused, u8)>,
+        app: Option<(u16, u8)>,
+    ) {
+        if let Some((index, sub)) = app {
+            warn!(
+                "stored application {=u16:#06x}:{=u8} out of range: application defaults kept",
+                index, sub
+            );
+        }
+        let first = comm.map(|(r, _)| (r.index, r.sub)).or(app);
+        let Some((index, sub)) = first else {
+            return;
+        };
+        let count = comm
+            .map_or(0, |(_, n)| n)
+            .saturating_add(u8::from(app.is_some()));
+        let [lo, hi] = index.to_le_bytes();
+        let info = [lo, hi, sub, count, 0];
+        if self
+            .raise_error(EMCY_STORED_REFUSED, emcy::register::GENERIC, info)
+            .is_ok()
+        {
+            self.clear_error(EMCY_STORED_REFUSED);
+        }
+    }
+}
 
 /// 0x1010: "save" stores communication (sub 2), application (sub 3) or both (sub 1).
 pub(super) fn save(

@@ -182,12 +182,13 @@ impl Application for TestApp {
         2
     }
 
-    fn restore_application(&mut self, data: &[u8]) {
+    fn restore_application(&mut self, data: &[u8]) -> Result<(), (u16, u8)> {
         self.restored.push(data.to_vec());
         if let [flag, v5] = *data {
             self.flag = flag;
             self.vars[5] = v5.into();
         }
+        Ok(())
     }
 
     fn may_store(&mut self) -> bool {
