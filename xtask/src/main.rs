@@ -168,6 +168,7 @@ fn test() -> Result<(), String> {
         .concat(),
     )?;
     firmware_build()?;
+    one_build_check()?;
     // The release machine code in the emulator: CPU figures in one line, the stack and the
     // wheel edge's cycles and latency checked.
     stack_check(&machine_bench(true)?)?;
@@ -329,6 +330,39 @@ const QEMU_BUDGET: footprint::Budget = footprint::Budget {
 fn firmware_build() -> Result<(), String> {
     release_build()?;
     footprint_check()
+}
+
+/// `cargo fw`, the README's build, right after xtask's: it must compile nothing, since both
+/// build the same configuration into the same target directory (`linker.rs`).
+fn one_build_check() -> Result<(), String> {
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    eprintln!("xtask: cargo fw (the README's build: must compile nothing now)");
+    let mut command = Command::new(cargo);
+    command.arg("fw").current_dir(workspace_root());
+    if let Some(path) = linker::flip_link()?.path() {
+        command.env("PATH", path);
+    }
+    let output = command
+        .output()
+        .map_err(|e| format!("cannot run cargo fw: {e}"))?;
+    let log = String::from_utf8_lossy(&output.stderr);
+    eprint!("{log}");
+    if !output.status.success() {
+        return Err(format!("`cargo fw` failed ({})", output.status));
+    }
+    let compiled: Vec<&str> = log
+        .lines()
+        .filter(|l| l.trim_start().starts_with("Compiling"))
+        .collect();
+    if compiled.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "`cargo fw` after `cargo xtask fw` compiled {} crate(s): the two builds differ \
+             (linker, flags or environment; xtask/src/linker.rs)",
+            compiled.len()
+        ))
+    }
 }
 
 /// Builds the release firmware.
@@ -696,10 +730,10 @@ fn cargo(args: &[&str]) -> Result<(), String> {
     cargo_with(args, None)
 }
 
-/// Runs cargo for a board image: linked by flip-link (installed on first use).
+/// Runs cargo for a board image: linked by the configuration's flip-link, as `cargo fw`
+/// links (installed on first use; see `linker.rs`).
 fn board_cargo(args: &[&str]) -> Result<(), String> {
-    let flip_link = linker::flip_link(&qemu::tools_root(&target_dir()))?;
-    cargo_linked(args, &linker::Linker::FlipLink(flip_link))
+    cargo_linked(args, &linker::flip_link()?)
 }
 
 /// Runs cargo with the firmware target's linker set to `linker`.
@@ -713,7 +747,12 @@ fn cargo_with(args: &[&str], linker: Option<&linker::Linker>) -> Result<(), Stri
     let mut command = Command::new(cargo);
     command.args(args).current_dir(workspace_root());
     if let Some(linker) = linker {
-        command.env(linker::LINKER_ENV, linker.program());
+        if let Some(program) = linker.override_program() {
+            command.env(linker::LINKER_ENV, program);
+        }
+        if let Some(path) = linker.path() {
+            command.env("PATH", path);
+        }
     }
     let status = command
         .status()
