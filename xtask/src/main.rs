@@ -35,6 +35,10 @@ const QEMU_FEATURES: &[&str] = &["--no-default-features", "--features", "qemu"];
 const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
 /// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
 const RANDOM_SEQUENCES: &str = "1000000";
+/// The check that runs the README's and docs/' code blocks against the emulators (their
+/// marks, and the blocks checked against files: `tools/snippets/test_marks.py`, with the
+/// documents' checks).
+const SNIPPETS_RUN: &str = "tools/snippets/test_run.py";
 /// The demo's master, run with the interop venv's Python.
 const DEMO_SCRIPT: &str = "tools/demo.py";
 
@@ -50,8 +54,12 @@ tasks:
         [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
         [--image release|stack-overflow] control line on tcp:127.0.0.1:Q, decoded defmt log on
                                         stderr; FILE keeps the parameter page (default
-                                        target/board-emu/flash.bin); stack-overflow: the test
-                                        build that overflows its stack right after boot
+                                        target/board-emu/flash.bin); N: the DIP switch in
+                                        binary, switches 8..1 (0b01100101: 1, 3, 6, 7 on; 0x65
+                                        and 101 too); stack-overflow: the test build that
+                                        overflows its stack right after boot
+  snippets                              run the README's and docs/' code blocks that need no
+                                        hardware against the emulators (tools/snippets)
   lint                                  ruff check and ruff format --check over all Python
   interop [pytest args]                 only the interop suite (venv, QEMU variant, board, pytest)
   host [pytest args]                    only the LinuxCNC component's unit and property tests
@@ -81,6 +89,7 @@ fn main() -> ExitCode {
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
         Some("board") => board::Args::from_args(rest).and_then(run_board),
         Some("lint") => python_lint(),
+        Some("snippets") => snippets_run(),
         Some("interop") => interop(rest),
         Some("host") => host_tests(rest),
         Some("linuxcnc") => linuxcnc_console(rest),
@@ -202,9 +211,11 @@ fn test() -> Result<(), String> {
         },
     )?;
     eprintln!(
-        "xtask: build checks passed in {:.0} s; now the interop suite",
+        "xtask: build checks passed in {:.0} s; now the documents' snippets and the interop \
+         suite",
         started.elapsed().as_secs_f64()
     );
+    snippets_run()?;
     interop(&[])?;
     linuxcnc_suite(&[])?;
     linuxcnc_suite(&["--board".to_string()])?;
@@ -558,6 +569,31 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     }
 }
 
+/// The README's and docs/' code blocks that need no hardware, run against the QEMU variant
+/// and the emulated board ([`SNIPPETS_RUN`], pytest in the interop venv).
+fn snippets_run() -> Result<(), String> {
+    let started = Instant::now();
+    Emulator::prepare()?;
+    Board::prepare()?;
+    let root = workspace_root();
+    let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
+    let mut pytest = Command::new(&python);
+    pytest
+        .args(["-m", "pytest", SNIPPETS_RUN, "-q"])
+        .current_dir(&root);
+    let result = pyenv::run(&mut pytest);
+    eprintln!(
+        "xtask: the documents' snippets took {:.0} s",
+        started.elapsed().as_secs_f64()
+    );
+    result.map_err(|e| {
+        format!(
+            "a snippet of the README or docs/ failed: {e}\n(tools/snippets/snippets.py says \
+             how the blocks are marked and run)"
+        )
+    })
+}
+
 /// `ruff check` and `ruff format --check` over all of the project's Python (tests/, tools/,
 /// host/; rules in ruff.toml), with the ruff pinned in `tools/lint/requirements.txt`, in its
 /// own venv (`target/lint-venv`).
@@ -681,11 +717,15 @@ fn linuxcnc_console(args: &[String]) -> Result<(), String> {
 /// master (`tools/demo.py` with the interop venv's Python), which starts `cargo xtask qemu`
 /// (or `cargo xtask board`) itself.
 fn demo(args: &[String]) -> Result<(), String> {
-    if args.iter().any(|a| a == "--board") {
+    // The log goes beside the emulator's other files: target/qemu or target/board-emu.
+    let log_dir = if args.iter().any(|a| a == "--board") {
         Board::prepare()?;
+        target_dir().join("board-emu")
     } else {
         Emulator::prepare()?;
-    }
+        qemu_target_dir()
+    };
+    std::fs::create_dir_all(&log_dir).map_err(|e| format!("{}: {e}", log_dir.display()))?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let mut command = Command::new(&python);
@@ -693,7 +733,7 @@ fn demo(args: &[String]) -> Result<(), String> {
         .arg(root.join(DEMO_SCRIPT))
         .args(args)
         .current_dir(&root)
-        .env("HANDWHEEL_QEMU_LOG", qemu_target_dir().join("demo.log"));
+        .env("HANDWHEEL_QEMU_LOG", log_dir.join("demo.log"));
     eprintln!("xtask: {command:?}");
     // Replaces this process, so that Ctrl-C reaches the demo alone and it cleans up.
     let error = command.exec();
