@@ -71,7 +71,8 @@ tasks:
                                         live python-canopen master
   docs [--check]                        re-render docs/wiring/handwheel.svg from handwheel.yml
                                         (WireViz, Graphviz), then check it against the pin
-                                        map and every relative link in the Markdown files;
+                                        map, every relative link in the Markdown files and
+                                        the marks of the README's and docs/' code blocks;
                                         --check: only the checks (no Graphviz)
   bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
@@ -651,8 +652,10 @@ fn docs(args: &[String]) -> Result<(), String> {
 }
 
 /// The wiring diagram's checks (`tools/wiring/test_wiring.py`) in `target/wiring-venv`: the
-/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; and
-/// every relative link in the Markdown files (`tools/doclinks/test_doclinks.py`).
+/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; every
+/// relative link in the Markdown files (`tools/doclinks/test_doclinks.py`); and the marks of
+/// the documents' code blocks with the checks that need no emulator
+/// (`tools/snippets/test_marks.py`).
 fn wiring_check() -> Result<(), String> {
     let root = workspace_root();
     let python = wiring::python(&root, &target_dir())?;
@@ -660,7 +663,8 @@ fn wiring_check() -> Result<(), String> {
         format!(
             "the documents' checks failed: {e}\n(after changing docs/wiring/handwheel.yml, \
              re-render with `cargo xtask docs`; a broken Markdown link: fix the link or the \
-             heading it names)"
+             heading it names; an unmarked code block: mark it as tools/snippets/snippets.py \
+             says)"
         )
     })
 }
