@@ -319,6 +319,12 @@ class Server:
             m.set_selectors(mult=int(args[0]))
             ok()
         elif name == "dip":
+            # The switch is binary: `dip 0b01100101` (switches 8..1) as well as decimal.
+            if len(args) == 1 and args[0][:2].lower() in ("0b", "0x"):
+                try:
+                    args = [str(int(args[0], 0))]
+                except ValueError:
+                    raise StimError("bad number") from None
             m.set_dip(one(0, 255))
             ok()
         elif name == "power":
@@ -504,7 +510,9 @@ def main() -> int:
     parser.add_argument("--can-port", type=int, required=True)
     parser.add_argument("--stim-port", type=int, required=True)
     parser.add_argument("--flash", help="file holding the parameter page across runs")
-    parser.add_argument("--dip", type=int, default=0)
+    parser.add_argument(
+        "--dip", type=lambda v: int(v, 0), default=0, help="switch n on = bit n-1 (0b..., 0x...)"
+    )
     parser.add_argument("--log", help="write the raw defmt stream here instead of stdout")
     parser.add_argument("--defmt-print", help="decode the log with this defmt-print (stderr)")
     parser.add_argument("--cut-seed", type=int, default=1, help="seed of half-done flash ops")

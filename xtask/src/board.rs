@@ -77,11 +77,7 @@ impl Args {
                     } else if flag == "--image" {
                         image = Image::parse(&value)?;
                     } else {
-                        dip = Some(
-                            value
-                                .parse()
-                                .map_err(|_| format!("--dip: `{value}` is not 0..255"))?,
-                        );
+                        dip = Some(parse_dip(&value)?);
                     }
                 }
                 _ => rest.push(arg.clone()),
@@ -101,6 +97,24 @@ impl Args {
             image,
         })
     }
+}
+
+/// The DIP switch as `--dip` takes it: binary `0b01100101` (switch n on = bit n-1, so the
+/// digits read switches 8..1), hexadecimal `0x65` or decimal `101`.
+pub fn parse_dip(value: &str) -> Result<u8, String> {
+    let lower = value.to_ascii_lowercase();
+    let parsed = if let Some(bits) = lower.strip_prefix("0b") {
+        u8::from_str_radix(&bits.replace('_', ""), 2)
+    } else if let Some(hex) = lower.strip_prefix("0x") {
+        u8::from_str_radix(hex, 16)
+    } else {
+        lower.parse()
+    };
+    parsed.map_err(|_| {
+        format!(
+            "--dip: `{value}` is not 0b00000000..0b11111111 (switches 8..1), 0x00..0xFF or 0..255"
+        )
+    })
 }
 
 /// The chip model venv's interpreter, made if needed.
@@ -207,6 +221,13 @@ mod tests {
             "--flash"
         ]))
         .is_err());
+        for (written, value) in [("0b01100101", 0x65), ("0B1000_0001", 0x81), ("0x65", 0x65)] {
+            assert_eq!(parse_dip(written), Ok(value), "{written}");
+        }
+        assert_eq!(parse_dip("101"), Ok(101));
+        for bad in ["0b100000000", "0b102", "0x100", "256", "-1", ""] {
+            assert!(parse_dip(bad).is_err(), "{bad}");
+        }
         let usage = Args::from_args(&strings(&["--can-port", "1"])).unwrap_err();
         assert!(usage.contains("cargo xtask board"), "{usage}");
     }

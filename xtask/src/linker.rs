@@ -1,52 +1,96 @@
-//! The firmware's linker: flip-link for the board (`.cargo/config.toml` names it), installed
-//! by xtask like `defmt-print`, and plain rust-lld for the QEMU variant.
+//! The firmware's linker: flip-link for the board (`.cargo/config.toml` names it), and plain
+//! rust-lld for the QEMU variant.
 //!
 //! flip-link links twice with rust-lld, the second time with static RAM moved to the top of
 //! RAM and the stack below it, so that a stack overflow runs off the start of RAM and faults
 //! instead of overwriting statics (`memory.x`). The QEMU variant keeps the classic layout in
-//! the emulated part's 8 KiB (`qemu/ram.x`, `build.rs`). xtask points every firmware build
-//! at the right one through cargo's `CARGO_TARGET_<TRIPLE>_LINKER`, which overrides the
-//! config, so `cargo xtask` needs no flip-link on `PATH`.
+//! the emulated part's 8 KiB (`qemu/ram.x`, `build.rs`) and gets rust-lld through cargo's
+//! `CARGO_TARGET_<TRIPLE>_LINKER`, in its own target directory.
+//!
+//! The board's images keep the configuration's `linker = "flip-link"`, found on `PATH`,
+//! exactly as the README's `cargo fw` and `cargo embed` link: the linker is part of cargo's
+//! fingerprint, so any other value (such as a path) would make `cargo xtask fw` and `cargo
+//! fw` rebuild every crate after each other. There is one flip-link: the one on `PATH`, or,
+//! when there is none, the one `cargo install flip-link --locked` puts in cargo's `bin`
+//! folder (the README's command, with the version pinned here), added to the builds' `PATH`
+//! if the shell lacks it.
 
+use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
-/// The flip-link release installed with `cargo install --locked`.
+use crate::host;
+
+/// The flip-link release xtask installs when none is on `PATH`.
 pub const FLIP_LINK_VERSION: &str = "0.1.12";
 /// Cargo's per-target linker override for the firmware target.
 pub const LINKER_ENV: &str = "CARGO_TARGET_THUMBV7M_NONE_EABI_LINKER";
+/// The program `.cargo/config.toml` names as the firmware target's linker.
+pub const FLIP_LINK: &str = "flip-link";
 
 /// Which linker a firmware build gets.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Linker {
-    /// flip-link at this path: the board's images.
-    FlipLink(PathBuf),
+    /// The configuration's flip-link, found on this `PATH`: the board's images.
+    FlipLink { path: OsString },
     /// rust-lld from the toolchain: the QEMU variant.
     RustLld,
 }
 
 impl Linker {
-    /// The value for [`LINKER_ENV`].
-    pub fn program(&self) -> &std::ffi::OsStr {
+    /// The value for [`LINKER_ENV`], or `None` to keep the configuration's linker.
+    pub fn override_program(&self) -> Option<&std::ffi::OsStr> {
         match self {
-            Self::FlipLink(path) => path.as_os_str(),
-            Self::RustLld => "rust-lld".as_ref(),
+            Self::FlipLink { .. } => None,
+            Self::RustLld => Some("rust-lld".as_ref()),
+        }
+    }
+
+    /// The `PATH` the build runs with, if it differs from this process's.
+    pub fn path(&self) -> Option<&std::ffi::OsStr> {
+        match self {
+            Self::FlipLink { path } => Some(path),
+            Self::RustLld => None,
         }
     }
 }
 
-/// Whether `cargo install --root <tools_root>` recorded `name` at `version`.
-fn installed(tools_root: &Path, name: &str, version: &str) -> bool {
-    let record = std::fs::read_to_string(tools_root.join(".crates.toml")).unwrap_or_default();
-    record.contains(&format!("\"{name} {version} ("))
+/// cargo's `bin` folder for `cargo install` without `--root`: `$CARGO_INSTALL_ROOT/bin`,
+/// else `$CARGO_HOME/bin`, else `~/.cargo/bin`.
+pub fn cargo_bin_dir() -> Option<PathBuf> {
+    let var = |name: &str| std::env::var_os(name).filter(|v| !v.is_empty());
+    let root = var("CARGO_INSTALL_ROOT")
+        .or_else(|| var("CARGO_HOME"))
+        .map(PathBuf::from)
+        .or_else(|| var("HOME").map(|home| Path::new(&home).join(".cargo")))?;
+    Some(root.join("bin"))
 }
 
-/// flip-link [`FLIP_LINK_VERSION`] in `<tools_root>/bin`, installed on first use.
-pub fn flip_link(tools_root: &Path) -> Result<PathBuf, String> {
-    let bin = tools_root.join("bin").join("flip-link");
-    if bin.is_file() && installed(tools_root, "flip-link", FLIP_LINK_VERSION) {
-        return Ok(bin);
+/// `PATH` with `dir` in front, unless it is on it already.
+pub fn path_with(dir: &Path) -> OsString {
+    let current = std::env::var_os("PATH").unwrap_or_default();
+    if std::env::split_paths(&current).any(|p| p == dir) {
+        return current;
     }
-    crate::qemu::cargo_install(tools_root, "flip-link", FLIP_LINK_VERSION)
+    std::env::join_paths(std::iter::once(dir.to_path_buf()).chain(std::env::split_paths(&current)))
+        .unwrap_or(current)
+}
+
+/// flip-link for the board's builds: the one on `PATH`, else the one in cargo's `bin`
+/// folder, installed there with `cargo install flip-link --locked` on first use. Returns
+/// the `PATH` the builds need to find it.
+pub fn flip_link() -> Result<Linker, String> {
+    let current = std::env::var_os("PATH").unwrap_or_default();
+    if host::find_in_path(FLIP_LINK).is_some() {
+        return Ok(Linker::FlipLink { path: current });
+    }
+    let bin =
+        cargo_bin_dir().ok_or("flip-link is not on PATH and neither CARGO_HOME nor HOME is set")?;
+    if !bin.join(FLIP_LINK).is_file() {
+        crate::qemu::cargo_install(None, FLIP_LINK, FLIP_LINK_VERSION)?;
+    }
+    Ok(Linker::FlipLink {
+        path: path_with(&bin),
+    })
 }
 
 #[cfg(test)]
@@ -54,25 +98,28 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_install_record_names_the_version() {
-        let dir = std::env::temp_dir().join(format!("xtask-linker-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        assert!(!installed(&dir, "flip-link", "0.1.12"));
-        std::fs::write(
-            dir.join(".crates.toml"),
-            "[v1]\n\"flip-link 0.1.11 (registry+https://github.com/rust-lang/crates.io-index)\" \
-             = [\"flip-link\"]\n",
-        )
-        .unwrap();
-        assert!(!installed(&dir, "flip-link", "0.1.12"), "another version");
-        std::fs::write(
-            dir.join(".crates.toml"),
-            "[v1]\n\"flip-link 0.1.12 (registry+https://github.com/rust-lang/crates.io-index)\" \
-             = [\"flip-link\"]\n",
-        )
-        .unwrap();
-        assert!(installed(&dir, "flip-link", "0.1.12"));
-        std::fs::remove_dir_all(&dir).unwrap();
-        assert_eq!(Linker::RustLld.program(), "rust-lld");
+    fn the_board_keeps_the_configured_linker_and_qemu_overrides_it() {
+        let board = Linker::FlipLink {
+            path: "/a:/b".into(),
+        };
+        assert_eq!(board.override_program(), None);
+        assert_eq!(board.path(), Some("/a:/b".as_ref()));
+        assert_eq!(
+            Linker::RustLld.override_program(),
+            Some("rust-lld".as_ref())
+        );
+        assert_eq!(Linker::RustLld.path(), None);
+    }
+
+    #[test]
+    fn path_with_puts_a_folder_first_once() {
+        let dir = Path::new("/no/such/xtask-test-bin");
+        let once = path_with(dir);
+        assert_eq!(std::env::split_paths(&once).next().as_deref(), Some(dir));
+        let current = std::env::var_os("PATH").unwrap_or_default();
+        assert_eq!(
+            std::env::split_paths(&once).count(),
+            std::env::split_paths(&current).count() + 1
+        );
     }
 }

@@ -35,6 +35,10 @@ const QEMU_FEATURES: &[&str] = &["--no-default-features", "--features", "qemu"];
 const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
 /// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
 const RANDOM_SEQUENCES: &str = "1000000";
+/// The check that runs the README's and docs/' code blocks against the emulators (their
+/// marks, and the blocks checked against files: `tools/snippets/test_marks.py`, with the
+/// documents' checks).
+const SNIPPETS_RUN: &str = "tools/snippets/test_run.py";
 /// The demo's master, run with the interop venv's Python.
 const DEMO_SCRIPT: &str = "tools/demo.py";
 
@@ -50,8 +54,12 @@ tasks:
         [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
         [--image release|stack-overflow] control line on tcp:127.0.0.1:Q, decoded defmt log on
                                         stderr; FILE keeps the parameter page (default
-                                        target/board-emu/flash.bin); stack-overflow: the test
-                                        build that overflows its stack right after boot
+                                        target/board-emu/flash.bin); N: the DIP switch in
+                                        binary, switches 8..1 (0b01100101: 1, 3, 6, 7 on; 0x65
+                                        and 101 too); stack-overflow: the test build that
+                                        overflows its stack right after boot
+  snippets                              run the README's and docs/' code blocks that need no
+                                        hardware against the emulators (tools/snippets)
   lint                                  ruff check and ruff format --check over all Python
   interop [pytest args]                 only the interop suite (venv, QEMU variant, board, pytest)
   host [pytest args]                    only the LinuxCNC component's unit and property tests
@@ -66,7 +74,8 @@ tasks:
                                         live python-canopen master
   docs [--check]                        re-render docs/wiring/handwheel.svg from handwheel.yml
                                         (WireViz, Graphviz), then check it against the pin
-                                        map and every relative link in the Markdown files;
+                                        map, every relative link in the Markdown files and
+                                        the marks of the README's and docs/' code blocks;
                                         --check: only the checks (no Graphviz)
   bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
@@ -84,6 +93,7 @@ fn main() -> ExitCode {
         Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
         Some("board") => board::Args::from_args(rest).and_then(run_board),
         Some("lint") => python_lint(),
+        Some("snippets") => snippets_run(),
         Some("interop") => interop(rest),
         Some("host") => host_tests(rest),
         Some("feed-check") => feed_check(rest),
@@ -173,6 +183,7 @@ fn test() -> Result<(), String> {
         .concat(),
     )?;
     firmware_build()?;
+    one_build_check()?;
     // The release machine code in the emulator: CPU figures in one line, the stack and the
     // wheel edge's cycles and latency checked.
     stack_check(&machine_bench(true)?)?;
@@ -206,9 +217,11 @@ fn test() -> Result<(), String> {
         },
     )?;
     eprintln!(
-        "xtask: build checks passed in {:.0} s; now the interop suite",
+        "xtask: build checks passed in {:.0} s; now the documents' snippets and the interop \
+         suite",
         started.elapsed().as_secs_f64()
     );
+    snippets_run()?;
     interop(&[])?;
     linuxcnc_suite(&[])?;
     linuxcnc_suite(&["--board".to_string()])?;
@@ -334,6 +347,39 @@ const QEMU_BUDGET: footprint::Budget = footprint::Budget {
 fn firmware_build() -> Result<(), String> {
     release_build()?;
     footprint_check()
+}
+
+/// `cargo fw`, the README's build, right after xtask's: it must compile nothing, since both
+/// build the same configuration into the same target directory (`linker.rs`).
+fn one_build_check() -> Result<(), String> {
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    eprintln!("xtask: cargo fw (the README's build: must compile nothing now)");
+    let mut command = Command::new(cargo);
+    command.arg("fw").current_dir(workspace_root());
+    if let Some(path) = linker::flip_link()?.path() {
+        command.env("PATH", path);
+    }
+    let output = command
+        .output()
+        .map_err(|e| format!("cannot run cargo fw: {e}"))?;
+    let log = String::from_utf8_lossy(&output.stderr);
+    eprint!("{log}");
+    if !output.status.success() {
+        return Err(format!("`cargo fw` failed ({})", output.status));
+    }
+    let compiled: Vec<&str> = log
+        .lines()
+        .filter(|l| l.trim_start().starts_with("Compiling"))
+        .collect();
+    if compiled.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "`cargo fw` after `cargo xtask fw` compiled {} crate(s): the two builds differ \
+             (linker, flags or environment; xtask/src/linker.rs)",
+            compiled.len()
+        ))
+    }
 }
 
 /// Builds the release firmware.
@@ -535,6 +581,31 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     }
 }
 
+/// The README's and docs/' code blocks that need no hardware, run against the QEMU variant
+/// and the emulated board ([`SNIPPETS_RUN`], pytest in the interop venv).
+fn snippets_run() -> Result<(), String> {
+    let started = Instant::now();
+    Emulator::prepare()?;
+    Board::prepare()?;
+    let root = workspace_root();
+    let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
+    let mut pytest = Command::new(&python);
+    pytest
+        .args(["-m", "pytest", SNIPPETS_RUN, "-q"])
+        .current_dir(&root);
+    let result = pyenv::run(&mut pytest);
+    eprintln!(
+        "xtask: the documents' snippets took {:.0} s",
+        started.elapsed().as_secs_f64()
+    );
+    result.map_err(|e| {
+        format!(
+            "a snippet of the README or docs/ failed: {e}\n(tools/snippets/snippets.py says \
+             how the blocks are marked and run)"
+        )
+    })
+}
+
 /// `ruff check` and `ruff format --check` over all of the project's Python (tests/, tools/,
 /// host/; rules in ruff.toml), with the ruff pinned in `tools/lint/requirements.txt`, in its
 /// own venv (`target/lint-venv`).
@@ -617,8 +688,10 @@ fn docs(args: &[String]) -> Result<(), String> {
 }
 
 /// The wiring diagram's checks (`tools/wiring/test_wiring.py`) in `target/wiring-venv`: the
-/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; and
-/// every relative link in the Markdown files (`tools/doclinks/test_doclinks.py`).
+/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; every
+/// relative link in the Markdown files (`tools/doclinks/test_doclinks.py`); and the marks of
+/// the documents' code blocks with the checks that need no emulator
+/// (`tools/snippets/test_marks.py`).
 fn wiring_check() -> Result<(), String> {
     let root = workspace_root();
     let python = wiring::python(&root, &target_dir())?;
@@ -626,7 +699,8 @@ fn wiring_check() -> Result<(), String> {
         format!(
             "the documents' checks failed: {e}\n(after changing docs/wiring/handwheel.yml, \
              re-render with `cargo xtask docs`; a broken Markdown link: fix the link or the \
-             heading it names)"
+             heading it names; an unmarked code block: mark it as tools/snippets/snippets.py \
+             says)"
         )
     })
 }
@@ -683,11 +757,15 @@ fn linuxcnc_console(args: &[String]) -> Result<(), String> {
 /// master (`tools/demo.py` with the interop venv's Python), which starts `cargo xtask qemu`
 /// (or `cargo xtask board`) itself.
 fn demo(args: &[String]) -> Result<(), String> {
-    if args.iter().any(|a| a == "--board") {
+    // The log goes beside the emulator's other files: target/qemu or target/board-emu.
+    let log_dir = if args.iter().any(|a| a == "--board") {
         Board::prepare()?;
+        target_dir().join("board-emu")
     } else {
         Emulator::prepare()?;
-    }
+        qemu_target_dir()
+    };
+    std::fs::create_dir_all(&log_dir).map_err(|e| format!("{}: {e}", log_dir.display()))?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let mut command = Command::new(&python);
@@ -695,7 +773,7 @@ fn demo(args: &[String]) -> Result<(), String> {
         .arg(root.join(DEMO_SCRIPT))
         .args(args)
         .current_dir(&root)
-        .env("HANDWHEEL_QEMU_LOG", qemu_target_dir().join("demo.log"));
+        .env("HANDWHEEL_QEMU_LOG", log_dir.join("demo.log"));
     eprintln!("xtask: {command:?}");
     // Replaces this process, so that Ctrl-C reaches the demo alone and it cleans up.
     let error = command.exec();
@@ -732,10 +810,10 @@ fn cargo(args: &[&str]) -> Result<(), String> {
     cargo_with(args, None)
 }
 
-/// Runs cargo for a board image: linked by flip-link (installed on first use).
+/// Runs cargo for a board image: linked by the configuration's flip-link, as `cargo fw`
+/// links (installed on first use; see `linker.rs`).
 fn board_cargo(args: &[&str]) -> Result<(), String> {
-    let flip_link = linker::flip_link(&qemu::tools_root(&target_dir()))?;
-    cargo_linked(args, &linker::Linker::FlipLink(flip_link))
+    cargo_linked(args, &linker::flip_link()?)
 }
 
 /// Runs cargo with the firmware target's linker set to `linker`.
@@ -749,7 +827,12 @@ fn cargo_with(args: &[&str], linker: Option<&linker::Linker>) -> Result<(), Stri
     let mut command = Command::new(cargo);
     command.args(args).current_dir(workspace_root());
     if let Some(linker) = linker {
-        command.env(linker::LINKER_ENV, linker.program());
+        if let Some(program) = linker.override_program() {
+            command.env(linker::LINKER_ENV, program);
+        }
+        if let Some(path) = linker.path() {
+            command.env("PATH", path);
+        }
     }
     let status = command
         .status()

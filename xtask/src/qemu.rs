@@ -148,22 +148,36 @@ pub fn defmt_print(tools_root: &Path) -> Result<PathBuf, String> {
     if installed {
         return Ok(bin);
     }
-    cargo_install(tools_root, "defmt-print", DEFMT_PRINT_VERSION)
+    cargo_install(Some(tools_root), "defmt-print", DEFMT_PRINT_VERSION)
 }
 
-/// `cargo install --locked --version =<version> --root <tools_root> <name>`; returns
-/// `<tools_root>/bin/<name>`, which must exist afterwards. The one way xtask installs a tool.
-pub fn cargo_install(tools_root: &Path, name: &str, version: &str) -> Result<PathBuf, String> {
-    let bin = tools_root.join("bin").join(name);
+/// `cargo install <name> --locked --version =<version>`, with `--root <root>` if given (else
+/// into cargo's own `bin` folder, [`crate::linker::cargo_bin_dir`]); returns the installed
+/// binary, which must exist afterwards. The one way xtask installs a tool. The install runs
+/// with that `bin` folder on its `PATH`: xtask calls the tool by its path (or puts the folder
+/// on its builds' `PATH`), so cargo's advice to add the folder to `PATH` would mislead.
+pub fn cargo_install(root: Option<&Path>, name: &str, version: &str) -> Result<PathBuf, String> {
+    let bin_dir = match root {
+        Some(root) => root.join("bin"),
+        None => crate::linker::cargo_bin_dir()
+            .ok_or("cannot tell cargo's bin folder: neither CARGO_HOME nor HOME is set")?,
+    };
+    let bin = bin_dir.join(name);
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let version = format!("={version}");
+    let mut command = Command::new(cargo);
+    command.args(["install", name, "--locked", "--version", &version]);
+    if let Some(root) = root {
+        command.arg("--root").arg(root);
+    }
+    command.env("PATH", crate::linker::path_with(&bin_dir));
     eprintln!(
-        "xtask: cargo install {name} --locked --version {version} --root {}",
-        tools_root.display()
+        "xtask: cargo install {name} --locked --version {version}{} (once; it builds from \
+         source, a few minutes)",
+        root.map(|r| format!(" --root {}", r.display()))
+            .unwrap_or_default()
     );
-    let status = Command::new(cargo)
-        .args(["install", name, "--locked", "--version", &version, "--root"])
-        .arg(tools_root)
+    let status = command
         .status()
         .map_err(|e| format!("cannot run cargo install: {e}"))?;
     if !status.success() {

@@ -17,6 +17,9 @@ use crate::{host, pyenv};
 pub const PACKAGE: &str = "tools/wiring";
 /// The Markdown link check (standard library and pytest), relative to the workspace root.
 pub const LINKS: &str = "tools/doclinks";
+/// The marks of the documents' code blocks and the blocks checked against files
+/// (standard library and pytest), relative to the workspace root.
+pub const SNIPPET_MARKS: &str = "tools/snippets/test_marks.py";
 /// Its pinned requirements (WireViz, PyYAML, pytest and their dependencies).
 pub const REQUIREMENTS: &str = "tools/wiring/requirements.txt";
 
@@ -38,8 +41,8 @@ pub fn render(python: &Path, root: &Path) -> Command {
     cmd
 }
 
-/// The checks under pytest (no cache folder left in the source tree): the wiring diagram's
-/// and the documents' links.
+/// The checks under pytest (no cache folder left in the source tree): the wiring diagram's,
+/// the documents' links and the marks of their code blocks.
 pub fn tests(python: &Path, root: &Path, extra: &[&str]) -> Command {
     let mut cmd = Command::new(python);
     cmd.args([
@@ -49,6 +52,7 @@ pub fn tests(python: &Path, root: &Path, extra: &[&str]) -> Command {
         "no:cacheprovider",
         PACKAGE,
         LINKS,
+        SNIPPET_MARKS,
         "-q",
     ])
     .args(extra)

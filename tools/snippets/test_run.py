@@ -1,0 +1,114 @@
+"""The README's and docs/' blocks that run without hardware, run against the emulators
+(`cargo xtask test`, with the interop suite's venv: python-can, canopen; `tools/` on the
+path): per document, its `emulator` block is started on free ports, then its `python` blocks
+run in order in one namespace and its `control` lines are typed on the control port. How the
+blocks are marked: `snippets.py`."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import time
+from pathlib import Path
+
+import pytest
+
+import snippets
+from rig import Qemu, Stimulus
+from rig.constants import START_TIMEOUT
+
+# Documents whose blocks continue another's session (`network` and `node` from it).
+CONTINUES = {"LSS.md": "QEMU.md"}
+RUNNABLE = {"emulator", "python", "control"}
+# Seconds between two `python` blocks of a session.
+PAUSE = 1.0
+
+
+def sessions() -> dict[str, list[snippets.Snippet]]:
+    """The runnable blocks of each document that has an emulator, a continued document's
+    blocks first."""
+    by_doc = {
+        path.name: [s for s in snippets.snippets(path) if s.kind in RUNNABLE]
+        for path in snippets.documents()
+    }
+    result = {}
+    for name, blocks in by_doc.items():
+        if not blocks:
+            continue
+        before = by_doc.get(CONTINUES.get(name, ""), [])
+        result[name] = before + blocks
+    return result
+
+
+SESSIONS = sessions()
+
+
+def test_the_runnable_documents():
+    assert {"FIRST-POWER-ON.md", "QEMU.md", "LSS.md"} <= set(SESSIONS)
+    for name, blocks in SESSIONS.items():
+        assert blocks[0].kind == "emulator", f"{name}: its first runnable block starts nothing"
+
+
+def start(snippet: snippets.Snippet, log_dir: Path) -> Qemu:
+    """The emulator of an `emulator` block, on free ports (the board's parameter page in a
+    fresh file, not the default one)."""
+    words = snippets.command_lines(snippet.text)[0].split()
+    task = words[2]
+    extra = dict(zip(words[7::2], words[8::2], strict=True))
+    extra = {k.removeprefix("--"): v for k, v in extra.items()}
+    if task == "board":
+        extra.setdefault("flash", str(log_dir / "flash.bin"))
+    emulator = Qemu(log_dir / f"{task}.log", task=task, extra=extra)
+    # As the documents say: connect once it listens (QEMU's line, or the board's).
+    port = emulator.can_port
+    emulator.wait_for_log(
+        rf"QEMU waiting for connection on: .*tcp:127\.0\.0\.1:{port}\b"
+        rf"|board-emu: SLCAN on 127\.0\.0\.1:{port}\b",
+        timeout=START_TIMEOUT,
+    )
+    return emulator
+
+
+@pytest.mark.parametrize("document", sorted(SESSIONS))
+def test_blocks_run_as_written(document, tmp_path):
+    emulator = None
+    stimulus = None
+    namespace: dict = {"__name__": "__snippet__"}
+    try:
+        for block in SESSIONS[document]:
+            started = time.monotonic()
+            if block.kind == "emulator":
+                assert emulator is None, f"{block.where}: a second emulator"
+                emulator = start(block, tmp_path)
+                continue
+            assert emulator is not None
+            if block.kind == "python":
+                # A reader pastes one block after another: give the node a moment, e.g. to
+                # finish the reset the block before asked for.
+                if namespace.get("__builtins__") is not None:
+                    time.sleep(PAUSE)
+                code = snippets.python_for_emulator(block, emulator.can_port)
+                out = io.StringIO()
+                with contextlib.redirect_stdout(out):
+                    exec(compile(code, block.where, "exec"), namespace)  # noqa: S102
+                lines = out.getvalue().splitlines()
+                print(f"{block.where}: ran in {time.monotonic() - started:.1f} s: {lines}")
+                expected = snippets.printed(code)
+                if expected:
+                    assert lines[-len(expected) :] == expected, f"{block.where}: printed {lines}"
+            elif block.kind == "control":
+                if stimulus is None:
+                    stimulus = Stimulus(emulator.stim_port, emulator)
+                for line in snippets.control_lines(block):
+                    reply = stimulus.send(line)
+                    assert reply == "ok", f"{block.where}: `{line}` answered `{reply}`"
+                print(f"{block.where}: {snippets.control_lines(block)} answered ok")
+    finally:
+        network = namespace.get("network")
+        if network is not None:
+            with contextlib.suppress(Exception):
+                network.disconnect()
+        if stimulus is not None:
+            stimulus.close()
+        if emulator is not None:
+            emulator.stop()
