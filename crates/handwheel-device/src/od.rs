@@ -18,7 +18,8 @@ pub const SELECTION: u16 = 0x2010;
 pub const ENCODER: u16 = 0x2020;
 /// Feed status: flags in bits 0-4, the epoch's low three bits in 5-7 (U8 ro, mappable).
 pub const FEED_STATUS: u16 = 0x2030;
-/// Feed sequence: +1 per feed record (TPDO1) sent or dropped (U8 ro, mappable).
+/// Feed sequence: +1 per feed record (TPDO1) sent and per loss, +8 at a break (U8 ro,
+/// mappable; README "Feed record").
 pub const FEED_SEQUENCE: u16 = 0x2031;
 /// The unit-step byte in flight in the paper's format (U8 ro, mappable; TPDO2).
 pub const UNIT_STEP: u16 = 0x2032;
