@@ -18,6 +18,7 @@
 
 use crate::feed::{FeedState, FeedStatus, UnitStep};
 use crate::outbox::FeedOutbox;
+use crate::pdo::FeedRecord;
 use crate::selector::{Multiplier, Selection};
 
 /// Default bound of the unit-step backlog.
@@ -271,12 +272,22 @@ impl FeedAccumulator {
         self.outbox.sequence()
     }
 
-    /// A feed record carrying [`FeedAccumulator::record_to_send`] went out. Returns whether
-    /// another one is due.
+    /// The next feed record, one consistent snapshot: what [`FeedAccumulator::record_to_send`]
+    /// says and the sequence number it carries. TPDO1 is built from it, encoded by
+    /// [`FeedRecord::to_bytes`].
+    pub fn record(&self) -> FeedRecord {
+        FeedRecord {
+            state: self.record_to_send(),
+            sequence: self.outbox.sequence(),
+        }
+    }
+
+    /// The feed record `sent` (taken with [`FeedAccumulator::record`]) went out. Returns
+    /// whether another one is due.
     #[must_use = "a record that is due must be requested"]
-    pub fn record_sent(&mut self) -> bool {
+    pub fn record_sent(&mut self, sent: FeedState) -> bool {
         let live = self.state();
-        self.outbox.sent(live)
+        self.outbox.sent(sent, live)
     }
 
     /// Feed records may flow (the device entered Operational): epochs that end from now on

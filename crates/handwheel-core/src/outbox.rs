@@ -115,11 +115,16 @@ impl FeedOutbox {
         self.sequence
     }
 
-    /// A feed record carrying `self.next(live)` went out. Returns whether another is due:
-    /// more is held, or the present state differs from what just went out.
+    /// A feed record carrying `record` (what [`FeedOutbox::next`] gave when the record was
+    /// built) went out; `live` is the present state. Returns whether another is due: more is
+    /// held, or the present state differs from what just went out. The record, not the
+    /// present state, is what the host now knows: detents counted while it was built are
+    /// not in it.
     #[must_use = "a record that is due must be requested"]
-    pub fn sent(&mut self, live: FeedState) -> bool {
-        let record = self.pop().unwrap_or(live);
+    pub fn sent(&mut self, record: FeedState, live: FeedState) -> bool {
+        if self.oldest() == Some(record) {
+            let _ = self.pop();
+        }
         self.last_sent = Some(record);
         self.sequence = self.sequence.wrapping_add(1);
         self.drops_in_run = 0;
@@ -225,7 +230,7 @@ mod tests {
         let x = state(3, Axis::X, 1);
         assert_eq!(out.next(x), x);
         assert!(
-            !out.sent(x),
+            !out.sent(x, x),
             "the present state went out: nothing more is due"
         );
         assert_eq!(out.sequence(), 1);
@@ -239,7 +244,7 @@ mod tests {
     #[test]
     fn an_epoch_that_ended_unsent_goes_out_before_the_next() {
         let mut out = started();
-        assert!(!out.sent(state(0, Axis::X, 1)));
+        assert!(!out.sent(out.next(state(0, Axis::X, 1)), state(0, Axis::X, 1)));
         // X moved to 30 but the bus took nothing; then Y (epoch 2) and X again (epoch 3).
         out.close_epoch(state(30, Axis::X, 1));
         out.close_epoch(state(37, Axis::Y, 2));
@@ -248,7 +253,7 @@ mod tests {
         loop {
             let record = out.next(live);
             seen.push((record.position, record.axis, record.epoch, out.sequence()));
-            if !out.sent(live) {
+            if !out.sent(record, live) {
                 break;
             }
         }
@@ -265,7 +270,7 @@ mod tests {
     #[test]
     fn a_full_store_drops_the_oldest_and_shows_a_gap() {
         let mut out = started();
-        assert!(!out.sent(state(-1, Axis::X, 0)));
+        assert!(!out.sent(out.next(state(-1, Axis::X, 0)), state(-1, Axis::X, 0)));
         for epoch in 0..HELD_EPOCHS as u8 + 3 {
             out.close_epoch(state(i32::from(epoch), Axis::X, epoch));
         }
@@ -283,7 +288,7 @@ mod tests {
     #[test]
     fn a_long_run_of_drops_moves_the_sequence_by_at_most_eight() {
         let mut out = started();
-        assert!(!out.sent(state(0, Axis::X, 0)));
+        assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         for epoch in 1..=300u16 {
             out.close_epoch(state(0, Axis::X, epoch as u8));
         }
@@ -294,7 +299,10 @@ mod tests {
             "not wrapped round by 292 drops"
         );
         // Sending ends the run: the next drops show as a new gap.
-        assert!(out.sent(state(0, Axis::X, 44)), "seven are still held");
+        assert!(
+            out.sent(out.next(state(0, Axis::X, 44)), state(0, Axis::X, 44)),
+            "seven are still held"
+        );
         out.close_epoch(state(0, Axis::X, 45));
         assert_eq!(out.sequence(), 2 + MAX_DROP_GAP, "room for one: no drop");
         out.close_epoch(state(0, Axis::X, 46));
@@ -304,7 +312,7 @@ mod tests {
     #[test]
     fn stop_drops_what_is_held_and_breaks() {
         let mut out = started();
-        assert!(!out.sent(state(0, Axis::X, 0)));
+        assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         out.close_epoch(state(5, Axis::X, 0));
         out.stop();
         assert_eq!(out.held(), 0);
@@ -329,13 +337,13 @@ mod tests {
             0,
             "the first start after power-on has the boot-up"
         );
-        assert!(!out.sent(state(0, Axis::X, 0)));
+        assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         out.stop();
         out.stop();
         assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
         out.start();
         assert_eq!(out.sequence(), 1 + MAX_DROP_GAP, "the run is full already");
-        assert!(!out.sent(state(0, Axis::X, 0)));
+        assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         out.start();
         assert_eq!(
             out.sequence(),
@@ -356,7 +364,7 @@ mod tests {
         out.close_epoch(state(0, Axis::Z, 2));
         assert_eq!(out.held(), 0, "no record yet: nothing to continue from");
         assert_eq!(out.sequence(), MAX_DROP_GAP, "the run is full");
-        assert!(!out.sent(state(0, Axis::Z, 3)));
+        assert!(!out.sent(out.next(state(0, Axis::Z, 3)), state(0, Axis::Z, 3)));
         out.close_epoch(state(4, Axis::Z, 3));
         assert_eq!(out.held(), 1);
         out.stop();
@@ -368,7 +376,7 @@ mod tests {
     #[test]
     fn a_break_moves_the_sequence_by_the_full_gap_once_per_run() {
         let mut out = started();
-        assert!(!out.sent(state(0, Axis::X, 0)));
+        assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         out.close_epoch(state(3, Axis::X, 0));
         out.close_epoch(state(3, Axis::Y, 1));
         assert_eq!(out.held(), 2);
@@ -381,5 +389,21 @@ mod tests {
         );
         out.break_continuity();
         assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
+    }
+
+    #[test]
+    fn what_the_host_knows_is_the_record_not_the_state_when_it_went_out() {
+        let mut out = started();
+        // Built at position 3; two more detents were counted before it went out.
+        let built = state(3, Axis::X, 1);
+        let live = state(5, Axis::X, 1);
+        assert!(
+            out.sent(built, live),
+            "the present state differs: another record is due"
+        );
+        // The epoch ends at 5 before that record: its final state is not what the host has.
+        out.close_epoch(live);
+        assert_eq!(out.held(), 1, "the final state is held, not taken as sent");
+        assert_eq!(out.next(state(5, Axis::Y, 2)), live);
     }
 }

@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedStatus, Handwheel, StopReason,
-    UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel,
+    StopReason, UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
 };
 
 use crate::od::{
@@ -110,6 +110,10 @@ pub struct FeedApp {
     /// A consumed heartbeat is in timeout: feed may not be enabled until the engine reports
     /// every monitored node back.
     pub(crate) master_lost: bool,
+    /// The feed record TPDO1 is being built from: one snapshot, taken when the engine asks
+    /// whether TPDO1 is ready, so that every mapped object reads the same record however the
+    /// edge task moves the wheel meanwhile.
+    pub(crate) record: Option<FeedRecord>,
 }
 
 impl FeedApp {
@@ -122,6 +126,7 @@ impl FeedApp {
             step_byte: 0,
             feed_due: false,
             master_lost: false,
+            record: None,
         }
     }
 }
@@ -212,6 +217,9 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     }
 
     fn tpdo_ready(&mut self, pdo: u8) -> bool {
+        if pdo == 1 {
+            self.app.record = Some(self.wheel.with_wheel(|w| w.feed.record()));
+        }
         // TPDO2 carries unit steps, i.e. motion: it may only go out with a step in flight.
         // A step withdrawn by a stop or an axis change, an event timer or a SYNC an
         // integrator configured, must never repeat the last byte.
@@ -230,7 +238,11 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
 
     fn on_tpdo_sent(&mut self, pdo: u8) {
         if pdo == 1 {
-            let more = self.wheel.with_wheel(|w| w.feed.record_sent());
+            let record = self.app.record.take();
+            let more = self.wheel.with_wheel(|w| {
+                let sent = record.map_or_else(|| w.feed.record_to_send(), |r| r.state);
+                w.feed.record_sent(sent)
+            });
             self.app.feed_due |= more;
         } else if pdo == 2 && self.app.step_in_flight.take().is_some() {
             // `tpdo_ready` let TPDO2 go only with a step in flight: that step is on the bus.
@@ -276,6 +288,20 @@ impl<W: WheelAccess> AppContext<'_, W> {
         // Every application object is an integer of 1, 2 or 4 bytes: pick the value and its
         // size, then copy once (one copy instead of one per object keeps the image small).
         let app = &*self.app;
+        if let Some(bytes) = app.record.filter(|_| record).map(|r| r.to_bytes()) {
+            // The record's own encoding (`handwheel-core`), object by object.
+            let field = match (index, sub) {
+                (POSITION_VALUE, 0) => Some(&bytes[0..4]),
+                (SELECTION, 1) => Some(&bytes[4..5]),
+                (SELECTION, 2) => Some(&bytes[5..6]),
+                (FEED_STATUS, 0) => Some(&bytes[6..7]),
+                (FEED_SEQUENCE, 0) => Some(&bytes[7..8]),
+                _ => None,
+            };
+            if let Some(field) = field {
+                return put(buf, field);
+            }
+        }
         let (value, size): (u32, usize) = match (index, sub) {
             (FEED_FORMAT, 0) => (app.parameters.unit_steps.into(), 1),
             (ENCODER, 3) => (app.parameters.decoder.counts_per_detent.get().into(), 1),
@@ -284,10 +310,10 @@ impl<W: WheelAccess> AppContext<'_, W> {
             (FEED_DIAGNOSTICS, 3) => (app.parameters.backlog_bound.into(), 2),
             _ => self.wheel.with_wheel(|w| {
                 let feed = &w.feed;
-                let state = if record {
-                    feed.record_to_send()
-                } else {
-                    feed.state()
+                let state = match app.record.filter(|_| record) {
+                    Some(r) => r.state,
+                    None if record => feed.record_to_send(),
+                    None => feed.state(),
                 };
                 Ok(match (index, sub) {
                     (FEED_ENABLE, 0) => (state.status.contains(FeedStatus::ENABLED).into(), 1),
