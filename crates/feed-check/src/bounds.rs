@@ -29,6 +29,8 @@ const BASE: Bounds = Bounds {
     channel_faults: 0,
     replay_depth: 0,
     host_stalls: 0,
+    master_beats: 0,
+    consumer_ms: 250,
     late_ms: 500,
     warmups: &[],
 };
@@ -81,6 +83,16 @@ pub const ALL: &[Bounds] = &[
         ticks: 6,
         tick_ms: 100,
         host_stalls: 1,
+        ..BASE
+    },
+    // The master's heartbeat lost and back (consumer time 250 ms), re-enabling after it.
+    Bounds {
+        name: "master loss",
+        turns: 1,
+        feed_writes: 1,
+        ticks: 5,
+        tick_ms: 100,
+        master_beats: 1,
         ..BASE
     },
     // The shipped widths, inhibit time and transmit path (16 queued + 3 mailboxes).

@@ -93,6 +93,9 @@ pub enum Action {
     HostStall,
     /// The host reads again: the backlog, then its receive path is empty.
     HostResume,
+    /// The master's heartbeat (node 1) reaches the device; without it for the consumer time
+    /// the device counts the master as lost. A stalled host sends none.
+    MasterBeat,
 }
 
 /// What one exploration may do: how often each kind of action, and the settings.
@@ -129,6 +132,11 @@ pub struct Bounds {
     pub replay_depth: u8,
     /// Host stalls at most.
     pub host_stalls: u8,
+    /// Master heartbeats at most; with any, the device watches the master (0x1016:1, node 1,
+    /// [`Bounds::consumer_ms`]).
+    pub master_beats: u8,
+    /// The device's heartbeat consumer time for the master, ms.
+    pub consumer_ms: u16,
     /// The bound the property sets on lateness: nothing is credited later than this after
     /// it was turned.
     pub late_ms: u64,
@@ -215,7 +223,7 @@ pub struct World {
     host_stalled: bool,
     host_backlog: VecDeque<Wire>,
     truth: Truth,
-    used: [u8; 8],
+    used: [u8; 9],
     /// The first breach of the property, if any.
     pub violation: Option<String>,
     /// What the host was given, in order, when recording test vectors (`None` while
@@ -259,6 +267,7 @@ enum Budget {
     Ticks,
     ChannelFaults,
     HostStalls,
+    MasterBeats,
 }
 
 /// A transmit path of bounded size.
@@ -309,6 +318,7 @@ impl FeedModel {
             Budget::Ticks => self.bounds.ticks,
             Budget::ChannelFaults => self.bounds.channel_faults,
             Budget::HostStalls => self.bounds.host_stalls,
+            Budget::MasterBeats => self.bounds.master_beats,
         }
     }
 
@@ -346,7 +356,7 @@ impl FeedModel {
                 moves: vec![Vec::new()],
                 credited_upto: vec![0],
             },
-            used: [0; 8],
+            used: [0; 9],
             violation: None,
             log,
         };
@@ -369,6 +379,12 @@ impl FeedModel {
         ] {
             self.sdo_write(&mut w, index, sub, data);
             self.pass_all(&mut w);
+        }
+        if self.bounds.master_beats > 0 {
+            let entry = ((1u32 << 16) | u32::from(self.bounds.consumer_ms)).to_le_bytes();
+            self.sdo_write(&mut w, 0x1016, 1, &entry);
+            self.pass_all(&mut w);
+            self.receive(&mut w, 0x701, &[0x05]);
         }
         self.nmt(&mut w, Nmt::Start);
         self.pass_all(&mut w);
@@ -658,6 +674,8 @@ impl Model for FeedModel {
         }
         if w.host_stalled {
             actions.push(Action::HostResume);
+        } else if b(Budget::MasterBeats) {
+            actions.push(Action::MasterBeat);
         }
     }
 
@@ -674,6 +692,7 @@ impl Model for FeedModel {
                 self.spend(&mut w, Budget::ChannelFaults)
             }
             Action::HostStall => self.spend(&mut w, Budget::HostStalls),
+            Action::MasterBeat => self.spend(&mut w, Budget::MasterBeats),
             Action::Pass | Action::HostResume => true,
         };
         if !ok {
@@ -707,6 +726,7 @@ impl Model for FeedModel {
                 self.to_host(&mut w, frame);
             }
             Action::HostStall => w.host_stalled = true,
+            Action::MasterBeat => self.receive(&mut w, 0x701, &[0x05]),
             Action::HostResume => {
                 w.host_stalled = false;
                 while let Some(frame) = w.host_backlog.pop_front() {
