@@ -600,10 +600,10 @@ impl FeedModel {
     /// An initial state `like` (one of [`Model::init_states`]) made again with the host's
     /// input recorded from power-on.
     pub fn recorded(&self, like: &World) -> World {
-        let turns = like.truth.moves[0].len().saturating_sub(0) as u8;
+        // The warm-up's detents are the only ones of era 0 in an initial state.
         let start = self.initial_with(Some(Vec::new()));
-        let base = start.truth.moves[0].len() as u8;
-        self.warmed(start, turns - base)
+        let warmup = like.truth.moves[0].len() - start.truth.moves[0].len();
+        self.warmed(start, warmup as u8)
     }
 
     fn spend(&self, w: &mut World, b: Budget) -> bool {
