@@ -10,9 +10,11 @@ recorder, stimulus client, `open_rig`) is the library `tools/rig`.
 from __future__ import annotations
 
 import sys
+import time
 from contextlib import contextmanager
 from typing import Iterator
 
+import can
 import canopen
 import pytest
 
@@ -125,3 +127,30 @@ def frames(rig: Rig) -> FrameRecorder:
 @pytest.fixture
 def stim(rig: Rig) -> Stimulus:
     return rig.stim
+
+
+@contextmanager
+def raw_bus(board: BoardProcess):
+    """python-can on the board's SLCAN port with a recorder, no canopen network (the tests of
+    the board that send raw frames)."""
+    deadline = time.monotonic() + 600
+    while True:
+        board.check_alive()
+        try:
+            bus = can.Bus(
+                interface="slcan",
+                channel=f"socket://127.0.0.1:{board.can_port}",
+                sleep_after_open=0,
+            )
+            break
+        except can.CanError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+    frames = FrameRecorder()
+    notifier = can.Notifier(bus, [frames])
+    try:
+        yield bus, frames
+    finally:
+        notifier.stop()
+        bus.shutdown()

@@ -8,13 +8,12 @@ injects bus errors, holds the bus and reads the LED history; see tools/board-emu
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 
 import can
 import pytest
 from canopen.lss import LssMaster
 
-from conftest import BoardProcess, stopped_after
+from conftest import BoardProcess, raw_bus, stopped_after
 from rig import (
     BOOTUP,
     EMCY,
@@ -25,7 +24,6 @@ from rig import (
     SDO_TX,
     STOPPED,
     TPDO1,
-    FrameRecorder,
     feed_record,
     open_rig,
 )
@@ -45,32 +43,6 @@ def board(request, tmp_path):
 def brig(board):
     with open_rig(board) as r:
         yield r
-
-
-@contextmanager
-def raw_bus(board: BoardProcess):
-    """python-can on the board's SLCAN port with a recorder, no canopen network."""
-    deadline = time.monotonic() + 600
-    while True:
-        board.check_alive()
-        try:
-            bus = can.Bus(
-                interface="slcan",
-                channel=f"socket://127.0.0.1:{board.can_port}",
-                sleep_after_open=0,
-            )
-            break
-        except can.CanError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.1)
-    frames = FrameRecorder()
-    notifier = can.Notifier(bus, [frames])
-    try:
-        yield bus, frames
-    finally:
-        notifier.stop()
-        bus.shutdown()
 
 
 def send(bus, cob_id: int, data: bytes) -> None:

@@ -13,13 +13,11 @@ host test `crates/handwheel-device/tests/power_cut.rs` does with its own flash m
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 
 import can
 import pytest
 
-from conftest import BoardProcess, stopped_after
-from rig import FrameRecorder
+from conftest import BoardProcess, raw_bus, stopped_after
 
 SAVE = b"save"
 LOAD = b"load"
@@ -30,32 +28,6 @@ LSS_MASTER, LSS_SLAVE = 0x7E5, 0x7E4
 def board(request, tmp_path):
     with stopped_after(request, BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")) as b:
         yield b
-
-
-@contextmanager
-def raw_bus(board: BoardProcess):
-    """python-can on the board's SLCAN port with a recorder."""
-    deadline = time.monotonic() + 600
-    while True:
-        board.check_alive()
-        try:
-            bus = can.Bus(
-                interface="slcan",
-                channel=f"socket://127.0.0.1:{board.can_port}",
-                sleep_after_open=0,
-            )
-            break
-        except can.CanError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.1)
-    frames = FrameRecorder()
-    notifier = can.Notifier(bus, [frames])
-    try:
-        yield bus, frames
-    finally:
-        notifier.stop()
-        bus.shutdown()
 
 
 class Node:
