@@ -163,7 +163,8 @@ impl Storage for MemoryStorage {
     }
 }
 
-fn crc16(data: &[u8]) -> u16 {
+/// The stored blob's checksum, CRC-16/CCITT-FALSE (public for tests that craft stored blobs).
+pub fn crc16(data: &[u8]) -> u16 {
     // CRC-16/CCITT-FALSE, bitwise: a table would cost 512 bytes of flash for no gain here.
     data.iter().fold(0xFFFF, |mut crc: u16, &b| {
         crc ^= u16::from(b) << 8;

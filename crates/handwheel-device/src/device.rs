@@ -99,11 +99,7 @@ impl<S: Storage> HandwheelDevice<S> {
             engine: Device::new(config, OD, storage),
             app: FeedApp::new(),
             encoder_error_raised: false,
-            stall: StallWatch {
-                since: None,
-                completed: 0,
-                handled: false,
-            },
+            stall: StallWatch::default(),
         }
     }
 

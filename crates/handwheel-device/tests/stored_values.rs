@@ -37,22 +37,6 @@ fn slot(index: u16, sub: u8) -> usize {
     4 + 4 * k
 }
 
-/// CRC-16/CCITT-FALSE, the engine blob's.
-fn crc16(data: &[u8]) -> u16 {
-    let mut crc = 0xFFFFu16;
-    for &b in data {
-        crc ^= u16::from(b) << 8;
-        for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 {
-                (crc << 1) ^ 0x1021
-            } else {
-                crc << 1
-            };
-        }
-    }
-    crc
-}
-
 /// The blob a 0x1010 save of everything writes with the defaults in force, and the
 /// producer heartbeat changed to 250 ms (to see that the rest is restored).
 fn saved_blob() -> Vec<u8> {
@@ -80,7 +64,7 @@ fn crafted_bytes(changes: &[(u16, u8, u32)], bytes: &[(usize, u8)]) -> CutFlash 
         blob[at] = value;
     }
     let body = blob.len() - 2;
-    let crc = crc16(&blob[..body]);
+    let crc = canopen_slave::storage::crc16(&blob[..body]);
     blob[body..].copy_from_slice(&crc.to_le_bytes());
     let mut out = [0u8; RECORD_MAX];
     let len = record::encode(Some(NodeSettings::DEFAULT), &blob, 0, &mut out).unwrap();
