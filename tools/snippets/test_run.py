@@ -49,6 +49,10 @@ def test_the_runnable_documents():
         assert blocks[0].kind == "emulator", f"{name}: its first runnable block starts nothing"
 
 
+# The engine's log line once the boot-up has gone out (both emulators print it).
+BOOTED = r"NMT Initialising -> PreOperational"
+
+
 def start(snippet: snippets.Snippet, log_dir: Path) -> Qemu:
     """The emulator of an `emulator` block, on free ports (the board's parameter page in a
     fresh file, not the default one)."""
@@ -98,6 +102,10 @@ def test_blocks_run_as_written(document, tmp_path):
                     assert lines[-len(expected) :] == expected, f"{block.where}: printed {lines}"
             elif block.kind == "control":
                 if stimulus is None:
+                    # As a reader would: type once the node is up (its boot-up went out). The
+                    # QEMU variant has been seen to stop answering, now and then, when the
+                    # first line arrived within its boot-up delay.
+                    emulator.wait_for_log(BOOTED, timeout=START_TIMEOUT)
                     stimulus = Stimulus(emulator.stim_port, emulator)
                 for line in snippets.control_lines(block):
                     reply = stimulus.send(line)
