@@ -10,7 +10,7 @@ the machine state and the handwheel as the component sees it, and turns the whee
 keyboard through QEMU's stimulus port:
 
     right/up, left/down   one detent forward / back      PgUp / PgDn   ten
-    x y z w v, 0          axis (0: none)                  1 2 3         x1 x10 x100
+    x y z, w v, 0         axis, feed / spindle override, none    1 2 3  x1 x10 x100
     m                     machine on / off                q, Ctrl-C     quit
 
 `--script` runs a short checked tour instead (exit status 1 if LinuxCNC's position is wrong).
@@ -35,16 +35,18 @@ from rig import Qemu, Stimulus  # noqa: E402
 from sim_machine import SimMachine  # noqa: E402
 
 STATES = {1: "E-stop", 2: "off", 3: "off", 4: "ON"}
-# The device's axis switch (the `axis` pin) as the demo names it.
-AXES = ("none", "X", "Y", "Z", "W", "V")
+# The device's axis switch (the `axis` pin): what its positions drive in the sim machine
+# (`--axes xyzfs` in sim/handwheel.hal); the demo's keys `w` and `v` select positions 4 and 5.
+AXES = ("none", "X", "Y", "Z", "feed override", "spindle override")
 HELP = (
-    "keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10, x y z w v axis, 0 none,\n"
-    "       1 2 3 = x1 x10 x100, m machine on/off, q quit"
+    "keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10, x y z axis, w feed override,\n"
+    "       v spindle override, 0 none, 1 2 3 = x1 x10 x100, m machine on/off, q quit"
 )
 
 
 def view(status: dict, last: str) -> list:
     p = status["pins"]
+    o = status["overrides"]
     x, y, z = status["pos"]
     axis = p.get("axis") or 0
     homed = "homed" if all(status["homed"]) else "not homed"
@@ -52,6 +54,8 @@ def view(status: dict, last: str) -> list:
         f"LinuxCNC  machine {STATES.get(status['task_state'], status['task_state'])}, {homed},"
         f" {'teleop' if status['teleop'] else 'joint'} mode",
         f"  DRO     X {x:10.4f}   Y {y:10.4f}   Z {z:10.4f}  mm",
+        f"  override feed {100 * o['feed']:.0f} %, spindle {100 * o['spindle']:.0f} %, "
+        f"rapid {100 * o['rapid']:.0f} %",
         f"handwheel {'connected' if p.get('connected') else 'NOT connected'}, "
         f"axis {AXES[axis] if 0 <= axis <= 5 else '?'} x{p.get('multiplier')}, "
         f"feed {'on' if p.get('feed-enabled') else 'off'}, enable pin "

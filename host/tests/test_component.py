@@ -69,9 +69,68 @@ def test_defaults_and_option_errors(capsys):
         ["--event-timer-ms", "70000"],
         ["--max-detents-per-s", "0"],
         ["--max-detents-per-s", "many"],
+        ["--run-on-budget", "0"],
+        ["--run-on-budget", "nan"],
+        ["--override-step", "0"],
+        ["--position-mode", "--velocity-mode"],
     ):
         with pytest.raises(SystemExit):
             component.parse_args(bad)
+    cfg = component.config_from(
+        component.parse_args(["--run-on-budget", "0.5", "--override-step", "5", "--velocity-mode"])
+    )
+    assert (cfg.run_on_budget, cfg.override_step, cfg.velocity_mode) == (0.5, 5.0, True)
+
+
+@pytest.mark.parametrize(
+    "axes, message",
+    [("xyzq", "'q' is neither"), ("xyzff", "'f' twice"), ("xyzfsr", "1 to 5 letters")],
+)
+def test_a_wrong_axes_option_stops_before_the_bus(monkeypatch, capsys, axes, message):
+    """An unknown letter or one twice: `main` exits with the message and status 2 before it
+    creates the HAL component or opens the bus."""
+    opened = []
+    monkeypatch.setattr(component, "Link", lambda *a: opened.append("bus"))
+    monkeypatch.setattr(component, "run", lambda *a, **k: opened.append("run"))
+    with pytest.raises(SystemExit) as stopped:
+        component.main(["--axes", axes])
+    assert stopped.value.code == 2 and opened == []
+    assert message in capsys.readouterr().err
+
+
+def test_override_pins_and_the_axis_reader():
+    args = component.parse_args(["--axes", "xyzfs", "--override-step", "2"])
+    pins = component.HalPins(fake_hal, "hwo", component.config_from(args))
+    comp = pins.comp
+    assert comp["feed-override.scale"] == 0.02 and comp["spindle-override.scale"] == 0.02
+    assert "rapid-override.counts" not in comp.pins and "axis.f.jog-counts" not in comp.pins
+    c = core.Core(component.config_from(args))
+    c.counts["f"] = 7
+    pins.write(c.pins())
+    assert comp["feed-override.counts"] == 7 and comp["feed-override.count-enable"] is False
+    assert comp["run-on-budget"] == 0.25 and comp["velocity-mode"] is False
+    # LinuxCNC's view of an axis, read by name; nothing known without `get_value`.
+    values = {
+        "motion.teleop-mode": True,
+        "axis.y.pos-cmd": 1.0,
+        "axis.y.teleop-pos-cmd": 1.25,
+        "axis.y.teleop-vel-cmd": -0.5,
+        "ini.y.max_velocity": 2.0,
+        "ini.y.max_acceleration": 20.0,
+        "axis.y.jog-accel-fraction": 0.5,
+    }
+
+    class Hal:
+        get_value = staticmethod(values.__getitem__)
+
+    reader = component.AxisReader(Hal)
+    assert reader.teleop()
+    assert reader.motion("y") == core.AxisMotion(0.25, -0.5, 2.0, 10.0)
+    assert reader.motion("q") is None  # no such pins
+    values["motion.teleop-mode"] = False
+    assert not reader.teleop()
+    assert not component.AxisReader(fake_hal).teleop()
+    assert component.AxisReader(fake_hal).motion("y") is None
 
 
 def test_pins_have_the_table_types():
@@ -570,6 +629,7 @@ def test_readme_pin_table_is_the_components():
         if line.startswith("| `N.")
     }
     expected = {"N." + n.replace("{L}", "L"): (t, d) for n, t, d, _ in core.AXIS_PINS}
+    expected.update({"N." + n.replace("{O}", "O"): (t, d) for n, t, d, _ in core.OVERRIDE_PINS})
     expected.update({"N." + n: (t, d) for n, t, d, _ in core.COMPONENT_PINS})
     assert rows == expected
 

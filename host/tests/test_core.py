@@ -683,4 +683,4 @@ def test_pin_table():
     names = [n for n, _, _ in core.pin_table("xz")]
     assert "axis.x.jog-counts" in names and "halui.axis.z.select" in names
     assert "axis.y.jog-counts" not in names
-    assert len(names) == len(set(names)) == 2 * 5 + 12
+    assert len(names) == len(set(names)) == 2 * 5 + 15

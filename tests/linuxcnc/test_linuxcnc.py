@@ -9,6 +9,7 @@ kills the component.
 import os
 import signal
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from conftest import (
@@ -27,6 +28,24 @@ from conftest import (
     stopping_distance,
 )
 from rig import BOOTUP, EMCY, HEARTBEAT, NMT_RESET_NODE, ROOT, TPDO1, feed_record
+
+
+@contextmanager
+def velocity_mode(machine):
+    """LinuxCNC's velocity mode (`handwheel.velocity-mode`): 60 detents at x100 (6 mm)
+    turned in 0.3 s (0.6 s on the emulated board) on an axis that does 2 mm/s. The
+    planner's target never leads the commanded position by more than the stopping distance
+    v^2/2a (plus one servo period at v), so the axis moves after the last count by no more
+    than that (plus the servo thread's lateness here), never the 6 mm; what LinuxCNC
+    dropped never comes back, not even when switching to position mode or the run-on
+    mode."""
+    machine.setp("handwheel.velocity-mode", 1)
+    machine.wait(lambda s: s["pins"]["velocity-mode"], 2, "velocity mode")
+    try:
+        yield
+    finally:
+        machine.setp("handwheel.velocity-mode", 0)
+
 
 # How late LinuxCNC's servo thread may run here: it is not realtime (`POSIX non-realtime`)
 # on a shared machine; measured up to about 2 ms.
@@ -159,16 +178,19 @@ def test_device_reset_causes_no_jump(machine):
 
 
 def test_fast_spin_stops_within_the_stopping_distance(machine):
-    """Velocity mode (the default): 60 detents at x100 (6 mm) turned in 0.3 s (0.6 s on the
-    emulated board) on an axis that does 2 mm/s. The planner's target never leads the
-    commanded position by more than the stopping distance v^2/2a (plus one servo period at
-    v), so the axis moves after the last count by no more than that (plus the servo
-    thread's lateness here), never the 6 mm; what LinuxCNC dropped never comes back, not
-    even when switching to position mode."""
+    """LinuxCNC's velocity mode (`handwheel.velocity-mode`): 60 detents at x100 (6 mm)
+    turned in 0.3 s (0.6 s on the emulated board) on an axis that does 2 mm/s. The
+    planner's target never leads the commanded position by more than the stopping distance
+    v^2/2a (plus one servo period at v), so the axis moves after the last count by no more
+    than that (plus the servo thread's lateness here), never the 6 mm; what LinuxCNC
+    dropped never comes back, not even when switching to position mode or the run-on
+    mode."""
     machine.select("x", 100)
     machine.ready_to_jog("x")
-    assert machine.pins()["axis.x.jog-vel-mode"] and not machine.pins()["position-mode"]
-    with machine.slow_axis("x", SLOW_V, SLOW_A):
+    machine.setp("handwheel.velocity-mode", 1)
+    machine.wait(lambda s: s["pins"]["axis.x.jog-vel-mode"], 2, "velocity mode")
+    assert not machine.pins()["position-mode"]
+    with velocity_mode(machine), machine.slow_axis("x", SLOW_V, SLOW_A):
         start = machine.pos()
         counts = machine.pins()["axis.x.jog-counts"]
         machine.watch(5, COUNTS_X, POS_X, TARGET_X)
@@ -191,6 +213,9 @@ def test_fast_spin_stops_within_the_stopping_distance(machine):
         machine.setp("handwheel.position-mode", 0)
         machine.wait(lambda s: s["pins"]["axis.x.jog-vel-mode"], 2, "velocity mode")
         machine.assert_still(stopped, 0.3)
+        machine.setp("handwheel.velocity-mode", 0)
+        machine.wait(lambda s: not s["pins"]["axis.x.jog-vel-mode"], 2, "run-on mode")
+        machine.assert_still(stopped, 0.3)
 
 
 def test_a_slow_turn_moves_exactly_in_velocity_mode(machine):
@@ -198,7 +223,7 @@ def test_a_slow_turn_moves_exactly_in_velocity_mode(machine):
     2 mm/s axis): the axis moves exactly detents x multiplier x scale."""
     machine.select("x", 100)
     machine.ready_to_jog("x")
-    with machine.slow_axis("x", SLOW_V, SLOW_A):
+    with velocity_mode(machine), machine.slow_axis("x", SLOW_V, SLOW_A):
         start = machine.pos()
         spin(machine, 8, pause=0.12)
         machine.wait_pos(moved(start, "x", 8 * 100 * SCALE), 5)
@@ -222,18 +247,23 @@ def test_position_mode_queues_the_whole_distance(machine):
             assert time.monotonic() - stopped_turning > 0.7
     finally:
         machine.setp("handwheel.position-mode", 0)
-    machine.wait(lambda s: s["pins"]["axis.x.jog-vel-mode"], 2, "velocity mode")
+    machine.wait(lambda s: not s["pins"]["axis.x.jog-vel-mode"], 2, "run-on mode")
 
 
 def test_a_change_of_mode_moves_nothing(machine):
-    """At rest, position mode on and off again, three times: no count, no motion."""
+    """At rest, through the three modes (run-on, velocity, position) and back, twice: the
+    vel-mode pins follow, no count, no motion."""
     machine.select("y", 10)
     machine.ready_to_jog("y")
     start = machine.pos()
     counts = {L: machine.pins()[f"axis.{L}.jog-counts"] for L in "xyz"}
-    for value in (1, 0, 1, 0, 1, 0):
-        machine.setp("handwheel.position-mode", value)
-        machine.wait(lambda s, v=value: s["pins"]["axis.y.jog-vel-mode"] == (v == 0), 2, "mode")
+    for position, velocity in [(0, 1), (1, 1), (1, 0), (0, 0)] * 2:
+        machine.setp("handwheel.position-mode", position)
+        machine.setp("handwheel.velocity-mode", velocity)
+        vel_mode = velocity == 1 and position == 0
+        machine.wait(
+            lambda s, v=vel_mode: s["pins"]["axis.y.jog-vel-mode"] == v, 2, f"mode {vel_mode}"
+        )
         machine.assert_still(start, 0.1)
     assert {L: machine.pins()[f"axis.{L}.jog-counts"] for L in "xyz"} == counts
     machine.stim.turn(2)

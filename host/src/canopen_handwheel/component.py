@@ -83,7 +83,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--axes",
         default=core.DEVICE_AXES,
-        help="LinuxCNC axis letters for switch positions 1..5 (xyzwv)",
+        help="what switch positions 1..5 drive: LinuxCNC axis letters, or f, s, r for the "
+        "feed, spindle and rapid override (xyzwv; e.g. xyzfs)",
     )
     p.add_argument(
         "--scale", type=float, default=0.001, help="machine units per multiplied unit (0.001)"
@@ -112,8 +113,28 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--position-mode",
         action="store_true",
-        help="start in exact position mode (every count moved, however long it takes) "
-        "instead of LinuxCNC's velocity mode; the position-mode pin switches at run time",
+        help="start in LinuxCNC's position mode (every count moved, however long it takes) "
+        "instead of the run-on mode; the position-mode pin switches at run time",
+    )
+    p.add_argument(
+        "--velocity-mode",
+        action="store_true",
+        help="start in LinuxCNC's velocity mode (the axis leads by at most its stopping "
+        "distance) instead of the run-on mode; the velocity-mode pin switches at run time",
+    )
+    p.add_argument(
+        "--run-on-budget",
+        type=float,
+        default=core.DEFAULT_RUN_ON_BUDGET,
+        help=f"run-on mode: seconds an axis may still move after the last detent "
+        f"({core.DEFAULT_RUN_ON_BUDGET}); the run-on-budget pin changes it at run time",
+    )
+    p.add_argument(
+        "--override-step",
+        type=float,
+        default=core.DEFAULT_OVERRIDE_STEP,
+        help=f"percent one detent changes an override by, at any multiplier "
+        f"({core.DEFAULT_OVERRIDE_STEP:g})",
     )
     p.add_argument(
         "--max-detents-per-s",
@@ -133,6 +154,9 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.heartbeat_ms,
             args.max_detents_per_s,
             args.position_mode,
+            args.velocity_mode,
+            args.run_on_budget,
+            args.override_step,
         )
     except ValueError as e:
         p.error(str(e))
@@ -154,14 +178,19 @@ class HalPins:
         self.comp = hal.component(name)
         if on_created is not None:
             on_created()  # before `ready`, which `loadusr -W` waits for
-        self.axes = cfg.axes
+        self.axes = cfg.axis_letters
+        self.overrides = {L: core.OVERRIDES[L] for L in cfg.override_letters}
         for pin, t, d in core.pin_table(cfg.axes):
             self.comp.newpin(pin, types[t], dirs[d])
-        for L in cfg.axes:
+        for L in self.axes:
             self.comp[f"axis.{L}.jog-scale"] = cfg.scale
-            self.comp[f"axis.{L}.jog-vel-mode"] = not cfg.position_mode
-        # An input the component may set while no signal drives it: the option's start value.
+            self.comp[f"axis.{L}.jog-vel-mode"] = core.Core(cfg).pins().jog_vel_mode
+        for name in self.overrides.values():
+            self.comp[f"{name}.scale"] = cfg.override_step / 100
+        # Inputs the component may set while no signal drives them: the options' values.
         self.comp["position-mode"] = cfg.position_mode
+        self.comp["velocity-mode"] = cfg.velocity_mode
+        self.comp["run-on-budget"] = cfg.run_on_budget
         self.comp["state"] = -1
         self.comp.ready()
 
@@ -171,6 +200,12 @@ class HalPins:
     def position_mode(self) -> bool:
         return bool(self.comp["position-mode"])
 
+    def velocity_mode(self) -> bool:
+        return bool(self.comp["velocity-mode"])
+
+    def run_on_budget(self) -> float:
+        return float(self.comp["run-on-budget"])
+
     def write(self, pins: core.Pins) -> None:
         c = self.comp
         for L in self.axes:
@@ -178,6 +213,10 @@ class HalPins:
             c[f"axis.{L}.jog-enable"] = pins.jog_enable[L]
             c[f"axis.{L}.jog-vel-mode"] = pins.jog_vel_mode
             c[f"halui.axis.{L}.select"] = pins.select[L]
+        for L, name in self.overrides.items():
+            c[f"{name}.counts"] = pins.jog_counts[L]
+            c[f"{name}.count-enable"] = pins.jog_enable[L]
+        c["counts-dropped"] = pins.counts_dropped
         c["connected"] = pins.connected
         c["feed-enabled"] = pins.feed_enabled
         c["encoder-error"] = pins.encoder_error
@@ -194,6 +233,43 @@ class HalPins:
             self.comp.exit()
         except Exception:
             pass
+
+
+class AxisReader:
+    """What LinuxCNC shows of its axes for the run-on mode (`core.AxisMotion`), read by name
+    from HAL (`hal.get_value`) when the core asks: nothing to net, and the limits are
+    LinuxCNC's own (its ini file's, as the `ini.L.*` pins hold them now). Without
+    `get_value` (a stand-in `hal`) or outside teleop mode it reports nothing known, and the
+    core leaves the axes in LinuxCNC's velocity mode."""
+
+    def __init__(self, hal) -> None:
+        self.get = getattr(hal, "get_value", None)
+
+    def teleop(self) -> bool:
+        if self.get is None:
+            return False
+        try:
+            return bool(self.get("motion.teleop-mode"))
+        except Exception:
+            return False
+
+    def motion(self, letter: str) -> Optional[core.AxisMotion]:
+        if self.get is None:
+            return None
+        try:
+            # The commanded position before the planner's target: a servo cycle between the
+            # two reads can only overstate the lead.
+            position = float(self.get(f"axis.{letter}.pos-cmd"))
+            target = float(self.get(f"axis.{letter}.teleop-pos-cmd"))
+            return core.AxisMotion(
+                lead=target - position,
+                velocity=float(self.get(f"axis.{letter}.teleop-vel-cmd")),
+                max_velocity=float(self.get(f"ini.{letter}.max_velocity")),
+                max_acceleration=float(self.get(f"ini.{letter}.max_acceleration"))
+                * float(self.get(f"axis.{letter}.jog-accel-fraction")),
+            )
+        except Exception:
+            return None
 
 
 class Heartbeat:
@@ -520,6 +596,7 @@ def run(
     cfg = config_from(args)
     stop = stop or threading.Event()
     pins = HalPins(hal_module, args.name, cfg, on_hal_component)
+    axes = AxisReader(hal_module)
     c = core.Core(cfg)
     events: "queue.Queue" = queue.Queue()  # the worker's outcomes
     link: Optional[Link] = None
@@ -528,7 +605,7 @@ def run(
     log(
         f"{args.name}: node {args.node} on {args.interface} {args.channel}, axes "
         f"{cfg.axes}, master heartbeat {cfg.master} every {args.heartbeat_ms} ms, "
-        f"{'position' if cfg.position_mode else 'velocity'} mode"
+        f"{c.mode} mode"
     )
     try:
         while not stop.is_set():
@@ -559,12 +636,15 @@ def run(
             now = clock()
             c.set_enable(pins.enable())
             c.set_position_mode(pins.position_mode())
+            c.set_velocity_mode(pins.velocity_mode())
+            c.set_run_on_budget(pins.run_on_budget())
+            c.set_motion_known(c.mode == core.RUN_ON and axes.teleop())
             c.tick(now)
             if link is not None:
                 action = c.next_action(now)
                 if action is not None and worker is not None:
                     worker.submit(action)
-            write_steps(pins, c.publish(clock()))
+            write_steps(pins, c.publish(clock(), axes.motion))
         log(f"{getattr(stop, 'reason', 'asked to stop')}: stopping")
     finally:
         shut_down(args, cfg, c, link, worker)

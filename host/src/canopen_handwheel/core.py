@@ -156,7 +156,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 # Device heartbeat states.
 BOOTUP = 0x00
@@ -212,6 +212,22 @@ SAME_EPOCH_MAX_GAP = 6
 DEFAULT_MAX_DETENTS_PER_S = 2000
 MAX_DETENTS_PER_S_RANGE = (10, 100_000)
 
+# Jog modes (`Core.mode`): the run-on budget (default), LinuxCNC's velocity mode, or
+# LinuxCNC's position mode.
+RUN_ON = "run-on"
+VELOCITY = "velocity"
+POSITION = "position"
+
+# The run-on budget (s, `--run-on-budget` and the `run-on-budget` pin): how long an axis may
+# still be on its way to its target after the last detent, at its own limits.
+DEFAULT_RUN_ON_BUDGET = 0.25
+RUN_ON_BUDGET_RANGE = (0.02, 10.0)
+
+# One detent at an override position changes the override by this many percent
+# (`--override-step`), whatever the multiplier.
+DEFAULT_OVERRIDE_STEP = 1.0
+OVERRIDE_STEP_RANGE = (0.01, 100.0)
+
 # SDO abort: "data cannot be transferred because of the present device state".
 ABORT_DEVICE_STATE = 0x08000022
 
@@ -226,19 +242,32 @@ def wrap_s32(value: int) -> int:
     return ((value + 0x8000_0000) & 0xFFFF_FFFF) - 0x8000_0000
 
 
-def parse_axes(letters: str) -> str:
-    """The `--axes` option checked: letters of `xyzwv` in switch order, at least one.
+# Switch positions that drive one of LinuxCNC's overrides instead of an axis (`--axes`): the
+# letter and the name its pins carry (`N.feed-override.counts`, ...).
+OVERRIDES = {"f": "feed-override", "s": "spindle-override", "r": "rapid-override"}
+LINUXCNC_AXES = "xyzabcuvw"
 
-    Position n of the switch (1..5) drives the n-th letter, so `xyz` uses positions 1..3.
+
+def parse_axes(letters: str) -> str:
+    """The `--axes` option checked: in switch order, at least one and at most five of the
+    LinuxCNC axis letters `xyzabcuvw` and the override letters `f` (feed), `s` (spindle),
+    `r` (rapid), each at most once.
+
+    Position n of the switch (1..5) drives the n-th letter, so `xyzfs` puts X, Y, Z on
+    positions 1..3 and the feed and spindle overrides on 4 and 5.
     """
     letters = letters.strip().lower()
     if not 1 <= len(letters) <= 5:
-        raise ValueError("--axes needs 1 to 5 axis letters")
-    if len(set(letters)) != len(letters):
-        raise ValueError(f"--axes {letters!r} names an axis twice")
-    bad = [c for c in letters if c not in "xyzabcuvw"]
+        raise ValueError("--axes needs 1 to 5 letters (axes, or f, s, r for the overrides)")
+    twice = sorted({c for c in letters if letters.count(c) > 1})
+    if twice:
+        raise ValueError(f"--axes {letters!r} names {''.join(twice)!r} twice")
+    bad = [c for c in letters if c not in LINUXCNC_AXES and c not in OVERRIDES]
     if bad:
-        raise ValueError(f"--axes {letters!r}: {''.join(bad)!r} is not a LinuxCNC axis letter")
+        raise ValueError(
+            f"--axes {letters!r}: {''.join(bad)!r} is neither a LinuxCNC axis letter "
+            "(xyzabcuvw) nor an override (f feed, s spindle, r rapid)"
+        )
     return letters
 
 
@@ -278,6 +307,9 @@ def make_config(
     heartbeat_ms: int,
     max_detents_per_s: int = DEFAULT_MAX_DETENTS_PER_S,
     position_mode: bool = False,
+    velocity_mode: bool = False,
+    run_on_budget: float = DEFAULT_RUN_ON_BUDGET,
+    override_step: float = DEFAULT_OVERRIDE_STEP,
 ) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
@@ -293,6 +325,14 @@ def make_config(
     low, high = EVENT_TIMER_MS_RANGE
     if event_timer_ms is not None and not low <= event_timer_ms <= high:
         raise ValueError(f"--event-timer-ms must be {low}..{high}")
+    if position_mode and velocity_mode:
+        raise ValueError("--position-mode and --velocity-mode exclude each other")
+    low, high = RUN_ON_BUDGET_RANGE
+    if not (math.isfinite(run_on_budget) and low <= run_on_budget <= high):
+        raise ValueError(f"--run-on-budget must be {low}..{high} s")
+    low, high = OVERRIDE_STEP_RANGE
+    if not (math.isfinite(override_step) and low <= override_step <= high):
+        raise ValueError(f"--override-step must be {low}..{high} %")
     return Config(
         node=node,
         master=resolve_master(node, master),
@@ -304,6 +344,9 @@ def make_config(
         consumer_timeout_ms=5 * heartbeat_ms,
         max_detents_per_s=max_detents_per_s,
         position_mode=position_mode,
+        velocity_mode=velocity_mode,
+        run_on_budget=run_on_budget,
+        override_step=override_step,
     )
 
 
@@ -355,6 +398,23 @@ class Config:
     retry: float = 0.5  # s between attempts of a failed or unconfirmed action
     max_detents_per_s: float = DEFAULT_MAX_DETENTS_PER_S  # the wheel's speed bound
     position_mode: bool = False  # `--position-mode`: the `position-mode` pin's start value
+    velocity_mode: bool = False  # `--velocity-mode`: the `velocity-mode` pin's start value
+    run_on_budget: float = (
+        DEFAULT_RUN_ON_BUDGET  # s, `--run-on-budget`: the `run-on-budget` pin's start value
+    )
+    override_step: float = (
+        DEFAULT_OVERRIDE_STEP  # %, `--override-step`: one detent at an override position
+    )
+
+    @property
+    def axis_letters(self) -> str:
+        """The LinuxCNC axes among the switch positions (`axes`), in switch order."""
+        return "".join(c for c in self.axes if c not in OVERRIDES)
+
+    @property
+    def override_letters(self) -> str:
+        """The overrides (`f`, `s`, `r`) among the switch positions, in switch order."""
+        return "".join(c for c in self.axes if c in OVERRIDES)
 
     @property
     def stale_after(self) -> float:
@@ -495,6 +555,67 @@ class Allowance:
         return ok
 
 
+@dataclass(frozen=True)
+class AxisMotion:
+    """What LinuxCNC shows of one axis in teleop mode, in machine units: how far the target
+    of its jog planner leads its commanded position (`axis.L.teleop-pos-cmd` minus
+    `axis.L.pos-cmd`), the planner's velocity (`axis.L.teleop-vel-cmd`, signed) and the
+    limits it plans with (`ini.L.max_velocity`, and `ini.L.max_acceleration` times
+    `axis.L.jog-accel-fraction`)."""
+
+    lead: float
+    velocity: float
+    max_velocity: float
+    max_acceleration: float
+
+
+def run_on_reach(budget: float, max_velocity: float, max_acceleration: float, velocity=0.0):
+    """The farthest an axis can go from where it is now and be at rest there within `budget`
+    seconds, moving at `velocity` now (positive: towards the target), at its limits: it
+    speeds up to at most `max_velocity`, keeps that, and brakes. 0 when the limits are not
+    positive and finite (nothing can be promised). An axis that cannot even stop within the
+    budget reaches its stopping distance: no less than that can be asked of it."""
+    v, a = max_velocity, max_acceleration
+    if not (math.isfinite(v) and math.isfinite(a) and v > 0 and a > 0 and budget > 0):
+        return 0.0
+    v0 = min(max(velocity, -v), v) if math.isfinite(velocity) else 0.0
+    peak = min(v, (a * budget + v0) / 2)  # speed up to `peak`, brake from it
+    if peak < v0:
+        return v0 * v0 / (2 * a)  # braking at once takes longer than the budget
+    ramps = (peak - v0) / a + peak / a
+    cruise = max(0.0, budget - ramps)
+    return (peak * peak - v0 * v0) / (2 * a) + peak * cruise + peak * peak / (2 * a)
+
+
+# Rounding room when dividing what the budget allows into detents: a millionth of a detent
+# (LinuxCNC's positions are doubles; 0.3 / 0.1 is 2.9999999999999996).
+METER_EPSILON = 1e-6
+
+
+def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budget: float) -> int:
+    """How many of `pending` counts (signed; a multiple of `step`, the counts of one detent)
+    may go to the axis now so that, if the wheel stops, it comes to rest at its target within
+    `budget` seconds (`run_on_reach`, from its lead and velocity as `motion` shows them): whole
+    detents, the first ones of `pending`; the rest is dropped by the caller, never held.
+    Counts that bring the target back towards the axis (turning back) always go: they shorten
+    the run-on."""
+    if pending == 0:
+        return 0
+    step = abs(step) or 1
+    detents = abs(pending) // step
+    unit = abs(step * scale)  # machine units per detent
+    direction = 1 if pending * scale > 0 else -1
+    ahead = motion.lead * direction  # the target's lead in the direction of the new counts
+    if ahead + detents * unit <= 0:
+        return pending  # the target stays at or behind the axis: the run-on shrinks
+    reach = run_on_reach(
+        budget, motion.max_velocity, motion.max_acceleration, motion.velocity * direction
+    )
+    allowed = math.floor((reach - ahead) / unit + METER_EPSILON) if unit > 0 else 0
+    allowed = max(0, min(detents, allowed))
+    return (1 if pending > 0 else -1) * allowed * step
+
+
 # Actions the shell carries out, one at a time; it reports back with `Core.done`.
 @dataclass(frozen=True)
 class Configure:
@@ -540,7 +661,8 @@ class Pins:
     records_lost: int = 0
     frames_bad: int = 0
     state: int = -1  # last heartbeat state byte, -1 before any
-    jog_vel_mode: bool = True  # LinuxCNC's velocity mode for every axis
+    jog_vel_mode: bool = False  # LinuxCNC's velocity mode for every axis
+    counts_dropped: int = 0  # counts the run-on budget dropped (wrapping)
 
 
 def _with(pins: Pins, counts: Dict[str, int], gates: Dict[str, bool]) -> Pins:
@@ -574,6 +696,10 @@ class Core:
     allowance: Allowance = field(init=False)
     event_timer: float = field(init=False)  # s: the device's, once configured
     position_mode: bool = field(init=False)  # the `position-mode` input
+    velocity_mode: bool = field(init=False)  # the `velocity-mode` input
+    run_on_budget: float = field(init=False)  # the `run-on-budget` input, s
+    motion_known: bool = False  # LinuxCNC shows its axes' motion (teleop mode)
+    counts_dropped: int = 0  # counts the run-on budget dropped
     # Actions.
     configured: bool = False
     config_due: float = 0.0  # configure at this time (if not configured)
@@ -585,6 +711,8 @@ class Core:
         self.counts = {letter: 0 for letter in self.cfg.axes}
         self.event_timer = self.cfg.event_timer
         self.position_mode = self.cfg.position_mode
+        self.velocity_mode = self.cfg.velocity_mode
+        self.run_on_budget = self.cfg.run_on_budget
         rate = self.cfg.max_detents_per_s
         self.allowance = Allowance(rate=rate, cap=rate * self.rate_horizon)
 
@@ -617,8 +745,40 @@ class Core:
         self.enable = enable
 
     def set_position_mode(self, position_mode: bool) -> None:
-        """The `position-mode` input. It changes `jog_vel_mode` and nothing else."""
+        """The `position-mode` input. It changes the mode and nothing else."""
         self.position_mode = position_mode
+
+    def set_velocity_mode(self, velocity_mode: bool) -> None:
+        """The `velocity-mode` input. It changes the mode and nothing else."""
+        self.velocity_mode = velocity_mode
+
+    def set_run_on_budget(self, budget: float) -> None:
+        """The `run-on-budget` input (s), held to `RUN_ON_BUDGET_RANGE` (a value outside it:
+        the nearest end; not a number: the option's value)."""
+        low, high = RUN_ON_BUDGET_RANGE
+        self.run_on_budget = (
+            min(high, max(low, budget)) if math.isfinite(budget) else self.cfg.run_on_budget
+        )
+
+    def set_motion_known(self, known: bool) -> None:
+        """Whether LinuxCNC shows its axes' motion (`AxisMotion`; it does in teleop mode).
+        Without it the run-on mode cannot meter: the axes are left in LinuxCNC's velocity
+        mode, which bounds their run-on by their stopping distance."""
+        self.motion_known = known
+
+    @property
+    def mode(self) -> str:
+        """`POSITION` while the `position-mode` input is true, else `VELOCITY` while
+        `velocity-mode` is, else `RUN_ON`."""
+        if self.position_mode:
+            return POSITION
+        return VELOCITY if self.velocity_mode else RUN_ON
+
+    @property
+    def metering(self) -> bool:
+        """Counts go to the axes through `meter_counts` (the run-on mode, LinuxCNC showing
+        the axes' motion)."""
+        return self.mode == RUN_ON and self.motion_known
 
     def tick(self, now: float) -> None:
         """Time passes: staleness."""
@@ -722,7 +882,9 @@ class Core:
         selected = self.selected() if self.fresh else None
         return self.enable and self.operational and self.feed_enabled and letter == selected
 
-    def publish(self, now: float) -> List[Pins]:
+    def publish(
+        self, now: float, motion: Optional[Callable[[str], Optional[AxisMotion]]] = None
+    ) -> List[Pins]:
         """What the shell writes to the pins now: a list of snapshots, to be written in
         order, each completely, consecutive ones at least `GATE_HOLD` apart (the last one is
         `pins()`). The steps keep every servo period from seeing counts without their gate:
@@ -736,7 +898,12 @@ class Core:
         rounds, so within one only a heartbeat can close the gate between two credits, and
         those were turned while Operational). Credits older than `BACKLOG_LIMIT` that were not
         yet published (the component stalled between handling a frame and writing the
-        pins) are withdrawn: the counts go back to what was published."""
+        pins) are withdrawn: the counts go back to what was published.
+
+        In the run-on mode (`metering`), an axis's new counts pass `meter_counts` first, with
+        `motion(letter)`, what LinuxCNC shows of that axis now (asked only for an axis with
+        new counts): what the run-on budget does not allow is dropped (`counts_dropped`),
+        and all of them when LinuxCNC does not tell (None, or no `motion`)."""
         self.tick(now)
         target = self.pins()
         last = self.published
@@ -747,6 +914,9 @@ class Core:
             self.withdrawn += 1
             self.counts = dict(last.jog_counts)
             self.credit_open = {}
+            target = self.pins()
+        if self.metering:
+            self._meter(last, motion)
             target = self.pins()
         axes = self.cfg.axes
         changed = {L for L in axes if target.jog_counts[L] != last.jog_counts[L]}
@@ -763,6 +933,22 @@ class Core:
         self._published(steps[-1])
         return steps
 
+    def _meter(self, last: Pins, motion) -> None:
+        """The run-on budget applied to every axis's counts not yet published."""
+        multiplier = self.record.multiplier if self.record else 1
+        for L in self.cfg.axis_letters:
+            pending = wrap_s32(self.counts[L] - last.jog_counts[L])
+            if pending == 0:
+                continue
+            state = motion(L) if motion is not None else None
+            step = multiplier if pending % multiplier == 0 else 1
+            released = 0
+            if state is not None:
+                released = meter_counts(pending, step, self.cfg.scale, state, self.run_on_budget)
+            if released != pending:
+                self.counts[L] = wrap_s32(last.jog_counts[L] + released)
+                self.counts_dropped = wrap_s32(self.counts_dropped + abs(pending - released))
+
     def _published(self, pins: Pins) -> None:
         self.published = pins
         self.credit_time = None
@@ -775,7 +961,7 @@ class Core:
         return Pins(
             jog_counts=dict(self.counts),
             jog_enable={L: jog and L == selected for L in self.cfg.axes},
-            select={L: L == selected for L in self.cfg.axes},
+            select={L: L == selected for L in self.cfg.axis_letters},
             connected=self.fresh,
             feed_enabled=self.feed_enabled,
             encoder_error=bool(rec and rec.status & STATUS_ENCODER_ERROR),
@@ -786,7 +972,8 @@ class Core:
             records_lost=self.records_lost,
             frames_bad=self.frames_bad,
             state=-1 if self.state is None else self.state,
-            jog_vel_mode=not self.position_mode,
+            jog_vel_mode=self.mode == VELOCITY or (self.mode == RUN_ON and not self.motion_known),
+            counts_dropped=self.counts_dropped,
         )
 
     # Frame handlers -------------------------------------------------------------------
@@ -832,6 +1019,8 @@ class Core:
         letter = self._letter(rec.axis)
         credited = bool(delta and self.epochs_shown and letter is not None)
         if credited and delta is not None and letter is not None:
+            if letter in OVERRIDES:
+                delta //= rec.multiplier  # an override moves by detents, whatever the multiplier
             self.counts[letter] = wrap_s32(self.counts[letter] + delta)
         self.record = rec
         self.record_time = now
@@ -911,10 +1100,28 @@ AXIS_PINS = [
         "axis.{L}.jog-vel-mode",
         "bit",
         "out",
-        "true: velocity mode (the axis stops within its stopping distance when the wheel "
-        "stops); false while `position-mode` is true",
+        "true in LinuxCNC's velocity mode (`velocity-mode`, or the run-on mode outside "
+        "teleop); false in the run-on and position modes",
     ),
     ("halui.axis.{L}.select", "bit", "out", "the device's switch selects this axis"),
+]
+# Pins of an override position, `{O}` its name in `OVERRIDES`; they go to halui's
+# `halui.feed-override.*`, `halui.spindle.0.override.*`, `halui.rapid-override.*`.
+OVERRIDE_PINS = [
+    (
+        "{O}.counts",
+        "s32",
+        "out",
+        "wrapping sum of the detents turned at this position (any multiplier)",
+    ),
+    (
+        "{O}.count-enable",
+        "bit",
+        "out",
+        "true only while this position is selected, connected, Operational, feed enabled and "
+        "`enable` (as `jog-enable`)",
+    ),
+    ("{O}.scale", "float", "out", "`--override-step` / 100: the override's change per detent"),
 ]
 COMPONENT_PINS = [
     ("enable", "bit", "in", "feed allowed (e.g. machine on); the component writes 0x2000 = 1 / 0"),
@@ -922,8 +1129,27 @@ COMPONENT_PINS = [
         "position-mode",
         "bit",
         "in",
-        "true: exact position mode (every count moved, however long it takes); starts as "
-        "`--position-mode` sets it",
+        "true: LinuxCNC's position mode (every count moved, however long it takes); starts "
+        "as `--position-mode` sets it",
+    ),
+    (
+        "velocity-mode",
+        "bit",
+        "in",
+        "true (and `position-mode` false): LinuxCNC's velocity mode; starts as "
+        "`--velocity-mode` sets it; both false: the run-on mode",
+    ),
+    (
+        "run-on-budget",
+        "float",
+        "in",
+        "s, the run-on mode's budget (0.02..10); starts as `--run-on-budget` sets it",
+    ),
+    (
+        "counts-dropped",
+        "s32",
+        "out",
+        "counts the run-on mode dropped because the axis could not move them within the budget",
     ),
     ("connected", "bit", "out", "feed records arrive (none for three event-timer periods: false)"),
     ("feed-enabled", "bit", "out", "the device reports feed enabled (status bit 0)"),
@@ -950,8 +1176,17 @@ COMPONENT_PINS = [
 
 
 def pin_table(axes: str) -> List[Tuple[str, str, str]]:
-    """(name without the prefix, type, direction) of every pin for these axis letters."""
-    table = [(n.format(L=L), t, d) for L in axes for (n, t, d, _) in AXIS_PINS]
+    """(name without the prefix, type, direction) of every pin for these switch letters
+    (`--axes`: axes and overrides)."""
+    table = [
+        (n.format(L=L), t, d) for L in axes if L not in OVERRIDES for (n, t, d, _) in AXIS_PINS
+    ]
+    table += [
+        (n.format(O=OVERRIDES[L]), t, d)
+        for L in axes
+        if L in OVERRIDES
+        for (n, t, d, _) in OVERRIDE_PINS
+    ]
     table += [(n, t, d) for (n, t, d, _) in COMPONENT_PINS]
     return table
 
@@ -965,9 +1200,9 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     """A `Core` (of `cfg`, default `Config()`) after `events`, each handled as the shell
     does in a round of its own: the event, then `publish` at its time. Events:
     ("frame", cob_id, data, t), ("drained", t), ("tick", t), ("enable", bool),
-    ("position-mode", bool). Times never go backwards in a real run; the core takes the
-    latest time it was given. A malformed event raises `ValueError` (a vector's mistake,
-    not the bus's)."""
+    ("position-mode", bool), ("velocity-mode", bool). Times never go backwards in a real
+    run; the core takes the latest time it was given. A malformed event raises `ValueError`
+    (a vector's mistake, not the bus's)."""
     c = Core(cfg or Config())
     for event in events:
         kind = event[0] if isinstance(event, (tuple, list)) and event else None
@@ -985,6 +1220,8 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
             c.set_enable(bool(event[1]))
         elif kind == "position-mode" and len(event) == 2:
             c.set_position_mode(bool(event[1]))
+        elif kind == "velocity-mode" and len(event) == 2:
+            c.set_velocity_mode(bool(event[1]))
         else:
             raise ValueError(f"not an event: {event!r}")
     return c

@@ -1,0 +1,282 @@
+"""The run-on mode (the default) and the override positions (`--axes xyzfs`) in LinuxCNC 2.9.
+
+Run-on: Y made to do 2 mm/s and 20 mm/s^2 (the field report's axis: 2 in/s and 20 in/s^2; the
+figures are the same in any unit), x100 at 0.001: one detent is 0.1, and within the 0.25 s
+budget the axis can go 0.3 from rest (0.1 s up to 2, 0.05 s at 2, 0.1 s down).
+
+Overrides: switch position 4 is the feed override, 5 the spindle override (the sim machine's
+`handwheel.hal`); `[DISPLAY]MAX_FEED_OVERRIDE = 1.2`, spindle 0.5..1.5. The last test starts
+the component again with the rapid override on position 4.
+"""
+
+import os
+import signal
+import time
+
+import pytest
+
+from conftest import TOL, last_change, moved, spin
+
+SCALE = 0.001
+V, A, BUDGET = 2.0, 20.0, 0.25
+DETENT = 100 * SCALE  # at x100
+REACH = 0.3  # from rest within the budget: v * B - v^2 / a
+COUNTS_Y, POS_Y, TARGET_Y = "handwheel.axis.y.jog-counts", "axis.y.pos-cmd", "axis.y.teleop-pos-cmd"
+DROPPED = "handwheel.counts-dropped"
+MODE_MANUAL, MODE_MDI = 1, 3  # linuxcnc.MODE_MANUAL, linuxcnc.MODE_MDI
+# How much later than its plan the axis may stop here: LinuxCNC's jog planner works in servo
+# periods (1 ms) and the servo thread is not realtime on this shared machine (up to about 2 ms
+# late, more under load), and the display samples every ~0.1 ms.
+STOP_SLACK = 0.02
+
+
+def burst(machine, detents):
+    """`detents` quick detents on Y (one stimulus command), sampled until Y rests: (moved,
+    run-on after the last count in s, run-on after the command's reply in s, counts sent,
+    counts dropped, samples)."""
+    start = machine.pos()[1]
+    counts = machine.pins()["axis.y.jog-counts"]
+    dropped = machine.pins()["counts-dropped"]
+    machine.watch(5, COUNTS_Y, POS_Y, TARGET_Y, DROPPED)
+    time.sleep(0.05)
+    machine.stim.turn(detents)
+    replied = time.monotonic()
+    samples = machine.watched(quiet=0.4)
+    stopped = last_change(samples, 2)[0]
+    last_count = last_change(samples, 1)[0]
+    moved_by = samples[-1][2] - start
+    return (
+        moved_by,
+        stopped - last_count,
+        stopped - replied,
+        samples[-1][1] - counts,
+        samples[-1][4] - dropped,
+        samples,
+    )
+
+
+@pytest.fixture
+def slow_y(machine):
+    machine.select("y", 100)
+    machine.ready_to_jog("y")
+    assert not machine.pins()["axis.y.jog-vel-mode"]  # run-on: LinuxCNC's position mode
+    with machine.slow_axis("y", V, A):
+        yield
+
+
+def test_run_on_is_the_default_mode(machine):
+    p = machine.pins()
+    assert not p["position-mode"] and not p["velocity-mode"]
+    assert p["run-on-budget"] == pytest.approx(BUDGET)
+    assert not any(p[f"axis.{L}.jog-vel-mode"] for L in "xyz")
+
+
+@pytest.mark.parametrize("detents", [1, 2, 3, -3])
+def test_quick_bursts_within_the_budget_move_exactly(machine, slow_y, detents):
+    moved_by, run_on, _, sent, dropped, _ = burst(machine, detents)
+    print(f"{detents} detents: moved {moved_by:.4f}, run-on after the last count {run_on:.3f} s")
+    assert abs(moved_by - detents * DETENT) < TOL
+    assert sent == detents * 100 and dropped == 0
+    assert run_on <= BUDGET + STOP_SLACK
+
+
+def test_ten_quick_detents_move_as_far_as_the_budget_allows(machine, slow_y):
+    moved_by, run_on, after_reply, sent, dropped, _ = burst(machine, 10)
+    print(
+        f"10 detents: moved {moved_by:.4f} ({sent} counts sent, {dropped} dropped), "
+        f"run-on after the last count {run_on:.3f} s, after the reply {after_reply:.3f} s"
+    )
+    # Whole detents, at least what fits from rest, never all ten, the rest dropped.
+    assert sent % 100 == 0 and sent + dropped == 1000
+    assert 3 * 100 <= sent < 1000
+    assert abs(moved_by - sent * SCALE) < TOL
+    assert run_on <= BUDGET + STOP_SLACK
+
+
+def test_a_fast_spin_runs_on_at_most_the_budget(machine, slow_y):
+    """60 detents at x100 (6 units) in 0.3 s on the slow Y: the axis runs at its speed while
+    the wheel turns, then stops within the budget of the last count; a change of mode
+    afterwards releases nothing."""
+    start = machine.pos()
+    counts = machine.pins()["axis.y.jog-counts"]
+    machine.watch(5, COUNTS_Y, POS_Y, TARGET_Y)
+    last_edge = spin(machine, 60, pause=0.05, step=10)
+    samples = machine.watched(quiet=0.4)
+    stopped = last_change(samples, 2)
+    at_last_count = last_change(samples, 1)
+    run_on = stopped[0] - at_last_count[0]
+    lead = max(target - pos for _, _, pos, target in samples)
+    travelled = samples[-1][2] - start[1]
+    print(
+        f"spin: moved {travelled:.3f} of 6, run-on after the last count {run_on:.3f} s "
+        f"({samples[-1][2] - at_last_count[2]:.3f}), after the last edge "
+        f"{stopped[0] - last_edge:.3f} s; largest lead {lead:.3f}"
+    )
+    assert run_on <= BUDGET + STOP_SLACK
+    assert (samples[-1][1] - counts) % 100 == 0
+    assert travelled < 1.5  # 0.3 s at 2 and the budget's run-on, not the 6 asked
+    assert lead <= 0.4 + V * 0.002  # the reach at full speed, and a servo period's motion
+    rest = machine.pos()
+    for position, velocity in [(1, 0), (0, 1), (0, 0)]:
+        machine.setp("handwheel.position-mode", position)
+        machine.setp("handwheel.velocity-mode", velocity)
+        machine.assert_still(rest, 0.2)
+    assert machine.pins()["axis.y.jog-counts"] == samples[-1][1]
+
+
+def test_machine_off_during_a_run_on_releases_nothing(machine, slow_y):
+    """Ten quick detents, the machine off at once and on again: the axis stops, and nothing
+    held or dropped comes back; the next detent moves exactly one."""
+    machine.stim.turn(10)
+    machine.cnc.must("off")
+    machine.cnc.must("on")
+    machine.ready_to_jog("y")
+    rest = machine.pos()
+    machine.assert_still(rest, 0.5)
+    machine.stim.turn(1)
+    machine.wait_pos(moved(rest, "y", DETENT), 5)
+
+
+def switch_mode(machine, mode: str, task_mode: int) -> None:
+    """LinuxCNC to `mode` through halui's `halui.mode.<mode>` (a rising edge each try: task
+    refuses a change while the axis still moves)."""
+    deadline = time.monotonic() + 5
+    while machine.status()["task_mode"] != task_mode:
+        assert time.monotonic() < deadline, f"LinuxCNC did not switch to {mode}"
+        machine.setp(f"halui.mode.{mode}", 1)
+        time.sleep(0.05)
+        machine.setp(f"halui.mode.{mode}", 0)
+
+
+def test_mdi_and_back_releases_nothing(machine, slow_y):
+    """Ten quick detents, LinuxCNC asked to switch to MDI at once (it does once the axis
+    rests) and back to manual: nothing of the burst moves after the switch back; the next
+    detent moves exactly one."""
+    machine.stim.turn(10)
+    switch_mode(machine, "mdi", MODE_MDI)
+    switch_mode(machine, "manual", MODE_MANUAL)
+    machine.wait(lambda s: s["teleop"], 5, "teleop")
+    machine.ready_to_jog("y")
+    rest = machine.pos()
+    machine.assert_still(rest, 0.5)
+    machine.stim.turn(1)
+    machine.wait_pos(moved(rest, "y", DETENT), 5)
+
+
+# Overrides -------------------------------------------------------------------------------
+
+
+def override(machine, which):
+    return machine.status()["overrides"][which]
+
+
+def reset_overrides(machine):
+    for pin in ("halui.feed-override.reset", "halui.spindle.0.override.reset"):
+        machine.setp(pin, 1)
+        time.sleep(0.1)
+        machine.setp(pin, 0)
+    machine.wait(
+        lambda s: s["overrides"]["feed"] == 1.0 and s["overrides"]["spindle"] == 1.0, 5, "100 %"
+    )
+
+
+def wait_override(machine, which, value):
+    return machine.wait(
+        lambda s: abs(s["overrides"][which] - value) < 1e-6, 5, f"{which} override {value}"
+    )
+
+
+def test_feed_override_position_steps_one_percent_and_moves_no_axis(machine):
+    reset_overrides(machine)
+    machine.select("w", 1)  # position 4
+    machine.wait(lambda s: s["pins"]["feed-override.count-enable"], 10, "count-enable")
+    p = machine.pins()
+    assert p["feed-override.scale"] == pytest.approx(0.01)
+    assert not any(p[f"axis.{L}.jog-enable"] for L in "xyz")
+    assert not p["spindle-override.count-enable"]
+    rest = machine.pos()
+    axis_counts = {L: p[f"axis.{L}.jog-counts"] for L in "xyz"}
+    machine.stim.turn(5)
+    wait_override(machine, "feed", 1.05)
+    machine.stim.turn(-2)
+    wait_override(machine, "feed", 1.03)
+    machine.select("w", 100)  # the multiplier changes nothing: 1 % per detent
+    machine.stim.turn(4)
+    wait_override(machine, "feed", 1.07)
+    machine.stim.turn(30)  # MAX_FEED_OVERRIDE = 1.2
+    wait_override(machine, "feed", 1.2)
+    machine.stim.turn(-10)
+    wait_override(machine, "feed", 1.1)
+    machine.assert_still(rest, 0.3)
+    assert {L: machine.pins()[f"axis.{L}.jog-counts"] for L in "xyz"} == axis_counts
+    assert override(machine, "spindle") == 1.0
+
+
+def test_spindle_override_position_and_its_limits(machine):
+    reset_overrides(machine)
+    machine.select("v", 10)  # position 5
+    machine.wait(lambda s: s["pins"]["spindle-override.count-enable"], 10, "count-enable")
+    rest = machine.pos()
+    machine.stim.turn(-5)
+    wait_override(machine, "spindle", 0.95)
+    machine.stim.turn(-100)  # MIN_SPINDLE_OVERRIDE = 0.5
+    wait_override(machine, "spindle", 0.5)
+    machine.stim.turn(3)
+    wait_override(machine, "spindle", 0.53)
+    machine.assert_still(rest, 0.3)
+    assert override(machine, "feed") == 1.0
+
+
+def test_back_on_an_axis_nothing_is_carried_over(machine):
+    reset_overrides(machine)
+    machine.select("w", 10)
+    machine.wait(lambda s: s["pins"]["feed-override.count-enable"], 10, "count-enable")
+    machine.stim.turn(7)
+    wait_override(machine, "feed", 1.07)
+    machine.select("y", 10)
+    machine.ready_to_jog("y")
+    rest = machine.pos()
+    machine.assert_still(rest, 0.3)
+    machine.stim.turn(2)
+    machine.wait_pos(moved(rest, "y", 2 * 10 * SCALE))
+    assert override(machine, "feed") == pytest.approx(1.07)
+
+
+def test_machine_off_changes_no_override(machine):
+    reset_overrides(machine)
+    machine.select("w", 1)
+    machine.wait(lambda s: s["pins"]["feed-override.count-enable"], 10, "count-enable")
+    machine.cnc.must("off")
+    machine.wait(lambda s: not s["pins"]["feed-override.count-enable"], 5, "count-enable off")
+    machine.stim.turn(5)
+    time.sleep(0.5)
+    assert override(machine, "feed") == 1.0
+    machine.cnc.must("on")
+    machine.wait(lambda s: s["pins"]["feed-override.count-enable"], 10, "count-enable")
+    time.sleep(0.3)
+    assert override(machine, "feed") == 1.0
+    machine.stim.turn(1)
+    wait_override(machine, "feed", 1.01)
+
+
+def test_rapid_override_position(machine):
+    """The component started again with `--axes xyzrs`: position 4 is the rapid override,
+    netted to halui's; LinuxCNC holds it to 100 % at most."""
+    reset_overrides(machine)
+    os.kill(machine.component_pid(), signal.SIGTERM)
+    machine.wait(lambda s: s["pins"]["connected"] is None, 10, "the component gone")
+    machine.spawn("--axes", "xyzrs")
+    for n in ("counts", "count-enable", "scale"):
+        out = machine.halcmd(
+            "net", f"hw-rapid-{n}", f"handwheel.rapid-override.{n}", f"halui.rapid-override.{n}"
+        )
+        assert "rror" not in out, out
+    machine.select("w", 1)
+    machine.wait(lambda s: s["pins"]["rapid-override.count-enable"], 20, "count-enable")
+    rest = machine.pos()
+    machine.stim.turn(-20)
+    wait_override(machine, "rapid", 0.8)
+    machine.stim.turn(50)
+    wait_override(machine, "rapid", 1.0)
+    machine.assert_still(rest, 0.3)
+    assert override(machine, "feed") == 1.0
