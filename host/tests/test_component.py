@@ -125,7 +125,7 @@ def test_override_pins_and_the_axis_reader():
 
     reader = component.AxisReader(Hal)
     assert reader.teleop()
-    assert reader.motion("y") == core.AxisMotion(0.25, -0.5, 2.0, 10.0)
+    assert reader.motion("y") == core.AxisMotion(0.25, -0.5, 2.0, 10.0, target=1.25)
     assert reader.motion("q") is None  # no such pins
     values["motion.teleop-mode"] = False
     assert not reader.teleop()

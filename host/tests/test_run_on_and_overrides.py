@@ -316,3 +316,23 @@ def test_status_bits_follow_the_override_position():
     r.c.set_enable(True)
     r.record(0, axis=5, mult=1, status=EN)
     assert r.c.pins().axis == 5
+
+
+def test_counts_linuxcnc_has_not_taken_yet_count_as_lead():
+    """LinuxCNC reads counts on its next servo cycle: a read of its target before that (the
+    same target as before the write) must not let the next counts lead further."""
+    r = Metered()
+    r.enabled()
+    r.motion["y"] = AxisMotion(0.0, 0.0, V, A, target=5.0)
+    r.record(200, axis=2, mult=100)
+    r.publish()
+    assert r.c.pins().jog_counts["y"] == 200
+    r.record(400, axis=2, mult=100)  # 10 ms later LinuxCNC still shows the old target
+    r.publish()
+    assert r.c.pins().jog_counts["y"] == 300  # 0.2 in flight + 0.1: the reach from rest
+    # Once LinuxCNC shows it (or the window is over), its own figures count again.
+    r.motion["y"] = AxisMotion(0.0, 0.0, V, A, target=5.3)
+    r.at(core.IN_FLIGHT)
+    r.record(600, axis=2, mult=100)
+    r.publish()
+    assert r.c.pins().jog_counts["y"] == 500

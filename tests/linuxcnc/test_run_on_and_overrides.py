@@ -171,19 +171,39 @@ def override(machine, which):
 
 
 def reset_overrides(machine):
-    for pin in ("halui.feed-override.reset", "halui.spindle.0.override.reset"):
-        machine.setp(pin, 1)
+    """Feed, spindle and rapid override back to 100 % through halui's reset inputs (a rising
+    edge each try, until the status shows it)."""
+    deadline = time.monotonic() + 10
+    while any(v != 1.0 for v in machine.status()["overrides"].values()):
+        assert time.monotonic() < deadline, machine.status()["overrides"]
+        for pin in (
+            "halui.feed-override.reset",
+            "halui.spindle.0.override.reset",
+            "halui.rapid-override.reset",
+        ):
+            machine.setp(pin, 1)
         time.sleep(0.1)
-        machine.setp(pin, 0)
-    machine.wait(
-        lambda s: s["overrides"]["feed"] == 1.0 and s["overrides"]["spindle"] == 1.0, 5, "100 %"
-    )
+        for pin in (
+            "halui.feed-override.reset",
+            "halui.spindle.0.override.reset",
+            "halui.rapid-override.reset",
+        ):
+            machine.setp(pin, 0)
+        time.sleep(0.1)
+
+
+# halui takes the change of an override's counts since its last look, every ~0.1 s (seen
+# here), adds it times the scale to the override and clamps the sum to the limit. Turning up
+# past the limit and back within one of its looks nets the two, so the tests let it look
+# twice more after the override shows a turn's value before they turn again.
+HALUI_SETTLE = 0.3
 
 
 def wait_override(machine, which, value):
-    return machine.wait(
+    machine.wait(
         lambda s: abs(s["overrides"][which] - value) < 1e-6, 5, f"{which} override {value}"
     )
+    time.sleep(HALUI_SETTLE)
 
 
 def test_feed_override_position_steps_one_percent_and_moves_no_axis(machine):

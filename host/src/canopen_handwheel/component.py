@@ -267,6 +267,7 @@ class AxisReader:
                 max_velocity=float(self.get(f"ini.{letter}.max_velocity")),
                 max_acceleration=float(self.get(f"ini.{letter}.max_acceleration"))
                 * float(self.get(f"axis.{letter}.jog-accel-fraction")),
+                target=target,
             )
         except Exception:
             return None

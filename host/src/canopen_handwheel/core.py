@@ -567,6 +567,14 @@ class AxisMotion:
     velocity: float
     max_velocity: float
     max_acceleration: float
+    target: Optional[float] = None  # `axis.L.teleop-pos-cmd` itself, when known
+
+
+# How long after the component wrote an axis's counts it takes the target it then expected
+# rather than LinuxCNC's as the lead's end (s): LinuxCNC takes counts on its next servo cycle,
+# and a read in between (a servo thread running late, records 2 ms apart) would show the
+# target without them and let the next counts lead by that much more.
+IN_FLIGHT = 0.02
 
 
 def run_on_reach(budget: float, max_velocity: float, max_acceleration: float, velocity=0.0):
@@ -700,6 +708,9 @@ class Core:
     run_on_budget: float = field(init=False)  # the `run-on-budget` input, s
     motion_known: bool = False  # LinuxCNC shows its axes' motion (teleop mode)
     counts_dropped: int = 0  # counts the run-on budget dropped
+    # Per axis: the jog target LinuxCNC has after the component's last metered counts, and
+    # when they were written (`IN_FLIGHT`).
+    sent_target: Dict[str, Tuple[float, float]] = field(default_factory=dict)
     # Actions.
     configured: bool = False
     config_due: float = 0.0  # configure at this time (if not configured)
@@ -944,10 +955,24 @@ class Core:
             step = multiplier if pending % multiplier == 0 else 1
             released = 0
             if state is not None:
+                state = self._with_counts_in_flight(L, state)
                 released = meter_counts(pending, step, self.cfg.scale, state, self.run_on_budget)
+                if released and state.target is not None:
+                    target = state.target + released * self.cfg.scale
+                    self.sent_target[L] = (target, self.now)
             if released != pending:
                 self.counts[L] = wrap_s32(last.jog_counts[L] + released)
                 self.counts_dropped = wrap_s32(self.counts_dropped + abs(pending - released))
+
+    def _with_counts_in_flight(self, letter: str, state: AxisMotion) -> AxisMotion:
+        """`state` with the target the component's own last counts give, if it wrote them
+        less than `IN_FLIGHT` ago: LinuxCNC may not have taken them yet (if it has, the two
+        agree; if it dropped them, the lead is overstated for a moment: fewer counts go)."""
+        sent = self.sent_target.get(letter)
+        if state.target is None or sent is None or self.now - sent[1] > IN_FLIGHT:
+            return state
+        position = state.target - state.lead
+        return replace(state, lead=sent[0] - position, target=sent[0])
 
     def _published(self, pins: Pins) -> None:
         self.published = pins
