@@ -1,7 +1,8 @@
 """Detent to motion in LinuxCNC 2.9: `cargo xtask bench`, part 4 (not part of the suite;
 xtask runs this file alone, with the QEMU handwheel).
 
-1. Latency, over `DETENTS` single detents at x10 on X (alternating direction, 40 ms apart):
+1. Latency, over `DETENTS` single detents at x10 on X (alternating direction, 40 ms apart),
+   in the run-on mode and in velocity mode alternately, twice each:
    from the `turn 1` command to the component's `handwheel.axis.x.jog-counts` and to
    LinuxCNC's commanded position `axis.x.pos-cmd` (its first change), sampled in LinuxCNC's
    display (`watch`, every ~0.1 ms). The QEMU stimulus makes the detent's four edges while
@@ -58,10 +59,12 @@ def figures(name: str, values_s) -> str:
     )
 
 
-def test_detent_to_motion(machine):
-    beats_from = machine.frames.mark()
-    machine.select("x", 10)
-    machine.ready_to_jog("x")
+def latency(machine, mode: str) -> None:
+    """Part 1 in `mode` (`run-on`: the component reads LinuxCNC's axis before writing the
+    counts; `velocity`: it does not, as before the run-on mode)."""
+    position, velocity = MODES[mode]
+    machine.setp("handwheel.position-mode", position)
+    machine.setp("handwheel.velocity-mode", velocity)
     time.sleep(0.3)
     commands = []
     machine.watch(DETENTS * (PAUSE + 0.01) + 1.0, COUNTS_X, POS_X)
@@ -83,8 +86,10 @@ def test_detent_to_motion(machine):
         round_trip.append(answered - sent)
         counts_after_reply.append(tc - answered)
         pos_after_reply.append(tp - answered)
-    print()
-    print(f"## Detent to motion: {DETENTS} single detents at x10 on X, {PAUSE * 1000:.0f} ms apart")
+    print(
+        f"## Detent to motion, {mode} mode: {DETENTS} single detents at x10 on X, "
+        f"{PAUSE * 1000:.0f} ms apart"
+    )
     print(
         f"  sampling: {reply['polls']} polls in {samples[-1][0] - samples[0][0]:.1f} s, "
         f"longest gap {reply['max_gap'] * 1000:.2f} ms"
@@ -94,6 +99,17 @@ def test_detent_to_motion(machine):
     print(figures("command to axis.x.pos-cmd (motion starts)", to_pos))
     print(figures("reply to handwheel.axis.x.jog-counts", counts_after_reply))
     print(figures("reply to axis.x.pos-cmd", pos_after_reply))
+
+
+def test_detent_to_motion(machine):
+    beats_from = machine.frames.mark()
+    machine.select("x", 10)
+    machine.ready_to_jog("x")
+    print()
+    # Twice each, alternating, so that both modes meet the same load.
+    for mode in ("run-on", "velocity", "run-on", "velocity"):
+        latency(machine, mode)
+    machine.setp("handwheel.velocity-mode", 0)
 
     print(
         f"## Run-on on Y at {RUN_ON_V:g} mm/s, {RUN_ON_A:g} mm/s^2, x100 (0.1 mm a detent), "
