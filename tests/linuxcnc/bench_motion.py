@@ -10,8 +10,8 @@ xtask runs this file alone, with the QEMU handwheel).
    the command and its reply: the figures from the command are an upper bound, those from
    the reply a lower one.
 2. Run-on, on Y made to do 2 mm/s with 20 mm/s^2 (the field report's axis in in/s; the
-   figures are the same in any unit), x100 at 0.001 (0.1 a detent): in the run-on mode
-   (default, budget 0.25 s) bursts of 1, 2, 3 and 10 quick detents (one stimulus command
+   figures are the same in any unit), x100 at 0.001 (0.1 a detent): in each of the three
+   modes (run-on: budget 0.25 s) bursts of 1, 2, 3 and 10 quick detents (one stimulus command
    each): how far the axis moves and how long after the last count it rests; then a fast
    spin, 60 detents in 0.3 s (6 asked), in each of the three modes: how far it moves in all
    and after the last edge, when it rests, and the largest lead of the planner's target
@@ -118,18 +118,21 @@ def test_detent_to_motion(machine):
     machine.select("y", 100)
     machine.ready_to_jog("y")
     with machine.slow_axis("y", RUN_ON_V, RUN_ON_A):
-        for detents in (1, 2, 3, 10):
-            start = machine.pos()[1]
-            machine.watch(5.0, COUNTS_Y, POS_Y)
-            time.sleep(0.05)
-            machine.stim.turn(detents)
-            samples = machine.watched(quiet=0.4)
-            rests = last_change(samples, 2)[0] - last_change(samples, 1)[0]
-            print(
-                f"  run-on mode, {detents:2d} quick detents: moved "
-                f"{samples[-1][2] - start:.3f} mm, "
-                f"rests {rests * 1000:.0f} ms after the last count"
-            )
+        for mode, (position, velocity) in MODES.items():
+            machine.setp("handwheel.position-mode", position)
+            machine.setp("handwheel.velocity-mode", velocity)
+            for detents in (1, 2, 3, 10):
+                start = machine.pos()[1]
+                machine.watch(8.0, COUNTS_Y, POS_Y)
+                time.sleep(0.05)
+                machine.stim.turn(detents)
+                samples = machine.watched(quiet=0.4)
+                rests = last_change(samples, 2)[0] - last_change(samples, 1)[0]
+                print(
+                    f"  {mode} mode, {detents:2d} quick detents: moved "
+                    f"{samples[-1][2] - start:.3f} mm, "
+                    f"rests {rests * 1000:.0f} ms after the last count"
+                )
         for mode, (position, velocity) in MODES.items():
             machine.setp("handwheel.position-mode", position)
             machine.setp("handwheel.velocity-mode", velocity)
