@@ -130,6 +130,28 @@ def script(cnc: SimMachine, stim) -> bool:
             + f"  ({result})",
             flush=True,
         )
+    # Position 4 is the feed override (sim/handwheel.hal): 1 % a detent, no axis moves.
+    stim.send("axis w")
+    stim.send("mult 100")
+    wait_status(
+        cnc, lambda s: s["pins"]["feed-override.count-enable"], 10, "feed override position"
+    )
+    feed = cnc.must("status")["overrides"]["feed"]
+    stim.send("turn -5")
+    try:
+        s = wait_status(
+            cnc,
+            lambda s: (
+                abs(s["overrides"]["feed"] - (feed - 0.05)) < 1e-6
+                and all(abs(a - b) < 1e-6 for a, b in zip(s["pos"], expected))
+            ),
+            10,
+            "feed override",
+        )
+        result = "ok"
+    except RuntimeError:
+        s, result, ok = cnc.must("status"), "WRONG", False
+    print(f"feed override x100 turn -5: {view(s, result)[2].strip()}  ({result})", flush=True)
     print(
         "linuxcnc console: tour "
         + ("finished, every step as expected" if ok else "FAILED: a step did not move LinuxCNC"),

@@ -15,11 +15,15 @@ The event API (stable; `replay` runs a list of these events through a `Core`):
 - `drained(now)`: the shell's receive path was found empty at a moment not before `now`,
   so every frame that reached the host before `now` has been handed to `frame`;
 - `tick(now)`: time passes (staleness);
-- `set_enable(bool)`, `set_position_mode(bool)`: the input pins;
+- `set_enable(bool)`, `set_position_mode(bool)`, `set_velocity_mode(bool)`,
+  `set_run_on_budget(s)`: the input pins; `set_motion_known(bool)`: LinuxCNC shows its axes'
+  motion (teleop mode);
 - `next_action(now)` -> the `Action` to carry out (`Configure`, `WriteFeed`) or None, and
   `done(action, ok, abort, now, result)`: its outcome;
-- `publish(now)` -> the list of `Pins` snapshots to write now, in order, at least
-  `GATE_HOLD` apart; `pins()` is the state they end in; `shutdown_action()`.
+- `publish(now, motion)` -> the list of `Pins` snapshots to write now, in order, at least
+  `GATE_HOLD` apart (`motion(letter)`: LinuxCNC's `AxisMotion` of an axis, asked in the
+  run-on mode for an axis with new counts); `pins()` is the state they end in;
+  `shutdown_action()`.
 
 Rules (host/README.md, "What it does", states them for machine builders):
 
@@ -123,11 +127,19 @@ Rules (host/README.md, "What it does", states them for machine builders):
   configuration (`event_timer_plan`: `--event-timer-ms` is written there first when given, and
   100 ms when the device has none, since without it silence would not mean absence); until
   the first configuration the option's value (100 ms by default) is assumed.
-- Jog mode: `axis.L.jog-vel-mode` is true (LinuxCNC's velocity mode: the axis never leads
-  the wheel by more than its stopping distance, what it cannot follow is dropped, so it stops
-  within that distance when the wheel stops) unless the `position-mode` input is true (every
-  count is moved, at the axis's speed limit however long that takes). The mode is nothing but
-  those pins: no count is held back or released, so a change of mode never becomes motion.
+- Jog mode (`mode`): `position-mode` true: LinuxCNC's position mode (`jog-vel-mode` false,
+  every count moved however long it takes); else `velocity-mode` true: LinuxCNC's velocity
+  mode (`jog-vel-mode` true: the target leads by at most the stopping distance); else the
+  run-on mode: `jog-vel-mode` false, and an axis's new counts pass `meter_counts` in
+  `publish`: whole detents go while the axis, from the lead and velocity LinuxCNC shows and
+  at its limits, can still rest at the new target within the run-on budget
+  (`run_on_reach`); the rest is dropped, never held (counts the component wrote less than
+  `IN_FLIGHT` ago count as lead even before LinuxCNC shows them). Outside teleop the run-on
+  mode cannot meter and sets `jog-vel-mode` true. Nothing is held, so a change of mode, of
+  LinuxCNC's mode, E-stop or machine off never releases motion.
+- Override positions (`--axes` letters `f`, `s`, `r`): a record's delta divided by its
+  multiplier (detents) goes to the override's counts, with the same rules, gates and
+  publishing as an axis's counts, and never metered.
 - `jog-enable` of axis L: connected (fresh records), Operational (no heartbeat saying
   otherwise), the device reports feed enabled, `enable` is true, and L is the selected axis.
   After an impossible record, until the next possible one: no axis selected.
