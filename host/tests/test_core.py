@@ -684,3 +684,28 @@ def test_pin_table():
     assert "axis.x.jog-counts" in names and "halui.axis.z.select" in names
     assert "axis.y.jog-counts" not in names
     assert len(names) == len(set(names)) == 2 * 5 + 15
+
+
+def test_a_boot_up_during_a_configuration_it_then_answered_configures_once():
+    """The component starts with the device still booting: its boot-up comes while the first
+    configuration waits for an answer. If every answer came after the boot-up, that
+    configuration stands (no second one); if the first came before, it is done again at
+    once."""
+    r = Run()
+    a = r.c.next_action(r.at())
+    r.hb(core.BOOTUP)
+    booted = r.t
+    assert r.c.next_action(r.at()) is None  # one configuration at a time
+    r.c.done(a, True, None, r.at(0.02), Configured(100, first_reply_at=booted + 0.001))
+    assert r.c.configured and r.c.next_action(r.at()) is None
+    r = Run()
+    a = r.c.next_action(r.at())
+    first = r.at(0.005)
+    r.hb(core.BOOTUP)
+    r.c.done(a, True, None, r.at(0.02), Configured(100, first_reply_at=first))
+    assert not r.c.configured and isinstance(r.c.next_action(r.at()), Configure)
+    r = Run()
+    a = r.c.next_action(r.at())
+    r.hb(core.BOOTUP)
+    r.c.done(a, True, None, r.at(0.02), Configured(100))  # no time: not known to be after
+    assert not r.c.configured and isinstance(r.c.next_action(r.at()), Configure)

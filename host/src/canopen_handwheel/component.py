@@ -15,7 +15,11 @@ finds nothing, every frame that reached the host before that read has been handl
 loop tells the core (`Core.drained`); a frozen, starved or flooded loop therefore shows as a
 gap, and what it then reads from a backlog moves nothing. SLCAN lines are read in bulk from
 the port (`slcan_bus`), not a byte per call as python-can does, so that a flood of frames
-costs little.
+costs little. (python-canopen's own way, `network.connect` with its notifier thread and
+`network.subscribe` per identifier, would read the bus in that thread: the loop could no
+longer tell when it had read everything that had arrived, which the backlog rule needs, and
+the bulk reading would move out of the loop's control. Where python-canopen has the call for
+what the component sends, the component uses it: SDO transfers, the NMT start.)
 
     loadusr -Wn handwheel canopen-handwheel --channel can0 --axes xyz
 
@@ -45,8 +49,6 @@ from importlib import resources
 from typing import Callable, Optional
 
 from . import core
-
-NMT_START = 0x01
 
 
 def log(message: str) -> None:
@@ -399,6 +401,9 @@ class Link:
             self.device_ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
             self.node = self.network.add_node(args.node, args.eds or default_eds())
             self.sdo_response = self.node.sdo.tx_cobid
+            # When (the main loop's clock) the last SDO response was handled: a
+            # configuration's first answer, against the device's boot-up (`core.Configured`).
+            self.sdo_reply_at: Optional[float] = None
         except BaseException:
             self.bus.shutdown()
             raise
@@ -437,6 +442,7 @@ class Link:
                 if cob_id in self.device_ids:
                     c.frame(cob_id, bytes(msg.data), clock())
                 elif cob_id == self.sdo_response:
+                    self.sdo_reply_at = clock()
                     self.network.notify(cob_id, msg.data, msg.timestamp)
             if clock() >= end:
                 return
@@ -533,6 +539,7 @@ def _carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.E
 
     if isinstance(action, core.Configure):
         count = u32(0x1016, 0)
+        first_reply_at = link.sdo_reply_at
         entries = {sub: u32(0x1016, sub) for sub in range(1, count + 1)}
         sub, value = core.consumer_plan(entries, action.master, action.timeout_ms)
         write(0x1016, sub, value, 4)
@@ -546,12 +553,12 @@ def _carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.E
         # Feed off: a fresh start enables it again, stepping the selection epoch.
         write(0x2000, 0, 0, 1)
         step()
-        link.send(0x000, bytes([NMT_START, node_id]))
+        link.node.nmt.state = "OPERATIONAL"  # python-canopen's NMT start to the node
         log(
             f"device configured (0x1016:{sub} = 0x{value:08X}, event timer {timer} ms, "
             "feed off), NMT start sent"
         )
-        return core.Configured(event_timer_ms=timer)
+        return core.Configured(event_timer_ms=timer, first_reply_at=first_reply_at)
     if isinstance(action, core.WriteFeed):
         write(0x2000, 0, action.value, 1)
         log(f"feed enable 0x2000 = {action.value}")

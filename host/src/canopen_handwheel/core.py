@@ -651,9 +651,12 @@ class Configure:
 @dataclass(frozen=True)
 class Configured:
     """What a successful `Configure` found: the device's event timer 0x1800:5 (ms) as read
-    back at its end."""
+    back at its end, and when (the core's clock) the shell handled the device's answer to
+    its first transfer: a configuration answered only after a boot-up the core saw while it
+    ran was made in the device's new life and stands."""
 
     event_timer_ms: int
+    first_reply_at: Optional[float] = None
 
 
 @dataclass(frozen=True)
@@ -728,6 +731,7 @@ class Core:
     config_due: float = 0.0  # configure at this time (if not configured)
     feed_due: float = 0.0  # earliest time for the next 0x2000 write
     pending: Optional[Action] = None
+    booted_during: Optional[float] = None  # a boot-up while a `Configure` was pending
     now: float = 0.0
 
     def __post_init__(self) -> None:
@@ -826,10 +830,17 @@ class Core:
         self.pending = None
         if isinstance(action, Configure):
             low, high = EVENT_TIMER_MS_RANGE
-            if ok and result is not None and low <= result.event_timer_ms <= high:
+            booted, self.booted_during = self.booted_during, None
+            usable = ok and result is not None and low <= result.event_timer_ms <= high
+            before_boot = booted is not None and (
+                result is None or result.first_reply_at is None or result.first_reply_at <= booted
+            )
+            if usable and not before_boot:
                 self.configured = True
                 self.feed_due = 0.0
                 self._set_event_timer(result.event_timer_ms / 1000)
+            elif usable:
+                self.config_due = self.now  # it spoke to the device's life before: again
             else:
                 self.config_due = self.now + self.cfg.retry
         elif isinstance(action, WriteFeed):
@@ -1107,8 +1118,9 @@ class Core:
             self.epochs_shown = False
             self.emcy_code = 0
             if isinstance(self.pending, Configure):
-                # Its outcome no longer says anything about this boot; do it again.
-                self.pending = None
+                # Its outcome counts only if the device answered it after this boot-up
+                # (`done`); another one now would only run after it, in the same worker.
+                self.booted_during = self.now
         elif state == PRE_OPERATIONAL and self.configured and self.pending is None:
             # Someone (or a missed boot-up) left it Pre-operational: configure and start.
             self.configured = False
