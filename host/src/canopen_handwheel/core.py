@@ -25,143 +25,10 @@ The event API (stable; `replay` runs a list of these events through a `Core`):
   run-on mode for an axis with new counts); `pins()` is the state they end in;
   `shutdown_action()`.
 
-Rules (host/README.md, "What it does", states them for machine builders):
-
-- Feed bookkeeping. The feed record (TPDO1) carries the cumulative position, the axis, the
-  multiplier, status bits 0-4 and in bits 5-7 the low three bits of the device's selection
-  epoch (0x2010:3), which steps on every change of axis, multiplier, enable and feed format
-  and on every stop. The device promises (the contract, version 2): (a) within one epoch
-  axis, multiplier and enable do not change and the position moves only while enabled, by
-  that axis's feed (detents times the multiplier; none without an axis); (b) every epoch's
-  final state goes out as a record before any record of a later epoch, unless it is lost,
-  and every loss event (a held epoch dropped, an epoch ended while no record could hold it,
-  leaving Operational) takes a sequence number as if a record had been sent and lost, a run
-  of them between two records at most 8; (c) the sequence byte steps by one per record
-  handed to the transmit queue and per loss event; a break (NMT start after a stop, reset
-  node, reset communication, a blocked transmit path) fills the run to 8, so the next
-  record is at least 8 numbers after the last one handed out; (d) a reset node or reset
-  communication discards what waits for the bus, so its boot-up is the first frame after
-  it; sequence and epoch continue across it, and only a power cycle restarts them at 0
-  (after a boot-up); (e) the device stops the feed (status bit 3) after its heartbeat
-  consumer timeout, and when its frames have waited for the bus for more than 100 ms with
-  none completing (it then also discards what waits and breaks the sequence).
-- Ordering. A record is compared with the reference `prev`, the last record accepted (while
-  it is fresh; after a boot-up or staleness there is none): a = rec's sequence minus prev's
-  (mod 256). The same 8 bytes as prev are the same frame delivered twice (a known CAN
-  effect): ignored entirely (no loss, no new reference, no freshness, no count; also once
-  prev is stale, so that copies never keep a silent device connected). a = 0
-  with other bytes cannot come from the device: impossible (below). 128 <= a <= 255: rec
-  lies behind prev (a replay or a stale copy of an earlier record): ignored entirely (never
-  a reference, no loss), counted in `frames-bad`. Otherwise g = a - 1 numbers are missing
-  (`records-lost` grows by g). This holds while baselines are pending too, so a copy never
-  becomes the reference that the next genuine record is measured against. It needs a copy
-  to be less than 128 numbers old (older ones look ahead: a large gap, a baseline).
-- Continuity. `continuity(prev, rec)` is the rule, with g as above and d = rec's epoch
-  minus prev's (mod 8):
-  - d = 0 and g <= 6: the same epoch. Every epoch takes at least one sequence number, so the
-    g missing numbers hide at most g epochs and rec lies at most g + 1 <= 7 epochs after
-    prev; d = 0 mod 8 then means none. By (a) the wrapping difference of the positions is
-    feed of rec's axis alone. A record that differs from prev in axis, multiplier or enable,
-    or moved while disabled, without an axis or by no multiple of its multiplier, breaks (a):
-    it is impossible.
-  - d = 1 and g = 0: rec directly follows prev in sequence, so no epoch lies between them
-    (each would need a number) and rec is in the next epoch. By (b) prev is the final record
-    of its epoch, so the difference is exactly the motion of rec's epoch so far, which by (a)
-    is rec's axis's (a difference on a disabled or axis-less record is impossible).
-  - anything else: rec is a new baseline; what moved in epochs the host did not see goes to
-    no axis. A break (c) gives g >= 7: never a continuation.
-  So every applied delta is motion made inside rec's own epoch, and that is feed of rec's
-  axis: motion of one axis is never credited to another, and (ordering) never twice or
-  backwards from a copy. Lost records, loss events and outages can only cost motion, never
-  move it elsewhere. The argument needs the host to see a record of every 256 consecutive
-  sequence numbers or go stale first (a wrapped sequence byte looks like a small gap; a
-  true advance of 128..255 reads as behind and is ignored, which costs motion until
-  staleness makes the next record a baseline, but moves nothing). Runs of loss events take
-  at most 8 numbers each, so that would take losing at least 28 records sent in a row (over
-  50 ms of records at the 2 ms inhibit time) without three event-timer periods passing with
-  none received.
-- Backlog (lateness). A record handled more than `BACKLOG_LIMIT` (0.1 s) after the shell
-  last reported its receive path empty (`drained`) may have waited that long in a buffer
-  (the component frozen, swapped, starved or flooded, a socket delivering a backlog): it
-  is only a baseline, the reference for the next one, with no motion. The shell reports
-  `drained` only after a read of the bus itself (waiting or not) found nothing (the time taken
-  before that read), so a stall anywhere in its loop shows as a gap since the last report.
-  Motion therefore reaches the core at most `BACKLOG_LIMIT` after its record reached the
-  host, and `publish` withdraws credits not written within that time.
-- Pin writes (`publish`). No servo period may see counts without their gate: gates that must
-  be open for new counts are opened first, then the counts are written, and a gate is
-  closed only a hold (`GATE_HOLD`, at least a servo period) after counts credited while it
-  was open; counts credited while the gate was closed are written with it closed. Detents
-  handled in the same round as a boot-up, staleness or a change of axis are therefore
-  published with their gate, not lost to the order of the writes.
-- The delta is applied to rec's axis when rec is enabled, the axis is a configured letter,
-  the previous record is still valid (no boot-up, no staleness, no bad record since), rec
-  was handled in time (Backlog) and the device has shown a non-zero epoch since the
-  component last configured it (start, boot-up, Pre-operational). Firmware from before the
-  epoch bits sends 0 there: its records all look like one epoch, and an outage can hide a
-  switch to another axis behind them, so such a device moves nothing (and each of its
-  enables, a change of the enable bit within what looks like one epoch, counts as bad).
-  Configuration switches the feed off (0x2000 = 0), so the enable that follows steps the
-  epoch: of the two records around it, one shows a non-zero epoch.
-- Plausibility. A record the device can never send is counted in `frames-bad` and the next
-  record is a baseline: a TPDO1 of the wrong length, an axis byte above 5, a multiplier
-  other than 1, 10, 100, feed enabled together with master lost (a stop disables, and only
-  enabling clears master lost), and a record `pair_fault` finds contradicting the previous
-  one (it then is the baseline). A delta is also bounded by what a wheel can do: a token
-  bucket of detents (|delta| / multiplier) that refills at `--max-detents-per-s` and holds at
-  most that rate times `Config.rate_horizon`; a delta beyond what it holds is counted bad and
-  its record is a baseline. A bucket rather than a bound per record because after an outage
-  the device's queued records arrive back to back (100-200 us apart) though each covers at
-  least the 2 ms inhibit time of turning, and the record that closes the outage covers all
-  of it. The horizon is the longer of the staleness time and the device's heartbeat consumer
-  timeout: an outage longer than the staleness time makes the first record after it a
-  baseline, and the records after that cover at most the feed that happened during the
-  outage, which the device stops a consumer timeout after it last heard the master. So
-  turning below the bound passes, bus outages included, while a foreign transmitter on the
-  device's COB-ID (an identifier clash) moves an axis by at most the bound. (Only an outage
-  of the host's receiving alone, its heartbeat still reaching the device, can carry more:
-  that motion is refused and counted, lost rather than applied.)
-- Freshness: records come at least every event-timer period in Operational; none for three
-  periods means the device is gone: `connected` and every `jog-enable` drop, and the next
-  record is a baseline. The period is the device's own TPDO1 event timer (0x1800:5), read at
-  configuration (`event_timer_plan`: `--event-timer-ms` is written there first when given, and
-  100 ms when the device has none, since without it silence would not mean absence); until
-  the first configuration the option's value (100 ms by default) is assumed.
-- Jog mode (`mode`): `position-mode` true: LinuxCNC's position mode (`jog-vel-mode` false,
-  every count moved however long it takes); else `velocity-mode` true: LinuxCNC's velocity
-  mode (`jog-vel-mode` true: the target leads by at most the stopping distance); else the
-  run-on mode: `jog-vel-mode` false, and an axis's new counts pass `meter_counts` in
-  `publish`: whole detents go while the axis, from the lead and velocity LinuxCNC shows and
-  at its limits, can still rest at the new target within the run-on budget
-  (`run_on_reach`); the rest is dropped, never held (counts the component wrote less than
-  `IN_FLIGHT` ago count as lead even before LinuxCNC shows them). Outside teleop the run-on
-  mode cannot meter and sets `jog-vel-mode` true. Nothing is held, so a change of mode, of
-  LinuxCNC's mode, E-stop or machine off never releases motion.
-- Override positions (`--axes` letters `f`, `s`, `r`): a record's delta divided by its
-  multiplier (detents) goes to the override's counts, with the same rules, gates and
-  publishing as an axis's counts, and never metered.
-- `jog-enable` of axis L: connected (fresh records), Operational (no heartbeat saying
-  otherwise), the device reports feed enabled, `enable` is true, and L is the selected axis.
-  After an impossible record, until the next possible one: no axis selected.
-- Configuration (0x1016 consumer entry for the component's heartbeat, the event timer, feed
-  format 0, feed off, NMT start) on start, after every boot-up and when the device shows
-  Pre-operational; retried every `retry` seconds while it fails.
-- The component's heartbeat is due on a fixed grid of its period (`next_beat`), produced by a
-  timer of its own rather than the main loop: a late beat is not made up by a burst. It
-  pauses while the main loop has not found its receive path empty for a while
-  (`beat_allowed`), so that a stalled component, or one that cannot keep up with what it
-  receives, loses the device's feed as a dead one does.
-- Shutdown: 0x2000 = 0 whatever the device last showed (`shutdown_action`).
-- Feed enable: 0x2000 = 1 while `enable` is true, the device is configured, Operational,
-  fresh and reports feed disabled; 0x2000 = 0 when `enable` is false and it reports feed
-  enabled. Refused writes (0x08000022 while the device still misses the heartbeat) are
-  retried.
-- Lost records: the gaps in the sequence byte between consecutive fresh records (the
-  device's loss events included; duplicates and records behind are no loss).
-- Bounded work: every frame costs a constant amount of work and no memory is kept per frame
-  (of an EMCY only its code); the shell hands python-canopen nothing but SDO responses.
-- Bad data never raises: impossible records as above, records behind the reference and an
-  EMCY or heartbeat of the wrong length are counted in `frames-bad`.
+The rules the core keeps, and the argument that motion is never credited to another axis,
+twice or backwards: host/README.md, "The core's rules and why they hold" (its section "What
+it does" states them for machine builders); the docstrings below name the rule where one
+implements it.
 """
 
 from __future__ import annotations
@@ -442,7 +309,7 @@ class Config:
 
 def rate_horizon(stale_after: float, consumer_timeout_ms: int) -> float:
     """How many seconds of turning at the bound one burst of records may carry: the longer
-    of the staleness time and the device's heartbeat consumer timeout (see the module's
+    of the staleness time and the device's heartbeat consumer timeout (see host/README.md's
     "Plausibility")."""
     return max(stale_after, consumer_timeout_ms / 1000)
 
@@ -530,7 +397,7 @@ def _link(prev: Record, rec: Record) -> Tuple[Optional[int], Optional[str]]:
 
 def continuity(prev: Record, rec: Record) -> Optional[int]:
     """The motion `rec` adds to its axis after `prev` (the record received before it), or
-    None: `rec` is a new baseline (it continues nothing). The module's "Feed bookkeeping"
+    None: `rec` is a new baseline (it continues nothing). host/README.md's "Feed bookkeeping"
     gives the rule and why it never credits motion to another axis. 0 for a record that
     continues without motion (disabled, no axis, the wheel at rest). Records the device
     cannot send (`record_fault`, `pair_fault`) give None."""
@@ -546,7 +413,7 @@ def pair_fault(prev: Record, rec: Record) -> Optional[str]:
 @dataclass
 class Allowance:
     """The detents a wheel can have turned: a token bucket that refills at `rate` per
-    second up to `cap` (the module's "Plausibility")."""
+    second up to `cap` (host/README.md's "Plausibility")."""
 
     rate: float
     cap: float
