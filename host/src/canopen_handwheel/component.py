@@ -210,10 +210,13 @@ class HalPins:
 
     def write(self, pins: core.Pins) -> None:
         c = self.comp
+        # The mode before the counts: counts the run-on mode did not meter (LinuxCNC left
+        # teleop) never meet LinuxCNC's position mode in a servo cycle between two writes.
+        for L in self.axes:
+            c[f"axis.{L}.jog-vel-mode"] = pins.jog_vel_mode
         for L in self.axes:
             c[f"axis.{L}.jog-counts"] = pins.jog_counts[L]
             c[f"axis.{L}.jog-enable"] = pins.jog_enable[L]
-            c[f"axis.{L}.jog-vel-mode"] = pins.jog_vel_mode
             c[f"halui.axis.{L}.select"] = pins.select[L]
         for L, name in self.overrides.items():
             c[f"{name}.counts"] = pins.jog_counts[L]
