@@ -74,6 +74,9 @@
 #[macro_use]
 mod log;
 
+mod abort;
+mod cob_id;
+
 pub mod bus;
 pub mod device;
 pub mod emcy;
@@ -91,6 +94,7 @@ pub mod sync;
 pub mod time;
 pub mod tpdo;
 
+pub use abort::SdoAbort;
 pub use bus::{BusEvent, BusState};
 pub use device::{Application, Config, Device, NoSuchPdo, Stats};
 pub use emcy::EmcyError;
@@ -101,6 +105,5 @@ pub use indicators::{indicators, ErrorIndication, Pattern};
 pub use lss::{LssAddress, LssSlave, LssState};
 pub use nmt::{NmtCommand, NmtState};
 pub use od::{standard_objects, Access, DataType, Od, OdEntry, OdError, Value, STANDARD_OBJECTS};
-pub use sdo::SdoAbort;
 pub use storage::{MemoryStorage, Storage, StorageError};
 pub use time::{sleep_ms, Instant, Periodic, WideClock};

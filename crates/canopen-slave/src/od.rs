@@ -7,8 +7,9 @@
 //! by (index, sub-index) and the parts must follow one another in that order;
 //! [`Od::checked`] verifies that at compile time.
 
+use crate::abort::SdoAbort;
 use crate::identity::{CommDefaults, Identity};
-use crate::sdo::{SdoAbort, SDO_BUFFER};
+use crate::sdo::SDO_BUFFER;
 
 /// CiA 301 basic data types supported by the engine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

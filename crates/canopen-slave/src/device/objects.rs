@@ -7,13 +7,16 @@
 //! Adding a communication object is adding its row (and its entries to the table of
 //! [`standard_objects`](crate::od::standard_objects)).
 
-use super::{params, Application};
+mod params;
+
+use super::Application;
+use crate::abort::SdoAbort;
+use crate::cob_id::{check_cob_id_write, COB_INVALID};
 use crate::emcy::Emcy;
-use crate::frame::{check_cob_id_write, NodeId, COB_INVALID};
+use crate::frame::NodeId;
 use crate::heartbeat::Heartbeat;
 use crate::nmt::NmtState;
 use crate::od::{Od, OdEntry, Value};
-use crate::sdo::SdoAbort;
 use crate::storage::Storage;
 use crate::sync::SyncConsumer;
 use crate::time::Instant;
