@@ -303,6 +303,20 @@ impl OdEntry {
         self.meta & MAPPABLE != 0
     }
 
+    /// The write range of an application object ([`OdEntry::range`]); `None` without one.
+    pub const fn limits(&self) -> Option<(i64, i64)> {
+        match self.slot {
+            Slot::Num(r) if self.kind() == KIND_APP && r != NO_RANGE => {
+                Some(if self.data_type().signed() {
+                    (r as u16 as i16 as i64, (r >> 16) as u16 as i16 as i64)
+                } else {
+                    ((r & 0xFFFF) as i64, (r >> 16) as i64)
+                })
+            }
+            _ => None,
+        }
+    }
+
     const fn kind(&self) -> u8 {
         self.meta >> KIND_SHIFT
     }
@@ -322,9 +336,9 @@ impl OdEntry {
         (self.index as u32) << 8 | self.sub as u32
     }
 
-    /// Checks a value about to be written: length against the type, then range. Returns the
-    /// value as a raw 32-bit number (0 for strings).
-    pub(crate) fn check_write(&self, data: &[u8]) -> Result<u32, SdoAbort> {
+    /// Checks a value about to be written as an SDO download does: length against the type,
+    /// then range. Returns the value as a raw 32-bit number (0 for strings).
+    pub fn check_write(&self, data: &[u8]) -> Result<u32, SdoAbort> {
         let data_type = self.data_type();
         data_type.check_len(data.len())?;
         if data_type == DataType::VisibleString {
