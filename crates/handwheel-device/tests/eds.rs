@@ -1,6 +1,9 @@
-//! `eds/handwheel.eds` against the device: every object of the EDS exists in the device's
-//! table with the same type, access, PDO mapping and limits, a fresh device answers an SDO
-//! upload with the EDS default, and every object of the table is in the EDS.
+//! `eds/handwheel.eds` against the running device. `cargo xtask eds` writes the file from the
+//! object table (and `cargo xtask eds --check` keeps it so); these tests check what the
+//! generator adds to the table against the engine itself: every object of the EDS exists in
+//! the device's table with the same type, access and PDO mapping, a fresh device answers an
+//! SDO upload with the EDS default, every limit is one the device enforces, and every object
+//! of the table is in the EDS.
 
 mod common;
 
