@@ -193,10 +193,10 @@ impl AppObject {
 }
 
 /// The handwheel's objects, sorted by (index, sub-index).
-pub const APP_OBJECTS: [AppObject; 19] = {
+pub const APP_OBJECTS: &[AppObject] = {
     use DataType::{I32, U16, U32, U8};
     type O = AppObject;
-    [
+    &[
         O::var(FEED_ENABLE, 0, "Feed enable", U8).rw(0, 1),
         O::var(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1).stored(),
         O::record(SELECTION, "Selection", 3),
@@ -257,11 +257,24 @@ of the state the value describes (in TPDO1: the record's own epoch).",
     ),
 ];
 
+/// The run-time entries of [`APP_OBJECTS`]; a record whose header does not name its last
+/// sub-index fails the build.
 const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
     let mut entries = [OdEntry::highest_sub(0, 0); APP_OBJECTS.len()];
     let mut i = 0;
     while i < entries.len() {
-        entries[i] = APP_OBJECTS[i].entry();
+        let o = &APP_OBJECTS[i];
+        entries[i] = o.entry();
+        if o.header {
+            let mut last = i;
+            while last + 1 < APP_OBJECTS.len() && APP_OBJECTS[last + 1].index == o.index {
+                last += 1;
+            }
+            assert!(
+                last > i && APP_OBJECTS[last].sub as u32 == o.default,
+                "a record's header names its highest sub-index"
+            );
+        }
         i += 1;
     }
     entries
