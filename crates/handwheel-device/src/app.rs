@@ -44,10 +44,9 @@ impl WheelParameters {
         while i < APP_OBJECTS.len() {
             let o = &APP_OBJECTS[i];
             if o.stored {
-                p = match p.set(o.index, o.sub, o.default) {
-                    Ok(p) => p,
-                    Err(_) => panic!("a stored row's default is out of its limits"),
-                };
+                if p.set(o.index, o.sub, o.default).is_err() {
+                    panic!("a stored row's default is not a value of its parameter");
+                }
             }
             i += 1;
         }
@@ -65,10 +64,10 @@ impl WheelParameters {
         })
     }
 
-    /// The parameters with `index:sub` set to `value`, which the table's limits have checked
-    /// (the types are unsigned, so the truncations are lossless); 0x06010002 for an object
-    /// that is not a parameter.
-    const fn set(mut self, index: u16, sub: u8, value: u32) -> Result<Self, SdoAbort> {
+    /// Sets parameter `index:sub` to `value`, which the table's limits have checked (the
+    /// types are unsigned, so the truncations are lossless); 0x06010002 for an object that
+    /// is not a parameter. Changes nothing on failure.
+    const fn set(&mut self, index: u16, sub: u8, value: u32) -> Result<(), SdoAbort> {
         match (index, sub) {
             (FEED_FORMAT, 0) => self.unit_steps = value == 1,
             (ENCODER, 3) => match CountsPerDetent::from_u8(value as u8) {
@@ -79,7 +78,7 @@ impl WheelParameters {
             (FEED_DIAGNOSTICS, 3) => self.backlog_bound = value as u16,
             _ => return Err(SdoAbort::ReadOnly),
         }
-        Ok(self)
+        Ok(())
     }
 
     /// The application section: the version, then each stored parameter in [`STORED`]'s
@@ -118,7 +117,7 @@ impl WheelParameters {
                 .find(index, sub)
                 .and_then(|e| e.check_write(bytes))
                 .and_then(|v| p.set(index, sub, v));
-            p = value.map_err(|_| (index, sub))?;
+            value.map_err(|_| (index, sub))?;
             rest = tail;
         }
         if rest.is_empty() {
@@ -211,7 +210,8 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
             self.app.feed_due |= changed;
             return Ok(());
         }
-        let parameters = self.app.parameters.set(index, sub, value)?;
+        let mut parameters = self.app.parameters;
+        parameters.set(index, sub, value)?;
         self.set_parameters(parameters);
         Ok(())
     }
