@@ -43,10 +43,8 @@ impl WheelParameters {
         let mut i = 0;
         while i < APP_OBJECTS.len() {
             let o = &APP_OBJECTS[i];
-            if o.stored {
-                if p.set(o.index, o.sub, o.default).is_err() {
-                    panic!("a stored row's default is not a value of its parameter");
-                }
+            if o.stored && p.set(o.index, o.sub, o.default).is_err() {
+                panic!("a stored row's default is not a value of its parameter");
             }
             i += 1;
         }
