@@ -85,7 +85,7 @@ pub trait Application {
     fn on_tpdo_sent(&mut self, _pdo: u8) {}
 
     /// Serialises the application's parameters for 0x1010 sub 1 or 3 into `buf` (at most
-    /// [`APP_MAX`](crate::storage::APP_MAX) bytes); returns the length.
+    /// [`APP_MAX`](crate::APP_MAX) bytes); returns the length.
     fn save_application(&self, _buf: &mut [u8]) -> usize {
         0
     }

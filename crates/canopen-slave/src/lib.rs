@@ -96,6 +96,7 @@ pub mod tpdo;
 
 pub use abort::SdoAbort;
 pub use bus::{BusEvent, BusState};
+pub use device::objects::params::blob::{APP_MAX, BLOB_MAX};
 pub use device::{Application, Config, Device, NoSuchPdo, Stats};
 pub use emcy::EmcyError;
 pub use filter::RxFilter;

@@ -7,7 +7,7 @@
 //! Adding a communication object is adding its row (and its entries to the table of
 //! [`standard_objects`](crate::od::standard_objects)).
 
-mod params;
+pub(crate) mod params;
 
 use super::Application;
 use crate::abort::SdoAbort;

@@ -5,12 +5,15 @@
 //! ([`Application::may_store`](crate::Application::may_store)): refused, 0x08000022. A
 //! storage that refuses for wear gives 0x08000020, one that fails 0x06060000.
 
+pub(crate) mod blob;
+
 use super::{Comm, Refused, WriteCtx, STORED_LEN};
 use crate::abort::SdoAbort;
 use crate::device::{Application, Device, Inner};
 use crate::emcy;
-use crate::storage::{self, Blob, Storage, StorageError, LOAD_SIGNATURE, SAVE_SIGNATURE};
+use crate::storage::{Storage, StorageError, LOAD_SIGNATURE, SAVE_SIGNATURE};
 use crate::time::Instant;
+use blob::{Blob, APP, COMM};
 
 /// EMCY "data set" (CiA 301 error code 0x63xx): a stored parameter was not restored.
 pub const EMCY_STORED_REFUSED: u16 = 0x6300;
@@ -80,10 +83,10 @@ pub(super) fn save(
 ) -> Result<(), SdoAbort> {
     let sections = check(ctx, sub, signature, SAVE_SIGNATURE)?;
     let mut blob = Blob::load(ctx.storage);
-    if sections & storage::COMM != 0 {
+    if sections & COMM != 0 {
         blob.set_comm(|index, sub| comm.read(index, sub).unwrap_or(0));
     }
-    if sections & storage::APP != 0 {
+    if sections & APP != 0 {
         blob.set_app(|buf| ctx.app.save_application(buf));
     }
     blob.store(ctx.now, ctx.storage).map_err(abort)
@@ -104,9 +107,9 @@ fn check(ctx: &mut WriteCtx<'_>, sub: u8, signature: u32, want: u32) -> Result<u
         return Err(SdoAbort::CannotStore);
     }
     let sections = match sub {
-        1 => storage::COMM | storage::APP,
-        2 => storage::COMM,
-        3 => storage::APP,
+        1 => COMM | APP,
+        2 => COMM,
+        3 => APP,
         _ => return Err(SdoAbort::NoSubIndex),
     };
     if !ctx.app.may_store() {
