@@ -360,4 +360,42 @@ mod tests {
         assert!(text.ends_with("\r\n"));
         assert_eq!(text.matches('\n').count(), text.matches("\r\n").count());
     }
+
+    /// The README's table of the handwheel objects says what the rows say: every row but
+    /// the record headers is a line, with its name, type, access, default and PDO mapping.
+    #[test]
+    fn the_readme_table_is_the_rows() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+        let table = readme
+            .split("#### Handwheel objects")
+            .nth(1)
+            .and_then(|rest| rest.split("\n\n").find(|block| block.starts_with('|')))
+            .expect("README has the handwheel objects' table");
+        let lines: Vec<Vec<&str>> = table
+            .lines()
+            .skip(2)
+            .map(|line| line.split('|').map(str::trim).collect())
+            .collect();
+        let rows: Vec<_> = APP_OBJECTS.iter().filter(|o| !o.header).collect();
+        assert_eq!(lines.len(), rows.len(), "one README line per object");
+        for (cells, o) in lines.iter().zip(rows) {
+            let key = if o.sub == 0 {
+                format!("0x{:04X}", o.index)
+            } else {
+                format!("0x{:04X}:{}", o.index, o.sub)
+            };
+            let [_, index, name, data_type, access, default, pdo, ..] = cells[..] else {
+                panic!("{key}: a short README line");
+            };
+            assert_eq!(index, key);
+            assert_eq!(name, o.name.to_lowercase(), "{key} name");
+            let type_name = format!("{:?}", o.data_type);
+            assert!(data_type.starts_with(&type_name), "{key} type {data_type}");
+            let access_name = format!("{:?}", o.access).to_lowercase();
+            assert_eq!(access, access_name, "{key} access");
+            assert_eq!(default, o.default.to_string(), "{key} default");
+            assert_eq!(pdo == "yes", o.mappable, "{key} PDO mapping");
+        }
+    }
 }
