@@ -14,7 +14,7 @@ use crate::od::{
 /// Application parameters that 0x1010 stores: everything the integrator configures about
 /// the wheel, never the feed enable (a handwheel must not power up live). Which objects they
 /// are, their defaults and limits are the rows of [`APP_OBJECTS`] marked stored;
-/// [`WheelParameters::get`] and [`WheelParameters::set`] are their accessors.
+/// `WheelParameters::get` and `WheelParameters::set` are their accessors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WheelParameters {
     /// 0x2001: unit-step (paper) format instead of the feed record.
