@@ -5,6 +5,7 @@
 //! (python-canopen against the firmware's QEMU variant).
 
 mod board;
+mod eds;
 mod footprint;
 mod host;
 mod linker;
@@ -77,6 +78,9 @@ tasks:
                                         map, every relative link in the Markdown files and
                                         the marks of the README's and docs/' code blocks;
                                         --check: only the checks (no Graphviz)
+  eds [--check]                         write eds/handwheel.eds from the object table, then check
+                                        it with dcfchk (CiA 306); --check: fail if the committed
+                                        file differs, and check it
   bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
@@ -106,6 +110,7 @@ fn main() -> ExitCode {
             _ => Err("usage: cargo xtask bench [linuxcnc]".into()),
         },
         Some("docs") => docs(rest),
+        Some("eds") => eds::run(&workspace_root(), &target_dir(), rest),
         _ => {
             eprintln!("{USAGE}");
             return ExitCode::from(2);
@@ -130,6 +135,7 @@ fn test() -> Result<(), String> {
     random_frames()?;
     host_tests(&[])?;
     wiring_check()?;
+    eds::run(&workspace_root(), &target_dir(), &["--check".into()])?;
     cargo(&[
         "clippy",
         "--locked",

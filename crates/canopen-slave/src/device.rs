@@ -6,15 +6,15 @@
 //! the engine is a submodule: `nmt` (boot and the one place of NMT transitions),
 //! `objects` (the communication objects, one table row each), `sdo` (the object
 //! dictionary as the SDO server sees it), `pdo` (the TPDO service), `errors` (EMCY,
-//! bus and heartbeat-loss policy) and `params` (0x1010 store, 0x1011 restore).
+//! bus and heartbeat-loss policy); `objects::params` is 0x1010 store and 0x1011 restore.
 
 mod errors;
 mod nmt;
 pub(crate) mod objects;
-mod params;
 mod pdo;
 mod sdo;
 
+use crate::abort::SdoAbort;
 use crate::emcy::Emcy;
 use crate::filter::RxFilter;
 use crate::frame::{cob, Frame, FrameSink, NodeId, MAX_STANDARD_ID};
@@ -22,7 +22,7 @@ use crate::heartbeat::Heartbeat;
 use crate::lss::{self, LssAction, LssAddress, LssSlave};
 use crate::nmt::{NmtCommand, NmtState};
 use crate::od::{Od, Value};
-use crate::sdo::{SdoAbort, SdoServer};
+use crate::sdo::SdoServer;
 use crate::storage::Storage;
 use crate::sync::SyncConsumer;
 use crate::time::{earliest, Instant};
@@ -85,7 +85,7 @@ pub trait Application {
     fn on_tpdo_sent(&mut self, _pdo: u8) {}
 
     /// Serialises the application's parameters for 0x1010 sub 1 or 3 into `buf` (at most
-    /// [`APP_MAX`](crate::storage::APP_MAX) bytes); returns the length.
+    /// [`APP_MAX`](crate::APP_MAX) bytes); returns the length.
     fn save_application(&self, _buf: &mut [u8]) -> usize {
         0
     }

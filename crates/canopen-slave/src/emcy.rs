@@ -1,9 +1,10 @@
 //! Emergency producer (CiA 301 7.2.7): error register 0x1001, pre-defined error field
 //! 0x1003, COB-ID 0x1014 and inhibit time 0x1015.
 
-use crate::frame::{COB_INVALID, MAX_STANDARD_ID};
+use crate::abort::SdoAbort;
+use crate::cob_id::COB_INVALID;
+use crate::frame::MAX_STANDARD_ID;
 use crate::nmt::NmtState;
-use crate::sdo::SdoAbort;
 use crate::time::Instant;
 use heapless::Vec;
 

@@ -1,8 +1,8 @@
 //! Heartbeat producer (0x1017) and consumer (0x1016), CiA 301 7.2.8.3.2.
 
+use crate::abort::SdoAbort;
 use crate::frame::NodeId;
 use crate::nmt::NmtState;
-use crate::sdo::SdoAbort;
 use crate::time::{earliest, Instant};
 
 /// Number of heartbeat consumer entries (0x1016:01..).

@@ -1,5 +1,5 @@
 //! What the device is (0x1000, 0x1008-0x100A, 0x1018) and the defaults of its communication
-//! parameters, both fed to [`standard_objects`](crate::od::standard_objects).
+//! parameters, both fed to [`standard_objects`](crate::standard_objects).
 
 use crate::frame::cob;
 

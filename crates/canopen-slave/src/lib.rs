@@ -74,6 +74,9 @@
 #[macro_use]
 mod log;
 
+mod abort;
+mod cob_id;
+
 pub mod bus;
 pub mod device;
 pub mod emcy;
@@ -91,7 +94,10 @@ pub mod sync;
 pub mod time;
 pub mod tpdo;
 
+pub use abort::SdoAbort;
 pub use bus::{BusEvent, BusState};
+pub use device::objects::params::blob::{APP_MAX, BLOB_MAX};
+pub use device::objects::{standard_objects, STANDARD_OBJECTS};
 pub use device::{Application, Config, Device, NoSuchPdo, Stats};
 pub use emcy::EmcyError;
 pub use filter::RxFilter;
@@ -100,7 +106,6 @@ pub use identity::{CommDefaults, Identity, TpdoDefaults};
 pub use indicators::{indicators, ErrorIndication, Pattern};
 pub use lss::{LssAddress, LssSlave, LssState};
 pub use nmt::{NmtCommand, NmtState};
-pub use od::{standard_objects, Access, DataType, Od, OdEntry, OdError, Value, STANDARD_OBJECTS};
-pub use sdo::SdoAbort;
+pub use od::{Access, DataType, Od, OdEntry, OdError, Value};
 pub use storage::{MemoryStorage, Storage, StorageError};
 pub use time::{sleep_ms, Instant, Periodic, WideClock};

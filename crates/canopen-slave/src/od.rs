@@ -2,13 +2,14 @@
 //!
 //! The table describes every object (type, access, range, mappability) and says where its
 //! value lives. It is declared by the application, usually as two parts: the standard
-//! communication objects built by [`standard_objects`] and the application's own objects.
+//! communication objects built by [`standard_objects`](crate::standard_objects) and the
+//! application's own objects.
 //! Lookup is a linear scan that stops at the first larger key, so each part must be sorted
 //! by (index, sub-index) and the parts must follow one another in that order;
 //! [`Od::checked`] verifies that at compile time.
 
-use crate::identity::{CommDefaults, Identity};
-use crate::sdo::{SdoAbort, SDO_BUFFER};
+use crate::abort::SdoAbort;
+use crate::sdo::SDO_BUFFER;
 
 /// CiA 301 basic data types supported by the engine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -302,6 +303,20 @@ impl OdEntry {
         self.meta & MAPPABLE != 0
     }
 
+    /// The write range of an application object ([`OdEntry::range`]); `None` without one.
+    pub const fn limits(&self) -> Option<(i64, i64)> {
+        match self.slot {
+            Slot::Num(r) if self.kind() == KIND_APP && r != NO_RANGE => {
+                Some(if self.data_type().signed() {
+                    (r as u16 as i16 as i64, (r >> 16) as u16 as i16 as i64)
+                } else {
+                    ((r & 0xFFFF) as i64, (r >> 16) as i64)
+                })
+            }
+            _ => None,
+        }
+    }
+
     const fn kind(&self) -> u8 {
         self.meta >> KIND_SHIFT
     }
@@ -321,9 +336,9 @@ impl OdEntry {
         (self.index as u32) << 8 | self.sub as u32
     }
 
-    /// Checks a value about to be written: length against the type, then range. Returns the
-    /// value as a raw 32-bit number (0 for strings).
-    pub(crate) fn check_write(&self, data: &[u8]) -> Result<u32, SdoAbort> {
+    /// Checks a value about to be written as an SDO download does: length against the type,
+    /// then range. Returns the value as a raw 32-bit number (0 for strings).
+    pub fn check_write(&self, data: &[u8]) -> Result<u32, SdoAbort> {
         let data_type = self.data_type();
         data_type.check_len(data.len())?;
         if data_type == DataType::VisibleString {
@@ -462,94 +477,6 @@ impl Od {
     pub fn entries(&self) -> impl Iterator<Item = &'static OdEntry> {
         self.parts.iter().flat_map(|part| part.iter())
     }
-}
-
-/// Number of entries [`standard_objects`] returns.
-pub const STANDARD_OBJECTS: usize = 58;
-
-const fn mapping_default(map: &[u32], sub: usize) -> u32 {
-    if sub >= 1 && sub <= map.len() {
-        map[sub - 1]
-    } else {
-        0
-    }
-}
-
-/// The communication profile area (0x1000-0x1FFF) the engine implements, ready to be the
-/// first part of an application's [`Od`]:
-/// 0x1000, 0x1001, 0x1003 (4 entries), 0x1005, 0x1008-0x100A, 0x1010, 0x1011, 0x1014,
-/// 0x1015, 0x1016 (2 consumers), 0x1017, 0x1018, TPDO1/2 (0x1800/0x1801, 0x1A00/0x1A01).
-pub const fn standard_objects(id: &Identity, d: &CommDefaults) -> [OdEntry; STANDARD_OBJECTS] {
-    use Access::{Ro, Rw};
-    use DataType::{U16, U32, U8};
-    let t1 = &d.tpdo[0];
-    let t2 = &d.tpdo[1];
-    let m1 = t1.mapping;
-    let m2 = t2.mapping;
-    assert!(
-        m1.len() <= 8 && m2.len() <= 8,
-        "a PDO maps at most 8 objects"
-    );
-    [
-        OdEntry::constant(0x1000, 0, U32, id.device_type),
-        OdEntry::comm(0x1001, 0, U8, Ro, 0),
-        OdEntry::comm(0x1003, 0, U8, Rw, 0),
-        OdEntry::comm(0x1003, 1, U32, Ro, 0),
-        OdEntry::comm(0x1003, 2, U32, Ro, 0),
-        OdEntry::comm(0x1003, 3, U32, Ro, 0),
-        OdEntry::comm(0x1003, 4, U32, Ro, 0),
-        OdEntry::comm(0x1005, 0, U32, Rw, 0x80),
-        OdEntry::string(0x1008, 0, id.device_name),
-        OdEntry::string(0x1009, 0, id.hardware_version),
-        OdEntry::string(0x100A, 0, id.software_version),
-        OdEntry::highest_sub(0x1010, 3),
-        OdEntry::comm(0x1010, 1, U32, Rw, 0),
-        OdEntry::comm(0x1010, 2, U32, Rw, 0),
-        OdEntry::comm(0x1010, 3, U32, Rw, 0),
-        OdEntry::highest_sub(0x1011, 3),
-        OdEntry::comm(0x1011, 1, U32, Rw, 0),
-        OdEntry::comm(0x1011, 2, U32, Rw, 0),
-        OdEntry::comm(0x1011, 3, U32, Rw, 0),
-        OdEntry::new(0x1014, 0, U32, Rw, Value::CommPlusNodeId(0x80)),
-        OdEntry::comm(0x1015, 0, U16, Rw, d.emcy_inhibit_100us as u32),
-        OdEntry::highest_sub(0x1016, 2),
-        OdEntry::comm(0x1016, 1, U32, Rw, d.heartbeat_consumers[0]),
-        OdEntry::comm(0x1016, 2, U32, Rw, d.heartbeat_consumers[1]),
-        OdEntry::comm(0x1017, 0, U16, Rw, d.heartbeat_ms as u32),
-        OdEntry::highest_sub(0x1018, 4),
-        OdEntry::constant(0x1018, 1, U32, id.vendor_id),
-        OdEntry::constant(0x1018, 2, U32, id.product_code),
-        OdEntry::constant(0x1018, 3, U32, id.revision),
-        OdEntry::comm(0x1018, 4, U32, Ro, 0),
-        OdEntry::highest_sub(0x1800, 5),
-        OdEntry::new(0x1800, 1, U32, Rw, Value::CommPlusNodeId(t1.cob_id_base)),
-        OdEntry::comm(0x1800, 2, U8, Rw, t1.transmission_type as u32),
-        OdEntry::comm(0x1800, 3, U16, Rw, t1.inhibit_100us as u32),
-        OdEntry::comm(0x1800, 5, U16, Rw, t1.event_timer_ms as u32),
-        OdEntry::highest_sub(0x1801, 5),
-        OdEntry::new(0x1801, 1, U32, Rw, Value::CommPlusNodeId(t2.cob_id_base)),
-        OdEntry::comm(0x1801, 2, U8, Rw, t2.transmission_type as u32),
-        OdEntry::comm(0x1801, 3, U16, Rw, t2.inhibit_100us as u32),
-        OdEntry::comm(0x1801, 5, U16, Rw, t2.event_timer_ms as u32),
-        OdEntry::comm(0x1A00, 0, U8, Rw, m1.len() as u32),
-        OdEntry::comm(0x1A00, 1, U32, Rw, mapping_default(m1, 1)),
-        OdEntry::comm(0x1A00, 2, U32, Rw, mapping_default(m1, 2)),
-        OdEntry::comm(0x1A00, 3, U32, Rw, mapping_default(m1, 3)),
-        OdEntry::comm(0x1A00, 4, U32, Rw, mapping_default(m1, 4)),
-        OdEntry::comm(0x1A00, 5, U32, Rw, mapping_default(m1, 5)),
-        OdEntry::comm(0x1A00, 6, U32, Rw, mapping_default(m1, 6)),
-        OdEntry::comm(0x1A00, 7, U32, Rw, mapping_default(m1, 7)),
-        OdEntry::comm(0x1A00, 8, U32, Rw, mapping_default(m1, 8)),
-        OdEntry::comm(0x1A01, 0, U8, Rw, m2.len() as u32),
-        OdEntry::comm(0x1A01, 1, U32, Rw, mapping_default(m2, 1)),
-        OdEntry::comm(0x1A01, 2, U32, Rw, mapping_default(m2, 2)),
-        OdEntry::comm(0x1A01, 3, U32, Rw, mapping_default(m2, 3)),
-        OdEntry::comm(0x1A01, 4, U32, Rw, mapping_default(m2, 4)),
-        OdEntry::comm(0x1A01, 5, U32, Rw, mapping_default(m2, 5)),
-        OdEntry::comm(0x1A01, 6, U32, Rw, mapping_default(m2, 6)),
-        OdEntry::comm(0x1A01, 7, U32, Rw, mapping_default(m2, 7)),
-        OdEntry::comm(0x1A01, 8, U32, Rw, mapping_default(m2, 8)),
-    ]
 }
 
 #[cfg(test)]

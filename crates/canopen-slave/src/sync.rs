@@ -1,7 +1,8 @@
 //! SYNC consumer (0x1005), CiA 301 7.2.5. The device never produces SYNC.
 
-use crate::frame::{is_restricted, Frame, COB_EXTENDED, MAX_STANDARD_ID};
-use crate::sdo::SdoAbort;
+use crate::abort::SdoAbort;
+use crate::cob_id::{is_restricted, COB_EXTENDED};
+use crate::frame::{Frame, MAX_STANDARD_ID};
 
 /// 0x1005 bit 30: this node generates SYNC.
 const SYNC_PRODUCER: u32 = 1 << 30;

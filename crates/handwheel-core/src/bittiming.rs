@@ -72,6 +72,41 @@ impl BitRate {
     }
 }
 
+// LSS (CiA 305) names a rate by its index in CiA 301's bit-timing table (0-8, 5 = 100 kbit/s,
+// which this device does not offer); the DIP code is the index into [`BitRate::ALL`].
+
+/// The LSS bit-timing table indices the firmware supports (bit `i` for index `i`): exactly
+/// those [`bit_rate_from_lss`] maps to a rate, so all of 0-8 but 5 (100 kbit/s).
+pub const LSS_BIT_TIMINGS: u16 = {
+    let mut mask = 0u16;
+    let mut index = 0;
+    while index < 16 {
+        if bit_rate_from_lss(index).is_some() {
+            mask |= 1 << index;
+        }
+        index += 1;
+    }
+    mask
+};
+
+/// The CiA 301 / 305 bit-timing table index of `rate`.
+pub const fn lss_bit_timing(rate: BitRate) -> u8 {
+    match rate.code() {
+        code @ 0..=4 => code,
+        code => code + 1,
+    }
+}
+
+/// The bit rate of CiA 301 / 305 bit-timing table index `index`; `None` for 5 (100 kbit/s)
+/// and indices beyond the table.
+pub const fn bit_rate_from_lss(index: u8) -> Option<BitRate> {
+    match index {
+        0..=4 => Some(BitRate::from_code(index)),
+        6..=8 => Some(BitRate::from_code(index - 1)),
+        _ => None,
+    }
+}
+
 /// Why a bit rate cannot be configured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BitTimingError {

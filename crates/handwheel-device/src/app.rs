@@ -3,16 +3,18 @@
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
     Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel,
-    StopReason, UnitStep, UnitStepEncoder, WheelAccess, DEFAULT_STEP_BACKLOG,
+    StopReason, UnitStep, UnitStepEncoder, WheelAccess,
 };
 
 use crate::od::{
-    ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT, FEED_SEQUENCE, FEED_STATUS,
-    POSITION_VALUE, SELECTION, UNIT_STEP,
+    APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT, FEED_SEQUENCE, FEED_STATUS,
+    OD, POSITION_VALUE, SELECTION, STORED, UNIT_STEP,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
-/// the wheel, never the feed enable (a handwheel must not power up live).
+/// the wheel, never the feed enable (a handwheel must not power up live). Which objects they
+/// are, their defaults and limits are the rows of [`APP_OBJECTS`] marked stored;
+/// `WheelParameters::get` and `WheelParameters::set` are their accessors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WheelParameters {
     /// 0x2001: unit-step (paper) format instead of the feed record.
@@ -23,67 +25,104 @@ pub struct WheelParameters {
     pub backlog_bound: u16,
 }
 
+/// The application section's first byte: a new [`STORED`] layout needs a new version, so
+/// that an old record reads as another version and is refused.
+const BLOB_VERSION: u8 = 1;
+
 impl WheelParameters {
-    /// Factory settings.
-    pub const DEFAULT: Self = Self {
-        unit_steps: false,
-        decoder: DecoderConfig {
-            counts_per_detent: CountsPerDetent::Four,
-            invert: false,
-        },
-        backlog_bound: DEFAULT_STEP_BACKLOG,
+    /// Factory settings: the stored rows' defaults.
+    pub const DEFAULT: Self = {
+        let mut p = Self {
+            unit_steps: false,
+            decoder: DecoderConfig {
+                counts_per_detent: CountsPerDetent::One,
+                invert: false,
+            },
+            backlog_bound: 0,
+        };
+        let mut i = 0;
+        while i < APP_OBJECTS.len() {
+            let o = &APP_OBJECTS[i];
+            if o.stored && p.set(o.index, o.sub, o.default).is_err() {
+                panic!("a stored row's default is not a value of its parameter");
+            }
+            i += 1;
+        }
+        p
     };
 
-    const BLOB_VERSION: u8 = 1;
-    const BLOB_LEN: usize = 6;
-
-    fn to_blob(self) -> [u8; Self::BLOB_LEN] {
-        let bound = self.backlog_bound.to_le_bytes();
-        [
-            Self::BLOB_VERSION,
-            self.unit_steps as u8,
-            self.decoder.counts_per_detent.get(),
-            self.decoder.invert as u8,
-            bound[0],
-            bound[1],
-        ]
-    }
-
-    /// `None` for a blob of another version or with any field out of range.
-    #[cfg(test)]
-    fn from_blob(blob: &[u8]) -> Option<Self> {
-        Self::check_blob(blob).ok()
-    }
-
-    /// The parameters of a stored blob, or the first object whose value is out of the range
-    /// its SDO write takes (0x1010:3, the application's section, for a blob of another
-    /// version or length).
-    fn check_blob(blob: &[u8]) -> Result<Self, (u16, u8)> {
-        let &[version, unit_steps, cpd, invert, b0, b1] = blob else {
-            return Err((0x1010, 3));
-        };
-        let bound = u16::from_le_bytes([b0, b1]);
-        let checks = [
-            (version == Self::BLOB_VERSION, (0x1010, 3)),
-            (unit_steps <= 1, (0x2001, 0)),
-            (CountsPerDetent::from_u8(cpd).is_some(), (0x2020, 3)),
-            (invert <= 1, (0x2020, 4)),
-            (
-                (1..=crate::od::MAX_BACKLOG_BOUND).contains(&bound),
-                (0x2040, 3),
-            ),
-        ];
-        if let Some(&(_, object)) = checks.iter().find(|(ok, _)| !ok) {
-            return Err(object);
-        }
-        Ok(Self {
-            unit_steps: unit_steps == 1,
-            decoder: DecoderConfig {
-                counts_per_detent: CountsPerDetent::from_u8(cpd).ok_or((0x2020, 3))?,
-                invert: invert == 1,
-            },
-            backlog_bound: bound,
+    /// Parameter `index:sub` as a raw number; `None` for other objects.
+    const fn get(&self, index: u16, sub: u8) -> Option<u32> {
+        Some(match (index, sub) {
+            (FEED_FORMAT, 0) => self.unit_steps as u32,
+            (ENCODER, 3) => self.decoder.counts_per_detent.get() as u32,
+            (ENCODER, 4) => self.decoder.invert as u32,
+            (FEED_DIAGNOSTICS, 3) => self.backlog_bound as u32,
+            _ => return None,
         })
+    }
+
+    /// Sets parameter `index:sub` to `value`, which the table's limits have checked (the
+    /// types are unsigned, so the truncations are lossless); 0x06010002 for an object that
+    /// is not a parameter. Changes nothing on failure.
+    const fn set(&mut self, index: u16, sub: u8, value: u32) -> Result<(), SdoAbort> {
+        match (index, sub) {
+            (FEED_FORMAT, 0) => self.unit_steps = value == 1,
+            (ENCODER, 3) => match CountsPerDetent::from_u8(value as u8) {
+                Some(cpd) => self.decoder.counts_per_detent = cpd,
+                None => return Err(SdoAbort::InvalidValue),
+            },
+            (ENCODER, 4) => self.decoder.invert = value == 1,
+            (FEED_DIAGNOSTICS, 3) => self.backlog_bound = value as u16,
+            _ => return Err(SdoAbort::ReadOnly),
+        }
+        Ok(())
+    }
+
+    /// The application section: the version, then each stored parameter in [`STORED`]'s
+    /// order, little-endian in its type's size. Returns its length, 0 if `buf` is too short.
+    fn save(&self, buf: &mut [u8]) -> usize {
+        let Some((version, mut rest)) = buf.split_first_mut() else {
+            return 0;
+        };
+        *version = BLOB_VERSION;
+        let mut len = 1;
+        for &(index, sub, size) in &STORED {
+            let size = usize::from(size);
+            let value = self.get(index, sub).unwrap_or(0).to_le_bytes();
+            let Some((dst, tail)) = rest.split_at_mut_checked(size) else {
+                return 0;
+            };
+            dst.copy_from_slice(&value[..size]);
+            rest = tail;
+            len += size;
+        }
+        len
+    }
+
+    /// The parameters of a stored section, each checked as its SDO write is, or the first
+    /// object whose value that write refuses (0x1010:3, the application's section, for a
+    /// section of another version or length).
+    fn load(blob: &[u8]) -> Result<Self, (u16, u8)> {
+        let whole = (0x1010, 3);
+        let Some((&BLOB_VERSION, mut rest)) = blob.split_first() else {
+            return Err(whole);
+        };
+        let mut p = Self::DEFAULT;
+        for &(index, sub, size) in &STORED {
+            let (bytes, tail) = rest.split_at_checked(usize::from(size)).ok_or(whole)?;
+            let value = OD
+                .find(index, sub)
+                .and_then(|e| e.check_write(bytes))
+                .and_then(|v| p.set(index, sub, v));
+            value.map_err(|_| (index, sub))?;
+            rest = tail;
+        }
+        if rest.is_empty() {
+            Ok(p)
+        } else {
+            Err(whole)
+        }
     }
 
     /// Pushes the parameters into the wheel.
@@ -150,33 +189,27 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     }
 
     fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
-        // The engine checked length and the table's range: `byte` is the whole value of the
-        // U8 objects, `word` of the U16 one.
-        let byte = data.first().copied().unwrap_or(0);
-        let word = u16::from_le_bytes([byte, data.get(1).copied().unwrap_or(0)]);
-        let mut parameters = self.app.parameters;
-        match (index, sub) {
-            (FEED_ENABLE, 0) => {
-                // Feed only runs while PDOs flow: enabling in Pre-operational would let the
-                // position move unseen and jump at the next start.
-                // Nor while a master we monitor is silent: a wheel enabled by a write that
-                // arrives while the master is lost would move an axis nobody supervises.
-                if byte == 1 && (self.app.nmt != NmtState::Operational || self.app.master_lost) {
-                    return Err(SdoAbort::DeviceState);
-                }
-                let changed = self.wheel.with_wheel(|w| w.feed.set_enabled(byte == 1));
-                self.app.feed_due |= changed;
-                return Ok(());
-            }
-            (FEED_FORMAT, 0) => parameters.unit_steps = byte == 1,
-            (ENCODER, 3) => {
-                parameters.decoder.counts_per_detent =
-                    CountsPerDetent::from_u8(byte).ok_or(SdoAbort::InvalidValue)?;
-            }
-            (ENCODER, 4) => parameters.decoder.invert = byte == 1,
-            (FEED_DIAGNOSTICS, 3) => parameters.backlog_bound = word,
-            _ => return Err(SdoAbort::ReadOnly),
+        // The engine checked length and the table's range; every application object is
+        // unsigned.
+        let mut bytes = [0; 4];
+        for (dst, &src) in bytes.iter_mut().zip(data) {
+            *dst = src;
         }
+        let value = u32::from_le_bytes(bytes);
+        if (index, sub) == (FEED_ENABLE, 0) {
+            // Feed only runs while PDOs flow: enabling in Pre-operational would let the
+            // position move unseen and jump at the next start.
+            // Nor while a master we monitor is silent: a wheel enabled by a write that
+            // arrives while the master is lost would move an axis nobody supervises.
+            if value == 1 && (self.app.nmt != NmtState::Operational || self.app.master_lost) {
+                return Err(SdoAbort::DeviceState);
+            }
+            let changed = self.wheel.with_wheel(|w| w.feed.set_enabled(value == 1));
+            self.app.feed_due |= changed;
+            return Ok(());
+        }
+        let mut parameters = self.app.parameters;
+        parameters.set(index, sub, value)?;
         self.set_parameters(parameters);
         Ok(())
     }
@@ -251,18 +284,11 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     }
 
     fn save_application(&self, buf: &mut [u8]) -> usize {
-        let blob = self.app.parameters.to_blob();
-        match buf.get_mut(..blob.len()) {
-            Some(dst) => {
-                dst.copy_from_slice(&blob);
-                blob.len()
-            }
-            None => 0,
-        }
+        self.app.parameters.save(buf)
     }
 
     fn restore_application(&mut self, data: &[u8]) -> Result<(), (u16, u8)> {
-        let parameters = WheelParameters::check_blob(data)?;
+        let parameters = WheelParameters::load(data)?;
         self.set_parameters(parameters);
         Ok(())
     }
@@ -302,12 +328,13 @@ impl<W: WheelAccess> AppContext<'_, W> {
                 return put(buf, field);
             }
         }
+        let parameter = STORED
+            .iter()
+            .find(|&&(i, s, _)| (i, s) == (index, sub))
+            .and_then(|&(_, _, size)| Some((app.parameters.get(index, sub)?, size.into())));
         let (value, size): (u32, usize) = match (index, sub) {
-            (FEED_FORMAT, 0) => (app.parameters.unit_steps.into(), 1),
-            (ENCODER, 3) => (app.parameters.decoder.counts_per_detent.get().into(), 1),
-            (ENCODER, 4) => (app.parameters.decoder.invert.into(), 1),
+            _ if parameter.is_some() => parameter.unwrap_or_default(),
             (UNIT_STEP, 0) => (app.step_byte.into(), 1),
-            (FEED_DIAGNOSTICS, 3) => (app.parameters.backlog_bound.into(), 2),
             _ => self.wheel.with_wheel(|w| {
                 let feed = &w.feed;
                 let state = match app.record.filter(|_| record) {
@@ -353,7 +380,15 @@ impl<W: WheelAccess> AppContext<'_, W> {
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
     use super::*;
+    use std::vec::Vec;
+
+    fn save(p: WheelParameters) -> Vec<u8> {
+        let mut buf = [0; 32];
+        let n = p.save(&mut buf);
+        buf[..n].to_vec()
+    }
 
     #[test]
     fn parameter_blob_round_trips() {
@@ -365,23 +400,61 @@ mod tests {
             },
             backlog_bound: 300,
         };
-        assert_eq!(p.to_blob(), [1, 1, 2, 1, 0x2C, 0x01]);
-        assert_eq!(WheelParameters::from_blob(&p.to_blob()), Some(p));
+        // The layout of the records already in the field: version 1, 0x2001, 0x2020:3,
+        // 0x2020:4, 0x2040:3 (little-endian U16).
+        assert_eq!(save(p), [1, 1, 2, 1, 0x2C, 0x01]);
+        assert_eq!(WheelParameters::load(&save(p)), Ok(p));
+        assert_eq!(p.save(&mut [0; 5]), 0, "a short buffer takes nothing");
     }
 
     #[test]
-    fn bad_blobs_are_refused() {
-        let good = WheelParameters::DEFAULT.to_blob();
-        assert!(WheelParameters::from_blob(&good).is_some());
-        for (i, bad) in [(0, 2), (1, 2), (2, 3), (3, 7), (4, 0)] {
-            let mut blob = good;
-            blob[i] = bad;
-            if i == 4 {
-                blob[5] = 0;
+    fn the_defaults_are_the_stored_rows_defaults() {
+        assert_eq!(
+            WheelParameters::DEFAULT,
+            WheelParameters {
+                unit_steps: false,
+                decoder: DecoderConfig {
+                    counts_per_detent: CountsPerDetent::Four,
+                    invert: false,
+                },
+                backlog_bound: handwheel_core::DEFAULT_STEP_BACKLOG,
             }
-            assert_eq!(WheelParameters::from_blob(&blob), None, "byte {i} = {bad}");
+        );
+        for o in APP_OBJECTS.iter().filter(|o| o.stored) {
+            let value = WheelParameters::DEFAULT.get(o.index, o.sub);
+            assert_eq!(value, Some(o.default), "{:#06x}:{}", o.index, o.sub);
         }
-        assert_eq!(WheelParameters::from_blob(&good[..5]), None);
-        assert_eq!(WheelParameters::from_blob(&[]), None);
+    }
+
+    #[test]
+    fn bad_blobs_are_refused_naming_the_object() {
+        let good = save(WheelParameters::DEFAULT);
+        assert_eq!(good, [1, 0, 4, 0, 40, 0]);
+        let bad = [
+            (0, 2, (0x1010, 3)),
+            (1, 2, (0x2001, 0)),
+            (2, 3, (0x2020, 3)),
+            (2, 5, (0x2020, 3)),
+            (3, 7, (0x2020, 4)),
+            (4, 0, (0x2040, 3)),
+        ];
+        for (i, value, object) in bad {
+            let mut blob = good.clone();
+            blob[i] = value;
+            assert_eq!(
+                WheelParameters::load(&blob),
+                Err(object),
+                "byte {i} = {value}"
+            );
+        }
+        let mut above = good.clone();
+        above[4..6].copy_from_slice(&1001u16.to_le_bytes());
+        assert_eq!(WheelParameters::load(&above), Err((0x2040, 3)));
+        assert_eq!(WheelParameters::load(&good[..5]), Err((0x1010, 3)));
+        assert_eq!(
+            WheelParameters::load(&[good.as_slice(), &[0]].concat()),
+            Err((0x1010, 3))
+        );
+        assert_eq!(WheelParameters::load(&[]), Err((0x1010, 3)));
     }
 }

@@ -1,11 +1,18 @@
 //! The handwheel's object dictionary: the engine's communication objects plus the
-//! handwheel's own. These indices are the device's public interface; `eds/handwheel.eds`
-//! describes exactly this table (a host test keeps the two in step).
+//! handwheel's own. These indices are the device's public interface.
+//!
+//! Each application object is one row of [`APP_OBJECTS`]: name, type, access, default,
+//! write limits, PDO mapping and whether 0x1010 stores it. The run-time table ([`OD`]), the
+//! stored record ([`STORED`], `app.rs`) and `eds/handwheel.eds` (`cargo xtask eds`) are
+//! derived from the rows; what an object does lives in `app.rs`, one read and one write arm
+//! per object with behaviour. The rows are constants: only the entries derived from them
+//! reach the firmware image.
 
 use canopen_slave::{
     standard_objects, Access, CommDefaults, DataType, Identity, Od, OdEntry, TpdoDefaults,
     STANDARD_OBJECTS,
 };
+use handwheel_core::DEFAULT_STEP_BACKLOG;
 
 /// Feed enable: 1 = handwheel mode on. U8 rw, 0..1, default 0.
 pub const FEED_ENABLE: u16 = 0x2000;
@@ -93,31 +100,217 @@ pub const COMM_DEFAULTS: CommDefaults = CommDefaults {
 
 const STANDARD: [OdEntry; STANDARD_OBJECTS] = standard_objects(&IDENTITY, &COMM_DEFAULTS);
 
-const HANDWHEEL: &[OdEntry] = {
-    use Access::{Ro, Rw};
+/// One sub-index of an application object, as the dictionary, the stored record and the
+/// EDS see it. A record is a header row (its name, sub-index 0 = the highest sub-index)
+/// followed by its sub-index rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AppObject {
+    /// Object index.
+    pub index: u16,
+    /// Sub-index (0 for a variable and a record's header).
+    pub sub: u8,
+    /// The EDS's `ParameterName`: the record's own name on its header row.
+    pub name: &'static str,
+    /// Data type.
+    pub data_type: DataType,
+    /// Access rights.
+    pub access: Access,
+    /// The value after power-on (the highest sub-index on a header row).
+    pub default: u32,
+    /// The values an SDO write may set, `None` for the type's whole range.
+    pub limits: Option<(i16, i16)>,
+    /// PDO-mappable.
+    pub mappable: bool,
+    /// A parameter 0x1010 stores (in the application's section, in row order).
+    pub stored: bool,
+    /// A record's header row.
+    pub header: bool,
+}
+
+impl AppObject {
+    /// A variable, read-only, default 0, not mappable, not stored.
+    const fn var(index: u16, sub: u8, name: &'static str, data_type: DataType) -> Self {
+        Self {
+            index,
+            sub,
+            name,
+            data_type,
+            access: Access::Ro,
+            default: 0,
+            limits: None,
+            mappable: false,
+            stored: false,
+            header: false,
+        }
+    }
+
+    /// The header row of a record with sub-indices 1..=`highest`.
+    const fn record(index: u16, name: &'static str, highest: u8) -> Self {
+        Self {
+            access: Access::Const,
+            default: highest as u32,
+            header: true,
+            ..Self::var(index, 0, name, DataType::U8)
+        }
+    }
+
+    /// Writable within `min..=max`.
+    const fn rw(mut self, min: i16, max: i16) -> Self {
+        self.access = Access::Rw;
+        self.limits = Some((min, max));
+        self
+    }
+
+    const fn default(mut self, value: u32) -> Self {
+        self.default = value;
+        self
+    }
+
+    const fn mappable(mut self) -> Self {
+        self.mappable = true;
+        self
+    }
+
+    const fn stored(mut self) -> Self {
+        self.stored = true;
+        self
+    }
+
+    /// The run-time table's entry.
+    const fn entry(&self) -> OdEntry {
+        if self.header {
+            return OdEntry::highest_sub(self.index, self.default as u8);
+        }
+        let mut e = OdEntry::app(self.index, self.sub, self.data_type, self.access);
+        if let Some((min, max)) = self.limits {
+            e = e.range(min as i64, max as i64);
+        }
+        if self.mappable {
+            e = e.mappable();
+        }
+        e
+    }
+}
+
+/// The handwheel's objects, sorted by (index, sub-index).
+pub const APP_OBJECTS: &[AppObject] = {
     use DataType::{I32, U16, U32, U8};
+    type O = AppObject;
     &[
-        OdEntry::app(FEED_ENABLE, 0, U8, Rw).range(0, 1),
-        OdEntry::app(FEED_FORMAT, 0, U8, Rw).range(0, 1),
-        OdEntry::highest_sub(SELECTION, 3),
-        OdEntry::app(SELECTION, 1, U8, Ro).mappable(),
-        OdEntry::app(SELECTION, 2, U8, Ro).mappable(),
-        OdEntry::app(SELECTION, 3, U8, Ro).mappable(),
-        OdEntry::highest_sub(ENCODER, 4),
-        OdEntry::app(ENCODER, 1, I32, Ro).mappable(),
-        OdEntry::app(ENCODER, 2, U32, Ro).mappable(),
-        OdEntry::app(ENCODER, 3, U8, Rw).range(1, 4),
-        OdEntry::app(ENCODER, 4, U8, Rw).range(0, 1),
-        OdEntry::app(FEED_STATUS, 0, U8, Ro).mappable(),
-        OdEntry::app(FEED_SEQUENCE, 0, U8, Ro).mappable(),
-        OdEntry::app(UNIT_STEP, 0, U8, Ro).mappable(),
-        OdEntry::highest_sub(FEED_DIAGNOSTICS, 3),
-        OdEntry::app(FEED_DIAGNOSTICS, 1, U32, Ro),
-        OdEntry::app(FEED_DIAGNOSTICS, 2, U32, Ro),
-        OdEntry::app(FEED_DIAGNOSTICS, 3, U16, Rw).range(1, MAX_BACKLOG_BOUND as i64),
-        OdEntry::app(POSITION_VALUE, 0, I32, Ro).mappable(),
+        O::var(FEED_ENABLE, 0, "Feed enable", U8).rw(0, 1),
+        O::var(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1).stored(),
+        O::record(SELECTION, "Selection", 3),
+        O::var(SELECTION, 1, "Axis", U8).mappable(),
+        O::var(SELECTION, 2, "Multiplier", U8).default(1).mappable(),
+        O::var(SELECTION, 3, "Selection epoch", U8).mappable(),
+        O::record(ENCODER, "Encoder", 4),
+        O::var(ENCODER, 1, "Raw count", I32).mappable(),
+        O::var(ENCODER, 2, "Illegal transitions", U32).mappable(),
+        O::var(ENCODER, 3, "Counts per detent", U8)
+            .rw(1, 4)
+            .default(4)
+            .stored(),
+        O::var(ENCODER, 4, "Invert direction", U8).rw(0, 1).stored(),
+        O::var(FEED_STATUS, 0, "Feed status", U8).mappable(),
+        O::var(FEED_SEQUENCE, 0, "Feed sequence", U8).mappable(),
+        O::var(UNIT_STEP, 0, "Unit step", U8).mappable(),
+        O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
+        O::var(FEED_DIAGNOSTICS, 1, "Ignored detents", U32),
+        O::var(FEED_DIAGNOSTICS, 2, "Dropped unit steps", U32),
+        O::var(FEED_DIAGNOSTICS, 3, "Unit-step backlog bound", U16)
+            .rw(1, MAX_BACKLOG_BOUND as i16)
+            .default(DEFAULT_STEP_BACKLOG as u32)
+            .stored(),
+        O::var(POSITION_VALUE, 0, "Position value", I32).mappable(),
     ]
 };
 
+/// Notes the EDS carries before an object's section: what a master must know beyond the
+/// object's type and limits.
+pub const EDS_NOTES: [(u16, &str); 4] = [
+    (
+        0x1010,
+        "0x1010 \"save\" and 0x1011 \"load\" write the parameter page (README \"Storing parameters\"):
+- storing what is stored already writes nothing and succeeds;
+- a changed store appends a record; a full page (six records) is erased first, at most
+  8 erases at once, then one per 24 h of powered time: beyond that the store writes
+  nothing and aborts 0x08000020 (a wrong signature also aborts 0x08000020, checked first);
+- while the feed is enabled (0x2000 = 1) every save and load aborts 0x08000022: writing
+  flash would stall the CPU and lose wheel edges.
+LSS \"store configuration\" follows the same rules: error 255 with byte 2 = 1 (wear budget)
+or 2 (feed enabled).",
+    ),
+    (
+        0x1011,
+        "0x1011: the defaults apply from the next reset; \"nothing stored\" is a record like any
+other (see 0x1010 above for when it is refused).",
+    ),
+    (
+        FEED_STATUS,
+        "Bits 0-4: status flags; bits 5-7: the low three bits of the selection epoch (0x2010:3)
+of the state the value describes (in TPDO1: the record's own epoch).",
+    ),
+    (
+        FEED_SEQUENCE,
+        "+1 per feed record sent, and per loss (a held record dropped, an epoch that ended unseen);
++8 at a break (start, stop, reset, a blocked transmit path): README \"Feed record\".",
+    ),
+];
+
+/// The run-time entries of [`APP_OBJECTS`]; a record whose header does not name its last
+/// sub-index fails the build.
+const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
+    let mut entries = [OdEntry::highest_sub(0, 0); APP_OBJECTS.len()];
+    let mut i = 0;
+    while i < entries.len() {
+        let o = &APP_OBJECTS[i];
+        entries[i] = o.entry();
+        if o.header {
+            let mut last = i;
+            while last + 1 < APP_OBJECTS.len() && APP_OBJECTS[last + 1].index == o.index {
+                last += 1;
+            }
+            assert!(
+                last > i && APP_OBJECTS[last].sub as u32 == o.default,
+                "a record's header names its highest sub-index"
+            );
+        }
+        i += 1;
+    }
+    entries
+};
+
+/// How many parameters 0x1010 stores in the application's section.
+pub const STORED_LEN: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        n += APP_OBJECTS[i].stored as usize;
+        i += 1;
+    }
+    n
+};
+
+/// The stored parameters in the order of the application's section: (index, sub-index,
+/// size in bytes), from the rows marked stored.
+pub const STORED: [(u16, u8, u8); STORED_LEN] = {
+    let mut list = [(0, 0, 0); STORED_LEN];
+    let mut k = 0;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if o.stored {
+            let size = match o.data_type.size() {
+                Some(n) => n as u8,
+                None => panic!("a stored parameter is a number"),
+            };
+            list[k] = (o.index, o.sub, size);
+            k += 1;
+        }
+        i += 1;
+    }
+    list
+};
+
 /// The whole dictionary; an unsorted or inconsistent table fails the build.
-pub static OD: Od = Od::checked(&[&STANDARD, HANDWHEEL]);
+pub static OD: Od = Od::checked(&[&STANDARD, &HANDWHEEL]);

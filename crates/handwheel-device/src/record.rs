@@ -98,7 +98,7 @@ impl NodeSettings {
     /// bit-timing table index. `None` for an index the firmware cannot run at or a node-ID
     /// a record cannot hold; the LSS answer is then "not supported".
     pub const fn from_lss(node_id: u8, bit_timing: u8) -> Option<Self> {
-        match crate::node_config::bit_rate_from_lss(bit_timing) {
+        match handwheel_core::bittiming::bit_rate_from_lss(bit_timing) {
             Some(rate) => Self::from_parts(node_id, rate.code()),
             None => None,
         }

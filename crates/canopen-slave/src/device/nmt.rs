@@ -3,10 +3,11 @@
 //! (`on_nmt_state` of the SDO server, EMCY, heartbeat and TPDOs); this module only calls
 //! them in order.
 
+use super::objects::params::blob::Blob;
 use super::{Application, Device};
 use crate::frame::{cob, Frame, FrameSink};
 use crate::nmt::{NmtCommand, NmtState};
-use crate::storage::{Blob, Storage};
+use crate::storage::Storage;
 use crate::time::Instant;
 use crate::tpdo;
 

@@ -1,23 +1,28 @@
-//! The communication objects the engine owns (entries of [`Value::Comm`] and
-//! [`Value::CommPlusNodeId`]) and the checked paths to every object of the dictionary.
+//! The communication objects (0x1000-0x1FFF) and the checked paths to every object of the
+//! dictionary.
 //!
-//! Each communication object is one row of [`OBJECTS`]: the indices it covers, the
-//! sub-indices 0x1010 stores (the blob layout, [`STORED`], is derived from them), and how it
-//! reads, checks and writes, and restores (a table default or a stored value) itself.
-//! Adding a communication object is adding its row (and its entries to the table of
-//! [`standard_objects`](crate::od::standard_objects)).
+//! Each communication object is one row of [`OBJECTS`]: the indices it covers, its entries
+//! (type, access, where the default comes from, whether 0x1010 stores it), and how it reads,
+//! checks and writes, and restores (a table default or a stored value) itself. From the rows
+//! come the dictionary's standard part ([`standard_objects`], with the defaults the device
+//! declares), the blob layout ([`STORED`]) and the run-time routes ([`ROUTES`]). Adding a
+//! communication object is adding its row.
 
-use super::{params, Application};
+pub(crate) mod params;
+
+use super::Application;
+use crate::abort::SdoAbort;
+use crate::cob_id::{check_cob_id_write, COB_INVALID};
 use crate::emcy::Emcy;
-use crate::frame::{check_cob_id_write, NodeId, COB_INVALID};
+use crate::frame::NodeId;
 use crate::heartbeat::Heartbeat;
+use crate::identity::{CommDefaults, Identity};
 use crate::nmt::NmtState;
-use crate::od::{Od, OdEntry, Value};
-use crate::sdo::SdoAbort;
+use crate::od::{Access, DataType, Od, OdEntry, Value};
 use crate::storage::Storage;
 use crate::sync::SyncConsumer;
 use crate::time::Instant;
-use crate::tpdo::{Tpdo, TPDOS};
+use crate::tpdo::{Tpdo, MAX_MAPPED, TPDOS};
 
 /// The NMT state and the services behind the communication objects.
 #[derive(Clone, Debug, PartialEq)]
@@ -76,11 +81,146 @@ type Restore = fn(&mut Comm, u16, u8, u32, Instant);
 struct CommObject {
     first: u16,
     last: u16,
-    /// The sub-indices 0x1010 stores (of each PDO's object, for the PDO ranges).
-    stored: &'static [u8],
+    /// Its sub-indices (of each PDO's object, for the PDO ranges), as the dictionary lists
+    /// them.
+    entries: &'static [Entry],
     read: Read,
     write: Write,
     restore: Restore,
+}
+
+/// Where the value of a communication entry comes from: a number CiA 301 or the engine
+/// fixes, or what the device declares ([`Identity`], [`CommDefaults`]; a PDO range's entries
+/// take their PDO's [`TpdoDefaults`](crate::TpdoDefaults)).
+#[derive(Clone, Copy)]
+enum Source {
+    Fixed(u32),
+    DeviceType,
+    VendorId,
+    ProductCode,
+    Revision,
+    DeviceName,
+    HardwareVersion,
+    SoftwareVersion,
+    EmcyInhibit,
+    /// Consumer heartbeat entry `n` (0-based).
+    Consumer(usize),
+    Heartbeat,
+    TpdoCobId,
+    TpdoType,
+    TpdoInhibit,
+    TpdoEventTimer,
+    MappedCount,
+    /// Mapping entry `n` (0-based), 0 past the default mapping.
+    Mapped(usize),
+}
+
+/// How an entry's value is kept: fixed at build time, or a parameter the engine owns (with
+/// the node-ID added to its default, for COB-IDs).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Constant,
+    Parameter,
+    ParameterPlusNodeId,
+}
+
+/// One sub-index of a communication object.
+#[derive(Clone, Copy)]
+struct Entry {
+    sub: u8,
+    data_type: DataType,
+    access: Access,
+    kind: Kind,
+    source: Source,
+    /// A parameter 0x1010 stores.
+    stored: bool,
+}
+
+impl Entry {
+    /// A value fixed at build time.
+    const fn constant(sub: u8, data_type: DataType, source: Source) -> Self {
+        Self {
+            sub,
+            data_type,
+            access: Access::Const,
+            kind: Kind::Constant,
+            source,
+            stored: false,
+        }
+    }
+
+    /// Sub-index 0 of a record or array: its highest sub-index.
+    const fn highest(highest: u8) -> Self {
+        Self::constant(0, DataType::U8, Source::Fixed(highest as u32))
+    }
+
+    /// A parameter the engine owns, not stored.
+    const fn parameter(sub: u8, data_type: DataType, access: Access, source: Source) -> Self {
+        Self {
+            sub,
+            data_type,
+            access,
+            kind: Kind::Parameter,
+            source,
+            stored: false,
+        }
+    }
+
+    /// Stored by 0x1010.
+    const fn stored(mut self) -> Self {
+        self.stored = true;
+        self
+    }
+
+    /// A COB-ID whose default is relative to the node-ID.
+    const fn plus_node_id(mut self) -> Self {
+        self.kind = Kind::ParameterPlusNodeId;
+        self
+    }
+
+    /// The dictionary's entry at `index` (of PDO `pdo`, 0-based, for the PDO ranges).
+    const fn od_entry(&self, index: u16, id: &Identity, d: &CommDefaults, pdo: usize) -> OdEntry {
+        let t = &d.tpdo[pdo];
+        let text = match self.source {
+            Source::DeviceName => Some(id.device_name),
+            Source::HardwareVersion => Some(id.hardware_version),
+            Source::SoftwareVersion => Some(id.software_version),
+            _ => None,
+        };
+        if let Some(text) = text {
+            return OdEntry::string(index, self.sub, text);
+        }
+        let value = match self.source {
+            Source::Fixed(v) => v,
+            Source::DeviceType => id.device_type,
+            Source::VendorId => id.vendor_id,
+            Source::ProductCode => id.product_code,
+            Source::Revision => id.revision,
+            Source::EmcyInhibit => d.emcy_inhibit_100us as u32,
+            Source::Consumer(n) => d.heartbeat_consumers[n],
+            Source::Heartbeat => d.heartbeat_ms as u32,
+            Source::TpdoCobId => t.cob_id_base,
+            Source::TpdoType => t.transmission_type as u32,
+            Source::TpdoInhibit => t.inhibit_100us as u32,
+            Source::TpdoEventTimer => t.event_timer_ms as u32,
+            Source::MappedCount => t.mapping.len() as u32,
+            Source::Mapped(n) if n < t.mapping.len() => t.mapping[n],
+            Source::Mapped(_) => 0,
+            // Handled above.
+            Source::DeviceName | Source::HardwareVersion | Source::SoftwareVersion => 0,
+        };
+        let value = match self.kind {
+            Kind::Constant => Value::Const(value),
+            Kind::Parameter => Value::Comm(value),
+            Kind::ParameterPlusNodeId => Value::CommPlusNodeId(value),
+        };
+        OdEntry::new(index, self.sub, self.data_type, self.access, value)
+    }
+}
+
+/// `read` of an object whose entries are all constants (the table answers them).
+fn constants_only(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
+    Err(SdoAbort::NoObject)
 }
 
 /// `write` of an object no write reaches (its entries are read-only).
@@ -117,14 +257,28 @@ fn on_command(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
     Ok(1)
 }
 
-/// The communication objects, by index. The engine looks them up in [`ROUTES`], the same
-/// rows without what only the compiler needs.
-const OBJECTS: [CommObject; 12] = [
+/// The communication objects, by index. The engine looks them up in [`ROUTES`], the rows
+/// with behaviour without what only the compiler needs.
+const OBJECTS: &[CommObject] = &[
+    // Device type.
+    CommObject {
+        first: 0x1000,
+        last: 0x1000,
+        entries: &[Entry::constant(0, DataType::U32, Source::DeviceType)],
+        read: constants_only,
+        write: read_only,
+        restore: not_a_parameter,
+    },
     // Error register.
     CommObject {
         first: 0x1001,
         last: 0x1001,
-        stored: &[],
+        entries: &[Entry::parameter(
+            0,
+            DataType::U8,
+            Access::Ro,
+            Source::Fixed(0),
+        )],
         read: |c, _, _| Ok(c.emcy.error_register().into()),
         write: read_only,
         restore: not_a_parameter,
@@ -133,7 +287,13 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1003,
         last: 0x1003,
-        stored: &[],
+        entries: &[
+            Entry::parameter(0, DataType::U8, Access::Rw, Source::Fixed(0)),
+            Entry::parameter(1, DataType::U32, Access::Ro, Source::Fixed(0)),
+            Entry::parameter(2, DataType::U32, Access::Ro, Source::Fixed(0)),
+            Entry::parameter(3, DataType::U32, Access::Ro, Source::Fixed(0)),
+            Entry::parameter(4, DataType::U32, Access::Ro, Source::Fixed(0)),
+        ],
         read: emcy_read,
         write: emcy_write,
         restore: not_a_parameter,
@@ -142,7 +302,7 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1005,
         last: 0x1005,
-        stored: &[0],
+        entries: &[Entry::parameter(0, DataType::U32, Access::Rw, Source::Fixed(0x80)).stored()],
         read: |c, _, _| Ok(c.sync.cob_id()),
         write: |c, _, _, _, v| {
             c.check_cob_id(CobSlot::Sync, v)?;
@@ -151,11 +311,55 @@ const OBJECTS: [CommObject; 12] = [
         },
         restore: |c, _, _, v, _| c.sync.set(v),
     },
+    // Manufacturer device name.
+    CommObject {
+        first: 0x1008,
+        last: 0x1008,
+        entries: &[Entry::constant(
+            0,
+            DataType::VisibleString,
+            Source::DeviceName,
+        )],
+        read: constants_only,
+        write: read_only,
+        restore: not_a_parameter,
+    },
+    // Manufacturer hardware version.
+    CommObject {
+        first: 0x1009,
+        last: 0x1009,
+        entries: &[Entry::constant(
+            0,
+            DataType::VisibleString,
+            Source::HardwareVersion,
+        )],
+        read: constants_only,
+        write: read_only,
+        restore: not_a_parameter,
+    },
+    // Manufacturer software version.
+    CommObject {
+        first: 0x100A,
+        last: 0x100A,
+        entries: &[Entry::constant(
+            0,
+            DataType::VisibleString,
+            Source::SoftwareVersion,
+        )],
+        read: constants_only,
+        write: read_only,
+        restore: not_a_parameter,
+    },
     // Store parameters.
     CommObject {
         first: 0x1010,
         last: 0x1010,
-        stored: &[],
+        entries: &[
+            Entry::highest(3),
+            Entry::parameter(1, DataType::U32, Access::Rw, Source::Fixed(0)),
+            Entry::parameter(2, DataType::U32, Access::Rw, Source::Fixed(0)),
+            Entry::parameter(3, DataType::U32, Access::Rw, Source::Fixed(0)),
+        ],
         read: on_command,
         write: |c, ctx, _, sub, v| params::save(c, ctx, sub, v),
         restore: not_a_parameter,
@@ -164,7 +368,12 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1011,
         last: 0x1011,
-        stored: &[],
+        entries: &[
+            Entry::highest(3),
+            Entry::parameter(1, DataType::U32, Access::Rw, Source::Fixed(0)),
+            Entry::parameter(2, DataType::U32, Access::Rw, Source::Fixed(0)),
+            Entry::parameter(3, DataType::U32, Access::Rw, Source::Fixed(0)),
+        ],
         read: on_command,
         write: |_, ctx, _, sub, v| params::forget(ctx, sub, v),
         restore: not_a_parameter,
@@ -173,7 +382,11 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1014,
         last: 0x1014,
-        stored: &[0],
+        entries: &[
+            Entry::parameter(0, DataType::U32, Access::Rw, Source::Fixed(0x80))
+                .plus_node_id()
+                .stored(),
+        ],
         read: emcy_read,
         write: |c, _, index, sub, v| {
             c.check_cob_id(CobSlot::Emcy, v)?;
@@ -185,7 +398,7 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1015,
         last: 0x1015,
-        stored: &[0],
+        entries: &[Entry::parameter(0, DataType::U16, Access::Rw, Source::EmcyInhibit).stored()],
         read: emcy_read,
         write: emcy_write,
         restore: emcy_restore,
@@ -194,7 +407,11 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1016,
         last: 0x1016,
-        stored: &[1, 2],
+        entries: &[
+            Entry::highest(2),
+            Entry::parameter(1, DataType::U32, Access::Rw, Source::Consumer(0)).stored(),
+            Entry::parameter(2, DataType::U32, Access::Rw, Source::Consumer(1)).stored(),
+        ],
         read: |c, _, sub| c.heartbeat.consumer(sub),
         write: |c, _, _, sub, v| match c.node {
             Some(own) => c.heartbeat.write_consumer(sub, v, own),
@@ -206,7 +423,7 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1017,
         last: 0x1017,
-        stored: &[0],
+        entries: &[Entry::parameter(0, DataType::U16, Access::Rw, Source::Heartbeat).stored()],
         read: |c, _, _| Ok(c.heartbeat.producer_ms().into()),
         write: |c, ctx, _, _, v| {
             c.heartbeat.set_producer(v as u16, ctx.now);
@@ -218,7 +435,13 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1018,
         last: 0x1018,
-        stored: &[],
+        entries: &[
+            Entry::highest(4),
+            Entry::constant(1, DataType::U32, Source::VendorId),
+            Entry::constant(2, DataType::U32, Source::ProductCode),
+            Entry::constant(3, DataType::U32, Source::Revision),
+            Entry::parameter(4, DataType::U32, Access::Ro, Source::Fixed(0)),
+        ],
         read: |c, _, _| Ok(c.serial),
         write: read_only,
         restore: not_a_parameter,
@@ -227,7 +450,15 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1800,
         last: 0x19FF,
-        stored: &[1, 2, 3, 5],
+        entries: &[
+            Entry::highest(5),
+            Entry::parameter(1, DataType::U32, Access::Rw, Source::TpdoCobId)
+                .plus_node_id()
+                .stored(),
+            Entry::parameter(2, DataType::U8, Access::Rw, Source::TpdoType).stored(),
+            Entry::parameter(3, DataType::U16, Access::Rw, Source::TpdoInhibit).stored(),
+            Entry::parameter(5, DataType::U16, Access::Rw, Source::TpdoEventTimer).stored(),
+        ],
         read: |c, index, sub| c.tpdo(index - 0x1800)?.read_comm(sub),
         write: |c, ctx, index, sub, v| {
             let n = index - 0x1800;
@@ -248,7 +479,17 @@ const OBJECTS: [CommObject; 12] = [
     CommObject {
         first: 0x1A00,
         last: 0x1BFF,
-        stored: &[0, 1, 2, 3, 4, 5, 6, 7, 8],
+        entries: &[
+            Entry::parameter(0, DataType::U8, Access::Rw, Source::MappedCount).stored(),
+            Entry::parameter(1, DataType::U32, Access::Rw, Source::Mapped(0)).stored(),
+            Entry::parameter(2, DataType::U32, Access::Rw, Source::Mapped(1)).stored(),
+            Entry::parameter(3, DataType::U32, Access::Rw, Source::Mapped(2)).stored(),
+            Entry::parameter(4, DataType::U32, Access::Rw, Source::Mapped(3)).stored(),
+            Entry::parameter(5, DataType::U32, Access::Rw, Source::Mapped(4)).stored(),
+            Entry::parameter(6, DataType::U32, Access::Rw, Source::Mapped(5)).stored(),
+            Entry::parameter(7, DataType::U32, Access::Rw, Source::Mapped(6)).stored(),
+            Entry::parameter(8, DataType::U32, Access::Rw, Source::Mapped(7)).stored(),
+        ],
         read: |c, index, sub| c.tpdo(index - 0x1A00)?.read_mapping(sub),
         write: |c, _, index, sub, v| {
             let od = c.od;
@@ -262,6 +503,55 @@ const OBJECTS: [CommObject; 12] = [
     },
 ];
 
+/// How many sub-indices [`standard_objects`] lists: one per entry of a single object, one
+/// per entry and PDO of a PDO range.
+pub const STANDARD_OBJECTS: usize = {
+    let mut len = 0;
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        len += o.entries.len() * if o.first == o.last { 1 } else { TPDOS };
+        i += 1;
+    }
+    len
+};
+
+/// The communication profile area (0x1000-0x1FFF) the engine implements, ready to be the
+/// first part of an application's [`Od`]: the entries of the engine's object rows, with the
+/// defaults the device declares: 0x1000, 0x1001, 0x1003 (4 entries), 0x1005, 0x1008-0x100A,
+/// 0x1010, 0x1011, 0x1014, 0x1015, 0x1016 (2 consumers), 0x1017, 0x1018, TPDO1/2
+/// (0x1800/0x1801, 0x1A00/0x1A01).
+pub const fn standard_objects(id: &Identity, d: &CommDefaults) -> [OdEntry; STANDARD_OBJECTS] {
+    let mut pdo = 0;
+    while pdo < d.tpdo.len() {
+        assert!(
+            d.tpdo[pdo].mapping.len() <= MAX_MAPPED,
+            "a PDO maps at most 8 objects"
+        );
+        pdo += 1;
+    }
+    let mut list = [OdEntry::highest_sub(0, 0); STANDARD_OBJECTS];
+    let mut k = 0;
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        let pdos = if o.first == o.last { 1 } else { TPDOS };
+        let mut pdo = 0;
+        while pdo < pdos {
+            let mut e = 0;
+            while e < o.entries.len() {
+                // Below 0x200 PDOs per range, so the offset fits.
+                list[k] = o.entries[e].od_entry(o.first + pdo as u16, id, d, pdo);
+                k += 1;
+                e += 1;
+            }
+            pdo += 1;
+        }
+        i += 1;
+    }
+    list
+}
+
 /// How many parameters 0x1010 stores.
 pub(crate) const STORED_LEN: usize = stored_len();
 
@@ -274,7 +564,13 @@ const fn stored_len() -> usize {
     let mut i = 0;
     while i < OBJECTS.len() {
         let o = &OBJECTS[i];
-        len += o.stored.len() * if o.first == o.last { 1 } else { TPDOS };
+        let mut e = 0;
+        while e < o.entries.len() {
+            if o.entries[e].stored {
+                len += if o.first == o.last { 1 } else { TPDOS };
+            }
+            e += 1;
+        }
         i += 1;
     }
     len
@@ -297,11 +593,13 @@ const fn stored_list() -> [(u16, u8); STORED_LEN] {
                 } else {
                     o.first + (round - 1) as u16
                 };
-                let mut s = 0;
-                while s < o.stored.len() {
-                    list[k] = (index, o.stored[s]);
-                    k += 1;
-                    s += 1;
+                let mut e = 0;
+                while e < o.entries.len() {
+                    if o.entries[e].stored {
+                        list[k] = (index, o.entries[e].sub);
+                        k += 1;
+                    }
+                    e += 1;
                 }
             }
             i += 1;
@@ -310,6 +608,30 @@ const fn stored_list() -> [(u16, u8); STORED_LEN] {
     }
     list
 }
+
+/// Whether a row has behaviour: a parameter among its entries (the table answers
+/// constants).
+const fn has_parameter(o: &CommObject) -> bool {
+    let mut e = 0;
+    while e < o.entries.len() {
+        if !matches!(o.entries[e].kind, Kind::Constant) {
+            return true;
+        }
+        e += 1;
+    }
+    false
+}
+
+/// How many rows have behaviour.
+const ROUTED: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        n += has_parameter(&OBJECTS[i]) as usize;
+        i += 1;
+    }
+    n
+};
 
 /// A row of [`OBJECTS`] as the engine uses it at run time.
 #[derive(Clone, Copy)]
@@ -321,27 +643,32 @@ struct Route {
     restore: Restore,
 }
 
-/// [`OBJECTS`] without the stored sub-indices, which only [`STORED`] needs.
-static ROUTES: [Route; OBJECTS.len()] = routes();
+/// The rows of [`OBJECTS`] with behaviour, without what only the compiler needs (their
+/// entries): what the engine looks up at run time.
+static ROUTES: [Route; ROUTED] = routes();
 
-const fn routes() -> [Route; OBJECTS.len()] {
+const fn routes() -> [Route; ROUTED] {
     let mut routes = [Route {
         first: 0,
         last: 0,
-        read: |_, _, _| Err(SdoAbort::NoObject),
+        read: constants_only,
         write: read_only,
         restore: not_a_parameter,
-    }; OBJECTS.len()];
+    }; ROUTED];
+    let mut k = 0;
     let mut i = 0;
     while i < OBJECTS.len() {
         let o = &OBJECTS[i];
-        routes[i] = Route {
-            first: o.first,
-            last: o.last,
-            read: o.read,
-            write: o.write,
-            restore: o.restore,
-        };
+        if has_parameter(o) {
+            routes[k] = Route {
+                first: o.first,
+                last: o.last,
+                read: o.read,
+                write: o.write,
+                restore: o.restore,
+            };
+            k += 1;
+        }
         i += 1;
     }
     routes

@@ -2,9 +2,9 @@
 //! building of a PDO from its mapping.
 
 use super::{Application, Device, Inner, NoSuchPdo};
+use crate::abort::SdoAbort;
 use crate::frame::{Frame, FrameSink};
 use crate::nmt::NmtState;
-use crate::sdo::SdoAbort;
 use crate::storage::Storage;
 use crate::time::Instant;
 use crate::tpdo::{self, Tpdo, TPDOS};

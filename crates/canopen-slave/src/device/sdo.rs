@@ -2,8 +2,9 @@
 //! through the same checks.
 
 use super::{Application, Device, Inner};
+use crate::abort::SdoAbort;
 use crate::frame::{cob, Frame, FrameSink, NodeId};
-use crate::sdo::{ObjectAccess, SdoAbort};
+use crate::sdo::ObjectAccess;
 use crate::storage::Storage;
 use crate::time::Instant;
 

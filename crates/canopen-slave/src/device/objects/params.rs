@@ -2,15 +2,18 @@
 //! the firmware's [`Storage`], loaded at the next reset (`nmt`).
 //!
 //! Both write the medium, so both ask the application first
-//! ([`Application::may_store`](super::Application::may_store)): refused, 0x08000022. A
+//! ([`Application::may_store`](crate::Application::may_store)): refused, 0x08000022. A
 //! storage that refuses for wear gives 0x08000020, one that fails 0x06060000.
 
-use super::objects::{Comm, Refused, WriteCtx, STORED_LEN};
-use super::{Application, Device, Inner};
+pub(crate) mod blob;
+
+use super::{Comm, Refused, WriteCtx, STORED_LEN};
+use crate::abort::SdoAbort;
+use crate::device::{Application, Device, Inner};
 use crate::emcy;
-use crate::sdo::SdoAbort;
-use crate::storage::{self, Blob, Storage, StorageError, LOAD_SIGNATURE, SAVE_SIGNATURE};
+use crate::storage::{Storage, StorageError, LOAD_SIGNATURE, SAVE_SIGNATURE};
 use crate::time::Instant;
+use blob::{Blob, APP, COMM};
 
 /// EMCY "data set" (CiA 301 error code 0x63xx): a stored parameter was not restored.
 pub const EMCY_STORED_REFUSED: u16 = 0x6300;
@@ -18,7 +21,7 @@ pub const EMCY_STORED_REFUSED: u16 = 0x6300;
 impl<S: Storage> Inner<S> {
     /// The stored communication parameters over the defaults, checked as SDO writes
     /// ([`Comm::restore_stored`]); the first refusal and the count of refused objects.
-    pub(super) fn restore_stored(
+    pub(in crate::device) fn restore_stored(
         &mut self,
         now: Instant,
         params: impl Iterator<Item = (u16, u8, u32)>,
@@ -42,7 +45,7 @@ impl<S: Storage> Device<S> {
     /// many objects; the application's: the object it named): EMCY 0x6300 as an event
     /// (raised and cleared at once), manufacturer bytes: the first refused object's index
     /// (little-endian) and sub-index, and how many objects were refused.
-    pub(super) fn report_refused_stored(
+    pub(in crate::device) fn report_refused_stored(
         &mut self,
         comm: Option<(Refused, u8)>,
         app: Option<(u16, u8)>,
@@ -80,10 +83,10 @@ pub(super) fn save(
 ) -> Result<(), SdoAbort> {
     let sections = check(ctx, sub, signature, SAVE_SIGNATURE)?;
     let mut blob = Blob::load(ctx.storage);
-    if sections & storage::COMM != 0 {
+    if sections & COMM != 0 {
         blob.set_comm(|index, sub| comm.read(index, sub).unwrap_or(0));
     }
-    if sections & storage::APP != 0 {
+    if sections & APP != 0 {
         blob.set_app(|buf| ctx.app.save_application(buf));
     }
     blob.store(ctx.now, ctx.storage).map_err(abort)
@@ -104,9 +107,9 @@ fn check(ctx: &mut WriteCtx<'_>, sub: u8, signature: u32, want: u32) -> Result<u
         return Err(SdoAbort::CannotStore);
     }
     let sections = match sub {
-        1 => storage::COMM | storage::APP,
-        2 => storage::COMM,
-        3 => storage::APP,
+        1 => COMM | APP,
+        2 => COMM,
+        3 => APP,
         _ => return Err(SdoAbort::NoSubIndex),
     };
     if !ctx.app.may_store() {
