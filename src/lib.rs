@@ -12,7 +12,8 @@
 //!   (re-exported from the host-tested `handwheel-device`, like the record layout in
 //!   `storage::record`).
 //! - [`events`]: interrupt-to-task wake-ups.
-//! - [`supervision`]: bus errors, lost frames and encoder errors as log lines and EMCYs.
+//! - [`round_log`]: the log lines of a `canopen` round (bus errors, lost frames, encoder
+//!   errors, selections, bit-rate switches).
 //! - [`edge`]: the CAN side's access to the wheel state it shares with the edge task.
 //! - [`parts`]: the one `Board` both variants' `init` return, over their part types.
 //! - [`priority`]: the interrupt priorities the firmware programs itself.
@@ -52,8 +53,8 @@ pub mod parts;
 pub mod priority;
 #[cfg(feature = "qemu")]
 pub mod qemu;
+pub mod round_log;
 pub mod storage;
-pub mod supervision;
 
 /// The STM32F103's peripheral access crate, as stm32f1xx-hal re-exports it.
 pub use stm32f1xx_hal::pac;

@@ -61,21 +61,18 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
-    use canopen_slave::{BusState, RxFilter, WideClock};
     use cortex_m::peripheral::scb::SystemHandler;
-    use defmt::{debug, info};
-    use handwheel_core::{BitRate, DecoderConfig, EdgeState, LinkedWheel, WheelAccess};
-    use handwheel_device::{duties::RECOVERY_POLL_MS, Duties, HandwheelDevice, RateSwitch};
+    use defmt::info;
+    use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
+    use handwheel_device::{HandwheelDevice, Node};
     use handwheel_firmware::{
         board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
-        can::{self, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
+        can::{self, CanPort, CanSide, Mode, RxConsumer, RxProducer, RxQueue},
         edge::{self, SharedEdge},
         events::EventSet,
-        node_config, priority,
+        node_config, priority, round_log,
         storage::DeviceStorage,
-        supervision::Supervision,
     };
-    use rtic::Mutex;
     use rtic_monotonics::systick::prelude::*;
 
     // The literals of the task attributes below and the levels the firmware programs itself
@@ -86,8 +83,8 @@ mod app {
     /// `duties::MAX_SLEEP_MS`), longer than a flash page erase (up to 40 ms).
     const WATCHDOG_MS: u32 = 500;
 
-    /// The CANopen handwheel with its parameter page.
-    type Device = HandwheelDevice<DeviceStorage>;
+    /// The CANopen handwheel with its parameter page, as the step function `canopen` runs.
+    type HandwheelNode = Node<DeviceStorage>;
 
     #[shared]
     struct Shared {
@@ -102,12 +99,8 @@ mod app {
     struct Local {
         /// The wheel's A/B inputs: only `wheel_edge` reads them.
         wheel_inputs: WheelInputs,
-        /// The CANopen device: only `canopen` touches it.
-        device: Device,
-        /// The bit rate the controller was started at, which `canopen` waits to join.
-        bit_rate: BitRate,
-        /// The acceptance filter the CAN port has now.
-        rx_filter: RxFilter,
+        /// The CANopen device and the decisions around it: only `canopen` touches it.
+        node: HandwheelNode,
         rx_producer: RxProducer,
         rx_consumer: RxConsumer,
         selectors: Selectors,
@@ -146,16 +139,13 @@ mod app {
         // the device then answers LSS only.
         let node_id = settings.node_id;
         let device = HandwheelDevice::with_settings(node_id, settings.bit_rate, serial, page);
+        let node = Node::new(device, settings.bit_rate);
 
         // The defaults' filter; `canopen` reprograms it once the device has loaded stored
-        // parameters (a stored 0x1005) and whenever a master moves an identifier.
-        let filter = match node_id {
-            Some(node_id) => RxFilter::new(node_id),
-            None => RxFilter::unconfigured(),
-        };
-        // Asks the controller to join and returns at once: on a dominant bus it never would
-        // (`canopen` waits for it, feeding the watchdog started below).
-        let can = can::start(board.can, settings.bit_rate, filter, Mode::Normal);
+        // parameters (a stored 0x1005) and whenever a master moves an identifier. Asks the
+        // controller to join and returns at once: on a dominant bus it never would (the node
+        // waits for it, the loop feeding the watchdog started below).
+        let can = can::start(board.can, settings.bit_rate, node.rx_filter(), Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         // The decoder at rest on the levels read now, with the settings 0x2020 starts with.
         let wheel = EdgeState::new(DecoderConfig::default(), board.wheel.levels());
@@ -172,9 +162,7 @@ mod app {
             },
             Local {
                 wheel_inputs: board.wheel,
-                device,
-                bit_rate: settings.bit_rate,
-                rx_filter: filter,
+                node,
                 rx_producer,
                 rx_consumer,
                 selectors: board.selectors,
@@ -246,31 +234,19 @@ mod app {
 
     /// The CAN side: everything that touches the CANopen device, in one loop at one priority.
     ///
-    /// It first waits for the controller to join the bus (see [`join_bus`]), then starts
-    /// the device. Each round feeds the watchdog, so if this loop stops (a hung lock, a dead
-    /// executor), the MCU resets. It sleeps until an interrupt raises an event, the device's
-    /// next deadline, the next selector sample (every 5 ms, which also times the wheel's
-    /// standstill) or the next LED update (every 50 ms).
+    /// A loop of I/O around the step function (`handwheel_device::Node::poll`, which decides
+    /// everything: joining the bus at power-on, the switches, the device, the bus state, a
+    /// bit-rate switch, the filter, the LEDs and how long to sleep). Each round feeds the
+    /// watchdog, so if this loop stops (a hung lock, a dead executor), the MCU resets. It
+    /// sleeps until an interrupt raises an event or the node's sleep is over.
     /// Sampling the switches and driving the LEDs here rather than in tasks of their own
     /// costs nothing in latency (they are 5 and 50 ms periodic, far slower than a round) and
     /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The
-    /// accumulator is this task's own; the decoder it shares with `wheel_edge` is reached
-    /// under the `wheel` lock, a copy or a command at a time; the transmit queue through one
-    /// short lock per frame, never for a whole round.
+    /// decoder it shares with `wheel_edge` is reached under the `wheel` lock, a copy or a
+    /// command at a time; the CAN port through one short lock per call, never for a round.
     #[task(
         priority = 2,
-        local = [
-            device,
-            bit_rate,
-            rx_filter,
-            rx_consumer,
-            watchdog,
-            selectors,
-            leds,
-            supervision: Supervision = Supervision::new(),
-            rate_switch: RateSwitch = RateSwitch::new(),
-            clock: WideClock = WideClock::new(),
-        ],
+        local = [node, rx_consumer, watchdog, selectors, leds],
         shared = [can, wheel]
     )]
     async fn canopen(cx: canopen::Context) {
@@ -282,23 +258,8 @@ mod app {
         #[cfg(feature = "stack-overflow-test")]
         handwheel_firmware::overflow::run();
         let local = cx.local;
-        let (device, supervision) = (local.device, local.supervision);
-        let rate_switch = local.rate_switch;
-        let mut tx = TxSink(cx.shared.can);
+        let mut can = CanSide::new(local.rx_consumer, cx.shared.can);
         let wheel = &mut LinkedWheel::new(SharedEdge(cx.shared.wheel), DecoderConfig::default());
-        let mut duties = Duties::new(Mono::now().ticks());
-        join_bus(
-            *local.bit_rate,
-            device,
-            &mut duties,
-            local.watchdog,
-            local.leds,
-            &mut tx.0,
-        )
-        .await;
-        // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
-        // the sampling duty is due immediately).
-        device.start(local.clock.now(Mono::now().ticks()), wheel, &mut tx);
         loop {
             local.watchdog.feed();
             // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
@@ -306,175 +267,28 @@ mod app {
             #[cfg(feature = "qemu")]
             stall(handwheel_firmware::qemu::sim::take_stall_ms());
             let ticks = Mono::now().ticks();
-            let now = local.clock.now(ticks);
-            let sleep = duties
-                .sleep_ms(ticks, now, device.next_deadline(), supervision.bus_state())
-                .min(rate_switch.sleep_cap_ms());
-            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
-            // Whatever woke the round (frames, the bus, the edge's `FEED_DUE`), the calls
-            // below look at everything.
-            if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
-                EVENTS.take();
-            }
-            let ticks = Mono::now().ticks();
-            let now = local.clock.now(ticks);
-            let sample = duties.sample(ticks, local.selectors, wheel);
-            while let Some(frame) = local.rx_consumer.dequeue() {
-                device.on_frame(now, &frame, wheel, &mut tx);
-            }
-            if let Some(sample) = sample {
-                apply_sample(sample, device, wheel);
-            }
-            supervise(supervision, rate_switch.off_bus(), device, wheel, &mut tx.0);
-            device.poll(now, wheel, &mut tx);
-            let transmit = tx.0.lock(|can| can.transmit_state());
-            device.watch_transmit(now, transmit, wheel, &mut tx);
-            if let Some(rate) = device.take_bit_rate_switch(now) {
-                info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
-                rate_switch.start(rate, ticks);
-            }
-            // One step per round, each a short lock: the CAN interrupts and SysTick wait for
-            // a few register accesses, never for the bus to synchronise (up to a frame on a
-            // healthy bus, for ever on a dominant one). Meanwhile the round repeats every
-            // millisecond, then, once the node counts as off the bus, every
-            // `RECOVERY_POLL_MS` (its bus state is bus-off).
-            if let Some(rate) =
-                rate_switch.poll(ticks, |rate| tx.0.lock(|can| can.switch_bit_rate(rate)))
-            {
-                defmt::error!(
-                    "CAN: no 11 recessive bits at {=u32} kbit/s within {=u32} ms: off the bus \
-                     until it is free",
-                    rate.kbit_per_second(),
-                    handwheel_device::rate_switch::SYNC_LIMIT_MS
-                );
-            }
-            follow_rx_filter(device, local.rx_filter, &mut tx.0);
-            let bus = supervision.bus_state();
-            if let Some((run, err)) =
-                duties.leds(ticks, device.nmt_state(), device.error_indication(), bus)
-            {
+            let out = local.node.poll(ticks, &mut can, local.selectors, wheel);
+            if let Some((run, err)) = out.leds {
                 local.leds.set(run, err);
             }
-        }
-    }
-
-    /// Boot on a dead bus: waits until the controller, asked to join in `init`, is on the bus
-    /// at `rate`, feeding the watchdog.
-    ///
-    /// On a dominant bus (no transceiver, a short) that takes as long as the fault lasts; the
-    /// device is held back meanwhile (its boot-up must be the first frame it sends, and no
-    /// frame passes anyway). Past `SYNC_LIMIT_MS` the node counts as off the bus: the log
-    /// says so once and the ERR LED is on (CiA 303-3 bus-off; RUN stays dark, the device is
-    /// not initialised yet). The controller joins by itself once the bus is free; this
-    /// returns then, within `RECOVERY_POLL_MS`. On a healthy bus it returns within a frame.
-    async fn join_bus(
-        rate: BitRate,
-        device: &Device,
-        duties: &mut Duties,
-        watchdog: &mut board::watchdog::Watchdog,
-        leds: &mut Leds,
-        can: &mut impl Mutex<T = CanPort>,
-    ) {
-        let mut joining = RateSwitch::new();
-        joining.start(rate, Mono::now().ticks());
-        let mut reported = false;
-        loop {
-            watchdog.feed();
-            let ticks = Mono::now().ticks();
-            if let Some(rate) = joining.poll(ticks, |rate| can.lock(|c| c.switch_bit_rate(rate))) {
-                defmt::error!(
-                    "CAN: no 11 recessive bits at {=u32} kbit/s within {=u32} ms of boot: \
-                     waiting for the bus",
-                    rate.kbit_per_second(),
-                    handwheel_device::rate_switch::SYNC_LIMIT_MS
+            // A frame on a new identifier is received from the next round on; before that it
+            // is dropped, as by any controller before its reconfiguration.
+            if let Some(filter) = out.rx_filter {
+                defmt::debug!(
+                    "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x}",
+                    filter.sync(),
+                    filter.sdo_request()
                 );
-                reported = true;
+                can.set_rx_filter(filter);
             }
-            if !joining.under_way() {
-                break;
-            }
-            let bus = if joining.off_bus() {
-                BusState::BusOff
-            } else {
-                BusState::ErrorActive
-            };
-            if let Some((run, err)) =
-                duties.leds(ticks, device.nmt_state(), device.error_indication(), bus)
-            {
-                leds.set(run, err);
-            }
-            // The main loop's wait (one timer future in the image, not two); nothing raises
-            // events before the device starts, and the main loop looks at everything anyway.
-            let sleep = joining.sleep_cap_ms().min(RECOVERY_POLL_MS);
-            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
+            round_log::print(&out.log, can.counters);
+            // Whatever wakes the round (frames, the bus, the edge's `FEED_DUE`), the node
+            // looks at everything.
+            let wake_at =
+                <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(out.sleep_ms));
             if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
                 EVENTS.take();
             }
-        }
-        if reported {
-            info!("CAN: on the bus");
-        }
-    }
-
-    /// A new switch selection goes to the device (after the frames of the same round, so an
-    /// SDO request that came first is answered under the old one).
-    fn apply_sample(
-        sample: handwheel_device::Sample,
-        device: &mut Device,
-        wheel: &mut impl WheelAccess,
-    ) {
-        if sample.rest_learnt {
-            debug!("wheel: rest learnt at standstill");
-        }
-        if let Some(selection) = sample.selection {
-            info!(
-                "selection: axis {=u8}, x{=u8}",
-                handwheel_core::Axis::option_value(selection.axis),
-                selection.multiplier.factor()
-            );
-            device.set_selection(selection, wheel);
-        }
-    }
-
-    /// Bus state, lost frames and encoder errors: `Supervision` logs the changes, the engine
-    /// decides the EMCYs (`Device::on_bus_event`, `Device::on_rx_overrun`). `off_bus`: a
-    /// bit-rate switch keeps the node off the bus, which counts as bus-off.
-    fn supervise(
-        supervision: &mut Supervision,
-        off_bus: bool,
-        device: &mut Device,
-        wheel: &mut impl WheelAccess,
-        can: &mut impl Mutex<T = CanPort>,
-    ) {
-        let engine = device.engine();
-        if let Some(event) = supervision.check_bus(off_bus) {
-            engine.on_bus_event(event);
-        }
-        let stats = can.lock(|can| can.stats());
-        if supervision.check_rx_overruns(stats.rx_overruns) {
-            engine.on_rx_overrun();
-        }
-        supervision.check_encoder(wheel.with_wheel(|w| w.decoder.illegal_transitions()));
-    }
-
-    /// Reprograms the CAN port's acceptance filter when the device's identifiers changed
-    /// (a master moved SYNC with 0x1005, a reset of communication moved it back). Checked
-    /// after every round, so a frame on the new identifier is received from the next round
-    /// on; before that it is dropped, as by any controller before its reconfiguration.
-    fn follow_rx_filter(
-        device: &Device,
-        current: &mut RxFilter,
-        can: &mut impl Mutex<T = CanPort>,
-    ) {
-        let wanted = device.rx_filter();
-        if wanted != *current {
-            defmt::debug!(
-                "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x}",
-                wanted.sync(),
-                wanted.sdo_request()
-            );
-            can.lock(|can| can.set_rx_filter(wanted));
-            *current = wanted;
         }
     }
 

@@ -17,7 +17,7 @@ use crate::pac;
 pub use canopen_slave::bus::{BusEvent, BusState};
 
 /// Error counters and the last error code, for the log.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, defmt::Format)]
 pub struct ErrorCounters {
     /// Transmit error counter.
     pub tec: u8,

@@ -25,7 +25,10 @@ pub type CanPort = port::CanPort<Bxcan>;
 /// The QEMU variant's CAN port: the shared queue and statistics over the SLCAN link.
 #[cfg(feature = "qemu")]
 pub type CanPort = port::CanPort<crate::qemu::slcan_port::Controller>;
+use canopen_slave::{FrameSink, RxFilter, SinkFull};
 pub use frame::Frame;
+use handwheel_core::BitRate;
+use handwheel_device::{CanIo, TransmitState};
 pub use tx_queue::TxQueue;
 
 /// Frames the transmit queue holds. Each is 12 bytes. Sized for a burst of one of everything
@@ -68,23 +71,69 @@ pub struct CanStats {
     pub tx_progress: u32,
 }
 
-/// The device's way to the transmit queue: one short lock of the [`CanPort`] per frame.
+/// The `canopen` task's CAN port, as the step function's [`CanIo`]: the receive queue's
+/// consumer end and the shared [`CanPort`], one short lock per call.
 ///
-/// The lock raises the running priority to the CAN interrupts' level for a queue insert and
-/// a few mailbox writes, never for the device's own processing.
-pub struct TxSink<M>(pub M);
+/// The lock raises the running priority to the CAN interrupts' level for a queue insert, a
+/// few mailbox writes or a register read, never for the device's own processing.
+pub struct CanSide<'a, M> {
+    rx: &'a mut RxConsumer,
+    port: M,
+    /// The error counters as last read with the bus state, for the log.
+    pub counters: bus::ErrorCounters,
+}
 
-impl<M: rtic::Mutex<T = CanPort>> canopen_slave::FrameSink for TxSink<M> {
+impl<'a, M: rtic::Mutex<T = CanPort>> CanSide<'a, M> {
+    /// The task's end of the receive queue and its proxy of the port.
+    pub fn new(rx: &'a mut RxConsumer, port: M) -> Self {
+        Self {
+            rx,
+            port,
+            counters: bus::ErrorCounters::default(),
+        }
+    }
+
+    /// Programs the acceptance filter.
+    pub fn set_rx_filter(&mut self, filter: RxFilter) {
+        self.port.lock(|port| port.set_rx_filter(filter));
+    }
+}
+
+impl<M: rtic::Mutex<T = CanPort>> FrameSink for CanSide<'_, M> {
     /// Queues `frame`; a full queue refuses it (the engine counts and, for TPDOs and EMCYs,
     /// retries).
-    fn send(&mut self, frame: Frame) -> Result<(), canopen_slave::SinkFull> {
-        self.0
+    fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
+        self.port
             .lock(|port| port.send(frame))
-            .map_err(|_| canopen_slave::SinkFull)
+            .map_err(|_| SinkFull)
     }
 
     /// Discards the queue and aborts the mailboxes (a reset of communication).
     fn discard_pending(&mut self) {
-        self.0.lock(|port| port.discard_pending());
+        self.port.lock(|port| port.discard_pending());
+    }
+}
+
+impl<M: rtic::Mutex<T = CanPort>> CanIo for CanSide<'_, M> {
+    fn receive(&mut self) -> Option<Frame> {
+        self.rx.dequeue()
+    }
+
+    fn bus_state(&mut self) -> bus::BusState {
+        let (state, counters) = bus::read_status();
+        self.counters = counters;
+        state
+    }
+
+    fn rx_overruns(&mut self) -> u32 {
+        self.port.lock(|port| port.stats().rx_overruns)
+    }
+
+    fn transmit_state(&mut self) -> TransmitState {
+        self.port.lock(|port| port.transmit_state())
+    }
+
+    fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
+        self.port.lock(|port| port.switch_bit_rate(rate))
     }
 }
