@@ -11,6 +11,9 @@
 //! | `canopen` | software (TIM3 dispatcher) | 2 | `can`, `wheel` |
 //! | `idle` | thread mode | 0 | - |
 //!
+//! The QEMU variant adds `qemu_usart1` (USART1, 3), `qemu_usart2` (USART2, 3), `qemu_boot`
+//! and `qemu_stall` (software, 2).
+//!
 //! The wheel's edges preempt every task: an edge is only known by the levels read after it,
 //! so a late read merges two edges into an illegal jump. `wheel_edge` runs at the highest
 //! priority the part has (16, NVIC priority 0), owns the pins (a local resource) and shares
@@ -35,10 +38,14 @@
 //! period, so no tick is missed.
 //!
 //! The QEMU variant (`--features qemu`) is this same application, task for task, over the
-//! QEMU board layer (`handwheel_firmware::qemu`): there `can_rx0` is pended by the USART1
-//! interrupt that carries SLCAN from the host, and `wheel_edge` by the USART2 interrupt that
-//! carries stimulus commands. Those two handlers belong to the board layer, outside this
-//! app, at priority 3, and share nothing with it but lock-free queues and atomics.
+//! QEMU board layer (`handwheel_firmware::qemu::board`, picked below), plus three tasks of its
+//! own, the only other place the feature is named: `can_rx0` is pended by `qemu_usart1`,
+//! which queues the SLCAN bytes from the host, and `wheel_edge` by `qemu_usart2`, which
+//! carries out stimulus commands; both at priority 3, sharing nothing with the rest but
+//! lock-free queues and atomics. `qemu_boot` starts `canopen` after the QEMU board's
+//! boot-up delay. The stimulus `stall` spawns `qemu_stall`, which holds the
+//! CAN side's priority busy (as a CAN side that falls behind would), so that a test can
+//! overrun the receive queue.
 #![no_std]
 #![no_main]
 
@@ -61,17 +68,20 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
+    use board::{CanPort, DeviceStorage, Leds, Selectors, WheelInputs, SYSCLK_HZ};
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::info;
     use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
     use handwheel_device::{HandwheelDevice, Node};
+    #[cfg(not(feature = "qemu"))]
+    use handwheel_firmware::board;
+    #[cfg(feature = "qemu")]
+    use handwheel_firmware::qemu::board;
     use handwheel_firmware::{
-        board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
-        can::{self, CanPort, CanSide, Mode, RxConsumer, RxProducer, RxQueue},
+        can::{CanSide, Mode, RxConsumer, RxProducer, RxQueue},
         edge::{self, SharedEdge},
         events::EventSet,
         node_config, priority, round_log,
-        storage::DeviceStorage,
     };
     use rtic_monotonics::systick::prelude::*;
 
@@ -106,6 +116,10 @@ mod app {
         selectors: Selectors,
         leds: Leds,
         watchdog: board::watchdog::Watchdog,
+        #[cfg(feature = "qemu")]
+        slcan: handwheel_firmware::qemu::slcan_port::SlcanReceiver,
+        #[cfg(feature = "qemu")]
+        stimulus: handwheel_firmware::qemu::stimulus::StimulusLink,
     }
 
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]
@@ -145,7 +159,7 @@ mod app {
         // parameters (a stored 0x1005) and whenever a master moves an identifier. Asks the
         // controller to join and returns at once: on a dominant bus it never would (the node
         // waits for it, the loop feeding the watchdog started below).
-        let can = can::start(board.can, settings.bit_rate, node.rx_filter(), Mode::Normal);
+        let can = board::start_can(board.can, settings.bit_rate, node.rx_filter(), Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         // The decoder at rest on the levels read now, with the settings 0x2020 starts with.
         let wheel = EdgeState::new(DecoderConfig::default(), board.wheel.levels());
@@ -153,7 +167,10 @@ mod app {
         board.watchdog.start(WATCHDOG_MS);
         // The first spawn of a task cannot fail. Were it ever to, nothing would feed the
         // watchdog started above, and the MCU would reset.
+        #[cfg(not(feature = "qemu"))]
         let _ = canopen::spawn();
+        #[cfg(feature = "qemu")]
+        let _ = qemu_boot::spawn();
 
         (
             Shared {
@@ -168,6 +185,10 @@ mod app {
                 selectors: board.selectors,
                 leds: board.leds,
                 watchdog: board.watchdog,
+                #[cfg(feature = "qemu")]
+                slcan: board.own.slcan,
+                #[cfg(feature = "qemu")]
+                stimulus: board.own.stimulus,
             },
         )
     }
@@ -250,11 +271,6 @@ mod app {
         shared = [can, wheel]
     )]
     async fn canopen(cx: canopen::Context) {
-        // QEMU: the boot-up must not reach the master's socket before pyserial's flush on
-        // connecting (see `BOOT_UP_DELAY_MS`). Shorter than the watchdog timeout, though
-        // QEMU's watchdog is only a stand-in.
-        #[cfg(feature = "qemu")]
-        Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
         #[cfg(feature = "stack-overflow-test")]
         handwheel_firmware::overflow::run();
         let local = cx.local;
@@ -262,10 +278,6 @@ mod app {
         let wheel = &mut LinkedWheel::new(SharedEdge(cx.shared.wheel), DecoderConfig::default());
         loop {
             local.watchdog.feed();
-            // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
-            // receiving above it), so that a test can overrun the receive queue.
-            #[cfg(feature = "qemu")]
-            stall(handwheel_firmware::qemu::sim::take_stall_ms());
             let ticks = Mono::now().ticks();
             let out = local.node.poll(ticks, &mut can, local.selectors, wheel);
             if let Some((run, err)) = out.leds {
@@ -292,12 +304,42 @@ mod app {
         }
     }
 
-    /// Busy for `ms` at this task's priority: what a CAN side that falls behind looks like.
+    /// QEMU: starts `canopen` after the board's boot-up delay: its boot-up must not reach the
+    /// master's socket before pyserial's flush on connecting (see `BOOT_UP_DELAY_MS`).
+    /// Shorter than the watchdog timeout, though QEMU's watchdog is only a stand-in.
     #[cfg(feature = "qemu")]
-    fn stall(ms: u16) {
-        if ms == 0 {
-            return;
-        }
+    #[task(priority = 2)]
+    async fn qemu_boot(_: qemu_boot::Context) {
+        Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
+        let _ = canopen::spawn();
+    }
+
+    /// QEMU: USART1 received SLCAN bytes from the host; `can_rx0` parses them.
+    #[cfg(feature = "qemu")]
+    #[task(binds = USART1, priority = 3, local = [slcan])]
+    fn qemu_usart1(cx: qemu_usart1::Context) {
+        cx.local.slcan.on_interrupt();
+    }
+
+    /// QEMU: USART2 received stimulus bytes: turn the simulated wheel (pending `wheel_edge`
+    /// per edge), set the switch lines, or stall the CAN side.
+    #[cfg(feature = "qemu")]
+    #[task(binds = USART2, priority = 3, local = [stimulus])]
+    fn qemu_usart2(cx: qemu_usart2::Context) {
+        cx.local.stimulus.on_interrupt(|ms| {
+            // `stall 0` asks for nothing. A stall under way makes the spawn fail: the
+            // request is dropped, as one arriving while the CAN side is busy anyway.
+            if ms > 0 {
+                let _ = qemu_stall::spawn(ms);
+            }
+        });
+    }
+
+    /// QEMU: busy for `ms` at the CAN side's priority, what a CAN side that falls behind
+    /// looks like: `canopen` waits (the CAN interrupts keep receiving above it).
+    #[cfg(feature = "qemu")]
+    #[task(priority = 2)]
+    async fn qemu_stall(_: qemu_stall::Context, ms: u16) {
         defmt::info!("stalling the CAN side for {=u16} ms (stimulus)", ms);
         let until = Mono::now() + u32::from(ms).millis();
         while Mono::now() < until {

@@ -4,31 +4,24 @@
 //! [`CanPort`] is the one RTIC resource around the controller. The RX0, TX and SCE interrupt
 //! tasks and the CAN-side software task share it; each use is a few register accesses. It
 //! is one type for both boards ([`port::CanPort`]) over the board's [`port::CanLink`]:
-//! bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in `bxcan_port`, SLCAN on
-//! USART1 in the QEMU variant (`--features qemu`, `crate::qemu::slcan_port`).
+//! bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in `bxcan_port` ([`CanPort`]),
+//! SLCAN on USART1 in the QEMU variant (`crate::qemu::slcan_port`, its board's `CanPort`).
 
 pub mod bus;
-#[cfg(not(feature = "qemu"))]
 mod bxcan_port;
 mod frame;
 pub mod port;
 mod tx_queue;
 
-#[cfg(feature = "qemu")]
-pub use crate::qemu::slcan_port::start;
-#[cfg(not(feature = "qemu"))]
 pub use bxcan_port::{btr, set_filters, start, Bxcan, BTR_TABLE};
 
-/// The board's CAN port: the shared queue and statistics over its controller.
-#[cfg(not(feature = "qemu"))]
+/// The board's CAN port: the shared queue and statistics over bxCAN.
 pub type CanPort = port::CanPort<Bxcan>;
-/// The QEMU variant's CAN port: the shared queue and statistics over the SLCAN link.
-#[cfg(feature = "qemu")]
-pub type CanPort = port::CanPort<crate::qemu::slcan_port::Controller>;
 use canopen_slave::{FrameSink, RxFilter, SinkFull};
 pub use frame::Frame;
 use handwheel_core::BitRate;
 use handwheel_device::{CanIo, TransmitState};
+use port::CanLink;
 pub use tx_queue::TxQueue;
 
 /// Frames the transmit queue holds. Each is 12 bytes. Sized for a burst of one of everything
@@ -83,7 +76,7 @@ pub struct CanSide<'a, M> {
     pub counters: bus::ErrorCounters,
 }
 
-impl<'a, M: rtic::Mutex<T = CanPort>> CanSide<'a, M> {
+impl<'a, M> CanSide<'a, M> {
     /// The task's end of the receive queue and its proxy of the port.
     pub fn new(rx: &'a mut RxConsumer, port: M) -> Self {
         Self {
@@ -94,12 +87,15 @@ impl<'a, M: rtic::Mutex<T = CanPort>> CanSide<'a, M> {
     }
 
     /// Programs the acceptance filter.
-    pub fn set_rx_filter(&mut self, filter: RxFilter) {
+    pub fn set_rx_filter<L: CanLink>(&mut self, filter: RxFilter)
+    where
+        M: rtic::Mutex<T = port::CanPort<L>>,
+    {
         self.port.lock(|port| port.set_rx_filter(filter));
     }
 }
 
-impl<M: rtic::Mutex<T = CanPort>> FrameSink for CanSide<'_, M> {
+impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> FrameSink for CanSide<'_, M> {
     /// Queues `frame`; a full queue refuses it (the engine counts and, for TPDOs and EMCYs,
     /// retries).
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
@@ -114,13 +110,13 @@ impl<M: rtic::Mutex<T = CanPort>> FrameSink for CanSide<'_, M> {
     }
 }
 
-impl<M: rtic::Mutex<T = CanPort>> CanIo for CanSide<'_, M> {
+impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> CanIo for CanSide<'_, M> {
     fn receive(&mut self) -> Option<Frame> {
         self.rx.dequeue()
     }
 
     fn bus_state(&mut self) -> bus::BusState {
-        let (state, counters) = bus::read_status();
+        let (state, counters) = self.port.lock(|port| port.status());
         self.counters = counters;
         state
     }
