@@ -139,9 +139,7 @@ impl<L: EdgeAccess> LinkedWheel<L> {
         &mut self.link
     }
 
-    /// Takes the edge's publications since the last call into the accumulator. Out of line:
-    /// every access runs it, and one copy is smaller than one per call site.
-    #[inline(never)]
+    /// Takes the edge's publications since the last call into the accumulator.
     fn sync(&mut self) {
         let (now, rests_learnt) = self.link.lock(|e| (e.snapshot(), e.rests_learnt()));
         let view = &mut self.wheel.decoder;
@@ -158,7 +156,6 @@ impl<L: EdgeAccess> LinkedWheel<L> {
     }
 
     /// Applies what the last access asked of the decoder, under one lock.
-    #[inline(never)]
     fn post(&mut self) {
         let view = &mut self.wheel.decoder;
         let settings = core::mem::take(&mut view.settings_pending).then_some(view.config);
