@@ -79,7 +79,7 @@ mod app {
     use handwheel_firmware::qemu::board;
     use handwheel_firmware::{
         can::{CanSide, Mode, RxConsumer, RxProducer, RxQueue},
-        edge::{self, SharedEdge},
+        edge,
         events::EventSet,
         node_config, priority, round_log,
     };
@@ -275,7 +275,7 @@ mod app {
         handwheel_firmware::overflow::run();
         let local = cx.local;
         let mut can = CanSide::new(local.rx_consumer, cx.shared.can);
-        let wheel = &mut LinkedWheel::new(SharedEdge(cx.shared.wheel), DecoderConfig::default());
+        let wheel = &mut LinkedWheel::new(cx.shared.wheel, DecoderConfig::default());
         loop {
             local.watchdog.feed();
             let ticks = Mono::now().ticks();

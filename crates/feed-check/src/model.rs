@@ -14,7 +14,7 @@ use std::fmt::{self, Write as _};
 use std::hash::{Hash, Hasher};
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
-use handwheel_core::{AbLevels, BitRate, DecoderConfig, LinkedWheel, LocalEdge, SelectorInput};
+use handwheel_core::{AbLevels, BitRate, DecoderConfig, EdgeState, LinkedWheel, SelectorInput};
 use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState};
 use stateright::{Model, Property};
 
@@ -166,7 +166,7 @@ struct Wire {
 #[derive(Clone)]
 struct Real {
     node: Node<MemoryStorage>,
-    wheel: LinkedWheel<LocalEdge>,
+    wheel: LinkedWheel<EdgeState>,
     levels: AbLevels,
 }
 

@@ -1,15 +1,15 @@
 //! The CAN side's half of the wheel: a view of the decoder the edge task runs, and the feed
 //! accumulator, which belongs to the CAN side alone.
 //!
-//! The decoder lives in the [`EdgeState`](crate::edge::EdgeState) the edge and the CAN side
-//! share; the CAN side reaches the wheel only through [`WheelAccess`], whose implementation
-//! on the MCU and on the host is the same [`LinkedWheel`] over a different
-//! [`EdgeAccess`]: the firmware's locks the RTIC resource, the host's ([`LocalEdge`]) owns
-//! the state in place.
+//! The decoder lives in the [`EdgeState`] the edge and the CAN side share; the CAN side
+//! reaches the wheel only through [`WheelAccess`], whose implementation on the MCU and on the
+//! host is the same [`LinkedWheel`] over a different RTIC [`Mutex`] of the edge state: the
+//! firmware's is the proxy of the RTIC resource, the host's the [`EdgeState`] itself, owned
+//! in place.
 
 use crate::accumulator::FeedAccumulator;
 use crate::decoder::{AbLevels, DecoderConfig};
-use crate::edge::{EdgeAccess, EdgeSnapshot, LocalEdge};
+use crate::edge::{EdgeSnapshot, EdgeState, Mutex};
 
 /// The CAN side's view of the edge's decoder: the last snapshot, the settings it asked for,
 /// and the bases that a reset of the application moves (0x2020 counts from there).
@@ -102,7 +102,7 @@ pub struct Handwheel {
     pub feed: FeedAccumulator,
 }
 
-/// [`Handwheel`] joined to the shared edge state over an [`EdgeAccess`].
+/// [`Handwheel`] joined to the shared edge state through its RTIC [`Mutex`].
 ///
 /// Every access first takes the edge's new detents and illegal transitions into the
 /// accumulator under one short lock (in the order of the CAN side's calls: motion before a
@@ -115,7 +115,7 @@ pub struct LinkedWheel<L> {
     feed_changed: bool,
 }
 
-impl<L: EdgeAccess> LinkedWheel<L> {
+impl<L: Mutex<T = EdgeState>> LinkedWheel<L> {
     /// The CAN side of a wheel whose edge task started with `config`.
     pub fn new(link: L, config: DecoderConfig) -> Self {
         Self {
@@ -134,7 +134,7 @@ impl<L: EdgeAccess> LinkedWheel<L> {
         &self.wheel.feed
     }
 
-    /// The edge access, for the edge itself on the host.
+    /// The edge state's lock, for the edge itself on the host.
     pub fn link_mut(&mut self) -> &mut L {
         &mut self.link
     }
@@ -176,10 +176,10 @@ impl<L: EdgeAccess> LinkedWheel<L> {
     }
 }
 
-impl LinkedWheel<LocalEdge> {
+impl LinkedWheel<EdgeState> {
     /// A wheel run on the host: edge state and CAN side in one value.
     pub fn local(config: DecoderConfig, initial: AbLevels) -> Self {
-        Self::new(LocalEdge::new(config, initial), config)
+        Self::new(EdgeState::new(config, initial), config)
     }
 
     /// One edge interrupt that reads `levels`; `true` when it would pend the CAN side's
@@ -190,7 +190,7 @@ impl LinkedWheel<LocalEdge> {
     }
 }
 
-impl<L: EdgeAccess> WheelAccess for LinkedWheel<L> {
+impl<L: Mutex<T = EdgeState>> WheelAccess for LinkedWheel<L> {
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
         self.sync();
         let result = f(&mut self.wheel);
@@ -235,7 +235,7 @@ mod tests {
 
     const START: AbLevels = AbLevels::from_bits(0);
 
-    fn enabled_wheel() -> LinkedWheel<LocalEdge> {
+    fn enabled_wheel() -> LinkedWheel<EdgeState> {
         let mut wheel = LinkedWheel::local(DecoderConfig::default(), START);
         wheel.with_wheel(|w| {
             let _ = w.feed.set_enabled(true);
@@ -323,7 +323,7 @@ mod tests {
         let _ = wheel.link_mut().on_edge(levels);
         let settled = wheel.link_mut().lock(|e| e.settle_if_unmoved(view_edges));
         assert!(!settled, "moved: no settle");
-        assert_eq!(wheel.link_mut().state().rests_learnt(), 0);
+        assert_eq!(wheel.link_mut().rests_learnt(), 0);
         // Asked with the present snapshot, it settles.
         wheel.with_wheel(|w| w.decoder.request_settle());
         assert_eq!(wheel.with_wheel(|w| w.decoder.rests_learnt()), 1);

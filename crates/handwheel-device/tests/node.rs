@@ -78,7 +78,7 @@ struct Rig {
     node: Node<MemoryStorage>,
     port: Port,
     lines: Lines,
-    wheel: LinkedWheel<handwheel_core::LocalEdge>,
+    wheel: LinkedWheel<handwheel_core::EdgeState>,
 }
 
 impl Rig {
