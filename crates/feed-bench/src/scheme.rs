@@ -230,7 +230,7 @@ impl RecordDevice {
     fn edge(&mut self, t: f64, levels: AbLevels, bus: &mut Bus) {
         self.timers(t, bus);
         let _ = self.wheel.on_edge(levels);
-        if self.wheel.take_feed_change() && !self.pending {
+        if self.wheel.take_record_due() && !self.pending {
             self.pending = true;
             // The event is at `t`: an inhibit time that ran out earlier does not date it.
             self.inhibit_end = self.inhibit_end.max(t);

@@ -100,6 +100,10 @@ pub struct Handwheel {
     pub decoder: DecoderView,
     /// Feed accumulator (objects 0x2000, 0x2001, 0x2010, 0x2030, 0x6004).
     pub feed: FeedAccumulator,
+    /// What a feed record carries (position, status, selection) changed, or the outbox holds
+    /// more to send: TPDO1 is due. Set by the edge's motion and errors as they are taken in,
+    /// and by the device for what it changes itself; taken by [`WheelAccess::take_record_due`].
+    pub record_due: bool,
 }
 
 /// [`Handwheel`] joined to the shared edge state through its RTIC [`Mutex`].
@@ -112,7 +116,6 @@ pub struct Handwheel {
 pub struct LinkedWheel<L> {
     link: L,
     wheel: Handwheel,
-    feed_changed: bool,
 }
 
 impl<L: Mutex<T = EdgeState>> LinkedWheel<L> {
@@ -123,8 +126,8 @@ impl<L: Mutex<T = EdgeState>> LinkedWheel<L> {
             wheel: Handwheel {
                 decoder: DecoderView::new(config),
                 feed: FeedAccumulator::new(),
+                record_due: false,
             },
-            feed_changed: false,
         }
     }
 
@@ -152,7 +155,7 @@ impl<L: Mutex<T = EdgeState>> LinkedWheel<L> {
         // matter.
         let moved = feed.add_detents(detents);
         let flagged = errors && feed.note_encoder_error();
-        self.feed_changed |= moved | flagged;
+        self.wheel.record_due |= moved | flagged;
     }
 
     /// Applies what the last access asked of the decoder, under one lock.
@@ -197,11 +200,6 @@ impl<L: Mutex<T = EdgeState>> WheelAccess for LinkedWheel<L> {
         self.post();
         result
     }
-
-    fn take_feed_change(&mut self) -> bool {
-        self.sync();
-        core::mem::take(&mut self.feed_changed)
-    }
 }
 
 /// Access to the CAN side's [`Handwheel`].
@@ -212,18 +210,16 @@ pub trait WheelAccess {
     /// Runs `f` on the wheel.
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R;
 
-    /// Whether what a feed record carries (position, status) changed since the last call.
+    /// Whether a feed record is due ([`Handwheel::record_due`]); clears it.
     #[must_use = "a changed feed needs a TPDO"]
-    fn take_feed_change(&mut self) -> bool;
+    fn take_record_due(&mut self) -> bool {
+        self.with_wheel(|w| core::mem::take(&mut w.record_due))
+    }
 }
 
 impl<W: WheelAccess + ?Sized> WheelAccess for &mut W {
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
         (**self).with_wheel(f)
-    }
-
-    fn take_feed_change(&mut self) -> bool {
-        (**self).take_feed_change()
     }
 }
 
@@ -257,8 +253,8 @@ mod tests {
             *d = wheel.on_edge(levels);
         }
         assert_eq!(due, [false, false, false, true, false, false, false, true]);
-        assert!(wheel.take_feed_change());
-        assert!(!wheel.take_feed_change(), "taken once");
+        assert!(wheel.take_record_due());
+        assert!(!wheel.take_record_due(), "taken once");
         assert_eq!(wheel.with_wheel(|w| w.feed.position()), 20);
         assert_eq!(wheel.with_wheel(|w| w.decoder.count()), 8);
     }
@@ -270,9 +266,9 @@ mod tests {
             !wheel.on_edge(AbLevels::from_bits(3)),
             "no wake-up for an illegal jump"
         );
-        assert!(wheel.take_feed_change(), "but the status changed");
+        assert!(wheel.take_record_due(), "but the status changed");
         assert!(!wheel.on_edge(AbLevels::from_bits(0)));
-        assert!(!wheel.take_feed_change(), "the status was already latched");
+        assert!(!wheel.take_record_due(), "the status was already latched");
         wheel.with_wheel(|w| {
             assert_eq!(w.decoder.illegal_transitions(), 2);
             assert!(w.feed.status().contains(crate::FeedStatus::ENCODER_ERROR));

@@ -168,9 +168,16 @@ impl<S: Storage> Node<S> {
             self.round(now_ms, io, switches, wheel, &mut out);
         }
         let now = self.clock.now(now_ms);
+        // A feed record made due after the device's last service (a transmit stall's stop)
+        // goes out in the next round, at once.
+        let record_due = wheel.with_wheel(|w| w.record_due);
+        let deadline = match record_due {
+            true => Some(now),
+            false => self.device.next_deadline(),
+        };
         out.sleep_ms = self
             .duties
-            .sleep_ms(now_ms, now, self.device.next_deadline(), self.bus)
+            .sleep_ms(now_ms, now, deadline, self.bus)
             .min(self.rate_switch.sleep_cap_ms());
         out
     }
