@@ -11,6 +11,9 @@
 //! | `canopen` | software (TIM3 dispatcher) | 2 | `can`, `wheel` |
 //! | `idle` | thread mode | 0 | - |
 //!
+//! The QEMU variant adds `qemu_usart1` (USART1, 3), `qemu_usart2` (USART2, 3), `qemu_boot`
+//! and `qemu_stall` (software, 2).
+//!
 //! The wheel's edges preempt every task: an edge is only known by the levels read after it,
 //! so a late read merges two edges into an illegal jump. `wheel_edge` runs at the highest
 //! priority the part has (16, NVIC priority 0), owns the pins (a local resource) and shares
@@ -35,10 +38,14 @@
 //! period, so no tick is missed.
 //!
 //! The QEMU variant (`--features qemu`) is this same application, task for task, over the
-//! QEMU board layer (`handwheel_firmware::qemu`): there `can_rx0` is pended by the USART1
-//! interrupt that carries SLCAN from the host, and `wheel_edge` by the USART2 interrupt that
-//! carries stimulus commands. Those two handlers belong to the board layer, outside this
-//! app, at priority 3, and share nothing with it but lock-free queues and atomics.
+//! QEMU board layer (`handwheel_firmware::qemu::board`, picked below), plus three tasks of its
+//! own, the only other place the feature is named: `can_rx0` is pended by `qemu_usart1`,
+//! which queues the SLCAN bytes from the host, and `wheel_edge` by `qemu_usart2`, which
+//! carries out stimulus commands; both at priority 3, sharing nothing with the rest but
+//! lock-free queues and atomics. `qemu_boot` starts `canopen` after the QEMU board's
+//! boot-up delay. The stimulus `stall` spawns `qemu_stall`, which holds the
+//! CAN side's priority busy (as a CAN side that falls behind would), so that a test can
+//! overrun the receive queue.
 #![no_std]
 #![no_main]
 
@@ -61,21 +68,21 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
-    use canopen_slave::{BusState, RxFilter, WideClock};
+    use board::{CanPort, DeviceStorage, Leds, Selectors, WheelInputs, SYSCLK_HZ};
     use cortex_m::peripheral::scb::SystemHandler;
-    use defmt::{debug, info};
-    use handwheel_core::{BitRate, DecoderConfig, EdgeState, LinkedWheel, WheelAccess};
-    use handwheel_device::{duties::RECOVERY_POLL_MS, Duties, HandwheelDevice, RateSwitch};
+    use defmt::info;
+    use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
+    use handwheel_device::{HandwheelDevice, Node};
+    #[cfg(not(feature = "qemu"))]
+    use handwheel_firmware::board;
+    #[cfg(feature = "qemu")]
+    use handwheel_firmware::qemu::board;
     use handwheel_firmware::{
-        board::{self, Leds, Selectors, WheelInputs, SYSCLK_HZ},
-        can::{self, CanPort, Mode, RxConsumer, RxProducer, RxQueue, TxSink},
-        edge::{self, SharedEdge},
+        can::{CanSide, Mode, RxConsumer, RxProducer, RxQueue},
+        edge,
         events::EventSet,
-        node_config, priority,
-        storage::DeviceStorage,
-        supervision::Supervision,
+        node_config, priority, round_log,
     };
-    use rtic::Mutex;
     use rtic_monotonics::systick::prelude::*;
 
     // The literals of the task attributes below and the levels the firmware programs itself
@@ -86,8 +93,8 @@ mod app {
     /// `duties::MAX_SLEEP_MS`), longer than a flash page erase (up to 40 ms).
     const WATCHDOG_MS: u32 = 500;
 
-    /// The CANopen handwheel with its parameter page.
-    type Device = HandwheelDevice<DeviceStorage>;
+    /// The CANopen handwheel with its parameter page, as the step function `canopen` runs.
+    type HandwheelNode = Node<DeviceStorage>;
 
     #[shared]
     struct Shared {
@@ -102,17 +109,17 @@ mod app {
     struct Local {
         /// The wheel's A/B inputs: only `wheel_edge` reads them.
         wheel_inputs: WheelInputs,
-        /// The CANopen device: only `canopen` touches it.
-        device: Device,
-        /// The bit rate the controller was started at, which `canopen` waits to join.
-        bit_rate: BitRate,
-        /// The acceptance filter the CAN port has now.
-        rx_filter: RxFilter,
+        /// The CANopen device and the decisions around it: only `canopen` touches it.
+        node: HandwheelNode,
         rx_producer: RxProducer,
         rx_consumer: RxConsumer,
         selectors: Selectors,
         leds: Leds,
         watchdog: board::watchdog::Watchdog,
+        #[cfg(feature = "qemu")]
+        slcan: handwheel_firmware::qemu::slcan_port::SlcanReceiver,
+        #[cfg(feature = "qemu")]
+        stimulus: handwheel_firmware::qemu::stimulus::StimulusLink,
     }
 
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]
@@ -146,16 +153,13 @@ mod app {
         // the device then answers LSS only.
         let node_id = settings.node_id;
         let device = HandwheelDevice::with_settings(node_id, settings.bit_rate, serial, page);
+        let node = Node::new(device, settings.bit_rate);
 
         // The defaults' filter; `canopen` reprograms it once the device has loaded stored
-        // parameters (a stored 0x1005) and whenever a master moves an identifier.
-        let filter = match node_id {
-            Some(node_id) => RxFilter::new(node_id),
-            None => RxFilter::unconfigured(),
-        };
-        // Asks the controller to join and returns at once: on a dominant bus it never would
-        // (`canopen` waits for it, feeding the watchdog started below).
-        let can = can::start(board.can, settings.bit_rate, filter, Mode::Normal);
+        // parameters (a stored 0x1005) and whenever a master moves an identifier. Asks the
+        // controller to join and returns at once: on a dominant bus it never would (the node
+        // waits for it, the loop feeding the watchdog started below).
+        let can = board::start_can(board.can, settings.bit_rate, node.rx_filter(), Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         // The decoder at rest on the levels read now, with the settings 0x2020 starts with.
         let wheel = EdgeState::new(DecoderConfig::default(), board.wheel.levels());
@@ -163,7 +167,10 @@ mod app {
         board.watchdog.start(WATCHDOG_MS);
         // The first spawn of a task cannot fail. Were it ever to, nothing would feed the
         // watchdog started above, and the MCU would reset.
+        #[cfg(not(feature = "qemu"))]
         let _ = canopen::spawn();
+        #[cfg(feature = "qemu")]
+        let _ = qemu_boot::spawn();
 
         (
             Shared {
@@ -172,14 +179,16 @@ mod app {
             },
             Local {
                 wheel_inputs: board.wheel,
-                device,
-                bit_rate: settings.bit_rate,
-                rx_filter: filter,
+                node,
                 rx_producer,
                 rx_consumer,
                 selectors: board.selectors,
                 leds: board.leds,
                 watchdog: board.watchdog,
+                #[cfg(feature = "qemu")]
+                slcan: board.own.slcan,
+                #[cfg(feature = "qemu")]
+                stimulus: board.own.stimulus,
             },
         )
     }
@@ -246,244 +255,91 @@ mod app {
 
     /// The CAN side: everything that touches the CANopen device, in one loop at one priority.
     ///
-    /// It first waits for the controller to join the bus (see [`join_bus`]), then starts
-    /// the device. Each round feeds the watchdog, so if this loop stops (a hung lock, a dead
-    /// executor), the MCU resets. It sleeps until an interrupt raises an event, the device's
-    /// next deadline, the next selector sample (every 5 ms, which also times the wheel's
-    /// standstill) or the next LED update (every 50 ms).
+    /// A loop of I/O around the step function (`handwheel_device::Node::poll`, which decides
+    /// everything: joining the bus at power-on, the switches, the device, the bus state, a
+    /// bit-rate switch, the filter, the LEDs and how long to sleep). Each round feeds the
+    /// watchdog, so if this loop stops (a hung lock, a dead executor), the MCU resets. It
+    /// sleeps until an interrupt raises an event or the node's sleep is over.
     /// Sampling the switches and driving the LEDs here rather than in tasks of their own
     /// costs nothing in latency (they are 5 and 50 ms periodic, far slower than a round) and
     /// saves a second async task, its timer-queue entry and a dispatcher interrupt. The
-    /// accumulator is this task's own; the decoder it shares with `wheel_edge` is reached
-    /// under the `wheel` lock, a copy or a command at a time; the transmit queue through one
-    /// short lock per frame, never for a whole round.
+    /// decoder it shares with `wheel_edge` is reached under the `wheel` lock, a copy or a
+    /// command at a time; the CAN port through one short lock per call, never for a round.
     #[task(
         priority = 2,
-        local = [
-            device,
-            bit_rate,
-            rx_filter,
-            rx_consumer,
-            watchdog,
-            selectors,
-            leds,
-            supervision: Supervision = Supervision::new(),
-            rate_switch: RateSwitch = RateSwitch::new(),
-            clock: WideClock = WideClock::new(),
-        ],
+        local = [node, rx_consumer, watchdog, selectors, leds],
         shared = [can, wheel]
     )]
     async fn canopen(cx: canopen::Context) {
-        // QEMU: the boot-up must not reach the master's socket before pyserial's flush on
-        // connecting (see `BOOT_UP_DELAY_MS`). Shorter than the watchdog timeout, though
-        // QEMU's watchdog is only a stand-in.
-        #[cfg(feature = "qemu")]
-        Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
         #[cfg(feature = "stack-overflow-test")]
         handwheel_firmware::overflow::run();
         let local = cx.local;
-        let (device, supervision) = (local.device, local.supervision);
-        let rate_switch = local.rate_switch;
-        let mut tx = TxSink(cx.shared.can);
-        let wheel = &mut LinkedWheel::new(SharedEdge(cx.shared.wheel), DecoderConfig::default());
-        let mut duties = Duties::new(Mono::now().ticks());
-        join_bus(
-            *local.bit_rate,
-            device,
-            &mut duties,
-            local.watchdog,
-            local.leds,
-            &mut tx.0,
-        )
-        .await;
-        // A stored 0x1005 reaches the CAN filter at the end of the first round (at once:
-        // the sampling duty is due immediately).
-        device.start(local.clock.now(Mono::now().ticks()), wheel, &mut tx);
+        let mut can = CanSide::new(local.rx_consumer, cx.shared.can);
+        let wheel = &mut LinkedWheel::new(cx.shared.wheel, DecoderConfig::default());
         loop {
             local.watchdog.feed();
-            // The QEMU stimulus `stall` holds this task busy (the CAN interrupts keep
-            // receiving above it), so that a test can overrun the receive queue.
-            #[cfg(feature = "qemu")]
-            stall(handwheel_firmware::qemu::sim::take_stall_ms());
             let ticks = Mono::now().ticks();
-            let now = local.clock.now(ticks);
-            let sleep = duties
-                .sleep_ms(ticks, now, device.next_deadline(), supervision.bus_state())
-                .min(rate_switch.sleep_cap_ms());
-            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
-            // Whatever woke the round (frames, the bus, the edge's `FEED_DUE`), the calls
-            // below look at everything.
-            if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
-                EVENTS.take();
-            }
-            let ticks = Mono::now().ticks();
-            let now = local.clock.now(ticks);
-            let sample = duties.sample(ticks, local.selectors, wheel);
-            while let Some(frame) = local.rx_consumer.dequeue() {
-                device.on_frame(now, &frame, wheel, &mut tx);
-            }
-            if let Some(sample) = sample {
-                apply_sample(sample, device, wheel);
-            }
-            supervise(supervision, rate_switch.off_bus(), device, wheel, &mut tx.0);
-            device.poll(now, wheel, &mut tx);
-            let transmit = tx.0.lock(|can| can.transmit_state());
-            device.watch_transmit(now, transmit, wheel, &mut tx);
-            if let Some(rate) = device.take_bit_rate_switch(now) {
-                info!("LSS: bit rate now {=u32} kbit/s", rate.kbit_per_second());
-                rate_switch.start(rate, ticks);
-            }
-            // One step per round, each a short lock: the CAN interrupts and SysTick wait for
-            // a few register accesses, never for the bus to synchronise (up to a frame on a
-            // healthy bus, for ever on a dominant one). Meanwhile the round repeats every
-            // millisecond, then, once the node counts as off the bus, every
-            // `RECOVERY_POLL_MS` (its bus state is bus-off).
-            if let Some(rate) =
-                rate_switch.poll(ticks, |rate| tx.0.lock(|can| can.switch_bit_rate(rate)))
-            {
-                defmt::error!(
-                    "CAN: no 11 recessive bits at {=u32} kbit/s within {=u32} ms: off the bus \
-                     until it is free",
-                    rate.kbit_per_second(),
-                    handwheel_device::rate_switch::SYNC_LIMIT_MS
-                );
-            }
-            follow_rx_filter(device, local.rx_filter, &mut tx.0);
-            let bus = supervision.bus_state();
-            if let Some((run, err)) =
-                duties.leds(ticks, device.nmt_state(), device.error_indication(), bus)
-            {
+            let out = local.node.poll(ticks, &mut can, local.selectors, wheel);
+            if let Some((run, err)) = out.leds {
                 local.leds.set(run, err);
             }
-        }
-    }
-
-    /// Boot on a dead bus: waits until the controller, asked to join in `init`, is on the bus
-    /// at `rate`, feeding the watchdog.
-    ///
-    /// On a dominant bus (no transceiver, a short) that takes as long as the fault lasts; the
-    /// device is held back meanwhile (its boot-up must be the first frame it sends, and no
-    /// frame passes anyway). Past `SYNC_LIMIT_MS` the node counts as off the bus: the log
-    /// says so once and the ERR LED is on (CiA 303-3 bus-off; RUN stays dark, the device is
-    /// not initialised yet). The controller joins by itself once the bus is free; this
-    /// returns then, within `RECOVERY_POLL_MS`. On a healthy bus it returns within a frame.
-    async fn join_bus(
-        rate: BitRate,
-        device: &Device,
-        duties: &mut Duties,
-        watchdog: &mut board::watchdog::Watchdog,
-        leds: &mut Leds,
-        can: &mut impl Mutex<T = CanPort>,
-    ) {
-        let mut joining = RateSwitch::new();
-        joining.start(rate, Mono::now().ticks());
-        let mut reported = false;
-        loop {
-            watchdog.feed();
-            let ticks = Mono::now().ticks();
-            if let Some(rate) = joining.poll(ticks, |rate| can.lock(|c| c.switch_bit_rate(rate))) {
-                defmt::error!(
-                    "CAN: no 11 recessive bits at {=u32} kbit/s within {=u32} ms of boot: \
-                     waiting for the bus",
-                    rate.kbit_per_second(),
-                    handwheel_device::rate_switch::SYNC_LIMIT_MS
+            // A frame on a new identifier is received from the next round on; before that it
+            // is dropped, as by any controller before its reconfiguration.
+            if let Some(filter) = out.rx_filter {
+                defmt::debug!(
+                    "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x}",
+                    filter.sync(),
+                    filter.sdo_request()
                 );
-                reported = true;
+                can.set_rx_filter(filter);
             }
-            if !joining.under_way() {
-                break;
-            }
-            let bus = if joining.off_bus() {
-                BusState::BusOff
-            } else {
-                BusState::ErrorActive
-            };
-            if let Some((run, err)) =
-                duties.leds(ticks, device.nmt_state(), device.error_indication(), bus)
-            {
-                leds.set(run, err);
-            }
-            // The main loop's wait (one timer future in the image, not two); nothing raises
-            // events before the device starts, and the main loop looks at everything anyway.
-            let sleep = joining.sleep_cap_ms().min(RECOVERY_POLL_MS);
-            let wake_at = <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(sleep));
+            round_log::print(&out.log, can.counters);
+            // Whatever wakes the round (frames, the bus, the edge's `FEED_DUE`), the node
+            // looks at everything.
+            let wake_at =
+                <Mono as Monotonic>::Instant::from_ticks(ticks.wrapping_add(out.sleep_ms));
             if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
                 EVENTS.take();
             }
         }
-        if reported {
-            info!("CAN: on the bus");
-        }
     }
 
-    /// A new switch selection goes to the device (after the frames of the same round, so an
-    /// SDO request that came first is answered under the old one).
-    fn apply_sample(
-        sample: handwheel_device::Sample,
-        device: &mut Device,
-        wheel: &mut impl WheelAccess,
-    ) {
-        if sample.rest_learnt {
-            debug!("wheel: rest learnt at standstill");
-        }
-        if let Some(selection) = sample.selection {
-            info!(
-                "selection: axis {=u8}, x{=u8}",
-                handwheel_core::Axis::option_value(selection.axis),
-                selection.multiplier.factor()
-            );
-            device.set_selection(selection, wheel);
-        }
-    }
-
-    /// Bus state, lost frames and encoder errors: `Supervision` logs the changes, the engine
-    /// decides the EMCYs (`Device::on_bus_event`, `Device::on_rx_overrun`). `off_bus`: a
-    /// bit-rate switch keeps the node off the bus, which counts as bus-off.
-    fn supervise(
-        supervision: &mut Supervision,
-        off_bus: bool,
-        device: &mut Device,
-        wheel: &mut impl WheelAccess,
-        can: &mut impl Mutex<T = CanPort>,
-    ) {
-        let engine = device.engine();
-        if let Some(event) = supervision.check_bus(off_bus) {
-            engine.on_bus_event(event);
-        }
-        let stats = can.lock(|can| can.stats());
-        if supervision.check_rx_overruns(stats.rx_overruns) {
-            engine.on_rx_overrun();
-        }
-        supervision.check_encoder(wheel.with_wheel(|w| w.decoder.illegal_transitions()));
-    }
-
-    /// Reprograms the CAN port's acceptance filter when the device's identifiers changed
-    /// (a master moved SYNC with 0x1005, a reset of communication moved it back). Checked
-    /// after every round, so a frame on the new identifier is received from the next round
-    /// on; before that it is dropped, as by any controller before its reconfiguration.
-    fn follow_rx_filter(
-        device: &Device,
-        current: &mut RxFilter,
-        can: &mut impl Mutex<T = CanPort>,
-    ) {
-        let wanted = device.rx_filter();
-        if wanted != *current {
-            defmt::debug!(
-                "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x}",
-                wanted.sync(),
-                wanted.sdo_request()
-            );
-            can.lock(|can| can.set_rx_filter(wanted));
-            *current = wanted;
-        }
-    }
-
-    /// Busy for `ms` at this task's priority: what a CAN side that falls behind looks like.
+    /// QEMU: starts `canopen` after the board's boot-up delay: its boot-up must not reach the
+    /// master's socket before pyserial's flush on connecting (see `BOOT_UP_DELAY_MS`).
+    /// Shorter than the watchdog timeout, though QEMU's watchdog is only a stand-in.
     #[cfg(feature = "qemu")]
-    fn stall(ms: u16) {
-        if ms == 0 {
-            return;
-        }
+    #[task(priority = 2)]
+    async fn qemu_boot(_: qemu_boot::Context) {
+        Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
+        let _ = canopen::spawn();
+    }
+
+    /// QEMU: USART1 received SLCAN bytes from the host; `can_rx0` parses them.
+    #[cfg(feature = "qemu")]
+    #[task(binds = USART1, priority = 3, local = [slcan])]
+    fn qemu_usart1(cx: qemu_usart1::Context) {
+        cx.local.slcan.on_interrupt();
+    }
+
+    /// QEMU: USART2 received stimulus bytes: turn the simulated wheel (pending `wheel_edge`
+    /// per edge), set the switch lines, or stall the CAN side.
+    #[cfg(feature = "qemu")]
+    #[task(binds = USART2, priority = 3, local = [stimulus])]
+    fn qemu_usart2(cx: qemu_usart2::Context) {
+        cx.local.stimulus.on_interrupt(|ms| {
+            // `stall 0` asks for nothing. A stall under way makes the spawn fail: the
+            // request is dropped, as one arriving while the CAN side is busy anyway.
+            if ms > 0 {
+                let _ = qemu_stall::spawn(ms);
+            }
+        });
+    }
+
+    /// QEMU: busy for `ms` at the CAN side's priority, what a CAN side that falls behind
+    /// looks like: `canopen` waits (the CAN interrupts keep receiving above it).
+    #[cfg(feature = "qemu")]
+    #[task(priority = 2)]
+    async fn qemu_stall(_: qemu_stall::Context, ms: u16) {
         defmt::info!("stalling the CAN side for {=u16} ms (stimulus)", ms);
         let until = Mono::now() + u32::from(ms).millis();
         while Mono::now() < until {

@@ -17,6 +17,9 @@ pub trait BoardParts {
     type Watchdog;
     /// Why the MCU last reset.
     type ResetCause: defmt::Format;
+    /// What only the variant's own interrupt tasks use: nothing on the board, the USART
+    /// lines under QEMU.
+    type Own;
 }
 
 /// Everything a variant's `init` sets up for the application.
@@ -39,12 +42,14 @@ pub struct Board<P: BoardParts> {
     pub reset_cause: P::ResetCause,
     /// The MCU's 96-bit unique ID (a fixed stand-in under QEMU).
     pub unique_id: [u32; 3],
+    /// The variant's own parts.
+    pub own: P::Own,
 }
 
 /// Declares a variant's part types: `board_parts!(Parts: wheel, selectors, leds, can,
-/// storage, watchdog, reset cause)`, the types in [`BoardParts`]' order.
+/// storage, watchdog, reset cause, own)`, the types in [`BoardParts`]' order.
 macro_rules! board_parts {
-    ($parts:ident: $wheel:ty, $selectors:ty, $leds:ty, $can:ty, $storage:ty, $watchdog:ty, $reset:ty) => {
+    ($parts:ident: $wheel:ty, $selectors:ty, $leds:ty, $can:ty, $storage:ty, $watchdog:ty, $reset:ty, $own:ty) => {
         impl $crate::parts::BoardParts for $parts {
             type Wheel = $wheel;
             type Selectors = $selectors;
@@ -53,6 +58,7 @@ macro_rules! board_parts {
             type Storage = $storage;
             type Watchdog = $watchdog;
             type ResetCause = $reset;
+            type Own = $own;
         }
     };
 }

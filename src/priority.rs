@@ -1,8 +1,8 @@
 //! Interrupt priorities that the firmware sets outside RTIC's task attributes.
 //!
 //! RTIC's `priority = n` attributes in `src/main.rs` must be literals; these constants name
-//! the same levels for the code that programs the NVIC itself (SysTick, the QEMU board's
-//! USART handlers). `src/main.rs` checks that they agree.
+//! the same levels for the code that programs the NVIC itself (SysTick's level, set in
+//! `init`). `src/main.rs` checks that they agree.
 
 use crate::pac::NVIC_PRIO_BITS;
 
@@ -11,7 +11,7 @@ use crate::pac::NVIC_PRIO_BITS;
 /// shared wheel state is the critical section itself (PRIMASK) instead of a BASEPRI raise
 /// with its barriers: 12 cycles less on every edge (docs/PERFORMANCE.md).
 pub const WHEEL: u8 = 16;
-/// The CAN interrupts, the `feed_due` relay, SysTick and the QEMU board's USART handlers.
+/// The CAN interrupts, the `feed_due` relay, SysTick and the QEMU variant's USART tasks.
 pub const CAN: u8 = 3;
 
 /// The NVIC's priority byte for an RTIC logical priority (higher logical = more urgent =

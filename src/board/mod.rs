@@ -2,9 +2,9 @@
 //! stm32f1xx-hal.
 //!
 //! Everything specific to the Blue Pill class STM32F103C8 board sits behind this module and
-//! its siblings `can` and `storage`: a board variant (the QEMU build with HSI clock, USART
-//! SLCAN and simulated pins) replaces `init` and the types it returns, and the RTIC
-//! application above it stays as it is.
+//! its siblings `can` and `storage`: a board variant (`crate::qemu::board`, the QEMU build
+//! with HSI clock, USART SLCAN and simulated pins) has the same names, and the RTIC
+//! application picks one of the two and stays as it is.
 //!
 //! The HAL does the clock tree (`rcc`), the pin modes, the AFIO remap of bxCAN to PB8/PB9,
 //! the wheel's EXTI lines (`ExtiPin`), the bxCAN clock and pins (`can::Can`), the flash
@@ -68,8 +68,11 @@ unsafe impl bxcan::FilterOwner for CanInstance {
 pub enum Parts {}
 
 crate::parts::board_parts!(
-    Parts: WheelInputs, Selectors, Leds, CanInstance, FlashStorage, Watchdog, ResetCause
+    Parts: WheelInputs, Selectors, Leds, CanInstance, FlashStorage, Watchdog, ResetCause, ()
 );
+
+pub use crate::can::{start as start_can, CanPort};
+pub use crate::storage::DeviceStorage;
 
 /// Everything `init` sets up for the application.
 pub type Board = crate::parts::Board<Parts>;
@@ -170,6 +173,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         watchdog,
         reset_cause,
         unique_id: unique_id(),
+        own: (),
     }
 }
 

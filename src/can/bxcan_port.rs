@@ -6,8 +6,9 @@ use bxcan::{Fifo, Interrupts, Mailbox, StandardId};
 use canopen_slave::RxFilter;
 use handwheel_core::{BitRate, BitTiming};
 
+use super::bus::{BusState, ErrorCounters};
 use super::port::{Busy, CanLink, Received};
-use super::{bus, frame, Frame, Mode};
+use super::{frame, Frame, Mode};
 use crate::board::{CanInstance, APB1_HZ};
 use crate::pac;
 
@@ -63,7 +64,7 @@ pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: M
             | Interrupts::FIFO0_MESSAGE_PENDING
             | Interrupts::FIFO0_OVERRUN,
     );
-    bus::enable_status_interrupts();
+    enable_status_interrupts();
     // Leaves sleep mode, to normal mode once the bus is seen idle; also sets ABOM: after
     // bus-off the controller rejoins on its own once it has seen 128 x 11 recessive bits.
     // `WouldBlock` only says that it has not joined yet.
@@ -148,7 +149,11 @@ impl CanLink for Bxcan {
     }
 
     fn acknowledge_status(&mut self) {
-        bus::acknowledge_status_change();
+        acknowledge_status_change();
+    }
+
+    fn status(&self) -> (BusState, ErrorCounters) {
+        read_status()
     }
 
     fn set_rx_filter(&mut self, filter: RxFilter) {
@@ -197,5 +202,57 @@ impl CanLink for Bxcan {
         can.mcr()
             .modify(|_, w| w.sleep().clear_bit().inrq().set_bit());
         false
+    }
+}
+
+// The error-state flags live in `CAN_ESR`, and neither bxcan 0.8 nor stm32f1xx-hal has an
+// accessor for them, nor for the `CAN_IER` bits that turn their changes into the
+// status-change (SCE) interrupt (bxcan's `Interrupts` has ERRIE, not EWGIE, EPVIE, BOFIE), nor
+// a way to acknowledge it (MSR.ERRI); the little register glue for these follows.
+
+/// Reads the controller's error state.
+fn read_status() -> (BusState, ErrorCounters) {
+    // SAFETY: a read of CAN_ESR, which has no side effects (its only writable field, LEC, is
+    // not written here); the peripheral's clock is on since `board::init`.
+    let esr = unsafe { (*pac::CAN::ptr()).esr().read() };
+    let state = if esr.boff().bit_is_set() {
+        BusState::BusOff
+    } else if esr.epvf().bit_is_set() {
+        BusState::ErrorPassive
+    } else if esr.ewgf().bit_is_set() {
+        BusState::Warning
+    } else {
+        BusState::ErrorActive
+    };
+    let counters = ErrorCounters {
+        tec: esr.tec().bits(),
+        rec: esr.rec().bits(),
+        lec: esr.lec().bits(),
+    };
+    (state, counters)
+}
+
+/// Routes warning, error-passive and bus-off changes to the SCE interrupt.
+fn enable_status_interrupts() {
+    // SAFETY: called while the `bxcan::Can` that owns the peripheral is borrowed mutably
+    // (configuration), so no other code writes CAN_IER concurrently; the modify keeps the
+    // interrupt bits bxcan set and adds only the error-status ones.
+    unsafe {
+        (*pac::CAN::ptr()).ier().modify(|_, w| {
+            w.ewgie().set_bit();
+            w.epvie().set_bit();
+            w.bofie().set_bit();
+            w.errie().set_bit()
+        });
+    }
+}
+
+/// Acknowledges a status-change interrupt (clears `ERRI`).
+fn acknowledge_status_change() {
+    // SAFETY: CAN_MSR's flags are write-one-to-clear; writing only ERRI clears that flag and
+    // leaves WKUI, SLAKI and the mode request bits (in CAN_MCR) untouched. Called from the SCE
+    // task, which holds the CAN port resource.
+    unsafe {
+        (*pac::CAN::ptr()).msr().write(|w| w.erri().set_bit());
     }
 }

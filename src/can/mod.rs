@@ -4,28 +4,24 @@
 //! [`CanPort`] is the one RTIC resource around the controller. The RX0, TX and SCE interrupt
 //! tasks and the CAN-side software task share it; each use is a few register accesses. It
 //! is one type for both boards ([`port::CanPort`]) over the board's [`port::CanLink`]:
-//! bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in `bxcan_port`, SLCAN on
-//! USART1 in the QEMU variant (`--features qemu`, `crate::qemu::slcan_port`).
+//! bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in `bxcan_port` ([`CanPort`]),
+//! SLCAN on USART1 in the QEMU variant (`crate::qemu::slcan_port`, its board's `CanPort`).
 
 pub mod bus;
-#[cfg(not(feature = "qemu"))]
 mod bxcan_port;
 mod frame;
 pub mod port;
 mod tx_queue;
 
-#[cfg(feature = "qemu")]
-pub use crate::qemu::slcan_port::start;
-#[cfg(not(feature = "qemu"))]
 pub use bxcan_port::{btr, set_filters, start, Bxcan, BTR_TABLE};
 
-/// The board's CAN port: the shared queue and statistics over its controller.
-#[cfg(not(feature = "qemu"))]
+/// The board's CAN port: the shared queue and statistics over bxCAN.
 pub type CanPort = port::CanPort<Bxcan>;
-/// The QEMU variant's CAN port: the shared queue and statistics over the SLCAN link.
-#[cfg(feature = "qemu")]
-pub type CanPort = port::CanPort<crate::qemu::slcan_port::Controller>;
+use canopen_slave::{FrameSink, RxFilter, SinkFull};
 pub use frame::Frame;
+use handwheel_core::BitRate;
+use handwheel_device::{CanIo, TransmitState};
+use port::CanLink;
 pub use tx_queue::TxQueue;
 
 /// Frames the transmit queue holds. Each is 12 bytes. Sized for a burst of one of everything
@@ -68,23 +64,72 @@ pub struct CanStats {
     pub tx_progress: u32,
 }
 
-/// The device's way to the transmit queue: one short lock of the [`CanPort`] per frame.
+/// The `canopen` task's CAN port, as the step function's [`CanIo`]: the receive queue's
+/// consumer end and the shared [`CanPort`], one short lock per call.
 ///
-/// The lock raises the running priority to the CAN interrupts' level for a queue insert and
-/// a few mailbox writes, never for the device's own processing.
-pub struct TxSink<M>(pub M);
+/// The lock raises the running priority to the CAN interrupts' level for a queue insert, a
+/// few mailbox writes or a register read, never for the device's own processing.
+pub struct CanSide<'a, M> {
+    rx: &'a mut RxConsumer,
+    port: M,
+    /// The error counters as last read with the bus state, for the log.
+    pub counters: bus::ErrorCounters,
+}
 
-impl<M: rtic::Mutex<T = CanPort>> canopen_slave::FrameSink for TxSink<M> {
+impl<'a, M> CanSide<'a, M> {
+    /// The task's end of the receive queue and its proxy of the port.
+    pub fn new(rx: &'a mut RxConsumer, port: M) -> Self {
+        Self {
+            rx,
+            port,
+            counters: bus::ErrorCounters::default(),
+        }
+    }
+
+    /// Programs the acceptance filter.
+    pub fn set_rx_filter<L: CanLink>(&mut self, filter: RxFilter)
+    where
+        M: rtic::Mutex<T = port::CanPort<L>>,
+    {
+        self.port.lock(|port| port.set_rx_filter(filter));
+    }
+}
+
+impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> FrameSink for CanSide<'_, M> {
     /// Queues `frame`; a full queue refuses it (the engine counts and, for TPDOs and EMCYs,
     /// retries).
-    fn send(&mut self, frame: Frame) -> Result<(), canopen_slave::SinkFull> {
-        self.0
+    fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
+        self.port
             .lock(|port| port.send(frame))
-            .map_err(|_| canopen_slave::SinkFull)
+            .map_err(|_| SinkFull)
     }
 
     /// Discards the queue and aborts the mailboxes (a reset of communication).
     fn discard_pending(&mut self) {
-        self.0.lock(|port| port.discard_pending());
+        self.port.lock(|port| port.discard_pending());
+    }
+}
+
+impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> CanIo for CanSide<'_, M> {
+    fn receive(&mut self) -> Option<Frame> {
+        self.rx.dequeue()
+    }
+
+    fn bus_state(&mut self) -> bus::BusState {
+        let (state, counters) = self.port.lock(|port| port.status());
+        self.counters = counters;
+        state
+    }
+
+    fn rx_overruns(&mut self) -> u32 {
+        self.port.lock(|port| port.stats().rx_overruns)
+    }
+
+    fn transmit_state(&mut self) -> TransmitState {
+        self.port.lock(|port| port.transmit_state())
+    }
+
+    fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
+        self.port.lock(|port| port.switch_bit_rate(rate))
     }
 }

@@ -6,6 +6,7 @@ use canopen_slave::RxFilter;
 use handwheel_core::BitRate;
 use handwheel_device::TransmitState;
 
+use super::bus::{BusState, ErrorCounters};
 use super::{CanStats, Frame, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
 
 /// The controller takes no frame now; its transmit interrupt (or the host reopening the
@@ -39,6 +40,8 @@ pub trait CanLink {
     fn abort_pending(&mut self);
     /// The status-change interrupt came: acknowledge it.
     fn acknowledge_status(&mut self);
+    /// The controller's error state and counters now.
+    fn status(&self) -> (BusState, ErrorCounters);
     /// Passes exactly what `filter` accepts from now on.
     fn set_rx_filter(&mut self, filter: RxFilter);
     /// One step of a switch to `rate` (LSS activate bit timing): a few register accesses,
@@ -140,6 +143,11 @@ impl<L: CanLink> CanPort<L> {
     /// The status-change interrupt: the error state changed (the `canopen` task reads it).
     pub fn on_status_change(&mut self) {
         self.link.acknowledge_status();
+    }
+
+    /// The controller's error state and counters now.
+    pub fn status(&self) -> (BusState, ErrorCounters) {
+        self.link.status()
     }
 
     /// Re-programs the acceptance filter (the device's identifiers changed: 0x1005, or a new

@@ -2,18 +2,24 @@
 //! hardware the emulator does not model. Same names as the STM32F103 board module, so the
 //! RTIC application uses either unchanged.
 
-use crate::pac::{self, Interrupt};
-use cortex_m::peripheral::NVIC;
+use crate::pac;
 use handwheel_core::AbLevels;
-use handwheel_device::page::{PAGES, PAGE_SIZE};
+use handwheel_device::page::{ParameterPage, PAGES, PAGE_SIZE};
 
 use super::{
     sim,
-    slcan_port::{RxBytes, SlcanLink},
+    slcan_port::{self, RxBytes, SlcanLink, SlcanReceiver},
     stimulus::StimulusLink,
     storage::RamStorage,
     usart::Usart,
 };
+
+pub use slcan_port::start as start_can;
+
+/// The QEMU variant's CAN port: the shared queue and statistics over the SLCAN link.
+pub type CanPort = crate::can::port::CanPort<slcan_port::Controller>;
+/// The CANopen engine's storage: the parameter page over RAM.
+pub type DeviceStorage = ParameterPage<RamStorage>;
 
 /// Core clock, also the SysTick clock: QEMU's SysTick counts at 24 MHz whatever RCC is set
 /// to, so the monotonic must be started with this rate for real-time milliseconds.
@@ -32,10 +38,6 @@ pub const BOOT_UP_DELAY_MS: u32 = 100;
 /// USART1 carrying the CAN link (SLCAN), the QEMU stand-in for the bxCAN instance.
 pub type CanInstance = SlcanLink;
 
-/// Priority of the two USART interrupts (the RTIC app's numbering): that of the CAN
-/// interrupts, below the wheel's EXTI task, above the `canopen` task.
-pub const USART_PRIORITY: u8 = crate::priority::CAN;
-
 /// A fixed "unique ID" (ASCII `QEMU`): the emulator has no factory-programmed one.
 const UNIQUE_ID: [u32; 3] = [u32::from_le_bytes(*b"QEMU"), 0, 0];
 
@@ -44,14 +46,24 @@ const UNIQUE_ID: [u32; 3] = [u32::from_le_bytes(*b"QEMU"), 0, 0];
 /// (never, in RAM) or default node-ID 16 applies.
 pub enum Parts {}
 
+/// The USART lines' halves that the app's QEMU tasks own: the SLCAN receiver (USART1) and
+/// the stimulus line (USART2).
+pub struct Own {
+    /// USART1's receiving half, for the task bound to USART1.
+    pub slcan: SlcanReceiver,
+    /// USART2, for the task bound to USART2.
+    pub stimulus: StimulusLink,
+}
+
 crate::parts::board_parts!(
-    Parts: WheelInputs, Selectors, Leds, CanInstance, RamStorage, watchdog::Watchdog, ResetCause
+    Parts: WheelInputs, Selectors, Leds, CanInstance, RamStorage, watchdog::Watchdog, ResetCause, Own
 );
 
 /// Everything `init` sets up for the application.
 pub type Board = crate::parts::Board<Parts>;
 
-/// Sets the clock to HSI only, enables both USARTs and their interrupts. Takes the device
+/// Sets the clock to HSI only and enables both USARTs with their receive interrupts (the
+/// app's QEMU tasks are bound to them, and RTIC unmasks them after `init`). Takes the device
 /// peripherals that RTIC's `init` hands over; runs with interrupts disabled (RTIC's `init`).
 pub fn init(dp: pac::Peripherals) -> Board {
     // The reset clock (HSI, no PLL) stays: nothing to set up, and waiting for HSE or PLL
@@ -64,9 +76,8 @@ pub fn init(dp: pac::Peripherals) -> Board {
     // DR's receive side. Nothing else uses USART1.
     let (usart1_rx, usart1_tx) = Usart::new(dp.USART1).split(unsafe { pac::USART1::steal() });
     let rx_bytes = defmt::unwrap!(cortex_m::singleton!(: RxBytes = RxBytes::new()));
-    let can = SlcanLink::new(usart1_rx, usart1_tx, rx_bytes);
-    StimulusLink::install(Usart::new(dp.USART2));
-    enable_usart_interrupts();
+    let (can, slcan) = SlcanLink::new(usart1_rx, usart1_tx, rx_bytes);
+    let stimulus = StimulusLink::new(Usart::new(dp.USART2));
 
     Board {
         wheel: WheelInputs { _private: () },
@@ -80,25 +91,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         watchdog: watchdog::Watchdog::new(),
         reset_cause: ResetCause::PowerOn,
         unique_id: UNIQUE_ID,
-    }
-}
-
-/// Gives the two board-layer USART handlers [`USART_PRIORITY`] and unmasks them, after their
-/// state was handed over.
-fn enable_usart_interrupts() {
-    const HW_PRIORITY: u8 = crate::priority::hardware(USART_PRIORITY);
-    // SAFETY: only the priority registers of USART1 and USART2 are written, which the RTIC
-    // app (the NVIC's owner) never touches: no task is bound to them. Changing priorities
-    // can break priority-based critical sections, but these handlers share no RTIC resource
-    // (they use lock-free queues and atomics), so no lock depends on their level.
-    let mut nvic = unsafe { cortex_m::Peripherals::steal() }.NVIC;
-    for interrupt in [Interrupt::USART1, Interrupt::USART2] {
-        // SAFETY: as above; unmasking is what `init` would do for a bound task, and the
-        // handlers' state is in place.
-        unsafe {
-            nvic.set_priority(interrupt, HW_PRIORITY);
-            NVIC::unmask(interrupt);
-        }
+        own: Own { slcan, stimulus },
     }
 }
 

@@ -7,7 +7,8 @@
 //! board layer differs from the STM32F103 build:
 //!
 //! - [`board`]: `init` (HSI clock only, both USARTs), simulated wheel and selector inputs, LED
-//!   and watchdog stand-ins, `SYSCLK_HZ` = 24 MHz for the SysTick monotonic.
+//!   and watchdog stand-ins, `SYSCLK_HZ` = 24 MHz for the SysTick monotonic, the boot-up
+//!   delay, and the USART halves the app's QEMU tasks own (`board::Own`).
 //! - [`slcan_port`]: the [`CanPort`](crate::can::CanPort) over SLCAN (Lawicel) on USART1,
 //!   with the methods the CAN tasks call on the bxCAN port.
 //! - [`stimulus`]: the test command line on USART2 that turns the simulated wheel (edge by
@@ -18,6 +19,15 @@
 //!
 //! The byte-level protocols are in the host-tested `sim-io` crate; this module only moves
 //! bytes between the USARTs and it. The defmt log goes out over semihosting.
+
+// The feature picks the variant in the app (`src/main.rs`); both layers always build.
+#[cfg(all(feature = "board", feature = "qemu"))]
+compile_error!(
+    "features `board` and `qemu` exclude each other: build the QEMU variant with \
+     `--no-default-features --features qemu` (`cargo xtask qemu` does)"
+);
+#[cfg(not(any(feature = "board", feature = "qemu")))]
+compile_error!("enable one board variant: feature `board` (default) or `qemu`");
 
 pub mod board;
 pub mod sim;

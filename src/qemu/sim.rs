@@ -7,7 +7,7 @@
 //! this single core. All lines start inactive: A = B = 0, no axis and no multiplier line
 //! active (the DIP switch reads all off too).
 
-use core::sync::atomic::{AtomicU16, AtomicU8, Ordering};
+use core::sync::atomic::{AtomicU8, Ordering};
 
 use handwheel_core::AbLevels;
 
@@ -17,19 +17,6 @@ static AB: AtomicU8 = AtomicU8::new(0);
 static AXIS: AtomicU8 = AtomicU8::new(0);
 /// Active multiplier lines, bit 0 = x1, bit 1 = x10, bit 2 = x100.
 static MULTIPLIER: AtomicU8 = AtomicU8::new(0);
-
-/// A requested stall of the CAN-side task, ms (0 = none).
-static STALL_MS: AtomicU16 = AtomicU16::new(0);
-
-/// Asks the CAN-side task to stay busy for `ms` from its next round (stimulus `stall`).
-pub fn request_stall(ms: u16) {
-    STALL_MS.store(ms, Ordering::Relaxed);
-}
-
-/// Takes the pending stall request, if any.
-pub fn take_stall_ms() -> u16 {
-    STALL_MS.swap(0, Ordering::Relaxed)
-}
 
 /// The wheel's A/B levels.
 #[inline(always)]

@@ -26,15 +26,13 @@
 //! - the error state: a serial link has no error counters: always error-active, and the SCE
 //!   interrupt never comes.
 
-use core::cell::RefCell;
-
-use crate::pac::{self, interrupt, Interrupt};
+use crate::pac::{self, Interrupt};
 use canopen_slave::RxFilter;
-use cortex_m::interrupt::Mutex;
 use handwheel_core::BitRate;
 use sim_io::slcan::{CanFrame, SlcanPort};
 
 use super::usart::{UsartRx, UsartTx};
+use crate::can::bus::{BusState, ErrorCounters};
 use crate::can::port::{Busy, CanLink, Received};
 use crate::can::{Frame, Mode};
 
@@ -47,65 +45,58 @@ pub type RxBytes = heapless::spsc::Queue<u8, RX_BYTES_LEN>;
 type RxBytesProducer = heapless::spsc::Producer<'static, u8, RX_BYTES_LEN>;
 type RxBytesConsumer = heapless::spsc::Consumer<'static, u8, RX_BYTES_LEN>;
 
-/// What the USART1 interrupt owns: the receiving half of USART1 and the byte queue's
-/// producer.
-type RxState = (UsartRx<pac::USART1>, RxBytesProducer);
-
-/// The USART1 interrupt's state, handed over once by `board::init`.
-static RX_HANDOFF: Mutex<RefCell<Option<RxState>>> = Mutex::new(RefCell::new(None));
-
 /// USART1 as the board hands it over: its transmitting half and the received bytes.
 pub struct SlcanLink {
     tx: UsartTx<pac::USART1>,
     rx: RxBytesConsumer,
 }
 
+/// The receiving half of USART1 and the byte queue's producer: the QEMU variant's USART1 task
+/// owns it (`qemu_usart1` in `src/main.rs`).
+pub struct SlcanReceiver {
+    usart: UsartRx<pac::USART1>,
+    bytes: RxBytesProducer,
+}
+
 impl SlcanLink {
-    /// Hands the receiving half and the queue's producer to the USART1 interrupt (enable the
-    /// interrupt only after this), and keeps the rest for the CAN port.
+    /// The link for the CAN port, and the receiver for the USART1 task.
     pub fn new(
         rx: UsartRx<pac::USART1>,
         tx: UsartTx<pac::USART1>,
         bytes: &'static mut RxBytes,
-    ) -> Self {
+    ) -> (Self, SlcanReceiver) {
         let (producer, consumer) = bytes.split();
-        cortex_m::interrupt::free(|cs| {
-            RX_HANDOFF.borrow(cs).replace(Some((rx, producer)));
-        });
-        Self { tx, rx: consumer }
+        let receiver = SlcanReceiver {
+            usart: rx,
+            bytes: producer,
+        };
+        (Self { tx, rx: consumer }, receiver)
     }
 }
 
-/// USART1 received a byte: queue it; at the end of a line or with the queue full, pend the
-/// CAN RX0 interrupt (`can_rx0`).
-///
-/// Scheduling: this handler and `can_rx0` have the same priority, so neither preempts the
-/// other, and both wait while a task holds the `can` lock. With the queue full the byte stays
-/// in the USART: RXNE keeps this interrupt pending, but at equal priority the NVIC takes the
-/// lower exception number first, `can_rx0` (USB_LP_CAN_RX0, 20) before USART1 (37), so the
-/// queue is drained before this handler runs again. Meanwhile QEMU, which delivers a byte
-/// only while RXNE is clear, leaves the rest in the socket.
-#[interrupt]
-fn USART1() {
-    static mut STATE: Option<RxState> = None;
-    if STATE.is_none() {
-        *STATE = cortex_m::interrupt::free(|cs| RX_HANDOFF.borrow(cs).take());
-    }
-    let Some((usart, bytes)) = STATE.as_mut() else {
-        // Unreachable: the interrupt is enabled after the handoff.
-        return;
-    };
-    let mut line_end = false;
-    while bytes.ready() {
-        let Some(byte) = usart.read() else {
-            break;
-        };
-        // `ready` said there is room.
-        let _ = bytes.enqueue(byte);
-        line_end |= byte == b'\r';
-    }
-    if line_end || !bytes.ready() {
-        rtic::pend(Interrupt::USB_LP_CAN_RX0);
+impl SlcanReceiver {
+    /// USART1 received a byte: queue it; at the end of a line or with the queue full, pend
+    /// the CAN RX0 interrupt (`can_rx0`).
+    ///
+    /// Scheduling: the USART1 task and `can_rx0` have the same priority, so neither preempts
+    /// the other, and both wait while a task holds the `can` lock. With the queue full the
+    /// byte stays in the USART: RXNE keeps this interrupt pending, but at equal priority the
+    /// NVIC takes the lower exception number first, `can_rx0` (USB_LP_CAN_RX0, 20) before
+    /// USART1 (37), so the queue is drained before this runs again. Meanwhile QEMU, which
+    /// delivers a byte only while RXNE is clear, leaves the rest in the socket.
+    pub fn on_interrupt(&mut self) {
+        let mut line_end = false;
+        while self.bytes.ready() {
+            let Some(byte) = self.usart.read() else {
+                break;
+            };
+            // `ready` said there is room.
+            let _ = self.bytes.enqueue(byte);
+            line_end |= byte == b'\r';
+        }
+        if line_end || !self.bytes.ready() {
+            rtic::pend(Interrupt::USB_LP_CAN_RX0);
+        }
     }
 }
 
@@ -178,6 +169,11 @@ impl CanLink for Controller {
 
     /// Never raised: a serial link has no error states.
     fn acknowledge_status(&mut self) {}
+
+    /// A serial link has no error counters: always error-active.
+    fn status(&self) -> (BusState, ErrorCounters) {
+        (BusState::ErrorActive, ErrorCounters::default())
+    }
 
     fn set_rx_filter(&mut self, filter: RxFilter) {
         self.filter = filter;

@@ -5,9 +5,10 @@
 //! `axis <off|x|y|z|w|v>`, `mult <1|10|100>`, each answered with `ok` once applied or
 //! `err <reason>`.
 //!
-//! The USART2 interrupt handler below does all of it. It belongs to the board layer (the RTIC
-//! app does not know it), runs at priority 3, below the wheel's EXTI task, and shares nothing
-//! with the app but the simulated lines ([`sim`](super::sim)), which are atomics.
+//! The QEMU variant's USART2 task (`qemu_usart2` in `src/main.rs`, priority 3, below the
+//! wheel's EXTI task) does all of it through [`StimulusLink::on_interrupt`]; it shares
+//! nothing with the rest of the app but the simulated lines ([`sim`](super::sim)), which are
+//! atomics. `stall <ms>` is handed to the app, which holds the CAN side busy that long.
 //!
 //! A wheel edge is made the way the board sees one: the new A/B levels go to the simulated
 //! port and the EXTI9_5 interrupt is pended, so the shipping edge task (`wheel_edge`)
@@ -17,18 +18,12 @@
 //! task's sampling and debouncing of the switches decide when the selection changes (4
 //! samples, 5 ms apart).
 
-use core::cell::RefCell;
-
-use crate::pac::{self, interrupt, Interrupt};
-use cortex_m::interrupt::Mutex;
+use crate::pac::{self, Interrupt};
 use cortex_m::peripheral::NVIC;
 use handwheel_core::AbLevels;
 use sim_io::stimulus::{self, Command, StimError, StimulusPort};
 
 use super::{sim, usart::Usart};
-
-/// The USART2 interrupt's state, handed over once by `board::init`.
-static HANDOFF: Mutex<RefCell<Option<StimulusLink>>> = Mutex::new(RefCell::new(None));
 
 /// Quadrature edges per detent the simulated wheel makes: one full A/B cycle.
 pub const EDGES_PER_DETENT: u32 = 4;
@@ -40,43 +35,28 @@ pub struct StimulusLink {
 }
 
 impl StimulusLink {
-    /// Hands the enabled USART2 to its interrupt handler (enable the interrupt only after
-    /// this).
-    pub fn install(usart: Usart<pac::USART2>) {
-        let link = Self {
+    /// The line on the enabled USART2.
+    pub fn new(usart: Usart<pac::USART2>) -> Self {
+        Self {
             usart,
             port: StimulusPort::new(),
-        };
-        cortex_m::interrupt::free(|cs| {
-            HANDOFF.borrow(cs).replace(Some(link));
-        });
+        }
     }
 
-    /// Applies every completed command line and answers it.
-    fn on_serial_rx(&mut self) {
+    /// USART2 received a byte: applies every completed command line and answers it;
+    /// `stall(ms)` for a `stall` command.
+    pub fn on_interrupt(&mut self, mut stall: impl FnMut(u16)) {
         while let Some(byte) = self.usart.read() {
             if let Some(command) = self.port.push(byte) {
-                let result = command.and_then(apply);
+                let result = command.and_then(|command| apply(command, &mut stall));
                 self.usart.write_all(stimulus::render(result).as_bytes());
             }
         }
     }
 }
 
-/// USART2 received a byte.
-#[interrupt]
-fn USART2() {
-    static mut LINK: Option<StimulusLink> = None;
-    if LINK.is_none() {
-        *LINK = cortex_m::interrupt::free(|cs| HANDOFF.borrow(cs).take());
-    }
-    if let Some(link) = LINK.as_mut() {
-        link.on_serial_rx();
-    }
-}
-
 /// Carries out one command.
-fn apply(command: Command) -> Result<(), StimError> {
+fn apply(command: Command, stall: &mut impl FnMut(u16)) -> Result<(), StimError> {
     match command {
         Command::Turn(detents) => {
             let mut levels = sim::ab();
@@ -92,7 +72,7 @@ fn apply(command: Command) -> Result<(), StimError> {
         Command::Ab(bits) => edge(AbLevels::from_bits(bits)),
         Command::Axis(axis) => sim::set_axis_mask(axis.active_mask()),
         Command::Mult(multiplier) => sim::set_multiplier_mask(multiplier.active_mask()),
-        Command::Stall(ms) => sim::request_stall(ms),
+        Command::Stall(ms) => stall(ms),
     }
     Ok(())
 }

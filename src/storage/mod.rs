@@ -16,20 +16,13 @@
 //! The QEMU variant keeps the pages in RAM (`crate::qemu::storage`): they survive NMT resets,
 //! not a restart of the emulator.
 
-#[cfg(not(feature = "qemu"))]
 mod flash;
 pub use handwheel_device::page::{Flash, FlashError, ParameterPage, PAGE_SIZE};
 pub use handwheel_device::record;
 
-#[cfg(feature = "qemu")]
-pub use crate::qemu::storage::RamStorage;
-#[cfg(not(feature = "qemu"))]
 pub use flash::{FlashStorage, PAGE_ADDRESS, PAGE_OFFSET};
 pub use record::{NodeSettings, BLOB_MAX, RECORD_MAX};
 
-/// The CANopen engine's storage: the parameter page over this board's page.
-#[cfg(not(feature = "qemu"))]
+/// The CANopen engine's storage on the board: the parameter page over the last two flash
+/// pages (the QEMU variant's board has its own, in RAM).
 pub type DeviceStorage = ParameterPage<FlashStorage>;
-/// The CANopen engine's storage: the parameter page over this board's page.
-#[cfg(feature = "qemu")]
-pub type DeviceStorage = ParameterPage<RamStorage>;

@@ -13,7 +13,7 @@
 //! here.
 
 use handwheel_core::{
-    AbLevels, Axis, CounterStride, DecoderConfig, FeedRecord, LinkedWheel, LocalEdge, Selection,
+    AbLevels, Axis, CounterStride, DecoderConfig, EdgeState, FeedRecord, LinkedWheel, Selection,
     UnitStep, UnitStepEncoder, WheelAccess,
 };
 
@@ -142,7 +142,7 @@ fn paper(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
 
 /// This project's unit-step mode: the real decoder and bounded backlog, paced by inhibit.
 struct CompatDevice {
-    wheel: LinkedWheel<LocalEdge>,
+    wheel: LinkedWheel<EdgeState>,
     encoder: UnitStepEncoder,
     next_allowed: f64,
     frames: Vec<Sent>,
@@ -189,7 +189,7 @@ fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
 /// This project's default: TPDO1 with the feed record, event-driven with inhibit time and
 /// event timer, as `canopen-slave` schedules it.
 struct RecordDevice {
-    wheel: LinkedWheel<LocalEdge>,
+    wheel: LinkedWheel<EdgeState>,
     sequence: u8,
     pending: bool,
     inhibit_end: f64,
@@ -230,7 +230,7 @@ impl RecordDevice {
     fn edge(&mut self, t: f64, levels: AbLevels, bus: &mut Bus) {
         self.timers(t, bus);
         let _ = self.wheel.on_edge(levels);
-        if self.wheel.take_feed_change() && !self.pending {
+        if self.wheel.take_record_due() && !self.pending {
             self.pending = true;
             // The event is at `t`: an inhibit time that ran out earlier does not date it.
             self.inhibit_end = self.inhibit_end.max(t);

@@ -1,5 +1,5 @@
-//! The model: the real device (`HandwheelDevice` with its engine, accumulator and outbox), a
-//! transmit path of bounded size in front of the bus, a channel that passes, loses,
+//! The model: the real device as the firmware runs it (`Node::poll`, the step function, over
+//! `HandwheelDevice` with its engine, accumulator and outbox), a transmit path of bounded size in front of the bus, a channel that passes, loses,
 //! duplicates and replays frames, the host's rule ([`HostRule`]) and the truth: every detent
 //! the device counted, on which axis and when.
 //!
@@ -13,11 +13,9 @@ use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
 use std::hash::{Hash, Hasher};
 
-use canopen_slave::{Frame, FrameSink, Instant, MemoryStorage, NodeId, SinkFull};
-use handwheel_core::{
-    AbLevels, Axis, DecoderConfig, LinkedWheel, LocalEdge, Multiplier, Selection,
-};
-use handwheel_device::{HandwheelDevice, TransmitState};
+use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
+use handwheel_core::{AbLevels, BitRate, DecoderConfig, EdgeState, LinkedWheel, SelectorInput};
+use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState};
 use stateright::{Model, Property};
 
 use crate::host::{Credit, HostRule, RuleConfig, AXES};
@@ -163,19 +161,19 @@ struct Wire {
     tag: Tag,
 }
 
-/// The device and its wheel: real code, compared and hashed through their `Debug` form
+/// The node and its wheel: real code, compared and hashed through their `Debug` form
 /// (neither needs `Hash` for the firmware's sake).
 #[derive(Clone)]
 struct Real {
-    device: HandwheelDevice<MemoryStorage>,
-    wheel: LinkedWheel<LocalEdge>,
+    node: Node<MemoryStorage>,
+    wheel: LinkedWheel<EdgeState>,
     levels: AbLevels,
 }
 
 impl Real {
     fn fingerprint(&self) -> String {
         let mut s = String::with_capacity(4096);
-        let _ = write!(s, "{:?}{:?}{:?}", self.device, self.wheel, self.levels);
+        let _ = write!(s, "{:?}{:?}{:?}", self.node, self.wheel, self.levels);
         s
     }
 }
@@ -271,14 +269,51 @@ enum Budget {
 }
 
 /// A transmit path of bounded size.
-struct Sink<'a> {
+/// The CAN port of one round: at most one received frame, the transmit path, a controller
+/// that is always on the bus and error-active.
+struct Port<'a> {
+    rx: Option<Frame>,
     queue: &'a mut VecDeque<Wire>,
     capacity: usize,
     tag: Tag,
-    discarded: bool,
+    completed: u32,
 }
 
-impl FrameSink for Sink<'_> {
+impl CanIo for Port<'_> {
+    fn receive(&mut self) -> Option<Frame> {
+        self.rx.take()
+    }
+
+    fn bus_state(&mut self) -> BusState {
+        BusState::ErrorActive
+    }
+
+    fn rx_overruns(&mut self) -> u32 {
+        0
+    }
+
+    fn transmit_state(&mut self) -> TransmitState {
+        TransmitState {
+            waiting: !self.queue.is_empty(),
+            completed: self.completed,
+        }
+    }
+
+    fn switch_bit_rate(&mut self, _: BitRate) -> bool {
+        true
+    }
+}
+
+/// The switch lines: the model's axis (X or Y) at x1.
+struct Lines(usize);
+
+impl SelectorInput for Lines {
+    fn read_lines(&mut self) -> (u8, u8) {
+        (1 << self.0, 1)
+    }
+}
+
+impl FrameSink for Port<'_> {
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
         if self.queue.len() >= self.capacity {
             return Err(SinkFull);
@@ -296,8 +331,16 @@ impl FrameSink for Sink<'_> {
 
     fn discard_pending(&mut self) {
         self.queue.clear();
-        self.discarded = true;
     }
+}
+
+/// A node as the firmware makes it at power-on, with `storage` as its parameter page.
+fn new_node(storage: MemoryStorage) -> Node<MemoryStorage> {
+    let node_id = NodeId::new(NODE).expect("a valid node-ID");
+    Node::new(
+        HandwheelDevice::new(node_id, 0x5EED, storage),
+        BitRate::Kbit1000,
+    )
 }
 
 /// The model of one [`Bounds`].
@@ -333,11 +376,7 @@ impl FeedModel {
     pub fn initial_with(&self, log: Option<Vec<HostEvent>>) -> World {
         let levels = AbLevels::from_bits(0);
         let real = Real {
-            device: HandwheelDevice::new(
-                NodeId::new(NODE).expect("a valid node-ID"),
-                0x5EED,
-                MemoryStorage::new(),
-            ),
+            node: new_node(MemoryStorage::new()),
             wheel: LinkedWheel::local(DecoderConfig::default(), levels),
             levels,
         };
@@ -360,7 +399,8 @@ impl FeedModel {
             violation: None,
             log,
         };
-        self.with_device(&mut w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
+        // The first round joins the bus and starts the device.
+        self.step(&mut w, None);
         self.select(&mut w);
         self.pass_all(&mut w);
         let timer = self.bounds.event_timer_ms.to_le_bytes();
@@ -393,48 +433,41 @@ impl FeedModel {
         w
     }
 
-    /// Runs `f` on the device with the transmit path as its sink, then polls it and lets it
-    /// watch the transmit path.
-    fn with_device(&self, w: &mut World, f: impl FnOnce(&mut Real, Instant, &mut dyn FrameSink)) {
-        let now = Instant::from_millis(w.now_ms);
-        let mut sink = Sink {
+    /// One round of the node (`Node::poll`, what the firmware's loop calls) at the model's
+    /// time, with `frame` received.
+    fn step(&self, w: &mut World, frame: Option<Frame>) -> Outputs {
+        let mut port = Port {
+            rx: frame,
             queue: &mut w.transmit,
             capacity: self.bounds.transmit_capacity,
             tag: Tag {
                 era: w.era,
                 made_ms: w.now_ms,
             },
-            discarded: false,
-        };
-        f(&mut w.real, now, &mut sink);
-        w.real.device.poll(now, &mut w.real.wheel, &mut sink);
-        let state = TransmitState {
-            waiting: !sink.queue.is_empty(),
             completed: w.transmit_completed,
         };
+        // The model's time stays far below the tick count's wrap.
+        let ticks = w.now_ms as u32;
         w.real
-            .device
-            .watch_transmit(now, state, &mut w.real.wheel, &mut sink);
+            .node
+            .poll(ticks, &mut port, &mut Lines(w.axis), &mut w.real.wheel)
     }
 
+    /// The switch is at the model's axis: rounds a millisecond apart until the node's
+    /// debouncer takes it (four samples, 5 ms apart). Nothing else happens meanwhile.
     fn select(&self, w: &mut World) {
-        let axis = [Axis::X, Axis::Y][w.axis];
-        self.with_device(w, |r, _, _| {
-            r.device.set_selection(
-                Selection {
-                    axis: Some(axis),
-                    multiplier: Multiplier::X1,
-                },
-                &mut r.wheel,
-            )
-        });
+        for _ in 0..40 {
+            if self.step(w, None).log.selection.is_some() {
+                return;
+            }
+            w.now_ms += 1;
+        }
+        panic!("the debouncer never took the switch position");
     }
 
     fn receive(&self, w: &mut World, id: u16, data: &[u8]) {
         let frame = Frame::new(id, data).expect("a valid frame");
-        self.with_device(w, |r, now, tx| {
-            r.device.on_frame(now, &frame, &mut r.wheel, tx)
-        });
+        self.step(w, Some(frame));
     }
 
     fn nmt(&self, w: &mut World, command: Nmt) {
@@ -464,19 +497,18 @@ impl FeedModel {
         for _ in before..after {
             w.truth.moves[era].push((w.axis, w.now_ms));
         }
-        self.with_device(w, |_, _, _| {});
+        self.step(w, None);
     }
 
     fn power_cycle(&self, w: &mut World) {
-        let storage = w.real.device.engine().storage().clone();
+        let storage = w.real.node.device_mut().engine().storage().clone();
         w.era += 1;
         w.truth.moves.push(Vec::new());
         w.truth.credited_upto.push(0);
         w.transmit.clear();
-        w.real.device =
-            HandwheelDevice::new(NodeId::new(NODE).expect("a valid node-ID"), 0x5EED, storage);
+        w.real.node = new_node(storage);
         w.real.wheel = LinkedWheel::local(DecoderConfig::default(), w.real.levels);
-        self.with_device(w, |r, now, tx| r.device.start(now, &mut r.wheel, tx));
+        self.step(w, None);
         self.select(w);
     }
 
@@ -504,7 +536,7 @@ impl FeedModel {
             self.to_host(w, frame.clone());
         }
         // The transmit interrupt wakes the device: what it could not queue goes now.
-        self.with_device(w, |_, _, _| {});
+        self.step(w, None);
     }
 
     fn to_host(&self, w: &mut World, frame: Wire) {
@@ -710,7 +742,7 @@ impl Model for FeedModel {
             Action::PowerCycle => self.power_cycle(&mut w),
             Action::Tick => {
                 w.now_ms += self.bounds.tick_ms;
-                self.with_device(&mut w, |_, _, _| {});
+                self.step(&mut w, None);
             }
             Action::Pass => self.pass(&mut w, 1),
             Action::Duplicate => self.pass(&mut w, 2),
@@ -718,7 +750,7 @@ impl Model for FeedModel {
                 w.transmit.pop_front();
                 w.now_ms += 1;
                 w.transmit_completed = w.transmit_completed.wrapping_add(1);
-                self.with_device(&mut w, |_, _, _| {});
+                self.step(&mut w, None);
             }
             Action::Replay(back) => {
                 let index = w.delivered.len() - usize::from(back);

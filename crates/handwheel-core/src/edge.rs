@@ -4,8 +4,9 @@
 //! On the MCU, [`EdgeState`] is an RTIC `#[shared]` resource of the wheel's edge task
 //! (EXTI9_5, the highest priority) and of the CAN-side task. RTIC, not this module, makes
 //! every access exclusive: the edge runs whole between two instructions of the CAN side,
-//! and the CAN side reaches the state only through a lock ([`EdgeAccess::lock`]) that holds
-//! the edge off for the few instructions of a copy or a command. So nothing here is atomic
+//! and the CAN side reaches the state only through RTIC's lock (`rtic_core`'s [`Mutex`],
+//! the trait RTIC's resource proxies implement) that holds the edge off for the few
+//! instructions of a copy or a command. So nothing here is atomic
 //! and nothing can be torn.
 //!
 //! What stays a protocol is the *time* between two locks: the CAN side decides on a
@@ -13,6 +14,8 @@
 //! in between. [`EdgeState::settle_if_unmoved`] therefore names the snapshot it was decided
 //! on (its sequence number, [`EdgeSnapshot::edges`]) and does nothing if an edge changed
 //! anything since; the tests below run every edge that can come between the two.
+
+pub use rtic_core::Mutex;
 
 use crate::decoder::{AbLevels, DecoderConfig, EdgeOutcome, QuadratureDecoder};
 
@@ -117,45 +120,16 @@ impl EdgeState {
     }
 }
 
-/// How the CAN side reaches the shared [`EdgeState`]: exclusively, for the span of `f`.
-///
-/// On the MCU this is the RTIC lock of the shared resource (the firmware's `SharedEdge`),
-/// which holds the edge's interrupt off for that span, so `f` is kept to a copy or a command.
-pub trait EdgeAccess {
-    /// Runs `f` with the edge state, the edge held off meanwhile.
-    fn lock<R>(&mut self, f: impl FnOnce(&mut EdgeState) -> R) -> R;
-}
+/// The edge state owned in place is its own lock: on the host (tests, benches, models) the
+/// CAN side's [`LinkedWheel`](crate::LinkedWheel) holds it directly and runs its edges
+/// synchronously, as the firmware's holds RTIC's proxy of the shared resource; both are
+/// RTIC's [`Mutex`].
+impl Mutex for EdgeState {
+    type T = Self;
 
-/// The edge state owned in place, its edge run synchronously: for host tests, benches and
-/// models.
-#[derive(Clone, Debug)]
-pub struct LocalEdge {
-    state: EdgeState,
-}
-
-impl LocalEdge {
-    /// A wheel at rest on `initial`.
-    pub const fn new(config: DecoderConfig, initial: AbLevels) -> Self {
-        Self {
-            state: EdgeState::new(config, initial),
-        }
-    }
-
-    /// One edge interrupt that reads `levels`.
-    #[must_use = "a detent the CAN side is not told of waits for its next round"]
-    pub fn on_edge(&mut self, levels: AbLevels) -> bool {
-        self.state.on_edge(levels)
-    }
-
-    /// The state, as the edge sees it.
-    pub fn state(&self) -> &EdgeState {
-        &self.state
-    }
-}
-
-impl EdgeAccess for LocalEdge {
-    fn lock<R>(&mut self, f: impl FnOnce(&mut EdgeState) -> R) -> R {
-        f(&mut self.state)
+    #[inline]
+    fn lock<R>(&mut self, f: impl FnOnce(&mut Self) -> R) -> R {
+        f(self)
     }
 }
 

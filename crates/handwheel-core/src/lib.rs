@@ -34,7 +34,7 @@ pub use bittiming::{BitRate, BitTiming, BitTimingError};
 pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
 };
-pub use edge::{EdgeAccess, EdgeSnapshot, EdgeState, LocalEdge};
+pub use edge::{EdgeSnapshot, EdgeState, Mutex};
 pub use feed::{FeedState, FeedStatus, UnitStep};
 pub use outbox::{FeedOutbox, HELD_EPOCHS, MAX_DROP_GAP};
 pub use pdo::{CounterStride, FeedRecord, FeedRecordError, UnitStepEncoder};

@@ -1,15 +1,15 @@
 //! The CAN side's half of the wheel: a view of the decoder the edge task runs, and the feed
 //! accumulator, which belongs to the CAN side alone.
 //!
-//! The decoder lives in the [`EdgeState`](crate::edge::EdgeState) the edge and the CAN side
-//! share; the CAN side reaches the wheel only through [`WheelAccess`], whose implementation
-//! on the MCU and on the host is the same [`LinkedWheel`] over a different
-//! [`EdgeAccess`]: the firmware's locks the RTIC resource, the host's ([`LocalEdge`]) owns
-//! the state in place.
+//! The decoder lives in the [`EdgeState`] the edge and the CAN side share; the CAN side
+//! reaches the wheel only through [`WheelAccess`], whose implementation on the MCU and on the
+//! host is the same [`LinkedWheel`] over a different RTIC [`Mutex`] of the edge state: the
+//! firmware's is the proxy of the RTIC resource, the host's the [`EdgeState`] itself, owned
+//! in place.
 
 use crate::accumulator::FeedAccumulator;
 use crate::decoder::{AbLevels, DecoderConfig};
-use crate::edge::{EdgeAccess, EdgeSnapshot, LocalEdge};
+use crate::edge::{EdgeSnapshot, EdgeState, Mutex};
 
 /// The CAN side's view of the edge's decoder: the last snapshot, the settings it asked for,
 /// and the bases that a reset of the application moves (0x2020 counts from there).
@@ -100,9 +100,13 @@ pub struct Handwheel {
     pub decoder: DecoderView,
     /// Feed accumulator (objects 0x2000, 0x2001, 0x2010, 0x2030, 0x6004).
     pub feed: FeedAccumulator,
+    /// What a feed record carries (position, status, selection) changed, or the outbox holds
+    /// more to send: TPDO1 is due. Set by the edge's motion and errors as they are taken in,
+    /// and by the device for what it changes itself; taken by [`WheelAccess::take_record_due`].
+    pub record_due: bool,
 }
 
-/// [`Handwheel`] joined to the shared edge state over an [`EdgeAccess`].
+/// [`Handwheel`] joined to the shared edge state through its RTIC [`Mutex`].
 ///
 /// Every access first takes the edge's new detents and illegal transitions into the
 /// accumulator under one short lock (in the order of the CAN side's calls: motion before a
@@ -112,10 +116,9 @@ pub struct Handwheel {
 pub struct LinkedWheel<L> {
     link: L,
     wheel: Handwheel,
-    feed_changed: bool,
 }
 
-impl<L: EdgeAccess> LinkedWheel<L> {
+impl<L: Mutex<T = EdgeState>> LinkedWheel<L> {
     /// The CAN side of a wheel whose edge task started with `config`.
     pub fn new(link: L, config: DecoderConfig) -> Self {
         Self {
@@ -123,8 +126,8 @@ impl<L: EdgeAccess> LinkedWheel<L> {
             wheel: Handwheel {
                 decoder: DecoderView::new(config),
                 feed: FeedAccumulator::new(),
+                record_due: false,
             },
-            feed_changed: false,
         }
     }
 
@@ -134,14 +137,12 @@ impl<L: EdgeAccess> LinkedWheel<L> {
         &self.wheel.feed
     }
 
-    /// The edge access, for the edge itself on the host.
+    /// The edge state's lock, for the edge itself on the host.
     pub fn link_mut(&mut self) -> &mut L {
         &mut self.link
     }
 
-    /// Takes the edge's publications since the last call into the accumulator. Out of line:
-    /// every access runs it, and one copy is smaller than one per call site.
-    #[inline(never)]
+    /// Takes the edge's publications since the last call into the accumulator.
     fn sync(&mut self) {
         let (now, rests_learnt) = self.link.lock(|e| (e.snapshot(), e.rests_learnt()));
         let view = &mut self.wheel.decoder;
@@ -154,11 +155,10 @@ impl<L: EdgeAccess> LinkedWheel<L> {
         // matter.
         let moved = feed.add_detents(detents);
         let flagged = errors && feed.note_encoder_error();
-        self.feed_changed |= moved | flagged;
+        self.wheel.record_due |= moved | flagged;
     }
 
     /// Applies what the last access asked of the decoder, under one lock.
-    #[inline(never)]
     fn post(&mut self) {
         let view = &mut self.wheel.decoder;
         let settings = core::mem::take(&mut view.settings_pending).then_some(view.config);
@@ -179,10 +179,10 @@ impl<L: EdgeAccess> LinkedWheel<L> {
     }
 }
 
-impl LinkedWheel<LocalEdge> {
+impl LinkedWheel<EdgeState> {
     /// A wheel run on the host: edge state and CAN side in one value.
     pub fn local(config: DecoderConfig, initial: AbLevels) -> Self {
-        Self::new(LocalEdge::new(config, initial), config)
+        Self::new(EdgeState::new(config, initial), config)
     }
 
     /// One edge interrupt that reads `levels`; `true` when it would pend the CAN side's
@@ -193,17 +193,12 @@ impl LinkedWheel<LocalEdge> {
     }
 }
 
-impl<L: EdgeAccess> WheelAccess for LinkedWheel<L> {
+impl<L: Mutex<T = EdgeState>> WheelAccess for LinkedWheel<L> {
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
         self.sync();
         let result = f(&mut self.wheel);
         self.post();
         result
-    }
-
-    fn take_feed_change(&mut self) -> bool {
-        self.sync();
-        core::mem::take(&mut self.feed_changed)
     }
 }
 
@@ -215,18 +210,16 @@ pub trait WheelAccess {
     /// Runs `f` on the wheel.
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R;
 
-    /// Whether what a feed record carries (position, status) changed since the last call.
+    /// Whether a feed record is due ([`Handwheel::record_due`]); clears it.
     #[must_use = "a changed feed needs a TPDO"]
-    fn take_feed_change(&mut self) -> bool;
+    fn take_record_due(&mut self) -> bool {
+        self.with_wheel(|w| core::mem::take(&mut w.record_due))
+    }
 }
 
 impl<W: WheelAccess + ?Sized> WheelAccess for &mut W {
     fn with_wheel<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
         (**self).with_wheel(f)
-    }
-
-    fn take_feed_change(&mut self) -> bool {
-        (**self).take_feed_change()
     }
 }
 
@@ -238,7 +231,7 @@ mod tests {
 
     const START: AbLevels = AbLevels::from_bits(0);
 
-    fn enabled_wheel() -> LinkedWheel<LocalEdge> {
+    fn enabled_wheel() -> LinkedWheel<EdgeState> {
         let mut wheel = LinkedWheel::local(DecoderConfig::default(), START);
         wheel.with_wheel(|w| {
             let _ = w.feed.set_enabled(true);
@@ -260,8 +253,8 @@ mod tests {
             *d = wheel.on_edge(levels);
         }
         assert_eq!(due, [false, false, false, true, false, false, false, true]);
-        assert!(wheel.take_feed_change());
-        assert!(!wheel.take_feed_change(), "taken once");
+        assert!(wheel.take_record_due());
+        assert!(!wheel.take_record_due(), "taken once");
         assert_eq!(wheel.with_wheel(|w| w.feed.position()), 20);
         assert_eq!(wheel.with_wheel(|w| w.decoder.count()), 8);
     }
@@ -273,9 +266,9 @@ mod tests {
             !wheel.on_edge(AbLevels::from_bits(3)),
             "no wake-up for an illegal jump"
         );
-        assert!(wheel.take_feed_change(), "but the status changed");
+        assert!(wheel.take_record_due(), "but the status changed");
         assert!(!wheel.on_edge(AbLevels::from_bits(0)));
-        assert!(!wheel.take_feed_change(), "the status was already latched");
+        assert!(!wheel.take_record_due(), "the status was already latched");
         wheel.with_wheel(|w| {
             assert_eq!(w.decoder.illegal_transitions(), 2);
             assert!(w.feed.status().contains(crate::FeedStatus::ENCODER_ERROR));
@@ -326,7 +319,7 @@ mod tests {
         let _ = wheel.link_mut().on_edge(levels);
         let settled = wheel.link_mut().lock(|e| e.settle_if_unmoved(view_edges));
         assert!(!settled, "moved: no settle");
-        assert_eq!(wheel.link_mut().state().rests_learnt(), 0);
+        assert_eq!(wheel.link_mut().rests_learnt(), 0);
         // Asked with the present snapshot, it settles.
         wheel.with_wheel(|w| w.decoder.request_settle());
         assert_eq!(wheel.with_wheel(|w| w.decoder.rests_learnt()), 1);

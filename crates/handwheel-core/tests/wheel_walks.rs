@@ -346,7 +346,7 @@ proptest! {
                 levels = next;
                 let _ = wheel.on_edge(levels);
                 if syncs.get(i * 4).copied().unwrap_or(false) {
-                    let _ = wheel.take_feed_change();
+                    let _ = wheel.take_record_due();
                 }
             }
             net += if forward { 1 } else { -1 };

@@ -144,8 +144,6 @@ pub struct FeedApp {
     pub(crate) step_in_flight: Option<UnitStep>,
     /// 0x2032: the last unit-step byte handed to TPDO2.
     pub(crate) step_byte: u8,
-    /// Something in the feed record changed: TPDO1 is due.
-    pub(crate) feed_due: bool,
     /// A consumed heartbeat is in timeout: feed may not be enabled until the engine reports
     /// every monitored node back.
     pub(crate) master_lost: bool,
@@ -163,7 +161,6 @@ impl FeedApp {
             encoder: UnitStepEncoder::new(CounterStride::One),
             step_in_flight: None,
             step_byte: 0,
-            feed_due: false,
             master_lost: false,
             record: None,
         }
@@ -204,8 +201,8 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
             if value == 1 && (self.app.nmt != NmtState::Operational || self.app.master_lost) {
                 return Err(SdoAbort::DeviceState);
             }
-            let changed = self.wheel.with_wheel(|w| w.feed.set_enabled(value == 1));
-            self.app.feed_due |= changed;
+            self.wheel
+                .with_wheel(|w| w.record_due |= w.feed.set_enabled(value == 1));
             return Ok(());
         }
         let mut parameters = self.app.parameters;
@@ -272,11 +269,10 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     fn on_tpdo_sent(&mut self, pdo: u8) {
         if pdo == 1 {
             let record = self.app.record.take();
-            let more = self.wheel.with_wheel(|w| {
+            self.wheel.with_wheel(|w| {
                 let sent = record.map_or_else(|| w.feed.record_to_send(), |r| r.state);
-                w.feed.record_sent(sent)
+                w.record_due |= w.feed.record_sent(sent);
             });
-            self.app.feed_due |= more;
         } else if pdo == 2 && self.app.step_in_flight.take().is_some() {
             // `tpdo_ready` let TPDO2 go only with a step in flight: that step is on the bus.
             self.app.encoder.advance();
@@ -366,15 +362,17 @@ impl<W: WheelAccess> AppContext<'_, W> {
     fn set_parameters(&mut self, parameters: WheelParameters) {
         self.app.parameters = parameters;
         self.app.step_in_flight = None;
-        self.wheel.with_wheel(|w| parameters.apply(w));
-        self.app.feed_due = true;
+        self.wheel.with_wheel(|w| {
+            parameters.apply(w);
+            w.record_due = true;
+        });
     }
 
     fn stop(&mut self, reason: StopReason) {
         // A step that has not reached the bus is withdrawn with the rest of the backlog.
         self.app.step_in_flight = None;
-        let changed = self.wheel.with_wheel(|w| w.feed.stop(reason));
-        self.app.feed_due |= changed;
+        self.wheel
+            .with_wheel(|w| w.record_due |= w.feed.stop(reason));
     }
 }
 

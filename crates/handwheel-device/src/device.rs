@@ -148,11 +148,14 @@ impl<S: Storage> HandwheelDevice<S> {
 
     /// The debounced selector changed.
     pub fn set_selection(&mut self, selection: Selection, wheel: &mut impl WheelAccess) {
-        let changed = wheel.with_wheel(|w| w.feed.set_selection(selection));
+        let changed = wheel.with_wheel(|w| {
+            let changed = w.feed.set_selection(selection);
+            w.record_due |= changed;
+            changed
+        });
         if changed {
             // Pending unit steps were for the old selection: a prepared one goes too.
             self.app.step_in_flight = None;
-            self.app.feed_due = true;
         }
     }
 
@@ -178,8 +181,8 @@ impl<S: Storage> HandwheelDevice<S> {
         );
         let operational = self.engine.nmt_state() == NmtState::Operational;
         self.app.step_in_flight = None;
-        self.app.feed_due |= wheel.with_wheel(|w| {
-            let changed = w.feed.stop(StopReason::TransmitBlocked);
+        wheel.with_wheel(|w| {
+            w.record_due |= w.feed.stop(StopReason::TransmitBlocked);
             // What is held and queued is stale now: dropped, and a break, as when
             // leaving Operational and entering it again.
             w.feed.stop_records();
@@ -187,17 +190,14 @@ impl<S: Storage> HandwheelDevice<S> {
                 w.feed.start_records();
             }
             w.feed.break_records();
-            changed
         });
         tx.discard_pending();
         true
     }
 
-    /// When [`HandwheelDevice::poll`] (or [`HandwheelDevice::watch_transmit`]) has work next.
+    /// When [`HandwheelDevice::poll`] (or [`HandwheelDevice::watch_transmit`]) has work next,
+    /// besides a feed record that is due ([`WheelAccess::take_record_due`]: at once).
     pub fn next_deadline(&self) -> Option<Instant> {
-        if self.app.feed_due {
-            return Some(Instant::ZERO);
-        }
         match (self.engine.next_deadline(), self.stall.deadline()) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
@@ -238,9 +238,7 @@ impl<S: Storage> HandwheelDevice<S> {
     /// step, and keeps the encoder EMCY in step with the feed status.
     fn service(&mut self, wheel: &mut impl WheelAccess) {
         let operational = self.engine.nmt_state() == NmtState::Operational;
-        self.app.feed_due |= wheel.take_feed_change();
-        if self.app.feed_due {
-            self.app.feed_due = false;
+        if wheel.take_record_due() {
             // Outside Operational the request is dropped by design: entering Operational
             // sends TPDO1 with the present values anyway.
             let _ = self.engine.request_tpdo(1);

@@ -1,14 +1,19 @@
 //! The CANopen CNC handwheel as a device: the `canopen-slave` engine bound to
 //! `handwheel-core`'s wheel through the handwheel's object dictionary.
 //!
-//! Host-tested and hardware-free; the firmware creates one [`HandwheelDevice`], gives it the
-//! CAN side's [`handwheel_core::LinkedWheel`] (the edge task owns the decoder) and moves
-//! frames and time in and out.
+//! Host-tested and hardware-free; the firmware creates one [`Node`] around a
+//! [`HandwheelDevice`] and calls its step function, [`Node::poll`], with the time, its CAN
+//! port ([`CanIo`]), the switch lines and the CAN side's [`handwheel_core::LinkedWheel`] (the
+//! edge task owns the decoder); it applies the [`Outputs`] (LEDs, acceptance filter, log
+//! lines) and sleeps as long as they say.
 //!
 //! Safety behaviour lives here and in `handwheel-core`, not in the firmware:
 //! - feed can only be enabled (0x2000 = 1) in Operational (abort 0x08000022 otherwise);
 //! - leaving Operational, or losing the master's heartbeat (0x1016), stops the feed,
 //!   discards pending unit steps and disables feed until the master enables it again;
+//! - [`node`] is everything the firmware loop decides, one round per call: joining the bus at
+//!   power-on, the switches, the bus state and lost frames (EMCYs), the transmit stall, LSS
+//!   bit-rate switches, the acceptance filter, the LEDs and the sleep;
 //! - [`duties`] decides the firmware loop's periodic work (switches, standstill, LEDs) and how
 //!   long it may sleep;
 //! - [`rate_switch`] times the CAN controller's bit-rate switch after LSS "activate bit
@@ -26,6 +31,7 @@
 mod app;
 mod device;
 pub mod duties;
+pub mod node;
 pub mod node_config;
 pub mod od;
 pub mod page;
@@ -35,4 +41,5 @@ pub mod record;
 pub use app::WheelParameters;
 pub use device::{HandwheelDevice, TransmitState, EMCY_ENCODER, TRANSMIT_STALL_MS};
 pub use duties::{Duties, Sample};
+pub use node::{CanIo, LogEvents, Node, Outputs};
 pub use rate_switch::RateSwitch;

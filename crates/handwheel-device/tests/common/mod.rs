@@ -3,7 +3,7 @@
 
 use canopen_slave::{Frame, FrameSink, Instant, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, Axis, DecoderConfig, LinkedWheel, LocalEdge, Multiplier, Selection,
+    AbLevels, Axis, DecoderConfig, EdgeState, LinkedWheel, Multiplier, Selection,
 };
 use handwheel_device::HandwheelDevice;
 
@@ -45,7 +45,7 @@ pub struct Seen {
 
 pub struct Bench {
     pub device: HandwheelDevice<MemoryStorage>,
-    pub wheel: LinkedWheel<LocalEdge>,
+    pub wheel: LinkedWheel<EdgeState>,
     pub now_us: u64,
     pub levels: AbLevels,
     pub seen: Vec<Seen>,

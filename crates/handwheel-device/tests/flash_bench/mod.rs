@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use canopen_slave::{Frame, FrameSink, Instant, SinkFull};
-use handwheel_core::{AbLevels, DecoderConfig, LinkedWheel, LocalEdge};
+use handwheel_core::{AbLevels, DecoderConfig, EdgeState, LinkedWheel};
 use handwheel_device::node_config::select;
 use handwheel_device::page::{Flash, FlashError, ParameterPage, PAGES, PAGE_SIZE};
 use handwheel_device::record::NodeSettings;
@@ -148,7 +148,7 @@ impl FrameSink for Sink {
 /// The device as the firmware boots it over the flash.
 pub struct Node {
     pub device: HandwheelDevice<ParameterPage<CutFlash>>,
-    pub wheel: LinkedWheel<LocalEdge>,
+    pub wheel: LinkedWheel<EdgeState>,
     pub settings: NodeSettings,
     /// The debt the budget started from, in units of 2^26 us.
     pub debt: u16,

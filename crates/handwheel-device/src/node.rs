@@ -1,0 +1,292 @@
+//! The handwheel node as one step function: everything the firmware's `canopen` task decides,
+//! host-tested here, so that the task is a loop of I/O.
+//!
+//! [`Node::poll`] takes the time, the CAN port ([`CanIo`]: received frames, the controller's
+//! error state, lost frames, the transmit path's state, the bit-rate switch's steps; frames go
+//! out through its [`FrameSink`]), the switch lines and the wheel, does one round and returns
+//! [`Outputs`]: the LED levels, the acceptance filter to program, what to log and how long the
+//! caller may sleep. The caller polls again when that time is up or an interrupt raised an
+//! event, whichever comes first; polling earlier is always allowed.
+//!
+//! A round at power-on first waits for the controller to join the bus (the firmware only asked
+//! it to in `init`): on a dominant bus (no transceiver, a short) that lasts as long as the
+//! fault; the device is held back meanwhile (its boot-up must be the first frame it sends).
+//! Past [`SYNC_LIMIT_MS`](crate::rate_switch::SYNC_LIMIT_MS) the node counts as off the bus:
+//! the log says so once and the ERR LED is on (CiA 303-3 bus-off; RUN stays dark, the device
+//! is not initialised yet). Once the controller is on the bus, the device starts.
+//!
+//! Each later round, in this order: the switch sample, the received frames, the new
+//! selection (after the frames, so an SDO request that came first is answered under the old
+//! one), the bus state, lost frames and illegal quadrature transitions (the engine decides
+//! the EMCYs), the device's time-driven work, the transmit path's stall watch, an LSS
+//! bit-rate switch (one step per round), the acceptance filter (when a write of 0x1005 or a
+//! reset of communication moved SYNC), the LEDs.
+
+use canopen_slave::{BusEvent, BusState, Frame, FrameSink, RxFilter, Storage, WideClock};
+use handwheel_core::{BitRate, Selection, SelectorInput, WheelAccess};
+
+use crate::duties::{Duties, RECOVERY_POLL_MS};
+use crate::rate_switch::RateSwitch;
+use crate::{HandwheelDevice, TransmitState};
+
+/// The CAN port as the step function sees it; frames go out through its [`FrameSink`].
+pub trait CanIo: FrameSink {
+    /// The next received frame, if any.
+    fn receive(&mut self) -> Option<Frame>;
+    /// The controller's error state now.
+    fn bus_state(&mut self) -> BusState;
+    /// Frames lost on receive since power-on (wrapping).
+    fn rx_overruns(&mut self) -> u32;
+    /// Whether frames wait for the bus, and how many left the transmit path.
+    fn transmit_state(&mut self) -> TransmitState;
+    /// One step of the controller's switch to `rate`, never a wait: `true` once it is on the
+    /// bus at `rate`.
+    fn switch_bit_rate(&mut self, rate: BitRate) -> bool;
+}
+
+/// What one round found worth a log line. The caller prints them; the lines' texts are the
+/// firmware's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LogEvents {
+    /// The controller found no 11 recessive bits at this rate within
+    /// [`SYNC_LIMIT_MS`](crate::rate_switch::SYNC_LIMIT_MS): at boot (`true`, the node waits
+    /// for the bus) or after an LSS switch (`false`, off the bus until it is free).
+    pub no_recessive_bits: Option<(BitRate, bool)>,
+    /// The controller joined the bus after a wait that was reported at boot.
+    pub on_bus: bool,
+    /// The bus state changed (with the EMCY the engine decides).
+    pub bus: Option<BusEvent>,
+    /// Frames lost on receive since the previous round.
+    pub rx_lost: u32,
+    /// Illegal quadrature transitions since the previous round, and since boot.
+    pub illegal_transitions: Option<(u32, u32)>,
+    /// The debounced switch selection changed to this.
+    pub selection: Option<Selection>,
+    /// The wheel stood still off its rest and the decoder learnt the rest anew.
+    pub rest_learnt: bool,
+    /// An LSS bit-rate switch to this rate began.
+    pub bit_rate: Option<BitRate>,
+}
+
+/// What the caller applies after a round.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Outputs {
+    /// The RUN and ERR LED levels, when they are due.
+    pub leds: Option<(bool, bool)>,
+    /// The acceptance filter to program, when the device's identifiers changed.
+    pub rx_filter: Option<RxFilter>,
+    /// How long the caller may sleep, from the `now_ms` of the round, before the next one.
+    pub sleep_ms: u32,
+    /// What to log.
+    pub log: LogEvents,
+}
+
+/// Where the node is in its life.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// Not polled yet.
+    PowerOn,
+    /// Waiting for the controller to join the bus; `reported`: its wait was logged.
+    Joining { reported: bool },
+    /// The device runs.
+    Running,
+}
+
+/// The handwheel node: the device and everything the firmware loop decides around it.
+#[derive(Clone, Debug)]
+pub struct Node<S> {
+    device: HandwheelDevice<S>,
+    phase: Phase,
+    /// The bit rate the controller was started at, which the node waits to join.
+    bit_rate: BitRate,
+    clock: WideClock,
+    duties: Duties,
+    /// The controller's join at power-on, then LSS bit-rate switches.
+    rate_switch: RateSwitch,
+    /// The acceptance filter the CAN port has now.
+    rx_filter: RxFilter,
+    /// The bus state, lost frames and illegal transitions as last seen.
+    bus: BusState,
+    rx_overruns: u32,
+    illegal_transitions: u32,
+}
+
+impl<S: Storage> Node<S> {
+    /// `device` not started yet, its controller asked to join the bus at `bit_rate` with the
+    /// filter [`Node::rx_filter`] returns now.
+    pub fn new(device: HandwheelDevice<S>, bit_rate: BitRate) -> Self {
+        let rx_filter = device.rx_filter();
+        Self {
+            device,
+            phase: Phase::PowerOn,
+            bit_rate,
+            clock: WideClock::new(),
+            duties: Duties::new(0),
+            rate_switch: RateSwitch::new(),
+            rx_filter,
+            bus: BusState::ErrorActive,
+            rx_overruns: 0,
+            illegal_transitions: 0,
+        }
+    }
+
+    /// The acceptance filter the CAN port must have: the firmware starts its controller with
+    /// it; later changes come as [`Outputs::rx_filter`].
+    pub fn rx_filter(&self) -> RxFilter {
+        self.rx_filter
+    }
+
+    /// The device.
+    pub fn device(&self) -> &HandwheelDevice<S> {
+        &self.device
+    }
+
+    /// The device, for what is no part of a round (tests, the checker's power cycle).
+    pub fn device_mut(&mut self) -> &mut HandwheelDevice<S> {
+        &mut self.device
+    }
+
+    /// One round at `now_ms` (a wrapping millisecond tick).
+    pub fn poll(
+        &mut self,
+        now_ms: u32,
+        io: &mut impl CanIo,
+        switches: &mut impl SelectorInput,
+        wheel: &mut impl WheelAccess,
+    ) -> Outputs {
+        let mut out = Outputs::default();
+        if let Phase::PowerOn = self.phase {
+            self.duties = Duties::new(now_ms);
+            self.rate_switch.start(self.bit_rate, now_ms);
+            self.phase = Phase::Joining { reported: false };
+        }
+        if let Phase::Joining { reported } = self.phase {
+            if !self.join(now_ms, reported, io, wheel, &mut out) {
+                return out;
+            }
+        } else {
+            self.round(now_ms, io, switches, wheel, &mut out);
+        }
+        let now = self.clock.now(now_ms);
+        // A feed record made due after the device's last service (a transmit stall's stop)
+        // goes out in the next round, at once.
+        let record_due = wheel.with_wheel(|w| w.record_due);
+        let deadline = match record_due {
+            true => Some(now),
+            false => self.device.next_deadline(),
+        };
+        out.sleep_ms = self
+            .duties
+            .sleep_ms(now_ms, now, deadline, self.bus)
+            .min(self.rate_switch.sleep_cap_ms());
+        out
+    }
+
+    /// A round while the controller joins the bus; `true` once it has and the device started.
+    fn join(
+        &mut self,
+        now_ms: u32,
+        reported: bool,
+        io: &mut impl CanIo,
+        wheel: &mut impl WheelAccess,
+        out: &mut Outputs,
+    ) -> bool {
+        let late = self
+            .rate_switch
+            .poll(now_ms, |rate| io.switch_bit_rate(rate));
+        out.log.no_recessive_bits = late.map(|rate| (rate, true));
+        let reported = reported || late.is_some();
+        if !self.rate_switch.under_way() {
+            out.log.on_bus = reported;
+            self.phase = Phase::Running;
+            let now = self.clock.now(now_ms);
+            // A stored 0x1005 reaches the filter in the first round (at once: the sampling
+            // duty is due immediately).
+            self.device.start(now, wheel, io);
+            return true;
+        }
+        self.phase = Phase::Joining { reported };
+        let bus = if self.rate_switch.off_bus() {
+            BusState::BusOff
+        } else {
+            BusState::ErrorActive
+        };
+        out.leds = self.duties.leds(
+            now_ms,
+            self.device.nmt_state(),
+            self.device.error_indication(),
+            bus,
+        );
+        out.sleep_ms = self.rate_switch.sleep_cap_ms().min(RECOVERY_POLL_MS);
+        false
+    }
+
+    /// A round of the running device (the order of the module docs).
+    fn round(
+        &mut self,
+        now_ms: u32,
+        io: &mut impl CanIo,
+        switches: &mut impl SelectorInput,
+        wheel: &mut impl WheelAccess,
+        out: &mut Outputs,
+    ) {
+        let now = self.clock.now(now_ms);
+        let device = &mut self.device;
+        let sample = self.duties.sample(now_ms, switches, wheel);
+        while let Some(frame) = io.receive() {
+            device.on_frame(now, &frame, wheel, io);
+        }
+        if let Some(sample) = sample {
+            out.log.rest_learnt = sample.rest_learnt;
+            out.log.selection = sample.selection;
+            if let Some(selection) = sample.selection {
+                device.set_selection(selection, wheel);
+            }
+        }
+        // A bit-rate switch keeps the node off the bus, which counts as bus-off: the ERR LED
+        // is on, and its end is a recovery (EMCY 0x8140).
+        let mut bus = io.bus_state();
+        if self.rate_switch.off_bus() {
+            bus = BusState::BusOff;
+        }
+        out.log.bus = canopen_slave::bus::transition(self.bus, bus);
+        self.bus = bus;
+        if let Some(event) = out.log.bus {
+            device.engine().on_bus_event(event);
+        }
+        let overruns = io.rx_overruns();
+        out.log.rx_lost = overruns.wrapping_sub(self.rx_overruns);
+        self.rx_overruns = overruns;
+        if out.log.rx_lost != 0 {
+            device.engine().on_rx_overrun();
+        }
+        let illegal = wheel.with_wheel(|w| w.decoder.illegal_transitions());
+        let new_illegal = illegal.wrapping_sub(self.illegal_transitions);
+        self.illegal_transitions = illegal;
+        out.log.illegal_transitions = (new_illegal != 0).then_some((new_illegal, illegal));
+        device.poll(now, wheel, io);
+        let transmit = io.transmit_state();
+        device.watch_transmit(now, transmit, wheel, io);
+        if let Some(rate) = device.take_bit_rate_switch(now) {
+            out.log.bit_rate = Some(rate);
+            self.rate_switch.start(rate, now_ms);
+        }
+        // One step per round: meanwhile the round repeats every millisecond, then, once the
+        // node counts as off the bus, every `RECOVERY_POLL_MS` (its bus state is bus-off).
+        let late = self
+            .rate_switch
+            .poll(now_ms, |rate| io.switch_bit_rate(rate));
+        out.log.no_recessive_bits = late.map(|rate| (rate, false));
+        let wanted = device.rx_filter();
+        if wanted != self.rx_filter {
+            self.rx_filter = wanted;
+            out.rx_filter = Some(wanted);
+        }
+        out.leds = self.duties.leds(
+            now_ms,
+            device.nmt_state(),
+            device.error_indication(),
+            self.bus,
+        );
+    }
+}
