@@ -395,8 +395,6 @@ impl<S: Storage> Device<S> {
 }
 
 impl<S: Storage> Inner<S> {
-    // Out of line: called from several places, inlined copies cost more flash.
-    #[inline(never)]
     fn emit(&mut self, tx: &mut dyn FrameSink, frame: Frame) -> bool {
         let sent = tx.send(frame).is_ok();
         if !sent {

@@ -75,8 +75,6 @@ impl Heartbeat {
     }
 
     /// The next heartbeat is one period after `now` (after a boot-up or state change).
-    // Out of line: called from several places, inlined copies cost more flash.
-    #[inline(never)]
     pub(crate) fn restart(&mut self, now: Instant) {
         self.next_beat = (self.producer_ms != 0).then(|| now.after_ms(self.producer_ms));
     }

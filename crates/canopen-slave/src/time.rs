@@ -45,18 +45,15 @@ impl Instant {
         self.add_micros(ms.saturating_mul(1000))
     }
 
-    /// `self` plus `us` microseconds: the one out-of-line addition every engine timer goes
-    /// through (engine durations are at most 65 535 ms, so they fit a `u32`).
+    /// `self` plus `us` microseconds: the addition every engine timer goes through (engine
+    /// durations are at most 65 535 ms, so they fit a `u32`).
     #[must_use]
-    #[inline(never)]
     pub(crate) fn after_us(self, us: u32) -> Self {
         Self(self.0.saturating_add(us as u64))
     }
 
     /// `self` plus `ms` milliseconds (CiA 301 times are 16-bit millisecond counts).
     #[must_use]
-    // Out of line: called from several places, inlined copies cost more flash.
-    #[inline(never)]
     pub(crate) fn after_ms(self, ms: u16) -> Self {
         // u16 * 1000 always fits a u32: no overflow possible.
         self.after_us(ms as u32 * 1000)

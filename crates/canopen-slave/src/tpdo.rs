@@ -139,8 +139,6 @@ impl Tpdo {
     }
 
     /// Unchecked write of 0x1800+n (defaults, stored parameters).
-    // Out of line: called from several places, inlined copies cost more flash.
-    #[inline(never)]
     pub(crate) fn set_comm(&mut self, sub: u8, v: u32) {
         // Truncations are intended: the table types these sub-indices as U8/U16.
         match sub {
@@ -197,8 +195,6 @@ impl Tpdo {
     }
 
     /// Unchecked write of 0x1A00+n (defaults, stored parameters).
-    // Out of line: called from several places, inlined copies cost more flash.
-    #[inline(never)]
     pub(crate) fn set_mapping(&mut self, sub: u8, v: u32) {
         if sub == 0 {
             // Clamped so that a corrupt stored value can never index past the array.

@@ -15,8 +15,6 @@ impl<S: Storage> Device<S> {
     /// Raises an error: recorded in 0x1001/0x1003 and announced by an EMCY at the next
     /// `poll` (not in Stopped, where only the record is kept). `info` are the five
     /// manufacturer-specific bytes. Raising an active code again does nothing.
-    // Out of line: called from several places, inlined copies cost more flash.
-    #[inline(never)]
     pub fn raise_error(
         &mut self,
         code: u16,
