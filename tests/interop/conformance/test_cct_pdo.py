@@ -106,15 +106,24 @@ def test_pdo_05_tpdo_event_timer(dut):
     _event_timer(dut)
 
 
+def settled(rig):
+    """Returns once the node has handled every frame sent before and sent what they cause:
+    it handles frames in order, an answer goes out while it handles the request, and what
+    it sends later in that round is out before it answers a request sent after the answer.
+    (Sleeping a while instead fell short when a busy host held the node back.)"""
+    rig.read(0x1000)
+    rig.read(0x1000)
+
+
 def _sync_cyclic(rig, every):
     cob = configure_tpdo1(rig, every)
     rig.start()
-    time.sleep(0.1)
+    settled(rig)  # the frame sent on entry to Operational is out
     mark = rig.frames.mark()
     for _ in range(4 * every):
         rig.network.send_message(0x080, b"")
         time.sleep(0.03)
-    time.sleep(0.1)
+    settled(rig)
     got = rig.frames.frames(cob, since=mark)
     assert len(got) == 4, f"{len(got)} TPDO1 frames for {4 * every} SYNCs at type {every}"
 
