@@ -137,10 +137,10 @@ def _sync_acyclic(rig):
     rig.select("x")
     rig.start()
     rig.write(0x2000, 0, 1, 1)
-    time.sleep(0.1)
+    settled(rig)
     # Without an event a SYNC sends nothing once the entry frame is out.
     rig.network.send_message(0x080, b"")
-    time.sleep(0.1)
+    settled(rig)
     mark = rig.frames.mark()
     rig.network.send_message(0x080, b"")
     rig.frames.assert_none(lambda f: f.id == cob, 0.3, since=mark, what="TPDO1 without event")
