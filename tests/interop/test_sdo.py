@@ -5,6 +5,7 @@ and of crates/canopen-slave's tests."""
 import canopen
 from canopen.objectdictionary import ODVariable
 
+from emulated_clock import frame_times, gaps, lateness
 from rig import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
 
 # Objects whose value the firmware supplies at run time, not the EDS default.
@@ -108,9 +109,11 @@ def test_writes_are_read_back(rig):
 def test_heartbeat_time_write_restarts_the_timer(rig):
     rig.write(0x1017, 0, 200, 2)
     mark = rig.frames.mark()
-    hbs = rig.frames.wait_count(HEARTBEAT, 4, timeout=3, since=mark)[:4]
-    gaps = [b.t - a.t for a, b in zip(hbs, hbs[1:])]
-    assert all(0.1 < g < 0.4 for g in gaps), f"heartbeat gaps {gaps}"
+    beats = gaps(frame_times(rig, HEARTBEAT, 4, since=mark, timeout=3))
+    # A late frame (QEMU on a busy host) stretches one gap, not all: their mean stays well
+    # short of the old 1000 ms period.
+    assert all(0.1 < g < 0.4 + lateness(rig) for g in beats), f"heartbeat gaps {beats}"
+    assert sum(beats) / len(beats) < 0.6, f"heartbeat gaps {beats}"
     rig.write(0x1017, 0, 0, 2)
     mark = rig.frames.mark()
     rig.frames.assert_none(lambda f: f.id == HEARTBEAT, 1.5, since=mark, what="heartbeats")

@@ -14,7 +14,8 @@
 //! image.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+use xshell::{cmd, Cmd, Shell};
 
 use crate::{pyenv, qemu};
 
@@ -123,42 +124,32 @@ pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
 }
 
 /// The emulator's command line for `elf`, its log decoded by `defmt_print`.
-pub fn command(
+pub fn command<'a>(
+    sh: &'a Shell,
     python: &Path,
     root: &Path,
     elf: &Path,
     args: &Args,
     default_flash: &Path,
     defmt_print: &Path,
-) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.arg(root.join(PACKAGE).join("server.py"))
-        .arg("--elf")
-        .arg(elf)
-        .arg("--can-port")
-        .arg(args.ports.can.to_string())
-        .arg("--stim-port")
-        .arg(args.ports.stim.to_string())
-        .arg("--flash")
-        .arg(args.flash.as_deref().unwrap_or(default_flash))
-        .arg("--defmt-print")
-        .arg(defmt_print);
-    if let Some(dip) = args.dip {
-        cmd.arg("--dip").arg(dip.to_string());
-    }
-    cmd.stdin(std::process::Stdio::null());
-    cmd
+) -> Cmd<'a> {
+    let server = root.join(PACKAGE).join("server.py");
+    let (can, stim) = (args.ports.can.to_string(), args.ports.stim.to_string());
+    let flash = args.flash.as_deref().unwrap_or(default_flash);
+    let dip = args.dip.map(|dip| ["--dip".to_string(), dip.to_string()]);
+    let dip = dip.iter().flatten();
+    cmd!(
+        sh,
+        "{python} {server} --elf {elf} --can-port {can} --stim-port {stim} --flash {flash}
+         --defmt-print {defmt_print} {dip...}"
+    )
 }
 
 /// The chip model's and the board's unit tests (`tools/stm32emu/test_*.py`,
-/// `tools/board-emu/test_*.py`, pytest) with extra arguments.
-pub fn unit_tests(python: &Path, root: &Path, elf: &Path, extra: &[&str]) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.args(["-m", "pytest", CHIP, PACKAGE, "-q"])
-        .args(extra)
-        .env("HANDWHEEL_BOARD_ELF", elf)
-        .current_dir(root);
-    cmd
+/// `tools/board-emu/test_*.py`, pytest) with extra arguments, in a shell in the workspace
+/// root.
+pub fn unit_tests<'a>(sh: &'a Shell, python: &Path, elf: &Path, extra: &[&str]) -> Cmd<'a> {
+    cmd!(sh, "{python} -m pytest {CHIP} {PACKAGE} -q {extra...}").env("HANDWHEEL_BOARD_ELF", elf)
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
-use std::process::Command;
+use xshell::cmd;
 
 use canopen_slave::tpdo::{MAX_MAPPED, NO_RTR};
 use canopen_slave::{Access, DataType, OdEntry, Value};
@@ -53,11 +53,11 @@ fn dcfchk(root: &Path, target_dir: &Path) -> Result<(), String> {
     let dcfchk = python.with_file_name("dcfchk");
     let node = handwheel_device::record::NodeSettings::DEFAULT
         .node_id
-        .map_or(0, canopen_slave::NodeId::get);
-    let mut cmd = Command::new(&dcfchk);
-    cmd.current_dir(root).args(["-n", &node.to_string(), PATH]);
-    println!("xtask: dcfchk -n {node} {PATH}");
-    crate::pyenv::run(&mut cmd).map_err(|e| format!("dcfchk refused {PATH}: {e}"))
+        .map_or(0, canopen_slave::NodeId::get)
+        .to_string();
+    let sh = crate::shell::at(root)?;
+    crate::shell::run(cmd!(sh, "{dcfchk} -n {node} {PATH}"))
+        .map_err(|e| format!("dcfchk refused {PATH}: {e}"))
 }
 
 /// Which indices one of the EDS's object lists holds.

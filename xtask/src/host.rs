@@ -7,6 +7,10 @@ use std::env;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use xshell::cmd;
+
+use crate::shell;
+
 /// The first executable `name` on `PATH`.
 pub fn find_in_path(name: &str) -> Option<PathBuf> {
     let path = env::var_os("PATH")?;
@@ -46,22 +50,16 @@ pub fn apt_install(packages: &[&str]) -> Result<(), String> {
             "apt-get not found: install the package(s) `{list}` by hand"
         ));
     }
-    for args in [
-        vec!["update"],
-        [&["install", "-y", "--no-install-recommends"][..], packages].concat(),
+    let sh = &shell::at(Path::new("/"))?;
+    for apt_get in [
+        cmd!(sh, "apt-get update"),
+        cmd!(
+            sh,
+            "apt-get install -y --no-install-recommends {packages...}"
+        ),
     ] {
-        eprintln!("xtask: apt-get {}", args.join(" "));
-        let status = Command::new("apt-get")
-            .args(&args)
-            .env("DEBIAN_FRONTEND", "noninteractive")
-            .status()
-            .map_err(|e| format!("cannot run apt-get: {e}"))?;
-        if !status.success() {
-            return Err(format!(
-                "`apt-get {}` failed ({status}); install `{list}` by hand",
-                args.join(" ")
-            ));
-        }
+        shell::run(apt_get.env("DEBIAN_FRONTEND", "noninteractive"))
+            .map_err(|e| format!("{e}; install `{list}` by hand"))?;
     }
     Ok(())
 }

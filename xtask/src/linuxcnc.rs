@@ -9,7 +9,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::{host, pyenv};
+use xshell::{cmd, Cmd};
+
+use crate::{host, pyenv, shell};
 
 /// The interpreter Debian's LinuxCNC Python modules are built for.
 const SYSTEM_PYTHON: &str = "/usr/bin/python3";
@@ -33,10 +35,10 @@ pub struct Setup {
 }
 
 impl Setup {
-    /// The environment the suite and the console read.
-    pub fn apply(&self, cmd: &mut Command) {
+    /// `cmd` with the environment the suite and the console read.
+    pub fn apply<'a>(&self, cmd: Cmd<'a>) -> Cmd<'a> {
         cmd.env("HANDWHEEL_COMPONENT", &self.component)
-            .env("HANDWHEEL_LINUXCNC_USER", self.user.unwrap_or(""));
+            .env("HANDWHEEL_LINUXCNC_USER", self.user.unwrap_or(""))
     }
 }
 
@@ -91,10 +93,12 @@ fn component_venv(root: &Path, venv: &Path) -> Result<(PathBuf, PathBuf), String
         venv,
     )?;
     // The dependencies are pinned and installed above; setuptools comes with the venv.
-    pyenv::run(
-        pyenv::pip_install(&python)
+    let sh = &shell::at(root)?;
+    let package = root.join(pyenv::HOST_PACKAGE);
+    shell::run(
+        pyenv::pip_install(sh, &python)
             .args(["--no-deps", "--no-build-isolation", "--force-reinstall"])
-            .arg(root.join(pyenv::HOST_PACKAGE)),
+            .arg(package),
     )?;
     let component = venv.join("bin").join("canopen-handwheel");
     if !component.is_file() {
@@ -111,13 +115,11 @@ fn ensure_user() -> Result<(), String> {
         .map(|o| o.status.success())
         .unwrap_or(false);
     if !exists {
-        pyenv::run(Command::new("useradd").args([
-            "--system",
-            "--create-home",
-            "--shell",
-            "/bin/sh",
-            USER,
-        ]))?;
+        let sh = &shell::at(Path::new("/"))?;
+        shell::run(cmd!(
+            sh,
+            "useradd --system --create-home --shell /bin/sh {USER}"
+        ))?;
     }
     Ok(())
 }

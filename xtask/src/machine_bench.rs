@@ -13,9 +13,10 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
-use std::process::Command;
 
-use crate::pyenv;
+use xshell::cmd;
+
+use crate::{pyenv, shell};
 
 /// The benchmark's folder (its unit tests, run by pytest, are `test_*.py` there).
 const DIR: &str = "tools/machine-bench";
@@ -276,27 +277,18 @@ pub fn run(
     let python = pyenv::emu_python(root, target_dir)?;
     // pytest, as every Python test here (tools/pytest.ini: no cache folder in the source
     // tree); the tests that boot the image take this one.
-    let mut unit = Command::new(&python);
-    unit.args(["-m", "pytest", "-q", DIR])
-        .env("HANDWHEEL_BOARD_ELF", elf)
-        .current_dir(root);
-    pyenv::run(&mut unit)?;
+    let sh = &shell::at(root)?;
+    shell::run(cmd!(sh, "{python} -m pytest -q {DIR}").env("HANDWHEEL_BOARD_ELF", elf))?;
     let out_dir = target_dir.join("machine-bench");
     std::fs::create_dir_all(&out_dir)
         .map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
     let report_path = out_dir.join("stack.tsv");
     let _ = std::fs::remove_file(&report_path);
-    let mut bench = Command::new(&python);
-    bench
-        .arg(SCRIPT)
-        .arg(elf)
-        .arg("--stack-report")
-        .arg(&report_path)
-        .current_dir(root);
-    if quiet {
-        bench.arg("--quiet");
-    }
-    pyenv::run(&mut bench)?;
+    let quiet = quiet.then_some("--quiet");
+    shell::run(cmd!(
+        sh,
+        "{python} {SCRIPT} {elf} --stack-report {report_path} {quiet...}"
+    ))?;
     let text = std::fs::read_to_string(&report_path)
         .map_err(|e| format!("cannot read {}: {e}", report_path.display()))?;
     MachineReport::parse(&text)

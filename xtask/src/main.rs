@@ -13,6 +13,7 @@ mod linuxcnc;
 mod machine_bench;
 mod pyenv;
 mod qemu;
+mod shell;
 mod wiring;
 
 use std::env;
@@ -20,6 +21,8 @@ use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
+
+use xshell::{cmd, Cmd, Shell};
 
 const FIRMWARE_TARGET: &str = "thumbv7m-none-eabi";
 /// Crates that must also build without `std` for the MCU.
@@ -31,7 +34,7 @@ const NO_STD_CRATES: &[&str] = &[
 ];
 /// Cargo arguments that select the QEMU board variant of the firmware. It gets its own
 /// target directory, so that building it never invalidates the board build.
-const QEMU_FEATURES: &[&str] = &["--no-default-features", "--features", "qemu"];
+const QEMU_FEATURES: [&str; 3] = ["--no-default-features", "--features", "qemu"];
 /// The cargo-fuzz package (its own workspace: `cargo fuzz run` needs nightly).
 const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
 /// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
@@ -127,67 +130,42 @@ fn main() -> ExitCode {
 
 fn test() -> Result<(), String> {
     let started = Instant::now();
-    cargo(&["fmt", "--all", "--", "--check"])?;
-    cargo(&["fmt", "--manifest-path", FUZZ_MANIFEST, "--", "--check"])?;
+    let sh = &root_shell()?;
+    cargo(cmd!(sh, "cargo fmt --all -- --check"))?;
+    cargo(cmd!(
+        sh,
+        "cargo fmt --manifest-path {FUZZ_MANIFEST} -- --check"
+    ))?;
     python_lint()?;
-    cargo(&["test", "--locked"])?;
+    cargo(cmd!(sh, "cargo test --locked"))?;
     feed_check(&[])?;
     random_frames()?;
     host_tests(&[])?;
     wiring_check()?;
     eds::run(&workspace_root(), &target_dir(), &["--check".into()])?;
-    cargo(&[
-        "clippy",
-        "--locked",
-        "--all-targets",
-        "--",
-        "-D",
-        "warnings",
-    ])?;
+    cargo(cmd!(
+        sh,
+        "cargo clippy --locked --all-targets -- -D warnings"
+    ))?;
     for krate in NO_STD_CRATES {
-        cargo(&[
-            "build",
-            "--locked",
-            "--release",
-            "-p",
-            krate,
-            "--target",
-            FIRMWARE_TARGET,
-        ])?;
+        cargo(cmd!(
+            sh,
+            "cargo build --locked --release -p {krate} --target {FIRMWARE_TARGET}"
+        ))?;
     }
     // The firmware, its library and its on-target tests, for the MCU.
-    cargo(&[
-        "clippy",
-        "--locked",
-        "-p",
-        "handwheel-firmware",
-        "--target",
-        FIRMWARE_TARGET,
-        "--all-targets",
-        "--",
-        "-D",
-        "warnings",
-    ])?;
+    cargo(cmd!(
+        sh,
+        "cargo clippy --locked -p handwheel-firmware --target {FIRMWARE_TARGET} --all-targets
+         -- -D warnings"
+    ))?;
     // The QEMU variant's board layer (the on-target suites are board-only).
     let qemu_dir = qemu_target_dir();
-    cargo(
-        &[
-            &[
-                "clippy",
-                "--locked",
-                "-p",
-                "handwheel-firmware",
-                "--target",
-                FIRMWARE_TARGET,
-                "--all-targets",
-                "--target-dir",
-                path_str(&qemu_dir)?,
-            ][..],
-            QEMU_FEATURES,
-            &["--", "-D", "warnings"],
-        ]
-        .concat(),
-    )?;
+    cargo(cmd!(
+        sh,
+        "cargo clippy --locked -p handwheel-firmware --target {FIRMWARE_TARGET} --all-targets
+         --target-dir {qemu_dir} {QEMU_FEATURES...} -- -D warnings"
+    ))?;
     firmware_build()?;
     one_build_check()?;
     // The release machine code in the emulator: CPU figures in one line, the stack and the
@@ -195,25 +173,15 @@ fn test() -> Result<(), String> {
     stack_check(&machine_bench(true)?)?;
     board_unit_tests()?;
     // The on-target suites (defmt-test) cannot run here, but they must build.
-    board_cargo(&[
-        "build",
-        "--locked",
-        "--release",
-        "--tests",
-        "-p",
-        "handwheel-firmware",
-        "--target",
-        FIRMWARE_TARGET,
-    ])?;
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked --release --tests -p handwheel-firmware --target {FIRMWARE_TARGET}"
+    ))?;
     // The dev profile must fit the part too (the linker checks memory.x; this prints it).
-    board_cargo(&[
-        "build",
-        "--locked",
-        "-p",
-        "handwheel-firmware",
-        "--target",
-        FIRMWARE_TARGET,
-    ])?;
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked -p handwheel-firmware --target {FIRMWARE_TARGET}"
+    ))?;
     footprint::check(
         &firmware_elf("debug"),
         "dev firmware",
@@ -243,26 +211,16 @@ fn test() -> Result<(), String> {
 /// runs a million seeded random frame sequences (the `harness` profile: optimised, with
 /// debug assertions and overflow checks).
 fn random_frames() -> Result<(), String> {
+    let sh = &root_shell()?;
     let fuzz_dir = target_dir().join("fuzz");
-    cargo(&[
-        "build",
-        "--locked",
-        "--manifest-path",
-        FUZZ_MANIFEST,
-        "--target-dir",
-        path_str(&fuzz_dir)?,
-    ])?;
-    cargo(&[
-        "run",
-        "--locked",
-        "--profile",
-        "harness",
-        "-p",
-        "canopen-harness",
-        "--",
-        "--sequences",
-        RANDOM_SEQUENCES,
-    ])
+    cargo(cmd!(
+        sh,
+        "cargo build --locked --manifest-path {FUZZ_MANIFEST} --target-dir {fuzz_dir}"
+    ))?;
+    cargo(cmd!(
+        sh,
+        "cargo run --locked --profile harness -p canopen-harness -- --sequences {RANDOM_SEQUENCES}"
+    ))
 }
 
 /// The four benchmarks: 1. the feed protocol simulation (paper vs this project,
@@ -271,16 +229,11 @@ fn random_frames() -> Result<(), String> {
 /// motion in LinuxCNC and the run-on after a fast spin ([`linuxcnc_bench`]).
 fn bench() -> Result<(), String> {
     eprintln!("xtask: ## 1. Feed protocol");
-    cargo(&[
-        "run",
-        "--locked",
-        "--release",
-        "-q",
-        "-p",
-        "feed-bench",
-        "--",
-        "docs/feed-protocols.svg",
-    ])?;
+    let sh = &root_shell()?;
+    cargo(cmd!(
+        sh,
+        "cargo run --locked --release -q -p feed-bench -- docs/feed-protocols.svg"
+    ))?;
     eprintln!("xtask: ## 2. CPU cost");
     release_build()?;
     let stack = machine_bench(false)?;
@@ -297,13 +250,10 @@ fn linuxcnc_bench() -> Result<(), String> {
     Emulator::prepare()?;
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
-    let mut pytest = Command::new(&setup.python);
-    pytest
-        .args(["-m", "pytest", "-q", "-s", linuxcnc::BENCH])
-        .current_dir(&root)
-        .env("HANDWHEEL_EMULATOR", "qemu");
-    setup.apply(&mut pytest);
-    pyenv::run(&mut pytest).map_err(|e| format!("the LinuxCNC benchmark failed: {e}"))
+    let sh = &shell::at(&root)?;
+    let (python, bench) = (&setup.python, linuxcnc::BENCH);
+    let pytest = cmd!(sh, "{python} -m pytest -q -s {bench}").env("HANDWHEEL_EMULATOR", "qemu");
+    shell::run(setup.apply(pytest)).map_err(|e| format!("the LinuxCNC benchmark failed: {e}"))
 }
 
 /// Runs the machine benchmark on the release ELF (built already): the full CPU report, or
@@ -358,12 +308,11 @@ fn firmware_build() -> Result<(), String> {
 /// `cargo fw`, the README's build, right after xtask's: it must compile nothing, since both
 /// build the same configuration into the same target directory (`linker.rs`).
 fn one_build_check() -> Result<(), String> {
-    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     eprintln!("xtask: cargo fw (the README's build: must compile nothing now)");
-    let mut command = Command::new(cargo);
-    command.arg("fw").current_dir(workspace_root());
+    let sh = &root_shell()?;
+    let mut command = cmd!(sh, "cargo fw").ignore_status();
     if let Some(path) = linker::flip_link()?.path() {
-        command.env("PATH", path);
+        command = command.env("PATH", path);
     }
     let output = command
         .output()
@@ -390,15 +339,11 @@ fn one_build_check() -> Result<(), String> {
 
 /// Builds the release firmware.
 fn release_build() -> Result<(), String> {
-    board_cargo(&[
-        "build",
-        "--locked",
-        "--release",
-        "-p",
-        "handwheel-firmware",
-        "--target",
-        FIRMWARE_TARGET,
-    ])
+    let sh = &root_shell()?;
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked --release -p handwheel-firmware --target {FIRMWARE_TARGET}"
+    ))
 }
 
 /// Prints the release firmware's footprint and fails if it is over its budget.
@@ -411,22 +356,13 @@ fn footprint_check() -> Result<(), String> {
 /// changed; returns its ELF.
 fn qemu_firmware_build() -> Result<PathBuf, String> {
     let dir = qemu_target_dir();
+    let sh = &root_shell()?;
     cargo_linked(
-        &[
-            &[
-                "build",
-                "--locked",
-                "--release",
-                "-p",
-                "handwheel-firmware",
-                "--target",
-                FIRMWARE_TARGET,
-                "--target-dir",
-                path_str(&dir)?,
-            ][..],
-            QEMU_FEATURES,
-        ]
-        .concat(),
+        cmd!(
+            sh,
+            "cargo build --locked --release -p handwheel-firmware --target {FIRMWARE_TARGET}
+             --target-dir {dir} {QEMU_FEATURES...}"
+        ),
         &linker::Linker::RustLld,
     )?;
     let elf = dir
@@ -505,19 +441,12 @@ impl Board {
 /// own target directory, linked like the release image); returns its ELF.
 fn overflow_build() -> Result<PathBuf, String> {
     let dir = target_dir().join("stack-overflow");
-    board_cargo(&[
-        "build",
-        "--locked",
-        "--release",
-        "-p",
-        "handwheel-firmware",
-        "--target",
-        FIRMWARE_TARGET,
-        "--features",
-        "stack-overflow-test",
-        "--target-dir",
-        path_str(&dir)?,
-    ])?;
+    let sh = &root_shell()?;
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked --release -p handwheel-firmware --target {FIRMWARE_TARGET}
+         --features stack-overflow-test --target-dir {dir}"
+    ))?;
     Ok(dir
         .join(FIRMWARE_TARGET)
         .join("release")
@@ -534,7 +463,9 @@ fn run_board(args: board::Args) -> Result<(), String> {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     }
     let root = workspace_root();
-    let mut server = board::command(
+    let sh = &shell::at(&root)?;
+    let server = board::command(
+        sh,
         &setup.python,
         &root,
         &setup.elf,
@@ -542,21 +473,21 @@ fn run_board(args: board::Args) -> Result<(), String> {
         &default_flash,
         &setup.defmt_print,
     );
-    eprintln!("xtask: {server:?}");
-    // The server runs defmt-print itself (restarting it at every reset).
-    Err(format!("cannot start the board: {}", server.exec()))
+    eprintln!("xtask: {server}");
+    // The server runs defmt-print itself (restarting it at every reset). It replaces this
+    // process, which xshell (waiting for its commands) does not do.
+    let error = Command::from(server)
+        .stdin(std::process::Stdio::null())
+        .exec();
+    Err(format!("cannot start the board: {error}"))
 }
 
 /// The emulated board's own unit tests (register models, exception model; pytest).
 fn board_unit_tests() -> Result<(), String> {
     let setup = Board::prepare()?;
-    pyenv::run(&mut board::unit_tests(
-        &setup.python,
-        &workspace_root(),
-        &setup.elf,
-        &[],
-    ))
-    .map_err(|e| format!("the emulated board's unit tests failed: {e}"))
+    let sh = &root_shell()?;
+    shell::run(board::unit_tests(sh, &setup.python, &setup.elf, &[]))
+        .map_err(|e| format!("the emulated board's unit tests failed: {e}"))
 }
 
 /// The interop suite: QEMU, the QEMU firmware, the emulated board and defmt-print first (so
@@ -570,21 +501,13 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     overflow_build()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
-    let extra: Vec<&str> = pytest_args.iter().map(String::as_str).collect();
-    let mut pytest = pyenv::pytest(&root, &python, &extra);
-    eprintln!("xtask: {pytest:?}");
-    let status = pytest
-        .status()
-        .map_err(|e| format!("cannot run pytest: {e}"))?;
+    let sh = &shell::at(&root)?;
+    let result = shell::run(pyenv::pytest(sh, &python, pytest_args));
     eprintln!(
         "xtask: interop suite took {:.0} s",
         started.elapsed().as_secs_f64()
     );
-    if status.success() {
-        Ok(())
-    } else {
-        Err(format!("the interop suite failed ({status})"))
-    }
+    result.map_err(|e| format!("the interop suite failed: {e}"))
 }
 
 /// The README's and docs/' code blocks that need no hardware, run against the QEMU variant
@@ -595,11 +518,8 @@ fn snippets_run() -> Result<(), String> {
     Board::prepare()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
-    let mut pytest = Command::new(&python);
-    pytest
-        .args(["-m", "pytest", SNIPPETS_RUN, "-q"])
-        .current_dir(&root);
-    let result = pyenv::run(&mut pytest);
+    let sh = &shell::at(&root)?;
+    let result = shell::run(cmd!(sh, "{python} -m pytest {SNIPPETS_RUN} -q"));
     eprintln!(
         "xtask: the documents' snippets took {:.0} s",
         started.elapsed().as_secs_f64()
@@ -621,13 +541,10 @@ fn python_lint() -> Result<(), String> {
         &root.join(pyenv::LINT_REQUIREMENTS),
         &target_dir().join("lint-venv"),
     )?;
+    let sh = &shell::at(&root)?;
+    let paths = pyenv::LINT_PATHS;
     for check in [&["check"][..], &["format", "--check"]] {
-        let mut ruff = Command::new(&python);
-        ruff.args(["-m", "ruff"])
-            .args(check)
-            .args(pyenv::LINT_PATHS)
-            .current_dir(&root);
-        pyenv::run(&mut ruff).map_err(|e| {
+        shell::run(cmd!(sh, "{python} -m ruff {check...} {paths...}")).map_err(|e| {
             format!(
                 "Python lint: {e}\n(fix with target/lint-venv/bin/ruff format and ruff check \
                  --fix; docs/TESTING.md, \"Python: rig, tests, lint\")"
@@ -646,20 +563,11 @@ fn feed_check(only: &[String]) -> Result<(), String> {
     let vectors = target_dir().join("feed-check").join("vectors.jsonl");
     std::fs::create_dir_all(vectors.parent().unwrap_or(&target_dir()))
         .map_err(|e| format!("cannot create {}: {e}", vectors.display()))?;
-    let path = vectors.to_string_lossy().into_owned();
-    let mut args = vec![
-        "run",
-        "--locked",
-        "--release",
-        "-q",
-        "-p",
-        "feed-check",
-        "--",
-        "--vectors",
-        path.as_str(),
-    ];
-    args.extend(only.iter().map(String::as_str));
-    cargo(&args)?;
+    let sh = &root_shell()?;
+    cargo(cmd!(
+        sh,
+        "cargo run --locked --release -q -p feed-check -- --vectors {vectors} {only...}"
+    ))?;
     env::set_var("HANDWHEEL_FEED_VECTORS", &vectors);
     Ok(())
 }
@@ -670,8 +578,8 @@ fn host_tests(pytest_args: &[String]) -> Result<(), String> {
         &root.join(pyenv::HOST_REQUIREMENTS),
         &target_dir().join("host-venv"),
     )?;
-    let extra: Vec<&str> = pytest_args.iter().map(String::as_str).collect();
-    pyenv::run(&mut pyenv::host_pytest(&root, &python, &extra))
+    let sh = &shell::at(&root.join(pyenv::HOST_PACKAGE))?;
+    shell::run(pyenv::host_pytest(sh, &python, pytest_args))
         .map_err(|e| format!("the component's unit tests failed: {e}"))
 }
 
@@ -687,7 +595,8 @@ fn docs(args: &[String]) -> Result<(), String> {
         let root = workspace_root();
         let python = wiring::python(&root, &target_dir())?;
         wiring::require_dot()?;
-        pyenv::run(&mut wiring::render(&python, &root))
+        let sh = &shell::at(&root)?;
+        shell::run(wiring::render(sh, &python))
             .map_err(|e| format!("rendering the wiring diagram failed: {e}"))?;
     }
     wiring_check()
@@ -701,7 +610,8 @@ fn docs(args: &[String]) -> Result<(), String> {
 fn wiring_check() -> Result<(), String> {
     let root = workspace_root();
     let python = wiring::python(&root, &target_dir())?;
-    pyenv::run(&mut wiring::tests(&python, &root, &[])).map_err(|e| {
+    let sh = &shell::at(&root)?;
+    shell::run(wiring::tests(sh, &python, &[])).map_err(|e| {
         format!(
             "the documents' checks failed: {e}\n(after changing docs/wiring/handwheel.yml, \
              re-render with `cargo xtask docs`; a broken Markdown link: fix the link or the \
@@ -725,14 +635,11 @@ fn linuxcnc_suite(args: &[String]) -> Result<(), String> {
     }
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
-    let mut pytest = Command::new(&setup.python);
-    pytest
-        .args(["-m", "pytest", linuxcnc::SUITE])
-        .args(pytest_args)
-        .current_dir(&root);
-    setup.apply(&mut pytest);
-    pytest.env("HANDWHEEL_EMULATOR", if board { "board" } else { "qemu" });
-    let result = pyenv::run(&mut pytest);
+    let sh = &shell::at(&root)?;
+    let (python, suite) = (&setup.python, linuxcnc::SUITE);
+    let pytest = cmd!(sh, "{python} -m pytest {suite} {pytest_args...}")
+        .env("HANDWHEEL_EMULATOR", if board { "board" } else { "qemu" });
+    let result = shell::run(setup.apply(pytest));
     eprintln!(
         "xtask: LinuxCNC suite ({}) took {:.0} s",
         if board { "emulated board" } else { "QEMU" },
@@ -747,15 +654,15 @@ fn linuxcnc_console(args: &[String]) -> Result<(), String> {
     Emulator::prepare()?;
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
-    let mut command = Command::new(&setup.python);
-    command
-        .arg(root.join(linuxcnc::CONSOLE))
-        .args(args)
-        .current_dir(&root)
+    let sh = &shell::at(&root)?;
+    let (python, console) = (&setup.python, root.join(linuxcnc::CONSOLE));
+    let console = cmd!(sh, "{python} {console} {args...}")
         .env("HANDWHEEL_LOG_DIR", target_dir().join("linuxcnc"));
-    setup.apply(&mut command);
-    eprintln!("xtask: {command:?}");
-    let error = command.exec();
+    let console = setup.apply(console);
+    eprintln!("xtask: {console}");
+    // xshell waits for its commands; this one replaces the process (the console owns the
+    // terminal).
+    let error = Command::from(console).exec();
     Err(format!("cannot run {}: {error}", setup.python.display()))
 }
 
@@ -774,15 +681,13 @@ fn demo(args: &[String]) -> Result<(), String> {
     std::fs::create_dir_all(&log_dir).map_err(|e| format!("{}: {e}", log_dir.display()))?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
-    let mut command = Command::new(&python);
-    command
-        .arg(root.join(DEMO_SCRIPT))
-        .args(args)
-        .current_dir(&root)
-        .env("HANDWHEEL_QEMU_LOG", log_dir.join("demo.log"));
-    eprintln!("xtask: {command:?}");
+    let sh = &shell::at(&root)?;
+    let script = root.join(DEMO_SCRIPT);
+    let demo =
+        cmd!(sh, "{python} {script} {args...}").env("HANDWHEEL_QEMU_LOG", log_dir.join("demo.log"));
+    eprintln!("xtask: {demo}");
     // Replaces this process, so that Ctrl-C reaches the demo alone and it cleans up.
-    let error = command.exec();
+    let error = Command::from(demo).exec();
     Err(format!("cannot run {}: {error}", python.display()))
 }
 
@@ -798,11 +703,6 @@ fn qemu_target_dir() -> PathBuf {
     target_dir().join("qemu")
 }
 
-fn path_str(path: &Path) -> Result<&str, String> {
-    path.to_str()
-        .ok_or_else(|| format!("{} is not valid UTF-8", path.display()))
-}
-
 /// The firmware ELF of a profile directory (`release` or `debug`).
 fn firmware_elf(profile: &str) -> PathBuf {
     target_dir()
@@ -811,43 +711,37 @@ fn firmware_elf(profile: &str) -> PathBuf {
         .join("handwheel-firmware")
 }
 
-/// Runs cargo from the workspace root, echoing the command.
-fn cargo(args: &[&str]) -> Result<(), String> {
-    cargo_with(args, None)
+/// A shell in the workspace root, where the cargo commands run.
+fn root_shell() -> Result<Shell, String> {
+    shell::at(&workspace_root())
+}
+
+/// Runs a cargo command (from [`root_shell`]), echoing it.
+fn cargo(command: Cmd<'_>) -> Result<(), String> {
+    cargo_with(command, None)
 }
 
 /// Runs cargo for a board image: linked by the configuration's flip-link, as `cargo fw`
 /// links (installed on first use; see `linker.rs`).
-fn board_cargo(args: &[&str]) -> Result<(), String> {
-    cargo_linked(args, &linker::flip_link()?)
+fn board_cargo(command: Cmd<'_>) -> Result<(), String> {
+    cargo_linked(command, &linker::flip_link()?)
 }
 
 /// Runs cargo with the firmware target's linker set to `linker`.
-fn cargo_linked(args: &[&str], linker: &linker::Linker) -> Result<(), String> {
-    cargo_with(args, Some(linker))
+fn cargo_linked(command: Cmd<'_>, linker: &linker::Linker) -> Result<(), String> {
+    cargo_with(command, Some(linker))
 }
 
-fn cargo_with(args: &[&str], linker: Option<&linker::Linker>) -> Result<(), String> {
-    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    eprintln!("xtask: cargo {}", args.join(" "));
-    let mut command = Command::new(cargo);
-    command.args(args).current_dir(workspace_root());
+fn cargo_with(mut command: Cmd<'_>, linker: Option<&linker::Linker>) -> Result<(), String> {
     if let Some(linker) = linker {
         if let Some(program) = linker.override_program() {
-            command.env(linker::LINKER_ENV, program);
+            command = command.env(linker::LINKER_ENV, program);
         }
         if let Some(path) = linker.path() {
-            command.env("PATH", path);
+            command = command.env("PATH", path);
         }
     }
-    let status = command
-        .status()
-        .map_err(|e| format!("cannot run cargo: {e}"))?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(format!("`cargo {}` failed ({status})", args.join(" ")))
-    }
+    shell::run(command)
 }
 
 fn workspace_root() -> PathBuf {

@@ -11,7 +11,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::host;
+use xshell::{cmd, Cmd, Shell};
+
+use crate::{host, shell};
 
 /// The requirements file, relative to the workspace root.
 pub const REQUIREMENTS: &str = "tests/interop/requirements.txt";
@@ -83,19 +85,6 @@ pub fn base_python() -> Result<PathBuf, String> {
     host::require("python3", &["python3", "python3-venv"])
 }
 
-/// Runs `cmd`, echoing it; fails unless it exits successfully.
-pub fn run(cmd: &mut Command) -> Result<(), String> {
-    eprintln!("xtask: {cmd:?}");
-    let status = cmd
-        .status()
-        .map_err(|e| format!("cannot run {:?}: {e}", cmd.get_program()))?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(format!("{cmd:?} failed ({status})"))
-    }
-}
-
 /// Creates or refreshes the venv at `venv` from `<root>/tests/interop/requirements.txt`;
 /// returns the venv's interpreter. Does nothing when the stamp matches.
 pub fn ensure(root: &Path, venv: &Path) -> Result<PathBuf, String> {
@@ -135,11 +124,12 @@ pub fn ensure_with(
     }
     // A half-made or outdated venv is rebuilt from scratch: `--clear` empties it.
     let _ = std::fs::remove_file(&stamp_path);
+    let sh = &Shell::new().map_err(|e| format!("cannot start a shell: {e}"))?;
     let make = |python: &Path| {
-        run(Command::new(python)
-            .args(["-m", "venv", "--clear"])
-            .args(venv_options)
-            .arg(venv))
+        shell::run(cmd!(
+            sh,
+            "{python} -m venv --clear {venv_options...} {venv}"
+        ))
     };
     if let Err(first) = make(&base) {
         // Debian's python3 lacks `ensurepip` until python3-venv is installed.
@@ -152,7 +142,7 @@ pub fn ensure_with(
         host::apt_install(&["python3-venv"])?;
         make(&base)?;
     }
-    run(pip_install(&python).arg("-r").arg(requirements))?;
+    shell::run(pip_install(sh, &python).arg("-r").arg(requirements))?;
     std::fs::write(&stamp_path, stamp)
         .map_err(|e| format!("cannot write {}: {e}", stamp_path.display()))?;
     Ok(python)
@@ -160,36 +150,22 @@ pub fn ensure_with(
 
 /// `python -m pip install` with the options every install here uses (quiet, no prompts);
 /// the caller adds what to install.
-pub fn pip_install(python: &Path) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.args([
-        "-m",
-        "pip",
-        "install",
-        "--disable-pip-version-check",
-        "--no-input",
-        "--quiet",
-    ]);
-    cmd
+pub fn pip_install<'a>(sh: &'a Shell, python: &Path) -> Cmd<'a> {
+    cmd!(
+        sh,
+        "{python} -m pip install --disable-pip-version-check --no-input --quiet"
+    )
 }
 
-/// `python -m pytest <extra>` in `host/`: the component's unit and property tests (its
-/// pyproject puts `src` on the path).
-pub fn host_pytest(root: &Path, python: &Path, extra: &[&str]) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.args(["-m", "pytest"])
-        .args(extra)
-        .current_dir(root.join(HOST_PACKAGE));
-    cmd
+/// `python -m pytest <extra>`, in a shell in `host/`: the component's unit and property tests
+/// (its pyproject puts `src` on the path).
+pub fn host_pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a> {
+    cmd!(sh, "{python} -m pytest {extra...}")
 }
 
-/// `python -m pytest tests/interop <extra>` from the workspace root.
-pub fn pytest(root: &Path, python: &Path, extra: &[&str]) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.args(["-m", "pytest", SUITE])
-        .args(extra)
-        .current_dir(root);
-    cmd
+/// `python -m pytest tests/interop <extra>`, in a shell in the workspace root.
+pub fn pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a> {
+    cmd!(sh, "{python} -m pytest {SUITE} {extra...}")
 }
 
 #[cfg(test)]

@@ -34,6 +34,8 @@ use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
+use xshell::{cmd, Shell};
+
 use crate::host;
 
 /// The Debian package with `qemu-system-arm`.
@@ -163,26 +165,25 @@ pub fn cargo_install(root: Option<&Path>, name: &str, version: &str) -> Result<P
             .ok_or("cannot tell cargo's bin folder: neither CARGO_HOME nor HOME is set")?,
     };
     let bin = bin_dir.join(name);
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let version = format!("={version}");
-    let mut command = Command::new(cargo);
-    command.args(["install", name, "--locked", "--version", &version]);
-    if let Some(root) = root {
-        command.arg("--root").arg(root);
-    }
-    command.env("PATH", crate::linker::path_with(&bin_dir));
+    let sh = &Shell::new().map_err(|e| format!("cannot start a shell: {e}"))?;
+    let root_option = root.map(|root| [Path::new("--root"), root]);
+    let root_option = root_option.iter().flatten();
+    let command = cmd!(
+        sh,
+        "cargo install {name} --locked --version {version} {root_option...}"
+    )
+    .env("PATH", crate::linker::path_with(&bin_dir));
     eprintln!(
         "xtask: cargo install {name} --locked --version {version}{} (once; it builds from \
          source, a few minutes)",
         root.map(|r| format!(" --root {}", r.display()))
             .unwrap_or_default()
     );
-    let status = command
-        .status()
-        .map_err(|e| format!("cannot run cargo install: {e}"))?;
-    if !status.success() {
-        return Err(format!("installing {name} failed ({status})"));
-    }
+    command
+        .quiet()
+        .run()
+        .map_err(|e| format!("installing {name} failed: {e}"))?;
     if bin.is_file() {
         Ok(bin)
     } else {

@@ -9,7 +9,8 @@
 //! Graphviz: they read the YAML, the firmware's table, the README and the committed SVG.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+use xshell::{cmd, Cmd, Shell};
 
 use crate::{host, pyenv};
 
@@ -33,29 +34,18 @@ pub fn require_dot() -> Result<PathBuf, String> {
     host::require("dot", &["graphviz"])
 }
 
-/// `python tools/wiring/render.py`: writes the SVG with its source stamp.
-pub fn render(python: &Path, root: &Path) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.arg(root.join(PACKAGE).join("render.py"))
-        .current_dir(root);
-    cmd
+/// `python tools/wiring/render.py`, in a shell in the workspace root: writes the SVG with its
+/// source stamp.
+pub fn render<'a>(sh: &'a Shell, python: &Path) -> Cmd<'a> {
+    cmd!(sh, "{python} {PACKAGE}/render.py")
 }
 
-/// The checks under pytest (no cache folder left in the source tree): the wiring diagram's,
-/// the documents' links and the marks of their code blocks.
-pub fn tests(python: &Path, root: &Path, extra: &[&str]) -> Command {
-    let mut cmd = Command::new(python);
-    cmd.args([
-        "-m",
-        "pytest",
-        "-p",
-        "no:cacheprovider",
-        PACKAGE,
-        LINKS,
-        SNIPPET_MARKS,
-        "-q",
-    ])
-    .args(extra)
-    .current_dir(root);
-    cmd
+/// The checks under pytest (no cache folder left in the source tree), in a shell in the
+/// workspace root: the wiring diagram's, the documents' links and the marks of their code
+/// blocks.
+pub fn tests<'a>(sh: &'a Shell, python: &Path, extra: &[&str]) -> Cmd<'a> {
+    cmd!(
+        sh,
+        "{python} -m pytest -p no:cacheprovider {PACKAGE} {LINKS} {SNIPPET_MARKS} -q {extra...}"
+    )
 }

@@ -6,8 +6,14 @@ from rig import EMCY
 
 def raise_emcy(rig):
     """An illegal quadrature jump with feed on: EMCY 0x7300 (README, Emergency codes)."""
-    rig.stim.ab(0)  # the wheel's lines persist across the reset node of other cases
+    # The wheel's lines persist across the reset node of other cases: after a case that
+    # ended on 3, this is itself an illegal jump, whose error the enable below clears.
+    rig.stim.ab(0)
     rig.feed_on("x")
+    # The device notices the cleared error only after it has answered the enable, so a jump
+    # made as soon as that answer arrives could fall before it looks (the error then never
+    # counts as cleared, and no new EMCY is due). Any later answer comes after it looked.
+    assert rig.read(0x1001) == 0, "the encoder error of an earlier jump is still active"
     mark = rig.frames.mark()
     rig.stim.ab(3)
     return rig.frames.wait_for(

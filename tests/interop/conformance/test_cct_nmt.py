@@ -5,9 +5,10 @@ SDO per state, and every NMT transition."""
 import canopen
 import pytest
 
-from cct import count_between, dut, shared_rig  # noqa: F401
+from cct import dut, shared_rig  # noqa: F401
 from rig import (
     BOOTUP,
+    FRAME_TIMEOUT,
     HEARTBEAT,
     NMT_PRE_OPERATIONAL,
     NMT_RESET_COMMUNICATION,
@@ -22,9 +23,13 @@ from rig import (
 
 
 def beats(rig, state, period_ms=500, n=2):
+    """`n` heartbeats showing `state` at `period_ms`. The wait is host time, which a busy
+    host stretches against the node's: only the states are checked here (test_heartbeat.py
+    and test_sdo.py check the periods)."""
     rig.write(0x1017, 0, period_ms, 2)
     mark = rig.frames.mark()
-    got = rig.frames.wait_count(HEARTBEAT, n, since=mark, timeout=n * period_ms / 1000 + 1)
+    timeout = n * period_ms / 1000 + FRAME_TIMEOUT
+    got = rig.frames.wait_count(HEARTBEAT, n, since=mark, timeout=timeout)
     assert all(f.data == bytes([state]) for f in got), got
 
 
@@ -58,10 +63,12 @@ def test_state_02_pre_operational_after_bootup(dut):
 def test_state_03_operational(dut):
     mark = dut.frames.mark()
     dut.start()
-    dut.frames.wait_id(TPDO1, since=mark, timeout=0.5)
+    dut.frames.wait_id(TPDO1, since=mark)
     beats(dut, OPERATIONAL)
     assert dut.read(0x1000) == 0
-    assert count_between(dut, TPDO1, 0.5) >= 3  # event timer 100 ms
+    # The 100 ms event timer repeats it (test_pdo.py checks its period; a count in a window
+    # of host time fell short when a busy host held the node back).
+    dut.frames.wait_count(TPDO1, 3, since=dut.frames.mark())
 
 
 def test_state_04_stopped(dut):
@@ -72,7 +79,7 @@ def test_state_04_stopped(dut):
     with pytest.raises(canopen.SdoCommunicationError):
         dut.node.sdo.upload(0x1000, 0)
     dut.frames.assert_none(lambda f: f.id == TPDO1, 0.5, since=mark, what="PDO in Stopped")
-    got = dut.frames.wait_count(HEARTBEAT, 1, since=mark, timeout=1.5)
+    got = dut.frames.wait_count(HEARTBEAT, 1, since=mark)
     assert got[0].data == bytes([STOPPED])
 
 
@@ -106,7 +113,7 @@ def test_transition_03_start_remote_node(dut):
             dut.nmt_and_heartbeat(before, STOPPED)
         mark = dut.frames.mark()
         dut.start()
-        dut.frames.wait_id(TPDO1, since=mark, timeout=0.5)
+        dut.frames.wait_id(TPDO1, since=mark)
         assert dut.read(0x1000) == 0
 
 
