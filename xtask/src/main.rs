@@ -277,16 +277,14 @@ fn stack_check(report: &machine_bench::MachineReport) -> Result<(), String> {
 }
 
 /// Worst-case stack budget of the release firmware, checked by the machine benchmark (thread
-/// mode plus every preemption level's deepest handler and exception frame). Measured
-/// 3 148 B when it was set (three async tasks then), 1 904 B since they became one; the room
-/// left covers paths the scenarios do not take. With the 4 KiB static RAM budget it keeps the
+/// mode plus every preemption level's deepest handler and exception frame; the measured
+/// figures are in docs/PERFORMANCE.md). The room left covers paths the benchmark's scenarios
+/// do not take. With the 4 KiB static RAM budget it keeps the
 /// image within 8 KiB of the 20 KiB part, which is also all the RAM the QEMU variant's has.
 const STACK_BUDGET: u32 = 4 * 1024;
 
-/// Release footprint budget: 32 KiB flash (20 KiB, plus room for LSS and the device profile,
-/// the feed record's outbox and the wear-levelled parameter page, then stm32f1xx-hal for the
-/// bring-up and drivers: see docs/PERFORMANCE.md), 4 KiB static RAM (RTT included). CI fails
-/// above it.
+/// Release footprint budget: 32 KiB flash (what the services need, the image's history in
+/// docs/PERFORMANCE.md), 4 KiB static RAM (RTT included). CI fails above it.
 const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
     flash: 32 * 1024,
     ram: 4 * 1024,
