@@ -13,8 +13,8 @@
 //! here.
 
 use handwheel_core::{
-    AbLevels, Axis, CounterStride, DecoderConfig, EdgeState, FeedRecord, LinkedWheel, Selection,
-    UnitStep, UnitStepEncoder, WheelAccess,
+    AbLevels, Axis, CounterStride, DecoderConfig, EdgeState, FeedRecord, Handwheel, LinkedWheel,
+    Mutex, Selection, UnitStep, UnitStepEncoder,
 };
 
 use crate::bus::Bus;
@@ -151,7 +151,7 @@ struct CompatDevice {
 impl CompatDevice {
     fn pump(&mut self, until: f64, bus: &mut Bus) {
         while self.next_allowed <= until {
-            let Some(step) = self.wheel.with_wheel(|w| w.feed.take_unit_step()) else {
+            let Some(step) = self.wheel.lock(|w| w.feed.take_unit_step()) else {
                 break;
             };
             let at = self.next_allowed;
@@ -164,7 +164,7 @@ impl CompatDevice {
 
 fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
     let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
-    wheel.with_wheel(|w| {
+    wheel.lock(|w| {
         let _ = w.feed.set_unit_step_mode(true);
         let _ = w.feed.set_selection(selected(trace));
         let _ = w.feed.set_enabled(true);
@@ -179,7 +179,7 @@ fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
         let t = edge.t_us as f64;
         device.pump(t, bus);
         device.next_allowed = device.next_allowed.max(t);
-        let _ = device.wheel.on_edge(edge.levels);
+        let _ = device.wheel.edge().on_edge(edge.levels);
         device.pump(t, bus);
     }
     device.pump(f64::INFINITY, bus);
@@ -229,8 +229,8 @@ impl RecordDevice {
 
     fn edge(&mut self, t: f64, levels: AbLevels, bus: &mut Bus) {
         self.timers(t, bus);
-        let _ = self.wheel.on_edge(levels);
-        if self.wheel.take_record_due() && !self.pending {
+        let _ = self.wheel.edge().on_edge(levels);
+        if self.wheel.lock(Handwheel::take_record_due) && !self.pending {
             self.pending = true;
             // The event is at `t`: an inhibit time that ran out earlier does not date it.
             self.inhibit_end = self.inhibit_end.max(t);
@@ -241,7 +241,7 @@ impl RecordDevice {
 
 fn record(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
     let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
-    wheel.with_wheel(|w| {
+    wheel.lock(|w| {
         let _ = w.feed.set_selection(selected(trace));
         let _ = w.feed.set_enabled(true);
     });

@@ -490,7 +490,7 @@ impl FeedModel {
         let before = w.real.wheel.feed().position();
         for _ in 0..4 {
             w.real.levels = w.real.levels.next_forward();
-            let _ = w.real.wheel.on_edge(w.real.levels);
+            let _ = w.real.wheel.edge().on_edge(w.real.levels);
         }
         let after = w.real.wheel.feed().position();
         let era = usize::from(w.era);

@@ -11,7 +11,8 @@
 //! - [`feed`]: the feed status bits and the unit step, shared by the two below.
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
-//! - [`wheel`]: the CAN side's wheel: a view of the shared decoder and the accumulator.
+//! - [`wheel`]: the CAN side's wheel: the shared decoder as last published, the settings
+//!   asked of it, and the accumulator; reached as an RTIC `Mutex`.
 //! - [`outbox`]: holds each selection epoch's final state until the bus takes it, so that
 //!   no epoch ends unseen while the bus is blocked.
 //! - [`pdo`]: the 8-byte feed record and the paper's 1-byte unit-step format.
@@ -43,4 +44,4 @@ pub use selector::{
     DEFAULT_DEBOUNCE_SAMPLES,
 };
 pub use standstill::{Settle, Standstill, STANDSTILL_MS};
-pub use wheel::{DecoderView, Handwheel, LinkedWheel, WheelAccess};
+pub use wheel::{Handwheel, LinkedWheel};

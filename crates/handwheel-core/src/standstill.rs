@@ -9,10 +9,11 @@
 //! short lock, through this type.
 
 use crate::decoder::QuadratureDecoder;
-use crate::wheel::DecoderView;
+use crate::wheel::Handwheel;
 
 /// A decoder that [`Standstill`] can watch and settle: the edge's own
-/// [`QuadratureDecoder`], or the CAN side's [`DecoderView`] of it.
+/// [`QuadratureDecoder`], or the CAN side's [`Handwheel`], which asks the edge's decoder
+/// to settle.
 pub trait Settle {
     /// Marks of motion: a change in any of them is motion (levels or the edge sequence,
     /// count, illegal transitions).
@@ -36,7 +37,7 @@ impl Settle for QuadratureDecoder {
     }
 }
 
-impl Settle for DecoderView {
+impl Settle for Handwheel {
     fn motion_marks(&self) -> (u32, u32, u32) {
         let s = self.snapshot();
         (s.edges, s.count as u32, s.illegal)

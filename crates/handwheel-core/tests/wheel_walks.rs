@@ -6,8 +6,8 @@
 //! check that reporting against the walk that produced the edges.
 
 use handwheel_core::{
-    AbLevels, Axis, CountsPerDetent, DecoderConfig, FeedAccumulator, LinkedWheel, Multiplier,
-    QuadratureDecoder, Selection, WheelAccess,
+    AbLevels, Axis, CountsPerDetent, DecoderConfig, FeedAccumulator, Handwheel, LinkedWheel,
+    Multiplier, Mutex, QuadratureDecoder, Selection,
 };
 use proptest::prelude::*;
 
@@ -329,7 +329,7 @@ proptest! {
         axis in 0..5usize,
     ) {
         let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
-        wheel.with_wheel(|w| {
+        wheel.lock(|w| {
             let _ = w.feed.set_selection(Selection { axis: Some(Axis::ALL[axis]), multiplier: factor });
             let _ = w.feed.set_enabled(true);
         });
@@ -340,18 +340,18 @@ proptest! {
                 let bounces = chatter.get(i).copied().unwrap_or(0);
                 let next = step(levels, forward);
                 for _ in 0..bounces {
-                    let _ = wheel.on_edge(next);
-                    let _ = wheel.on_edge(levels);
+                    let _ = wheel.edge().on_edge(next);
+                    let _ = wheel.edge().on_edge(levels);
                 }
                 levels = next;
-                let _ = wheel.on_edge(levels);
+                let _ = wheel.edge().on_edge(levels);
                 if syncs.get(i * 4).copied().unwrap_or(false) {
-                    let _ = wheel.take_record_due();
+                    let _ = wheel.lock(Handwheel::take_record_due);
                 }
             }
             net += if forward { 1 } else { -1 };
         }
-        prop_assert_eq!(wheel.with_wheel(|w| w.feed.position()), net * i32::from(factor.factor()));
+        prop_assert_eq!(wheel.lock(|w| w.feed.position()), net * i32::from(factor.factor()));
     }
 
     /// The unit-step backlog never exceeds its bound, whatever the operator does, so the

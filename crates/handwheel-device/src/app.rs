@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel,
-    StopReason, UnitStep, UnitStepEncoder, WheelAccess,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel, Mutex,
+    StopReason, UnitStep, UnitStepEncoder,
 };
 
 use crate::od::{
@@ -127,7 +127,7 @@ impl WheelParameters {
 
     /// Pushes the parameters into the wheel.
     pub(crate) fn apply(self, wheel: &mut Handwheel) {
-        wheel.decoder.configure(self.decoder);
+        wheel.configure_decoder(self.decoder);
         // The bound was validated on its way in; a rejected bound keeps the previous one.
         let _ = wheel.feed.set_backlog_bound(self.backlog_bound);
         let _ = wheel.feed.set_unit_step_mode(self.unit_steps);
@@ -169,7 +169,7 @@ impl FeedApp {
 
 /// The application as the engine sees it during one call: the kept state plus access to
 /// the shared wheel.
-pub(crate) struct AppContext<'a, W: WheelAccess> {
+pub(crate) struct AppContext<'a, W: Mutex<T = Handwheel>> {
     pub app: &'a mut FeedApp,
     pub wheel: &'a mut W,
 }
@@ -180,7 +180,7 @@ fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, SdoAbort> {
     Ok(bytes.len())
 }
 
-impl<W: WheelAccess> Application for AppContext<'_, W> {
+impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
     fn read(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
         self.read_object(index, sub, buf, false)
     }
@@ -202,7 +202,7 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
                 return Err(SdoAbort::DeviceState);
             }
             self.wheel
-                .with_wheel(|w| w.record_due |= w.feed.set_enabled(value == 1));
+                .lock(|w| w.record_due |= w.feed.set_enabled(value == 1));
             return Ok(());
         }
         let mut parameters = self.app.parameters;
@@ -214,13 +214,13 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     fn on_nmt_state(&mut self, state: NmtState) {
         self.app.nmt = state;
         if state == NmtState::Operational {
-            self.wheel.with_wheel(|w| w.feed.start_records());
+            self.wheel.lock(|w| w.feed.start_records());
         } else {
             self.stop(StopReason::NotOperational);
             // PDOs stop here: what was not reported by now (the stopped epoch's final state
             // among it) would reach the host only at the next start, as stale motion. It is
             // dropped, and the sequence gap makes the host start afresh.
-            self.wheel.with_wheel(|w| w.feed.stop_records());
+            self.wheel.lock(|w| w.feed.stop_records());
         }
     }
 
@@ -240,15 +240,15 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
         // Engine state, not application state: the engine ends the loss itself.
         self.app.nmt = nmt;
         self.app.master_lost = master_lost;
-        self.wheel.with_wheel(|w| {
-            w.decoder.reset(WheelParameters::DEFAULT.decoder);
+        self.wheel.lock(|w| {
+            w.reset_decoder(WheelParameters::DEFAULT.decoder);
             w.feed.reset();
         });
     }
 
     fn tpdo_ready(&mut self, pdo: u8) -> bool {
         if pdo == 1 {
-            self.app.record = Some(self.wheel.with_wheel(|w| w.feed.record()));
+            self.app.record = Some(self.wheel.lock(|w| w.feed.record()));
         }
         // TPDO2 carries unit steps, i.e. motion: it may only go out with a step in flight.
         // A step withdrawn by a stop or an axis change, an event timer or a SYNC an
@@ -269,7 +269,7 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     fn on_tpdo_sent(&mut self, pdo: u8) {
         if pdo == 1 {
             let record = self.app.record.take();
-            self.wheel.with_wheel(|w| {
+            self.wheel.lock(|w| {
                 let sent = record.map_or_else(|| w.feed.record_to_send(), |r| r.state);
                 w.record_due |= w.feed.record_sent(sent);
             });
@@ -292,11 +292,11 @@ impl<W: WheelAccess> Application for AppContext<'_, W> {
     fn may_store(&mut self) -> bool {
         // Writing flash stalls the CPU, edge interrupt included (a page erase takes 20-40 ms
         // on the F103): edges in that window would be lost. Store only with the feed off.
-        !self.wheel.with_wheel(|w| w.feed.enabled())
+        !self.wheel.lock(|w| w.feed.enabled())
     }
 }
 
-impl<W: WheelAccess> AppContext<'_, W> {
+impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
     /// Reads an application object. `record`: for the feed record (TPDO1), whose state
     /// objects carry what the outbox sends next (a closed epoch's final state while one is
     /// held) rather than the present state, whatever the master mapped.
@@ -331,7 +331,7 @@ impl<W: WheelAccess> AppContext<'_, W> {
         let (value, size): (u32, usize) = match (index, sub) {
             _ if parameter.is_some() => parameter.unwrap_or_default(),
             (UNIT_STEP, 0) => (app.step_byte.into(), 1),
-            _ => self.wheel.with_wheel(|w| {
+            _ => self.wheel.lock(|w| {
                 let feed = &w.feed;
                 let state = match app.record.filter(|_| record) {
                     Some(r) => r.state,
@@ -344,8 +344,8 @@ impl<W: WheelAccess> AppContext<'_, W> {
                     (SELECTION, 2) => (state.multiplier.factor().into(), 1),
                     (SELECTION, 3) => (state.epoch.into(), 1),
                     // Two's complement bytes of the signed objects, as CiA 301 sends them.
-                    (ENCODER, 1) => (w.decoder.count() as u32, 4),
-                    (ENCODER, 2) => (w.decoder.illegal_transitions(), 4),
+                    (ENCODER, 1) => (w.count() as u32, 4),
+                    (ENCODER, 2) => (w.illegal_transitions(), 4),
                     (FEED_STATUS, 0) => (state.status_byte().into(), 1),
                     (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 1),
                     (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
@@ -362,7 +362,7 @@ impl<W: WheelAccess> AppContext<'_, W> {
     fn set_parameters(&mut self, parameters: WheelParameters) {
         self.app.parameters = parameters;
         self.app.step_in_flight = None;
-        self.wheel.with_wheel(|w| {
+        self.wheel.lock(|w| {
             parameters.apply(w);
             w.record_due = true;
         });
@@ -371,8 +371,7 @@ impl<W: WheelAccess> AppContext<'_, W> {
     fn stop(&mut self, reason: StopReason) {
         // A step that has not reached the bus is withdrawn with the rest of the backlog.
         self.app.step_in_flight = None;
-        self.wheel
-            .with_wheel(|w| w.record_due |= w.feed.stop(reason));
+        self.wheel.lock(|w| w.record_due |= w.feed.stop(reason));
     }
 }
 

@@ -4,7 +4,7 @@
 use canopen_slave::{
     Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, RxFilter, Storage,
 };
-use handwheel_core::{BitRate, FeedStatus, Selection, StopReason, WheelAccess};
+use handwheel_core::{BitRate, FeedStatus, Handwheel, Mutex, Selection, StopReason};
 
 use crate::app::{AppContext, FeedApp};
 use crate::node_config::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
@@ -68,7 +68,7 @@ impl StallWatch {
 
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
 /// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
-/// through a [`WheelAccess`] on every call.
+/// through its RTIC [`Mutex`] on every call.
 #[derive(Clone, Debug)]
 pub struct HandwheelDevice<S> {
     engine: Device<S>,
@@ -104,7 +104,12 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
-    pub fn start(&mut self, now: Instant, wheel: &mut impl WheelAccess, tx: &mut dyn FrameSink) {
+    pub fn start(
+        &mut self,
+        now: Instant,
+        wheel: &mut impl Mutex<T = Handwheel>,
+        tx: &mut dyn FrameSink,
+    ) {
         let mut ctx = AppContext {
             app: &mut self.app,
             wheel: &mut *wheel,
@@ -112,7 +117,7 @@ impl<S: Storage> HandwheelDevice<S> {
         // Stored application parameters arrive through `restore_application`; without
         // any, the factory settings must still reach the wheel.
         let params = ctx.app.parameters;
-        ctx.wheel.with_wheel(|w| params.apply(w));
+        ctx.wheel.lock(|w| params.apply(w));
         self.engine.start(now, &mut ctx, tx);
         self.service(wheel);
     }
@@ -122,7 +127,7 @@ impl<S: Storage> HandwheelDevice<S> {
         &mut self,
         now: Instant,
         frame: &Frame,
-        wheel: &mut impl WheelAccess,
+        wheel: &mut impl Mutex<T = Handwheel>,
         tx: &mut dyn FrameSink,
     ) {
         let mut ctx = AppContext {
@@ -136,7 +141,12 @@ impl<S: Storage> HandwheelDevice<S> {
     /// Time-driven work, and the wheel's new motion: call at
     /// [`HandwheelDevice::next_deadline`] at the latest, after the edge task reported motion,
     /// and after [`HandwheelDevice::set_selection`].
-    pub fn poll(&mut self, now: Instant, wheel: &mut impl WheelAccess, tx: &mut dyn FrameSink) {
+    pub fn poll(
+        &mut self,
+        now: Instant,
+        wheel: &mut impl Mutex<T = Handwheel>,
+        tx: &mut dyn FrameSink,
+    ) {
         self.service(wheel);
         let mut ctx = AppContext {
             app: &mut self.app,
@@ -147,8 +157,8 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// The debounced selector changed.
-    pub fn set_selection(&mut self, selection: Selection, wheel: &mut impl WheelAccess) {
-        let changed = wheel.with_wheel(|w| {
+    pub fn set_selection(&mut self, selection: Selection, wheel: &mut impl Mutex<T = Handwheel>) {
+        let changed = wheel.lock(|w| {
             let changed = w.feed.set_selection(selection);
             w.record_due |= changed;
             changed
@@ -168,7 +178,7 @@ impl<S: Storage> HandwheelDevice<S> {
         &mut self,
         now: Instant,
         state: TransmitState,
-        wheel: &mut impl WheelAccess,
+        wheel: &mut impl Mutex<T = Handwheel>,
         tx: &mut dyn FrameSink,
     ) -> bool {
         if !self.stall.observe(now, state) {
@@ -181,7 +191,7 @@ impl<S: Storage> HandwheelDevice<S> {
         );
         let operational = self.engine.nmt_state() == NmtState::Operational;
         self.app.step_in_flight = None;
-        wheel.with_wheel(|w| {
+        wheel.lock(|w| {
             w.record_due |= w.feed.stop(StopReason::TransmitBlocked);
             // What is held and queued is stale now: dropped, and a break, as when
             // leaving Operational and entering it again.
@@ -196,7 +206,7 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// When [`HandwheelDevice::poll`] (or [`HandwheelDevice::watch_transmit`]) has work next,
-    /// besides a feed record that is due ([`WheelAccess::take_record_due`]: at once).
+    /// besides a feed record that is due ([`Handwheel::take_record_due`]: at once).
     pub fn next_deadline(&self) -> Option<Instant> {
         match (self.engine.next_deadline(), self.stall.deadline()) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -236,16 +246,16 @@ impl<S: Storage> HandwheelDevice<S> {
 
     /// Work between engine calls: requests the TPDOs that are due, prepares the next unit
     /// step, and keeps the encoder EMCY in step with the feed status.
-    fn service(&mut self, wheel: &mut impl WheelAccess) {
+    fn service(&mut self, wheel: &mut impl Mutex<T = Handwheel>) {
         let operational = self.engine.nmt_state() == NmtState::Operational;
-        if wheel.take_record_due() {
+        if wheel.lock(Handwheel::take_record_due) {
             // Outside Operational the request is dropped by design: entering Operational
             // sends TPDO1 with the present values anyway.
             let _ = self.engine.request_tpdo(1);
         }
         if operational && self.app.parameters.unit_steps {
             if self.app.step_in_flight.is_none() {
-                if let Some(step) = wheel.with_wheel(|w| w.feed.take_unit_step()) {
+                if let Some(step) = wheel.lock(|w| w.feed.take_unit_step()) {
                     self.app.step_byte = self.app.encoder.peek(step);
                     self.app.step_in_flight = Some(step);
                 }
@@ -254,12 +264,8 @@ impl<S: Storage> HandwheelDevice<S> {
                 let _ = self.engine.request_tpdo(2);
             }
         }
-        let (status, illegal) = wheel.with_wheel(|w| {
-            (
-                w.feed.status(),
-                w.decoder.illegal_transitions().to_le_bytes(),
-            )
-        });
+        let (status, illegal) =
+            wheel.lock(|w| (w.feed.status(), w.illegal_transitions().to_le_bytes()));
         let encoder_error = status.contains(FeedStatus::ENCODER_ERROR);
         if encoder_error != self.encoder_error_raised {
             if encoder_error {

@@ -11,7 +11,7 @@
 
 use canopen_slave::{indicators, sleep_ms, BusState, ErrorIndication, Instant, NmtState, Periodic};
 use handwheel_core::{
-    Selection, Selector, SelectorInput, Standstill, WheelAccess, DEFAULT_DEBOUNCE_SAMPLES,
+    Handwheel, Mutex, Selection, Selector, SelectorInput, Standstill, DEFAULT_DEBOUNCE_SAMPLES,
 };
 
 /// Switch sampling period: 4 stable samples make the 20 ms debounce; also the resolution of
@@ -90,17 +90,17 @@ impl Duties {
         &mut self,
         now_ms: u32,
         switches: &mut impl SelectorInput,
-        wheel: &mut impl WheelAccess,
+        wheel: &mut impl Mutex<T = Handwheel>,
     ) -> Option<Sample> {
         if !self.next_sample.is_due(now_ms) {
             return None;
         }
         let standstill = &mut self.standstill;
-        let learnt = wheel.with_wheel(|w| w.decoder.rests_learnt());
+        let learnt = wheel.lock(|w| w.rests_learnt());
         // At most once per standstill a settle request, which the edge applies at once if
         // the wheel has not moved since.
-        let asked = wheel.with_wheel(|w| standstill.sample(now_ms, &mut w.decoder));
-        let rest_learnt = asked && wheel.with_wheel(|w| w.decoder.rests_learnt()) != learnt;
+        let asked = wheel.lock(|w| standstill.sample(now_ms, w));
+        let rest_learnt = asked && wheel.lock(|w| w.rests_learnt()) != learnt;
         Some(Sample {
             selection: self.selector.sample_input(switches),
             rest_learnt,
@@ -225,8 +225,8 @@ mod tests {
         let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
         // Half a detent forward: off the start-up rest.
         let half = AbLevels::from_bits(0).next_forward().next_forward();
-        let _ = wheel.on_edge(AbLevels::from_bits(0).next_forward());
-        let _ = wheel.on_edge(half);
+        let _ = wheel.edge().on_edge(AbLevels::from_bits(0).next_forward());
+        let _ = wheel.edge().on_edge(half);
         let learnt: Vec<u32> = (0..=1000)
             .filter_map(|ms| d.sample(ms, &mut Lines(0, 0), &mut wheel).map(|s| (ms, s)))
             .filter(|(_, s)| s.rest_learnt)

@@ -23,7 +23,7 @@
 //! reset of communication moved SYNC), the LEDs.
 
 use canopen_slave::{BusEvent, BusState, Frame, FrameSink, RxFilter, Storage, WideClock};
-use handwheel_core::{BitRate, Selection, SelectorInput, WheelAccess};
+use handwheel_core::{BitRate, Handwheel, Mutex, Selection, SelectorInput};
 
 use crate::duties::{Duties, RECOVERY_POLL_MS};
 use crate::rate_switch::RateSwitch;
@@ -152,7 +152,7 @@ impl<S: Storage> Node<S> {
         now_ms: u32,
         io: &mut impl CanIo,
         switches: &mut impl SelectorInput,
-        wheel: &mut impl WheelAccess,
+        wheel: &mut impl Mutex<T = Handwheel>,
     ) -> Outputs {
         let mut out = Outputs::default();
         if let Phase::PowerOn = self.phase {
@@ -170,7 +170,7 @@ impl<S: Storage> Node<S> {
         let now = self.clock.now(now_ms);
         // A feed record made due after the device's last service (a transmit stall's stop)
         // goes out in the next round, at once.
-        let record_due = wheel.with_wheel(|w| w.record_due);
+        let record_due = wheel.lock(|w| w.record_due);
         let deadline = match record_due {
             true => Some(now),
             false => self.device.next_deadline(),
@@ -188,7 +188,7 @@ impl<S: Storage> Node<S> {
         now_ms: u32,
         reported: bool,
         io: &mut impl CanIo,
-        wheel: &mut impl WheelAccess,
+        wheel: &mut impl Mutex<T = Handwheel>,
         out: &mut Outputs,
     ) -> bool {
         let late = self
@@ -227,7 +227,7 @@ impl<S: Storage> Node<S> {
         now_ms: u32,
         io: &mut impl CanIo,
         switches: &mut impl SelectorInput,
-        wheel: &mut impl WheelAccess,
+        wheel: &mut impl Mutex<T = Handwheel>,
         out: &mut Outputs,
     ) {
         let now = self.clock.now(now_ms);
@@ -260,7 +260,7 @@ impl<S: Storage> Node<S> {
         if out.log.rx_lost != 0 {
             device.engine().on_rx_overrun();
         }
-        let illegal = wheel.with_wheel(|w| w.decoder.illegal_transitions());
+        let illegal = wheel.lock(|w| w.illegal_transitions());
         let new_illegal = illegal.wrapping_sub(self.illegal_transitions);
         self.illegal_transitions = illegal;
         out.log.illegal_transitions = (new_illegal != 0).then_some((new_illegal, illegal));

@@ -3,7 +3,7 @@
 mod common;
 
 use common::*;
-use handwheel_core::{AbLevels, Axis, FeedRecord, FeedState, FeedStatus, Multiplier, WheelAccess};
+use handwheel_core::{AbLevels, Axis, FeedRecord, FeedState, FeedStatus, Multiplier, Mutex};
 
 const ENABLED: u8 = 0x01;
 
@@ -480,7 +480,7 @@ fn an_event_timer_on_tpdo2_never_repeats_a_step() {
 fn position_wraps_and_the_host_difference_stays_exact() {
     let mut b = Bench::operational_enabled(Axis::Y, Multiplier::X100);
     // A long spin delivered at once: 21 474 836 detents x 100 = i32::MAX - 47.
-    let _ = b.wheel.with_wheel(|w| w.feed.add_detents(21_474_836));
+    let _ = b.wheel.lock(|w| w.feed.add_detents(21_474_836));
     // No edge told the device: the 100 ms event timer carries it.
     b.advance_ms(100);
     let start = record(b.take_id(TPDO1).last().expect("a record")).0;

@@ -251,7 +251,7 @@ impl Bench {
     pub fn edge(&mut self, levels: AbLevels) {
         // The firmware polls the device after any edge that pends its wake-up; polling after
         // every edge also shows that the others change nothing.
-        let _ = self.wheel.on_edge(levels);
+        let _ = self.wheel.edge().on_edge(levels);
         self.poll();
     }
 
