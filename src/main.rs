@@ -38,8 +38,8 @@
 //! period, so no tick is missed.
 //!
 //! The QEMU variant (`--features qemu`) is this same application, task for task, over the
-//! QEMU board layer (`handwheel_firmware::qemu::board`, picked below), plus three tasks of its
-//! own, the only other place the feature is named: `can_rx0` is pended by `qemu_usart1`,
+//! QEMU board layer (`handwheel_firmware::qemu::board`, picked in `qemu::chosen`), plus tasks
+//! of its own, the only place here the feature is named: `can_rx0` is pended by `qemu_usart1`,
 //! which queues the SLCAN bytes from the host, and `wheel_edge` by `qemu_usart2`, which
 //! carries out stimulus commands; both at priority 3, sharing nothing with the rest but
 //! lock-free queues and atomics. `qemu_boot` starts `canopen` after the QEMU board's
@@ -51,8 +51,6 @@
 
 #[cfg(feature = "board")]
 use defmt_rtt as _;
-#[cfg(feature = "qemu")]
-use defmt_semihosting as _;
 
 use handwheel_firmware::events::Events;
 use rtic_monotonics::systick::prelude::*;
@@ -73,10 +71,7 @@ mod app {
     use defmt::info;
     use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
     use handwheel_device::{HandwheelDevice, Node};
-    #[cfg(not(feature = "qemu"))]
-    use handwheel_firmware::board;
-    #[cfg(feature = "qemu")]
-    use handwheel_firmware::qemu::board;
+    use handwheel_firmware::qemu::chosen::board;
     use handwheel_firmware::{
         can::{CanSide, Mode, RxConsumer, RxProducer, RxQueue},
         edge,

@@ -35,3 +35,17 @@ pub mod slcan_port;
 pub mod stimulus;
 pub mod storage;
 pub mod usart;
+
+/// The board layer of the variant being built, chosen here so that the app names no
+/// feature to import it: the STM32F103's [`crate::board`], or with `--features qemu` this
+/// variant's [`board`].
+pub mod chosen {
+    #[cfg(feature = "qemu")]
+    pub use super::board;
+    #[cfg(not(feature = "qemu"))]
+    pub use crate::board;
+}
+
+// The variant's defmt transport: linked from here, the app does not name it.
+#[cfg(feature = "qemu")]
+use defmt_semihosting as _;
