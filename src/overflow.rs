@@ -3,8 +3,9 @@
 //!
 //! [`run`] digs [`DEPTH`] bytes into the stack below its own frame, a block of 256 bytes
 //! (and the call's frame) a level, until a block lies that deep. The image's stack region is
-//! its RAM less static RAM (about 17.5 KiB of the 20 KiB), so 19 KiB is an overflow, yet
-//! less than all of RAM. With flip-link's layout (the stack below static RAM, `memory.x`)
+//! the part's 20 KiB less static RAM, which is more than 1 KiB (RTT's buffers alone; the
+//! measured region is in docs/PERFORMANCE.md), so 19 KiB is an overflow, yet less than all
+//! of RAM. With flip-link's layout (the stack below static RAM, `memory.x`)
 //! the digging runs off the start of RAM into unmapped memory: a bus fault, escalated to
 //! HardFault, and the watchdog (started in `init`) resets the MCU. With the classic layout
 //! (static RAM at the start of RAM, the stack above it) the same digging stays inside RAM
