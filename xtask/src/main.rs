@@ -604,7 +604,8 @@ fn docs(args: &[String]) -> Result<(), String> {
 /// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; every
 /// relative link in the Markdown files (`tools/doclinks/test_doclinks.py`); and the marks of
 /// the documents' code blocks with the checks that need no emulator
-/// (`tools/snippets/test_marks.py`).
+/// (`tools/snippets/test_marks.py`); and the no_std crates' import graph
+/// (`tools/modgraph`).
 fn wiring_check() -> Result<(), String> {
     let root = workspace_root();
     let python = wiring::python(&root, &target_dir())?;

@@ -21,6 +21,9 @@ pub const LINKS: &str = "tools/doclinks";
 /// The marks of the documents' code blocks and the blocks checked against files
 /// (standard library and pytest), relative to the workspace root.
 pub const SNIPPET_MARKS: &str = "tools/snippets/test_marks.py";
+/// The no_std crates' import graph has no circle (standard library and pytest), relative to
+/// the workspace root.
+pub const MODULE_GRAPH: &str = "tools/modgraph";
 /// Its pinned requirements (WireViz, PyYAML, pytest and their dependencies).
 pub const REQUIREMENTS: &str = "tools/wiring/requirements.txt";
 
@@ -46,6 +49,7 @@ pub fn render<'a>(sh: &'a Shell, python: &Path) -> Cmd<'a> {
 pub fn tests<'a>(sh: &'a Shell, python: &Path, extra: &[&str]) -> Cmd<'a> {
     cmd!(
         sh,
-        "{python} -m pytest -p no:cacheprovider {PACKAGE} {LINKS} {SNIPPET_MARKS} -q {extra...}"
+        "{python} -m pytest -p no:cacheprovider {PACKAGE} {LINKS} {SNIPPET_MARKS} {MODULE_GRAPH} -q
+         {extra...}"
     )
 }
