@@ -137,6 +137,39 @@ def test_machine_off_during_a_run_on_releases_nothing(machine, slow_y):
     machine.wait_pos(moved(rest, "y", DETENT), 5)
 
 
+def test_estop_during_a_run_on_releases_nothing(machine, slow_y):
+    """Ten quick detents, E-stop at once, then E-stop reset and the machine on again: the
+    axis stops, and nothing held or dropped comes back; the next detent moves exactly one."""
+    machine.stim.turn(10)
+    machine.cnc.must("estop")
+    machine.cnc.must("on")
+    machine.ready_to_jog("y")
+    rest = machine.pos()
+    machine.assert_still(rest, 0.5)
+    machine.stim.turn(1)
+    machine.wait_pos(moved(rest, "y", DETENT), 5)
+
+
+def test_velocity_mode_during_a_run_on_releases_nothing(machine, slow_y):
+    """Ten quick detents in the run-on mode, the component's `velocity-mode` pin set at once:
+    Y goes no farther than the run-on allows (0.3) and rests; in velocity mode one detent then
+    moves exactly one."""
+    start = machine.pos()
+    machine.stim.turn(10)
+    machine.setp("handwheel.velocity-mode", 1)
+    try:
+        machine.wait(lambda s: s["pins"]["axis.y.jog-vel-mode"], 5, "jog-vel-mode")
+        time.sleep(BUDGET + STOP_SLACK + 0.2)
+        rest = machine.pos()
+        assert rest[1] - start[1] <= REACH + TOL, (start, rest)
+        machine.assert_still(rest, 0.5)
+        machine.stim.turn(1)
+        machine.wait_pos(moved(rest, "y", DETENT), 5)
+    finally:
+        machine.setp("handwheel.velocity-mode", 0)
+        machine.wait(lambda s: not s["pins"]["axis.y.jog-vel-mode"], 5, "run-on again")
+
+
 def switch_mode(machine, mode: str, task_mode: int) -> None:
     """LinuxCNC to `mode` through halui's `halui.mode.<mode>` (a rising edge each try: task
     refuses a change while the axis still moves)."""
