@@ -767,3 +767,40 @@ def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(tmp_path):
     assert max(latencies) < 0.1, latencies
     assert grown < 2_000_000, grown
     assert "Traceback" not in err, err
+
+
+class _YieldingStream:
+    """A stderr that lets another thread run inside every write, as a busy machine may."""
+
+    def __init__(self):
+        self.parts = []
+
+    def write(self, text):
+        time.sleep(0)
+        self.parts.append(text)
+        time.sleep(0)
+        return len(text)
+
+    def flush(self):
+        time.sleep(0)
+
+
+def test_log_lines_from_threads_stay_whole(monkeypatch):
+    stream = _YieldingStream()
+    monkeypatch.setattr(sys, "stderr", stream)
+
+    def burst(name):
+        for i in range(200):
+            component.log(f"{name} {i}")
+
+    threads = [threading.Thread(target=burst, args=(f"t{n}",)) for n in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    lines = "".join(stream.parts).split("\n")
+    assert lines[-1] == ""
+    assert len(lines[:-1]) == 800
+    for line in lines[:-1]:
+        prefix, name, i = line.split(" ")
+        assert prefix == "canopen-handwheel:" and name[0] == "t" and 0 <= int(i) < 200

@@ -50,9 +50,18 @@ from typing import Callable, Optional
 
 from . import core
 
+# The component logs from its loop, its heartbeat thread and its signal handling: one line is
+# one write under this lock, so that no line is split by another thread's (`print` writes the
+# text and its newline separately) and whatever reads the log (a supervisor, the tests'
+# spawning shell appending the exit status) sees whole lines.
+_LOG_LOCK = threading.Lock()
+
 
 def log(message: str) -> None:
-    print(f"canopen-handwheel: {message}", file=sys.stderr, flush=True)
+    line = f"canopen-handwheel: {message}\n"
+    with _LOG_LOCK:
+        sys.stderr.write(line)
+        sys.stderr.flush()
 
 
 def default_eds() -> str:
