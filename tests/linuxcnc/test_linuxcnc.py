@@ -32,13 +32,8 @@ from rig import BOOTUP, EMCY, HEARTBEAT, NMT_RESET_NODE, ROOT, TPDO1, feed_recor
 
 @contextmanager
 def velocity_mode(machine):
-    """LinuxCNC's velocity mode (`handwheel.velocity-mode`): 60 detents at x100 (6 mm)
-    turned in 0.3 s (0.6 s on the emulated board) on an axis that does 2 mm/s. The
-    planner's target never leads the commanded position by more than the stopping distance
-    v^2/2a (plus one servo period at v), so the axis moves after the last count by no more
-    than that (plus the servo thread's lateness here), never the 6 mm; what LinuxCNC
-    dropped never comes back, not even when switching to position mode or the run-on
-    mode."""
+    """The component in velocity mode (`handwheel.velocity-mode`) for the block, the run-on
+    mode again after it."""
     machine.setp("handwheel.velocity-mode", 1)
     machine.wait(lambda s: s["pins"]["velocity-mode"], 2, "velocity mode")
     try:
