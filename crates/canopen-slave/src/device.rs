@@ -47,6 +47,11 @@ pub trait Application {
     /// Called after every NMT state change.
     fn on_nmt_state(&mut self, _state: NmtState) {}
 
+    /// A master's SDO download of `index:sub` succeeded (any object, communication ones
+    /// included): for an application whose guarantees rest on a configuration that a write
+    /// may have changed.
+    fn on_written(&mut self, _index: u16, _sub: u8) {}
+
     /// A monitored node's heartbeat timed out (once per loss).
     fn on_heartbeat_lost(&mut self, _node_id: u8) {}
 

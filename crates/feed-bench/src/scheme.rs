@@ -190,7 +190,7 @@ fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
 /// event timer, as `canopen-slave` schedules it.
 struct RecordDevice {
     wheel: LinkedWheel<EdgeState>,
-    sequence: u8,
+    sequence: u16,
     pending: bool,
     inhibit_end: f64,
     event_at: f64,

@@ -13,6 +13,9 @@
 //! - every epoch change closes the old epoch in the [`FeedOutbox`]: its final state goes out
 //!   as a feed record before anything of the new epoch, however long the bus is blocked;
 //! - a stop also disables feed: after the master comes back it must enable again;
+//! - a change of the master's session (object 0x2002; ended by the device when the outbox's
+//!   pace runs out, and by resets and configuration writes in the device) starts a new epoch
+//!   and disables the feed, so no record of one session carries motion enabled in another;
 //! - the unit-step backlog is bounded: steps beyond the bound are dropped and flagged, so
 //!   run-on after the wheel stops can never exceed `bound x pacing`.
 
@@ -48,6 +51,8 @@ pub struct FeedAccumulator {
     selection: Selection,
     position: i32,
     epoch: u8,
+    /// The master's session (0 = none).
+    session: u8,
     /// Flags latched in the current epoch (plus `MASTER_LOST`, latched until enabled).
     latched: FeedStatus,
     pending_steps: i32,
@@ -75,6 +80,7 @@ impl FeedAccumulator {
             },
             position: 0,
             epoch: 0,
+            session: 0,
             latched: FeedStatus::empty(),
             pending_steps: 0,
             backlog_bound: DEFAULT_STEP_BACKLOG as i32,
@@ -188,6 +194,46 @@ impl FeedAccumulator {
         lost || disabled
     }
 
+    /// The master's session (object 0x2002): 0 ends it, 1..=7 opens one (larger values keep
+    /// their low three bits). A change starts a new epoch and disables the feed, so that
+    /// records of the new session never carry motion enabled under the old one. Returns
+    /// `true` if anything changed.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn set_session(&mut self, session: u8) -> bool {
+        let session = session & 0b111;
+        if session == self.session {
+            return false;
+        }
+        let before = self.state();
+        self.enabled = false;
+        self.session = session;
+        self.new_epoch(before);
+        true
+    }
+
+    /// The master's session (object 0x2002).
+    pub const fn session(&self) -> u8 {
+        self.session
+    }
+
+    /// Time passes (the device's millisecond tick): the outbox's pace refills.
+    pub fn tick(&mut self, now_ms: u64) {
+        self.outbox.refill(now_ms);
+    }
+
+    /// A number was taken beyond the outbox's pace: the session ends (a new epoch, feed
+    /// off), so that no later record is taken as part of it. Returns whether it did.
+    fn end_session_if_overdrawn(&mut self) -> bool {
+        if !self.outbox.take_overdrawn() || self.session == 0 {
+            return false;
+        }
+        let before = self.state();
+        self.enabled = false;
+        self.session = 0;
+        self.new_epoch(before);
+        true
+    }
+
     /// Takes the next unit step of the backlog, moving it one step toward zero.
     #[must_use = "a taken step that is not sent is lost motion"]
     pub fn take_unit_step(&mut self) -> Option<UnitStep> {
@@ -206,6 +252,12 @@ impl FeedAccumulator {
         self.epoch = self.epoch.wrapping_add(1);
         self.pending_steps = 0;
         self.latched = self.latched.intersection(FeedStatus::MASTER_LOST);
+        // A loss the closing took beyond the pace: the new epoch starts without the session
+        // (no record of it was made yet, so no further epoch is needed).
+        if self.outbox.take_overdrawn() && self.session != 0 {
+            self.session = 0;
+            self.enabled = false;
+        }
     }
 
     fn latch(&mut self, flag: FeedStatus) -> bool {
@@ -258,6 +310,7 @@ impl FeedAccumulator {
             multiplier: self.selection.multiplier,
             status: self.status(),
             epoch: self.epoch,
+            session: self.session,
         }
     }
 
@@ -268,7 +321,7 @@ impl FeedAccumulator {
     }
 
     /// The sequence number the next feed record carries (object 0x2031).
-    pub const fn record_sequence(&self) -> u8 {
+    pub const fn record_sequence(&self) -> u16 {
         self.outbox.sequence()
     }
 
@@ -287,31 +340,36 @@ impl FeedAccumulator {
     #[must_use = "a record that is due must be requested"]
     pub fn record_sent(&mut self, sent: FeedState) -> bool {
         let live = self.state();
-        self.outbox.sent(sent, live)
+        let due = self.outbox.sent(sent, live);
+        self.end_session_if_overdrawn() || due
     }
 
     /// Feed records may flow (the device entered Operational): epochs that end from now on
     /// are held until their final state is sent.
     pub fn start_records(&mut self) {
         self.outbox.start();
+        let _ = self.end_session_if_overdrawn();
     }
 
     /// Feed records stop (the device left Operational): the closed epochs not sent yet are
     /// dropped, their motion reaches no axis, and the sequence number shows the gap.
     pub fn stop_records(&mut self) {
         self.outbox.stop();
+        let _ = self.end_session_if_overdrawn();
     }
 
     /// Reset node: back to power-on values, except what lets the host tell that a reset
     /// happened: the selection (hardware state) stays, the epoch steps and the record
     /// sequence goes on with a break ([`FeedOutbox::break_continuity`]), so that the first
-    /// record after the reset never continues one from before it.
+    /// record after the reset never continues one from before it. The session ends.
     pub fn reset(&mut self) {
         let selection = self.selection;
         let epoch = self.epoch.wrapping_add(1);
         let mut outbox = core::mem::take(&mut self.outbox);
         outbox.stop();
         outbox.break_continuity();
+        // Numbers the break took beyond the pace belong to no session: there is none now.
+        let _ = outbox.take_overdrawn();
         *self = Self::new();
         self.selection = selection;
         self.epoch = epoch;
@@ -322,6 +380,7 @@ impl FeedAccumulator {
     /// nothing after this continues what came before.
     pub fn break_records(&mut self) {
         self.outbox.break_continuity();
+        let _ = self.end_session_if_overdrawn();
     }
 
     /// The outbox, for diagnostics.
@@ -606,5 +665,74 @@ mod tests {
             assert!(acc.set_enabled(i % 2 == 0));
         }
         assert_eq!(acc.epoch(), (300 % 256) as u8);
+    }
+
+    #[test]
+    fn a_session_change_is_a_new_epoch_with_the_feed_off() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        acc.start_records();
+        let epoch = acc.epoch();
+        assert!(acc.set_session(3));
+        assert_eq!((acc.session(), acc.enabled()), (3, false));
+        assert_eq!(acc.epoch(), epoch.wrapping_add(1));
+        assert_eq!(acc.state().session, 3);
+        assert!(
+            !acc.set_session(3),
+            "the same session again changes nothing"
+        );
+        assert!(acc.set_enabled(true));
+        assert!(acc.set_session(0));
+        assert!(!acc.enabled(), "ending the session stops the feed");
+        assert!(acc.set_session(9 + 8));
+        assert_eq!(acc.session(), 1, "only three bits travel");
+    }
+
+    #[test]
+    fn numbers_beyond_the_pace_end_the_session() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        acc.start_records();
+        assert!(acc.set_session(5));
+        assert!(acc.set_enabled(true));
+        acc.tick(10);
+        // A burst of records at one instant: the pace allows SEQUENCE_BURST of them.
+        let mut ended_at = None;
+        for n in 0..2 * usize::from(crate::SEQUENCE_BURST) {
+            let record = acc.record();
+            let _ = acc.record_sent(record.state);
+            if acc.session() == 0 {
+                ended_at = Some(n);
+                break;
+            }
+        }
+        assert_eq!(ended_at, Some(usize::from(crate::SEQUENCE_BURST)));
+        assert!(!acc.enabled());
+        // The last record said where the session's epoch ended: nothing is held, and the
+        // next record is of no session.
+        assert_eq!(acc.outbox().held(), 0);
+        assert_eq!(acc.record().state.session, 0);
+    }
+
+    #[test]
+    fn a_record_per_millisecond_keeps_the_session() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        acc.start_records();
+        assert!(acc.set_session(2));
+        assert!(acc.set_enabled(true));
+        for t in 0..5_000u64 {
+            acc.tick(t);
+            assert!(acc.add_detents(1));
+            let record = acc.record();
+            let _ = acc.record_sent(record.state);
+        }
+        assert_eq!((acc.session(), acc.enabled()), (2, true));
+    }
+
+    #[test]
+    fn reset_ends_the_session() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        acc.start_records();
+        assert!(acc.set_session(4));
+        acc.reset();
+        assert_eq!(acc.session(), 0);
     }
 }

@@ -82,18 +82,28 @@ pub struct FeedState {
     pub multiplier: Multiplier,
     /// Status flags, bits 0-4 of object 0x2030.
     pub status: FeedStatus,
-    /// Selection epoch (object 0x2010:3); its low three bits are bits 5-7 of 0x2030.
+    /// Selection epoch (object 0x2010:3); its low three bits are bits 5-7 of 0x2011.
     pub epoch: u8,
+    /// The session a master opened (object 0x2002, 0 = none, 1..=7); bits 5-7 of 0x2030.
+    pub session: u8,
 }
 
 impl FeedState {
-    /// Where the epoch sits in the status byte.
-    pub const EPOCH_SHIFT: u32 = 5;
+    /// Where the epoch sits in the selection byte and the session in the status byte.
+    pub const HIGH_SHIFT: u32 = 5;
 
     /// The status byte as object 0x2030 and the feed record carry it: the flags in bits 0-4,
-    /// the low three bits of the epoch in bits 5-7.
+    /// the session in bits 5-7.
     pub const fn status_byte(&self) -> u8 {
-        self.status.bits() | (self.epoch << Self::EPOCH_SHIFT)
+        self.status.bits() | ((self.session & 0b111) << Self::HIGH_SHIFT)
+    }
+
+    /// The selection byte as object 0x2011 and the feed record carry it: the axis in bits
+    /// 0-2, the multiplier's code in bits 3-4, the low three bits of the epoch in bits 5-7.
+    pub const fn selection_byte(&self) -> u8 {
+        Axis::option_value(self.axis)
+            | (self.multiplier.code() << 3)
+            | ((self.epoch & 0b111) << Self::HIGH_SHIFT)
     }
 }
 

@@ -24,6 +24,15 @@
 //! what came before it, and every epoch that ended unseen hides behind at least one missing
 //! number.
 //!
+//! The sequence number also keeps a pace: a bucket of [`SEQUENCE_BURST`] numbers refilled by
+//! one per millisecond ([`FeedOutbox::refill`]). Every number taken empties it by one; a
+//! number taken from an empty bucket marks it overdrawn ([`FeedOutbox::take_overdrawn`]), and
+//! the accumulator then ends the master's session before anything else goes out with it. So
+//! between two records of one session made `t` ms apart the sequence moved by at most
+//! `t + SEQUENCE_BURST`, whatever a master or the bus does: a copy of a record of that session
+//! is at least `(numbers behind - SEQUENCE_BURST)` ms old, which is what lets the host tell
+//! copies up to its stated age from new records with 16 bits.
+//!
 //! The state machine is checked exhaustively against the host's rule by `crates/feed-check`.
 
 use crate::feed::{FeedState, FeedStatus};
@@ -36,6 +45,7 @@ const UNUSED: FeedState = FeedState {
     multiplier: Multiplier::X1,
     status: FeedStatus::empty(),
     epoch: 0,
+    session: 0,
 };
 
 /// Closed epochs the outbox holds at most. An operator who changes the selection more often
@@ -44,6 +54,9 @@ pub const HELD_EPOCHS: usize = 8;
 
 /// Most the sequence number moves for one run of losses, and what a break moves it by.
 pub const MAX_DROP_GAP: u8 = 8;
+
+/// Sequence numbers the pace allows at once; the bucket refills by one per millisecond.
+pub const SEQUENCE_BURST: u16 = 64;
 
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
 #[derive(Clone, Debug)]
@@ -54,9 +67,15 @@ pub struct FeedOutbox {
     len: usize,
     last_sent: Option<FeedState>,
     reporting: bool,
-    sequence: u8,
+    sequence: u16,
     drops_in_run: u8,
     dropped: u32,
+    /// Numbers the pace allows now (at most [`SEQUENCE_BURST`]).
+    allowance: u16,
+    /// The millisecond tick the allowance was last refilled at.
+    refilled_ms: u64,
+    /// A number was taken from an empty bucket since the last [`FeedOutbox::take_overdrawn`].
+    overdrawn: bool,
 }
 
 impl Default for FeedOutbox {
@@ -77,6 +96,37 @@ impl FeedOutbox {
             sequence: 0,
             drops_in_run: 0,
             dropped: 0,
+            allowance: SEQUENCE_BURST,
+            refilled_ms: 0,
+            overdrawn: false,
+        }
+    }
+
+    /// Time passes: one number more per millisecond since the last refill, up to
+    /// [`SEQUENCE_BURST`]. `now_ms` is the device's millisecond tick.
+    pub fn refill(&mut self, now_ms: u64) {
+        let elapsed = now_ms.saturating_sub(self.refilled_ms);
+        let room = u64::from(SEQUENCE_BURST - self.allowance);
+        self.allowance += elapsed.min(room) as u16;
+        self.refilled_ms = now_ms;
+    }
+
+    /// Whether the next record may carry the session: the bucket holds a number for it.
+    pub const fn paced(&self) -> bool {
+        self.allowance > 0
+    }
+
+    /// Whether a number was taken from an empty bucket since the last call; clears it.
+    pub fn take_overdrawn(&mut self) -> bool {
+        core::mem::take(&mut self.overdrawn)
+    }
+
+    /// The sequence moves on by one, taken from the bucket.
+    fn advance(&mut self) {
+        self.sequence = self.sequence.wrapping_add(1);
+        match self.allowance.checked_sub(1) {
+            Some(left) => self.allowance = left,
+            None => self.overdrawn = true,
         }
     }
 
@@ -111,7 +161,7 @@ impl FeedOutbox {
     }
 
     /// The sequence number the next record carries (object 0x2031).
-    pub const fn sequence(&self) -> u8 {
+    pub const fn sequence(&self) -> u16 {
         self.sequence
     }
 
@@ -126,7 +176,7 @@ impl FeedOutbox {
             let _ = self.pop();
         }
         self.last_sent = Some(record);
-        self.sequence = self.sequence.wrapping_add(1);
+        self.advance();
         self.drops_in_run = 0;
         self.len != 0 || record != live
     }
@@ -171,7 +221,7 @@ impl FeedOutbox {
     fn count_loss(&mut self) {
         if self.drops_in_run < MAX_DROP_GAP {
             self.drops_in_run += 1;
-            self.sequence = self.sequence.wrapping_add(1);
+            self.advance();
         }
     }
 
@@ -215,6 +265,7 @@ mod tests {
             multiplier: Multiplier::X1,
             status: FeedStatus::ENABLED,
             epoch,
+            session: 0,
         }
     }
 
@@ -295,7 +346,7 @@ mod tests {
         assert_eq!(out.dropped(), 300 - HELD_EPOCHS as u32);
         assert_eq!(
             out.sequence(),
-            1 + MAX_DROP_GAP,
+            1 + u16::from(MAX_DROP_GAP),
             "not wrapped round by 292 drops"
         );
         // Sending ends the run: the next drops show as a new gap.
@@ -304,9 +355,13 @@ mod tests {
             "seven are still held"
         );
         out.close_epoch(state(0, Axis::X, 45));
-        assert_eq!(out.sequence(), 2 + MAX_DROP_GAP, "room for one: no drop");
+        assert_eq!(
+            out.sequence(),
+            2 + u16::from(MAX_DROP_GAP),
+            "room for one: no drop"
+        );
         out.close_epoch(state(0, Axis::X, 46));
-        assert_eq!(out.sequence(), 2 + MAX_DROP_GAP + 1);
+        assert_eq!(out.sequence(), 2 + u16::from(MAX_DROP_GAP) + 1);
     }
 
     #[test]
@@ -319,7 +374,7 @@ mod tests {
         assert_eq!(out.dropped(), 1);
         assert_eq!(
             out.sequence(),
-            1 + MAX_DROP_GAP,
+            1 + u16::from(MAX_DROP_GAP),
             "a full break after the record"
         );
         let live = state(5, Axis::X, 1);
@@ -340,14 +395,18 @@ mod tests {
         assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         out.stop();
         out.stop();
-        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
+        assert_eq!(out.sequence(), 1 + u16::from(MAX_DROP_GAP));
         out.start();
-        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP, "the run is full already");
+        assert_eq!(
+            out.sequence(),
+            1 + u16::from(MAX_DROP_GAP),
+            "the run is full already"
+        );
         assert!(!out.sent(out.next(state(0, Axis::X, 0)), state(0, Axis::X, 0)));
         out.start();
         assert_eq!(
             out.sequence(),
-            2 + 2 * MAX_DROP_GAP,
+            2 + 2 * u16::from(MAX_DROP_GAP),
             "a start after a record breaks too"
         );
         assert_eq!(out.dropped(), 0);
@@ -360,10 +419,14 @@ mod tests {
         out.close_epoch(state(0, Axis::Y, 1));
         assert_eq!((out.held(), out.sequence()), (0, 2), "stopped: two losses");
         out.start();
-        assert_eq!(out.sequence(), MAX_DROP_GAP, "the start fills the run");
+        assert_eq!(
+            out.sequence(),
+            u16::from(MAX_DROP_GAP),
+            "the start fills the run"
+        );
         out.close_epoch(state(0, Axis::Z, 2));
         assert_eq!(out.held(), 0, "no record yet: nothing to continue from");
-        assert_eq!(out.sequence(), MAX_DROP_GAP, "the run is full");
+        assert_eq!(out.sequence(), u16::from(MAX_DROP_GAP), "the run is full");
         assert!(!out.sent(out.next(state(0, Axis::Z, 3)), state(0, Axis::Z, 3)));
         out.close_epoch(state(4, Axis::Z, 3));
         assert_eq!(out.held(), 1);
@@ -381,14 +444,14 @@ mod tests {
         out.close_epoch(state(3, Axis::Y, 1));
         assert_eq!(out.held(), 2);
         out.break_continuity();
-        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
+        assert_eq!(out.sequence(), 1 + u16::from(MAX_DROP_GAP));
         assert_eq!(
             out.held(),
             2,
             "a break keeps what is held: it still goes out in order"
         );
         out.break_continuity();
-        assert_eq!(out.sequence(), 1 + MAX_DROP_GAP);
+        assert_eq!(out.sequence(), 1 + u16::from(MAX_DROP_GAP));
     }
 
     #[test]
@@ -405,5 +468,56 @@ mod tests {
         out.close_epoch(live);
         assert_eq!(out.held(), 1, "the final state is held, not taken as sent");
         assert_eq!(out.next(state(5, Axis::Y, 2)), live);
+    }
+
+    #[test]
+    fn the_pace_allows_a_burst_then_one_number_per_millisecond() {
+        let mut out = started();
+        out.refill(1000);
+        let x = state(0, Axis::X, 0);
+        for n in 0..SEQUENCE_BURST {
+            assert!(out.paced(), "number {n} of the burst");
+            let _ = out.sent(x, x);
+        }
+        assert!(!out.paced(), "the burst is spent");
+        assert!(
+            !out.take_overdrawn(),
+            "nothing was taken from an empty bucket"
+        );
+        out.refill(1003);
+        for _ in 0..3 {
+            assert!(out.paced());
+            let _ = out.sent(x, x);
+        }
+        assert!(!out.paced());
+        // A loss takes a number whatever the bucket holds, and says so once.
+        out.close_epoch(state(5, Axis::X, 0));
+        out.close_epoch(state(5, Axis::Y, 1));
+        out.break_continuity();
+        assert!(out.take_overdrawn());
+        assert!(!out.take_overdrawn(), "taken once");
+        out.refill(u64::MAX);
+        assert!(out.paced(), "full again, however long it waited");
+        let before = out.sequence();
+        for _ in 0..SEQUENCE_BURST {
+            let _ = out.sent(x, x);
+        }
+        assert_eq!(out.sequence().wrapping_sub(before), SEQUENCE_BURST);
+        assert!(!out.take_overdrawn(), "never more than the burst at once");
+    }
+
+    #[test]
+    fn the_sequence_wraps_at_sixteen_bits() {
+        let mut out = started();
+        let x = state(0, Axis::X, 0);
+        for t in 0..70_000u64 {
+            out.refill(t);
+            let _ = out.sent(x, x);
+        }
+        assert_eq!(out.sequence(), (70_000u32 % 65_536) as u16);
+        assert!(
+            !out.take_overdrawn(),
+            "one record per millisecond keeps the pace"
+        );
     }
 }

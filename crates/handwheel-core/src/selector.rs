@@ -112,6 +112,26 @@ impl Multiplier {
         }
     }
 
+    /// The 2-bit code the feed record carries (0 = x1, 1 = x10, 2 = x100).
+    #[inline]
+    pub const fn code(self) -> u8 {
+        match self {
+            Self::X1 => 0,
+            Self::X10 => 1,
+            Self::X100 => 2,
+        }
+    }
+
+    /// From the feed record's 2-bit code; `None` for 3 (never sent).
+    pub const fn from_code(code: u8) -> Option<Self> {
+        match code {
+            0 => Some(Self::X1),
+            1 => Some(Self::X10),
+            2 => Some(Self::X100),
+            _ => None,
+        }
+    }
+
     /// The single active line of the 3 multiplier lines (bit 0 = x1), or `None`.
     pub const fn from_lines(active: u8) -> Option<Self> {
         match active & 0b111 {

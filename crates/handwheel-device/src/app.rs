@@ -7,8 +7,8 @@ use handwheel_core::{
 };
 
 use crate::od::{
-    APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT, FEED_SEQUENCE, FEED_STATUS,
-    OD, POSITION_VALUE, SELECTION, STORED, UNIT_STEP,
+    APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT, FEED_SELECTION,
+    FEED_SEQUENCE, FEED_SESSION, FEED_STATUS, OD, POSITION_VALUE, SELECTION, STORED, UNIT_STEP,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
@@ -193,6 +193,11 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             *dst = src;
         }
         let value = u32::from_le_bytes(bytes);
+        if (index, sub) == (FEED_SESSION, 0) {
+            self.wheel
+                .lock(|w| w.record_due |= w.feed.set_session(value as u8));
+            return Ok(());
+        }
         if (index, sub) == (FEED_ENABLE, 0) {
             // Feed only runs while PDOs flow: enabling in Pre-operational would let the
             // position move unseen and jump at the next start.
@@ -211,7 +216,21 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
         Ok(())
     }
 
+    fn on_written(&mut self, index: u16, _sub: u8) {
+        // The master's session stands for the configuration it made: any write that may
+        // change what it relies on ends it (the feed stops, and records carry no session
+        // until the master opens one again). Enabling, the session itself, clearing the
+        // error history and the store commands change nothing it relies on.
+        if !matches!(index, FEED_ENABLE | FEED_SESSION | 0x1003 | 0x1010 | 0x1011) {
+            self.end_session();
+        }
+    }
+
     fn on_nmt_state(&mut self, state: NmtState) {
+        if state == NmtState::Initialising {
+            // Power-on, reset node, reset communication: every configuration is gone.
+            self.end_session();
+        }
         self.app.nmt = state;
         if state == NmtState::Operational {
             self.wheel.lock(|w| w.feed.start_records());
@@ -310,19 +329,13 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
         // Every application object is an integer of 1, 2 or 4 bytes: pick the value and its
         // size, then copy once (one copy instead of one per object keeps the image small).
         let app = &*self.app;
-        if let Some(bytes) = app.record.filter(|_| record).map(|r| r.to_bytes()) {
-            // The record's own encoding (`handwheel-core`), object by object.
-            let field = match (index, sub) {
-                (POSITION_VALUE, 0) => Some(&bytes[0..4]),
-                (SELECTION, 1) => Some(&bytes[4..5]),
-                (SELECTION, 2) => Some(&bytes[5..6]),
-                (FEED_STATUS, 0) => Some(&bytes[6..7]),
-                (FEED_SEQUENCE, 0) => Some(&bytes[7..8]),
-                _ => None,
-            };
-            if let Some(field) = field {
-                return put(buf, field);
-            }
+        // TPDO1's objects are slices of one encoded snapshot (`handwheel-core` lays it out).
+        if let Some((bytes, range)) = app
+            .record
+            .filter(|_| record)
+            .and_then(|r| r.field(index, sub))
+        {
+            return put(buf, bytes.get(range).unwrap_or_default());
         }
         let parameter = STORED
             .iter()
@@ -343,11 +356,13 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
                     (SELECTION, 1) => (Axis::option_value(state.axis).into(), 1),
                     (SELECTION, 2) => (state.multiplier.factor().into(), 1),
                     (SELECTION, 3) => (state.epoch.into(), 1),
+                    (FEED_SELECTION, 0) => (state.selection_byte().into(), 1),
+                    (FEED_SESSION, 0) => (feed.session().into(), 1),
                     // Two's complement bytes of the signed objects, as CiA 301 sends them.
                     (ENCODER, 1) => (w.count() as u32, 4),
                     (ENCODER, 2) => (w.illegal_transitions(), 4),
                     (FEED_STATUS, 0) => (state.status_byte().into(), 1),
-                    (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 1),
+                    (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 2),
                     (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
                     (FEED_DIAGNOSTICS, 2) => (feed.dropped_steps(), 4),
                     (POSITION_VALUE, 0) => (state.position as u32, 4),
@@ -366,6 +381,10 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
             parameters.apply(w);
             w.record_due = true;
         });
+    }
+
+    fn end_session(&mut self) {
+        self.wheel.lock(|w| w.record_due |= w.feed.set_session(0));
     }
 
     fn stop(&mut self, reason: StopReason) {

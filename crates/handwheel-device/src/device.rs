@@ -16,6 +16,16 @@ pub const EMCY_ENCODER: u16 = 0x7300;
 /// Error register bit for the encoder error: generic only, CiA 301 has no sensor bit.
 const ERROR_REGISTER_GENERIC: u8 = 0x01;
 
+/// EMCY code of a feed stopped because the device's frames could not reach the bus for
+/// [`TRANSMIT_STALL_MS`] (CiA 301 "communication, generic"; manufacturer byte 0 =
+/// [`TRANSMIT_BLOCKED_INFO`]). An event: it is queued after what was discarded, so it goes out
+/// once frames get onto the bus again, followed by the error reset.
+pub const EMCY_TRANSMIT_BLOCKED: u16 = 0x8100;
+/// Manufacturer byte 0 of [`EMCY_TRANSMIT_BLOCKED`]: the transmit path was blocked.
+pub const TRANSMIT_BLOCKED_INFO: u8 = 0x01;
+/// Error register bit 4: communication error.
+const ERROR_REGISTER_COMMUNICATION: u8 = 0x10;
+
 /// How long frames may wait for the bus, none of them getting out, before the device counts
 /// its transmit path as blocked: it then stops the feed, discards what waits and breaks the
 /// record sequence, so that no motion reaches the host later than this after it was reported.
@@ -119,7 +129,7 @@ impl<S: Storage> HandwheelDevice<S> {
         let params = ctx.app.parameters;
         ctx.wheel.lock(|w| params.apply(w));
         self.engine.start(now, &mut ctx, tx);
-        self.service(wheel);
+        self.service(now, wheel);
     }
 
     /// One received frame.
@@ -135,7 +145,7 @@ impl<S: Storage> HandwheelDevice<S> {
             wheel: &mut *wheel,
         };
         self.engine.on_frame(now, frame, &mut ctx, tx);
-        self.service(wheel);
+        self.service(now, wheel);
     }
 
     /// Time-driven work, and the wheel's new motion: call at
@@ -147,13 +157,13 @@ impl<S: Storage> HandwheelDevice<S> {
         wheel: &mut impl Mutex<T = Handwheel>,
         tx: &mut dyn FrameSink,
     ) {
-        self.service(wheel);
+        self.service(now, wheel);
         let mut ctx = AppContext {
             app: &mut self.app,
             wheel: &mut *wheel,
         };
         self.engine.poll(now, &mut ctx, tx);
-        self.service(wheel);
+        self.service(now, wheel);
     }
 
     /// The debounced selector changed.
@@ -202,6 +212,15 @@ impl<S: Storage> HandwheelDevice<S> {
             w.feed.break_records();
         });
         tx.discard_pending();
+        let info = [TRANSMIT_BLOCKED_INFO, 0, 0, 0, 0];
+        let code = EMCY_TRANSMIT_BLOCKED;
+        if self
+            .engine
+            .raise_error(code, ERROR_REGISTER_COMMUNICATION, info)
+            .is_ok()
+        {
+            self.engine.clear_error(code);
+        }
         true
     }
 
@@ -244,11 +263,16 @@ impl<S: Storage> HandwheelDevice<S> {
         &mut self.engine
     }
 
-    /// Work between engine calls: requests the TPDOs that are due, prepares the next unit
-    /// step, and keeps the encoder EMCY in step with the feed status.
-    fn service(&mut self, wheel: &mut impl Mutex<T = Handwheel>) {
+    /// Work between engine calls: paces the record sequence, requests the TPDOs that are
+    /// due, prepares the next unit step, and keeps the encoder EMCY in step with the feed
+    /// status.
+    fn service(&mut self, now: Instant, wheel: &mut impl Mutex<T = Handwheel>) {
         let operational = self.engine.nmt_state() == NmtState::Operational;
-        if wheel.lock(Handwheel::take_record_due) {
+        let now_ms = now.as_micros() / 1000;
+        if wheel.lock(|w| {
+            w.feed.tick(now_ms);
+            w.take_record_due()
+        }) {
             // Outside Operational the request is dropped by design: entering Operational
             // sends TPDO1 with the present values anyway.
             let _ = self.engine.request_tpdo(1);

@@ -12,20 +12,28 @@ use canopen_slave::{
     standard_objects, Access, CommDefaults, DataType, Identity, Od, OdEntry, TpdoDefaults,
     STANDARD_OBJECTS,
 };
-use handwheel_core::DEFAULT_STEP_BACKLOG;
+use handwheel_core::{FeedRecord, DEFAULT_STEP_BACKLOG};
 
 /// Feed enable: 1 = handwheel mode on. U8 rw, 0..1, default 0.
 pub const FEED_ENABLE: u16 = 0x2000;
 /// Feed format: 0 = feed record, 1 = the paper's unit-step stream. U8 rw, 0..1, default 0.
 pub const FEED_FORMAT: u16 = 0x2001;
+/// Feed session: the token a master opens its session with (1..7), carried in every feed
+/// record; 0 = none. U8 rw, 0..7, default 0, never stored. The device ends it (back to 0) at
+/// every boot and reset, at any other configuration write, and when the record sequence
+/// outruns its pace (README "Feed record").
+pub const FEED_SESSION: u16 = 0x2002;
 /// Selection record: sub 1 axis, sub 2 multiplier, sub 3 epoch (all U8 ro, mappable).
 pub const SELECTION: u16 = 0x2010;
+/// Feed selection byte of the feed record: axis in bits 0-2, multiplier code in 3-4, the
+/// epoch's low three bits in 5-7 (U8 ro, mappable).
+pub const FEED_SELECTION: u16 = 0x2011;
 /// Encoder record: sub 1 raw count (I32), sub 2 illegal transitions (U32), sub 3 counts per
 /// detent (U8 rw 1/2/4), sub 4 invert (U8 rw 0/1).
 pub const ENCODER: u16 = 0x2020;
-/// Feed status: flags in bits 0-4, the epoch's low three bits in 5-7 (U8 ro, mappable).
+/// Feed status: flags in bits 0-4, the session in 5-7 (U8 ro, mappable).
 pub const FEED_STATUS: u16 = 0x2030;
-/// Feed sequence: +1 per feed record (TPDO1) sent and per loss, +8 at a break (U8 ro,
+/// Feed sequence: +1 per feed record (TPDO1) sent and per loss, +8 at a break (U16 ro,
 /// mappable; README "Feed record").
 pub const FEED_SEQUENCE: u16 = 0x2031;
 /// The unit-step byte in flight in the paper's format (U8 ro, mappable; TPDO2).
@@ -47,14 +55,18 @@ const fn map(index: u16, sub: u8, bits: u8) -> u32 {
     (index as u32) << 16 | (sub as u32) << 8 | bits as u32
 }
 
-/// TPDO1's default mapping: the 8-byte feed record of `handwheel_core::pdo`.
-pub const FEED_RECORD_MAPPING: [u32; 5] = [
-    map(POSITION_VALUE, 0, 32),
-    map(SELECTION, 1, 8),
-    map(SELECTION, 2, 8),
-    map(FEED_STATUS, 0, 8),
-    map(FEED_SEQUENCE, 0, 8),
-];
+/// TPDO1's default mapping: the 8-byte feed record, field by field as
+/// `handwheel_core::FeedRecord::FIELDS` lays it out.
+pub const FEED_RECORD_MAPPING: [u32; FeedRecord::FIELDS.len()] = {
+    let mut mapping = [0; FeedRecord::FIELDS.len()];
+    let mut i = 0;
+    while i < mapping.len() {
+        let f = &FeedRecord::FIELDS[i];
+        mapping[i] = map(f.index, f.sub, ((f.bytes.end - f.bytes.start) * 8) as u8);
+        i += 1;
+    }
+    mapping
+};
 
 /// TPDO2's default mapping: one unit-step byte.
 pub const UNIT_STEP_MAPPING: [u32; 1] = [map(UNIT_STEP, 0, 8)];
@@ -199,10 +211,12 @@ pub const APP_OBJECTS: &[AppObject] = {
     &[
         O::var(FEED_ENABLE, 0, "Feed enable", U8).rw(0, 1),
         O::var(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1).stored(),
+        O::var(FEED_SESSION, 0, "Feed session", U8).rw(0, 7),
         O::record(SELECTION, "Selection", 3),
         O::var(SELECTION, 1, "Axis", U8).mappable(),
         O::var(SELECTION, 2, "Multiplier", U8).default(1).mappable(),
         O::var(SELECTION, 3, "Selection epoch", U8).mappable(),
+        O::var(FEED_SELECTION, 0, "Feed selection", U8).mappable(),
         O::record(ENCODER, "Encoder", 4),
         O::var(ENCODER, 1, "Raw count", I32).mappable(),
         O::var(ENCODER, 2, "Illegal transitions", U32).mappable(),
@@ -212,7 +226,7 @@ pub const APP_OBJECTS: &[AppObject] = {
             .stored(),
         O::var(ENCODER, 4, "Invert direction", U8).rw(0, 1).stored(),
         O::var(FEED_STATUS, 0, "Feed status", U8).mappable(),
-        O::var(FEED_SEQUENCE, 0, "Feed sequence", U8).mappable(),
+        O::var(FEED_SEQUENCE, 0, "Feed sequence", U16).mappable(),
         O::var(UNIT_STEP, 0, "Unit step", U8).mappable(),
         O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
         O::var(FEED_DIAGNOSTICS, 1, "Ignored detents", U32),
@@ -227,7 +241,7 @@ pub const APP_OBJECTS: &[AppObject] = {
 
 /// Notes the EDS carries before an object's section: what a master must know beyond the
 /// object's type and limits.
-pub const EDS_NOTES: [(u16, &str); 4] = [
+pub const EDS_NOTES: [(u16, &str); 6] = [
     (
         0x1010,
         "0x1010 \"save\" and 0x1011 \"load\" write the parameter page (README \"Storing parameters\"):
@@ -246,14 +260,29 @@ or 2 (feed enabled).",
 other (see 0x1010 above for when it is refused).",
     ),
     (
+        FEED_SESSION,
+        "A master opens its session by writing 1..7 last in its configuration; every feed record
+carries it (0x2030 bits 5-7). A change of it is a new selection epoch with the feed off. The
+device ends it (0) at power-on, reset node and reset communication, at any successful SDO
+write other than to 0x2000, 0x2002, 0x1003, 0x1010 and 0x1011, and when the feed sequence
+outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".",
+    ),
+    (
+        FEED_SELECTION,
+        "Bits 0-2: axis (0 none, 1..5 = X, Y, Z, W, V); bits 3-4: multiplier code (0 = x1,
+1 = x10, 2 = x100); bits 5-7: the low three bits of the selection epoch (0x2010:3) of the
+state the value describes (in TPDO1: the record's own).",
+    ),
+    (
         FEED_STATUS,
-        "Bits 0-4: status flags; bits 5-7: the low three bits of the selection epoch (0x2010:3)
-of the state the value describes (in TPDO1: the record's own epoch).",
+        "Bits 0-4: status flags; bits 5-7: the session (0x2002) of the state the value describes
+(in TPDO1: the record's own).",
     ),
     (
         FEED_SEQUENCE,
         "+1 per feed record sent, and per loss (a held record dropped, an epoch that ended unseen);
-+8 at a break (start, stop, reset, a blocked transmit path): README \"Feed record\".",
++8 at a break (start, stop, reset, a blocked transmit path); wraps at 65536: README
+\"Feed record\".",
     ),
 ];
 

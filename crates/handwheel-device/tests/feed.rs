@@ -31,6 +31,7 @@ fn start_sends_the_default_feed_record() {
             multiplier: Multiplier::X1,
             status: FeedStatus::empty(),
             epoch: 0,
+            session: 0,
         },
         sequence: 0,
     };
@@ -64,7 +65,7 @@ fn no_feed_before_enable() {
     );
     assert_eq!(b.read_u32(0x6004, 0), 0);
     assert_eq!(b.read_u32(0x2040, 1), 3, "turning is counted as ignored");
-    let status = b.read_u32(0x2030, 0) as u8 & FLAGS;
+    let status = b.read_u32(0x2030, 0) as u8 & 0x1F; // bits 5-7: the session
     assert_eq!(status, FeedStatus::IGNORED_MOTION.bits());
 }
 
@@ -124,7 +125,7 @@ fn event_timer_repeats_the_record_every_100_ms() {
     let pdos = b.take_id(TPDO1);
     assert_eq!(pdos.len(), 3);
     assert!(pdos.iter().all(|p| record(p).0 == 10));
-    let seqs: Vec<u8> = pdos.iter().map(|p| record(p).4).collect();
+    let seqs: Vec<u16> = pdos.iter().map(|p| record(p).4).collect();
     assert_eq!(seqs[1], seqs[0].wrapping_add(1));
     assert_eq!(seqs[2], seqs[1].wrapping_add(1));
 }
@@ -329,7 +330,7 @@ fn feed_cannot_be_enabled_while_the_master_is_lost() {
     b.advance_ms(50);
     assert_eq!(b.read_u32(0x6004, 0), 0, "no feed while the master is lost");
     assert_eq!(b.read_u32(0x2000, 0), 0);
-    let status = b.read_u32(0x2030, 0) as u8 & FLAGS;
+    let status = b.read_u32(0x2030, 0) as u8 & 0x1F; // bits 5-7: the session
     assert_ne!(
         status & FeedStatus::MASTER_LOST.bits(),
         0,
@@ -346,7 +347,7 @@ fn feed_cannot_be_enabled_while_the_master_is_lost() {
     b.receive(0x701, &[0x05]);
     assert_eq!(b.read_u32(0x1001, 0), 0);
     b.sdo_write(0x2000, 0, &[1]).unwrap();
-    let status = b.read_u32(0x2030, 0) as u8 & FLAGS;
+    let status = b.read_u32(0x2030, 0) as u8 & 0x1F; // bits 5-7: the session
     assert_eq!(
         status,
         FeedStatus::ENABLED.bits(),
@@ -424,15 +425,15 @@ fn nothing_is_stored_while_the_feed_is_enabled() {
 fn reset_node_keeps_the_selector_but_zeroes_the_feed() {
     let mut b = Bench::operational_enabled(Axis::W, Multiplier::X10);
     b.turn(2);
-    let (sequence, epoch) = (b.read_u32(0x2031, 0) as u8, b.read_u32(0x2010, 3) as u8);
+    let (sequence, epoch) = (b.read_u32(0x2031, 0) as u16, b.read_u32(0x2010, 3) as u8);
     b.nmt(0x81);
     assert_eq!(b.read_u32(0x6004, 0), 0);
     assert_eq!(b.read_u32(0x2010, 1), 4, "W still selected");
     assert_eq!(b.read_u32(0x2010, 2), 10);
     // The sequence and the epoch go on, with a break: the first record after the reset can
     // never be taken for a continuation of one before it.
-    let gap = (b.read_u32(0x2031, 0) as u8).wrapping_sub(sequence);
-    assert_eq!(gap, handwheel_core::MAX_DROP_GAP, "a full break");
+    let gap = (b.read_u32(0x2031, 0) as u16).wrapping_sub(sequence);
+    assert_eq!(gap, u16::from(handwheel_core::MAX_DROP_GAP), "a full break");
     assert_ne!(b.read_u32(0x2010, 3) as u8, epoch);
 }
 

@@ -351,6 +351,22 @@ fn a_transmit_path_stalled_for_100_ms_stops_the_feed_and_discards() {
         [0x4F, 0x00, 0x20, 0, 0],
         "the feed was disabled"
     );
+    // Queued after the discard, so it reaches the master once frames get out again: EMCY
+    // 0x8100 with manufacturer byte 1 (transmit path blocked), then the error reset.
+    let emcys = r.sent_on(0x085);
+    let blocked = emcys
+        .iter()
+        .position(|e| e[..2] == [0x00, 0x81])
+        .expect("EMCY 0x8100");
+    assert_eq!(
+        emcys[blocked][3], 0x01,
+        "manufacturer byte 0: transmit path blocked"
+    );
+    assert_ne!(emcys[blocked][2] & 0x10, 0, "error register: communication");
+    assert_eq!(
+        emcys.get(blocked + 1).map(|e| e[..3].to_vec()),
+        Some(vec![0, 0, 0])
+    );
 }
 
 #[test]

@@ -4,10 +4,9 @@
 mod common;
 
 use common::*;
-use handwheel_core::{Axis, Multiplier, HELD_EPOCHS};
+use handwheel_core::{Axis, FeedRecord, FeedStatus, Multiplier, HELD_EPOCHS};
 use proptest::prelude::*;
 
-const ENABLED: u8 = 0x01;
 /// The firmware's transmit queue (16 frames) plus bxCAN's three mailboxes.
 const QUEUE: usize = 19;
 
@@ -17,25 +16,20 @@ const QUEUE: usize = 19;
 /// epochs with none missing; anything else is a new baseline.
 fn host_counts(records: &[Seen]) -> [i64; 6] {
     let mut counts = [0i64; 6];
-    let mut prev: Option<&[u8]> = None;
-    for r in records.iter().filter(|s| s.id == TPDO1) {
-        let d = r.data.as_slice();
+    let mut prev: Option<FeedRecord> = None;
+    for r in records.iter().filter(|s| s.id == TPDO1).map(feed_record) {
         if let Some(p) = prev {
-            let gap = d[7].wrapping_sub(p[7]).wrapping_sub(1);
-            let epochs = (d[6] >> 5).wrapping_sub(p[6] >> 5) & 7;
+            let gap = r.sequence.wrapping_sub(p.sequence).wrapping_sub(1);
+            let epochs = r.state.epoch.wrapping_sub(p.state.epoch) & 7;
             let continuous = (epochs == 0 && gap <= 6) || (epochs == 1 && gap == 0);
-            if continuous && d[6] & ENABLED != 0 {
-                let delta = position(d).wrapping_sub(position(p));
-                counts[usize::from(d[4])] += i64::from(delta);
+            if continuous && r.state.status.contains(FeedStatus::ENABLED) {
+                let delta = r.state.position.wrapping_sub(p.state.position);
+                counts[usize::from(Axis::option_value(r.state.axis))] += i64::from(delta);
             }
         }
-        prev = Some(d);
+        prev = Some(r);
     }
     counts
-}
-
-fn position(d: &[u8]) -> i32 {
-    i32::from_le_bytes([d[0], d[1], d[2], d[3]])
 }
 
 /// Turns `detents` one at a time, 3 ms apart (longer than the 2 ms inhibit time, so that

@@ -142,9 +142,10 @@ fn a_mapping_of_eight_64_bit_entries_keeps_the_default_mapping() {
     }
     let (mut node, emcys) = boot(crafted(&changes));
     assert_reported(&emcys, 0x1A00, 1, 1);
-    assert_eq!(read_u32(&mut node, 0x1A00, 0), 5);
+    assert_eq!(read_u32(&mut node, 0x1A00, 0), 4);
     assert_eq!(read_u32(&mut node, 0x1A00, 1), 0x6004_0020);
-    assert_eq!(read_u32(&mut node, 0x1A00, 6), 0);
+    assert_eq!(read_u32(&mut node, 0x1A00, 4), 0x2031_0010);
+    assert_eq!(read_u32(&mut node, 0x1A00, 5), 0);
     // The PDO is still valid on its default identifier.
     assert_eq!(read_u32(&mut node, 0x1800, 1), 0x4000_0190);
 }

@@ -106,6 +106,7 @@ impl<S: Storage> ObjectAccess for Objects<'_, S> {
             .write_object(self.now, index, sub, data, self.app, &mut inner.storage)?;
         // Refused writes are logged with their abort code by the SDO server.
         info!("SDO write {=u16:#x}:{=u8}", index, sub);
+        self.app.on_written(index, sub);
         Ok(())
     }
 }

@@ -3,7 +3,7 @@
 
 use canopen_slave::{Frame, FrameSink, Instant, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, Axis, DecoderConfig, EdgeState, LinkedWheel, Multiplier, Selection,
+    AbLevels, Axis, DecoderConfig, EdgeState, FeedRecord, LinkedWheel, Multiplier, Selection,
 };
 use handwheel_device::HandwheelDevice;
 
@@ -273,23 +273,31 @@ impl Bench {
     }
 }
 
-/// A feed record as (position, axis, multiplier, status flags (bits 0-4), sequence).
-pub fn record(s: &Seen) -> (i32, u8, u8, u8, u8) {
-    assert_eq!(s.data.len(), 8, "feed record is 8 bytes");
-    let d = &s.data;
+/// The feed record a frame carries, decoded by `handwheel-core` (the one statement of its
+/// layout).
+pub fn feed_record(s: &Seen) -> FeedRecord {
+    let bytes: [u8; 8] = s
+        .data
+        .as_slice()
+        .try_into()
+        .expect("a feed record is 8 bytes");
+    FeedRecord::from_bytes(bytes).expect("a feed record the device may send")
+}
+
+/// A feed record as (position, axis (0 none, 1..5), multiplier factor, status flags,
+/// sequence).
+pub fn record(s: &Seen) -> (i32, u8, u8, u8, u16) {
+    let r = feed_record(s).state;
     (
-        i32::from_le_bytes([d[0], d[1], d[2], d[3]]),
-        d[4],
-        d[5],
-        d[6] & FLAGS,
-        d[7],
+        r.position,
+        Axis::option_value(r.axis),
+        r.multiplier.factor(),
+        r.status.bits(),
+        feed_record(s).sequence,
     )
 }
 
-/// The status byte's flag bits; bits 5-7 are the epoch.
-pub const FLAGS: u8 = 0x1F;
-
 /// A feed record's epoch bits (the low three bits of 0x2010:3).
 pub fn record_epoch(s: &Seen) -> u8 {
-    s.data[6] >> 5
+    feed_record(s).state.epoch
 }

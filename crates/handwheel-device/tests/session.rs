@@ -1,0 +1,159 @@
+//! The master's session (0x2002): what opens it, what ends it, and the pace of the record
+//! sequence that bounds it (README "Feed record").
+
+mod common;
+
+use common::*;
+use handwheel_core::{Axis, FeedStatus, Multiplier, SEQUENCE_BURST};
+
+/// Operational, X at x1, the session `token` opened, the feed enabled.
+fn in_session(token: u8) -> Bench {
+    let mut b = Bench::new();
+    b.select(Some(Axis::X), Multiplier::X1);
+    b.sdo_write(0x2002, 0, &[token]).unwrap();
+    b.nmt(0x01);
+    b.sdo_write(0x2000, 0, &[1]).unwrap();
+    b.advance_ms(5);
+    b.take();
+    b
+}
+
+fn last_record(b: &mut Bench) -> handwheel_core::FeedRecord {
+    feed_record(b.take_id(TPDO1).last().expect("a feed record"))
+}
+
+#[test]
+fn every_record_carries_the_session_a_master_opened() {
+    let mut b = in_session(5);
+    assert_eq!(b.read_u32(0x2002, 0), 5);
+    b.turn(3);
+    b.advance_ms(5);
+    let records = b.take_id(TPDO1);
+    assert!(!records.is_empty());
+    for r in records.iter().map(feed_record) {
+        assert_eq!(r.state.session, 5);
+        assert!(r.state.status.contains(FeedStatus::ENABLED));
+    }
+    assert_eq!(b.read_u32(0x2030, 0) >> 5, 5, "0x2030 bits 5-7");
+}
+
+#[test]
+fn a_new_session_is_a_new_epoch_with_the_feed_off() {
+    let mut b = in_session(2);
+    let epoch = b.read_u32(0x2010, 3);
+    b.sdo_write(0x2002, 0, &[2]).unwrap();
+    assert_eq!(
+        b.read_u32(0x2000, 0),
+        1,
+        "the same session again changes nothing"
+    );
+    b.sdo_write(0x2002, 0, &[3]).unwrap();
+    assert_eq!(
+        b.read_u32(0x2000, 0),
+        0,
+        "a new session starts with the feed off"
+    );
+    assert_eq!(b.read_u32(0x2010, 3), epoch + 1);
+    b.advance_ms(5);
+    let r = last_record(&mut b);
+    assert_eq!(r.state.session, 3);
+    assert!(!r.state.status.contains(FeedStatus::ENABLED));
+    assert!(
+        !r.state.status.contains(FeedStatus::MASTER_LOST),
+        "not a loss"
+    );
+    assert_eq!(b.sdo_write(0x2002, 0, &[8]), Err(0x0609_0031), "1..7 only");
+}
+
+#[test]
+fn configuration_writes_end_the_session_and_the_feed() {
+    let cases: [(u16, u8, &[u8]); 5] = [
+        (0x1016, 1, &0x0001_01F4u32.to_le_bytes()),
+        (0x1017, 0, &500u16.to_le_bytes()),
+        (0x1800, 5, &200u16.to_le_bytes()),
+        (0x2020, 3, &[2]),
+        (0x2001, 0, &[0]),
+    ];
+    for (index, sub, value) in cases {
+        let mut b = in_session(4);
+        assert_eq!(b.sdo_write(index, sub, value), Ok(()), "{index:#06x}:{sub}");
+        assert_eq!(b.read_u32(0x2002, 0), 0, "{index:#06x}:{sub} ends it");
+        assert_eq!(
+            b.read_u32(0x2000, 0),
+            0,
+            "{index:#06x}:{sub} stops the feed"
+        );
+        b.advance_ms(5);
+        assert_eq!(last_record(&mut b).state.session, 0);
+    }
+}
+
+#[test]
+fn enabling_and_clearing_errors_keep_the_session_and_refused_writes_change_nothing() {
+    let mut b = in_session(6);
+    b.sdo_write(0x2000, 0, &[0]).unwrap();
+    b.sdo_write(0x2000, 0, &[1]).unwrap();
+    b.sdo_write(0x1003, 0, &[0]).unwrap();
+    assert_eq!(b.sdo_write(0x2020, 3, &[3]), Err(0x0609_0030));
+    assert_eq!(b.sdo_write(0x1010, 1, b"save"), Err(0x0800_0022), "feed on");
+    assert_eq!(b.read_u32(0x2002, 0), 6);
+    b.sdo_write(0x2000, 0, &[0]).unwrap();
+    b.sdo_write(0x1010, 1, b"save").unwrap();
+    assert_eq!(
+        b.read_u32(0x2002, 0),
+        6,
+        "storing changes nothing the session rests on"
+    );
+}
+
+#[test]
+fn resets_end_the_session_and_stop_and_start_keep_it() {
+    for command in [0x81, 0x82] {
+        let mut b = in_session(7);
+        b.nmt(command);
+        assert_eq!(b.read_u32(0x2002, 0), 0, "NMT {command:#04x}");
+    }
+    let mut b = in_session(7);
+    b.nmt(0x02);
+    b.nmt(0x80);
+    b.nmt(0x01);
+    assert_eq!(
+        b.read_u32(0x2002, 0),
+        7,
+        "0x1016 and the rest are still as configured"
+    );
+    assert_eq!(b.read_u32(0x2000, 0), 0, "but the stop stopped the feed");
+}
+
+#[test]
+fn numbers_faster_than_the_pace_end_the_session() {
+    // A stop and a start take 8 numbers (one break) and the record the start sends one more:
+    // a master that sends them faster than one number per millisecond (beyond the burst)
+    // ends the session.
+    let mut b = in_session(1);
+    let breaks = usize::from(SEQUENCE_BURST) / 8 + 1;
+    for _ in 0..breaks {
+        b.nmt(0x80);
+        b.nmt(0x01);
+    }
+    assert_eq!(b.read_u32(0x2002, 0), 0);
+    // At the pace a master can keep going for ever.
+    let mut b = in_session(1);
+    for _ in 0..50 {
+        b.nmt(0x80);
+        b.nmt(0x01);
+        b.advance_ms(16);
+    }
+    assert_eq!(b.read_u32(0x2002, 0), 1);
+}
+
+#[test]
+fn a_fast_wheel_at_the_default_inhibit_time_keeps_the_session() {
+    let mut b = in_session(3);
+    for _ in 0..2000 {
+        b.turn(1);
+        b.advance_ms(1);
+    }
+    assert_eq!(b.read_u32(0x2002, 0), 3);
+    assert_eq!(b.read_u32(0x6004, 0), 2000);
+}
