@@ -216,9 +216,9 @@ impl FeedAccumulator {
         self.session
     }
 
-    /// Time passes (the device's millisecond tick): the outbox's pace refills.
-    pub fn tick(&mut self, now_ms: u64) {
-        self.outbox.refill(now_ms);
+    /// Time passes (`now_us`, the device's clock in µs): the outbox's pace refills.
+    pub fn tick(&mut self, now_us: u64) {
+        self.outbox.refill(now_us);
     }
 
     /// A number was taken beyond the outbox's pace: the session ends (a new epoch, feed
@@ -693,7 +693,7 @@ mod tests {
         acc.start_records();
         assert!(acc.set_session(5));
         assert!(acc.set_enabled(true));
-        acc.tick(10);
+        acc.tick(10_000);
         // A burst of records at one instant: the pace allows SEQUENCE_BURST of them.
         let mut ended_at = None;
         for n in 0..2 * usize::from(crate::SEQUENCE_BURST) {
@@ -719,7 +719,7 @@ mod tests {
         assert!(acc.set_session(2));
         assert!(acc.set_enabled(true));
         for t in 0..5_000u64 {
-            acc.tick(t);
+            acc.tick(t * 1000);
             assert!(acc.add_detents(1));
             let record = acc.record();
             let _ = acc.record_sent(record.state);

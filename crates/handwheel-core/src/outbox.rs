@@ -72,8 +72,8 @@ pub struct FeedOutbox {
     dropped: u32,
     /// Numbers the pace allows now (at most [`SEQUENCE_BURST`]).
     allowance: u16,
-    /// The millisecond tick the allowance was last refilled at.
-    refilled_ms: u64,
+    /// The time (µs) the allowance was last refilled up to.
+    refilled_us: u64,
     /// A number was taken from an empty bucket since the last [`FeedOutbox::take_overdrawn`].
     overdrawn: bool,
 }
@@ -97,18 +97,23 @@ impl FeedOutbox {
             drops_in_run: 0,
             dropped: 0,
             allowance: SEQUENCE_BURST,
-            refilled_ms: 0,
+            refilled_us: 0,
             overdrawn: false,
         }
     }
 
-    /// Time passes: one number more per millisecond since the last refill, up to
-    /// [`SEQUENCE_BURST`]. `now_ms` is the device's millisecond tick.
-    pub fn refill(&mut self, now_ms: u64) {
-        let elapsed = now_ms.saturating_sub(self.refilled_ms);
-        let room = u64::from(SEQUENCE_BURST - self.allowance);
-        self.allowance += elapsed.min(room) as u16;
-        self.refilled_ms = now_ms;
+    /// Time passes (`now_us`, the device's clock in µs): one number more per whole
+    /// millisecond since the last refill, up to [`SEQUENCE_BURST`]. (A loop of at most
+    /// [`SEQUENCE_BURST`] steps rather than a 64-bit division, which the firmware would have to
+    /// link for this alone.)
+    pub fn refill(&mut self, now_us: u64) {
+        while self.allowance < SEQUENCE_BURST && now_us >= self.refilled_us.saturating_add(1000) {
+            self.allowance += 1;
+            self.refilled_us += 1000;
+        }
+        if self.allowance == SEQUENCE_BURST {
+            self.refilled_us = self.refilled_us.max(now_us);
+        }
     }
 
     /// Whether the next record may carry the session: the bucket holds a number for it.
@@ -473,7 +478,7 @@ mod tests {
     #[test]
     fn the_pace_allows_a_burst_then_one_number_per_millisecond() {
         let mut out = started();
-        out.refill(1000);
+        out.refill(1_000_000);
         let x = state(0, Axis::X, 0);
         for n in 0..SEQUENCE_BURST {
             assert!(out.paced(), "number {n} of the burst");
@@ -484,7 +489,7 @@ mod tests {
             !out.take_overdrawn(),
             "nothing was taken from an empty bucket"
         );
-        out.refill(1003);
+        out.refill(1_003_000);
         for _ in 0..3 {
             assert!(out.paced());
             let _ = out.sent(x, x);
@@ -511,7 +516,7 @@ mod tests {
         let mut out = started();
         let x = state(0, Axis::X, 0);
         for t in 0..70_000u64 {
-            out.refill(t);
+            out.refill(t * 1000);
             let _ = out.sent(x, x);
         }
         assert_eq!(out.sequence(), (70_000u32 % 65_536) as u16);

@@ -268,9 +268,8 @@ impl<S: Storage> HandwheelDevice<S> {
     /// status.
     fn service(&mut self, now: Instant, wheel: &mut impl Mutex<T = Handwheel>) {
         let operational = self.engine.nmt_state() == NmtState::Operational;
-        let now_ms = now.as_micros() / 1000;
         if wheel.lock(|w| {
-            w.feed.tick(now_ms);
+            w.feed.tick(now.as_micros());
             w.take_record_due()
         }) {
             // Outside Operational the request is dropped by design: entering Operational
