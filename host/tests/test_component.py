@@ -893,3 +893,162 @@ def test_log_lines_from_threads_stay_whole(monkeypatch):
     for line in lines[:-1]:
         prefix, name, i = line.split(" ")
         assert prefix == "canopen-handwheel:" and name[0] == "t" and 0 <= int(i) < 200
+
+
+class FakeSdo:
+    """python-canopen's SDO client as the configuration uses it, on a dict of objects:
+    every transfer in `log`; `changes` makes a write store something else (a device that
+    does not take a value)."""
+
+    def __init__(self, objects, changes=None):
+        self.objects = dict(objects)
+        self.changes = changes or {}
+        self.log = []
+
+    def upload(self, index, sub):
+        self.log.append(("upload", index, sub))
+        value, size = self.objects[(index, sub)]
+        return value.to_bytes(size, "little")
+
+    def download(self, index, sub, data):
+        value = int.from_bytes(data, "little")
+        self.log.append(("download", index, sub, value))
+        size = self.objects[(index, sub)][1]
+        self.objects[(index, sub)] = (self.changes.get((index, sub), value), size)
+        if index not in SESSION_KEEPERS:
+            self.objects[(0x2002, 0)] = (0, 1)
+
+
+class FakeLink:
+    def __init__(self, sdo):
+        nmt = type("Nmt", (), {})()
+        self.node = type("Node", (), {"sdo": sdo, "nmt": nmt})()
+        self.sdo_reply_at = 1.5
+
+
+def test_the_configuration_steps_and_their_read_backs(capfd):
+    """Spec 4.5 in order: 0x2002 (intact check), the 0x1016 entry written and read back, the
+    event timer, the inhibit time below 1 ms made 2 ms with TPDO1 invalid meanwhile, 0x2001,
+    feed off, the session written last and read back, NMT start."""
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[(0x1800, 3)] = (5, 2)  # 0.5 ms
+    objects[(0x2001, 0)] = (1, 1)
+    objects[(0x2002, 0)] = (4, 1)  # another master's session
+    sdo = FakeSdo(objects)
+    action = core.Configure(1, 500, None, keep=2, tokens=(4, 5))
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert ok and abort is None
+    cob = 0x4000_0180 + NODE
+    assert sdo.log == [
+        ("upload", 0x2002, 0),
+        ("upload", 0x1016, 0),
+        ("upload", 0x1016, 1),
+        ("download", 0x1016, 1, 0x0001_01F4),
+        ("upload", 0x1016, 1),
+        ("upload", 0x1800, 5),
+        ("upload", 0x1800, 3),
+        ("upload", 0x1800, 1),
+        ("download", 0x1800, 1, cob | 0x8000_0000),
+        ("download", 0x1800, 3, 20),
+        ("download", 0x1800, 1, cob),
+        ("upload", 0x1800, 3),
+        ("upload", 0x1800, 1),
+        ("upload", 0x2001, 0),
+        ("download", 0x2001, 0, 0),
+        ("upload", 0x2001, 0),
+        ("download", 0x2000, 0, 0),
+        ("download", 0x2002, 0, 5),
+        ("upload", 0x2002, 0),
+    ]
+    assert result == core.Configured(
+        event_timer_ms=50, first_reply_at=1.5, found=4, intact=False, tried=5, session=5
+    )
+    line = (
+        "canopen-handwheel: device configured: session 5 (0x2002 = 4 before), 0x1016:1 = "
+        "0x000101F4, event timer 50 ms, inhibit time 2 ms, feed off; NMT start sent\n"
+    )
+    assert capfd.readouterr().err == line
+
+
+def test_an_intact_configuration_writes_nothing():
+    sdo = FakeSdo(dict(SlcanDevice.OBJECTS, **{}))
+    sdo.objects[(0x2002, 0)] = (3, 1)
+    action = core.Configure(1, 500, None, keep=3, tokens=(1, 2))
+    ok, _, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert ok and result.intact and result.session == 3 and result.tried is None
+    assert sdo.log == [("upload", 0x2002, 0)]
+
+
+@pytest.mark.parametrize("where", [(0x1016, 1), (0x1800, 3), (0x2002, 0)])
+def test_a_read_back_that_differs_fails_the_configuration(capfd, where):
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[(0x1800, 3)] = (0, 2)
+    sdo = FakeSdo(objects, changes={where: 7})
+    action = core.Configure(1, 500, None, tokens=(1,))
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert not ok and abort is None and result.found == 0 and result.session is None
+    assert result.tried == (1 if where == (0x2002, 0) else None)
+    err = capfd.readouterr().err
+    assert f"configuring the device: 0x{where[0]:04X}:{where[1]} reads 0x7, not" in err
+    assert ("download", 0x2000, 0, 1) not in sdo.log
+
+
+def test_a_missed_boot_up_is_configured_again_before_the_feed_is_enabled(capfd):
+    """Issue 34, finding 3 without the firmware: the device power-cycles unseen (no boot-up
+    reaches the component) and comes back Operational, in no session, its feed off. The
+    component checks 0x2002, configures the device (the 0x1016 entry read back) and only then
+    writes 0x2000 = 1; it logs the stop as the session's end."""
+    channel = f"hw-{time.monotonic_ns()}"
+    dev = Device(channel)
+    running = Running(channel)
+    comp = running.comp
+    try:
+        wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
+        comp["enable"] = True
+        wait(lambda: dev.record(0, status=0, epoch=1) or comp["connected"], what="connected")
+        wait(lambda: dev.node.sdo[0x2000].raw == 1, what="0x2000 = 1")
+        dev.record(0, status=1, epoch=2)
+        wait(lambda: comp["feed-enabled"], what="feed on")
+        mark = dev.mark()
+        dev.power_cycle()
+        wait(
+            lambda: dev.record(0, status=0, epoch=0) or dev.node.sdo[0x2000].raw == 1,
+            what="0x2000 = 1 again",
+        )
+        requests = dev.sdo_requests(mark)
+        enable = requests.index(("download", 0x2000, 0, 1))
+        entry = requests.index(("download", 0x1016, 1, 0x0001_01F4))
+        assert requests[0] == ("upload", 0x2002, 0)
+        assert entry < requests.index(("upload", 0x1016, 1), entry) < enable
+        assert requests.index(("download", 0x2002, 0, 2)) < enable
+        assert dev.session == 2
+        assert comp["feed-stops"] == 1 and comp["stop-reason"] == core.STOP_SESSION_ENDED
+    finally:
+        running.end()
+        dev.close()
+    err = capfd.readouterr().err
+    assert "a record of session 0, not 1: checking the device's configuration" in err
+    assert "feed stopped by the device: the session ended" in err
+
+
+def test_a_blocked_transmit_path_is_reported(capfd):
+    """The device's feed stopped by a blocked transmit path: its record shows status bit 3,
+    its EMCY 0x8100 follows; the component logs why and shows it on its pins."""
+    channel = f"hw-{time.monotonic_ns()}"
+    dev = Device(channel)
+    running = Running(channel)
+    comp = running.comp
+    try:
+        wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
+        comp["enable"] = True
+        wait(lambda: dev.record(0, status=1, epoch=1) or comp["feed-enabled"], what="feed on")
+        dev.record(0, status=core.STATUS_MASTER_LOST, epoch=2)
+        dev.network.send_message(0x080 + NODE, bytes.fromhex("0081110100000000"))
+        wait(lambda: comp["feed-stops"] == 1, what="the stop counted")
+        assert comp["stop-reason"] == core.STOP_TRANSMIT_BLOCKED
+    finally:
+        running.end()
+        dev.close()
+    assert "feed stopped by the device: transmit path blocked (EMCY 0x8100)" in (
+        capfd.readouterr().err
+    )

@@ -803,7 +803,7 @@ class Core:
     # 0x2000 = 0 since it last asked for it on), a stop waiting for its EMCY (when it was
     # seen, and whether status bit 3 was set), what the device showed since the feed was
     # last on: the last EMCY 0x8100 or 0x8130, a heartbeat other than Operational.
-    asked_off: bool = True
+    asked_off: bool = False
     stop_seen: Optional[float] = None
     stop_master_lost: bool = False
     stop_emcy: Optional[int] = None
@@ -987,7 +987,7 @@ class Core:
         self.check_due = False
         self.check_logged = False
         self.waiting_logged = False
-        self.asked_off = True  # the configuration wrote 0x2000 = 0
+        self.asked_off = False  # a feed on in this session is a master's asking
         self.feed_due = 0.0
 
     def _drop_session(self, why: str) -> None:
