@@ -32,8 +32,15 @@ from typing import Dict, List, Optional, Tuple
 import can
 import canopen
 
+# The host component's record rule (host/src, standard library only), which the rig decodes
+# records with too: the demo's CNC applies feed records exactly as the LinuxCNC component
+# does.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "host" / "src"))
+
+from canopen_handwheel.core import Record, continuity  # noqa: E402
+
 # The rig library (tools/rig), beside this script: emulator, stimulus, bus, constants.
-from rig import (
+from rig import (  # noqa: E402
     BOOTUP,
     EDS,
     EMCY,
@@ -41,7 +48,6 @@ from rig import (
     NODE_ID,
     OPERATIONAL,
     PRE_OPERATIONAL,
-    ROOT,
     SDO_TX,
     STOPPED,
     TPDO1,
@@ -50,11 +56,6 @@ from rig import (
     Stimulus,
     connect_bus,
 )
-
-# The host component's record rule (host/src, standard library only): the demo's CNC applies
-# feed records exactly as the LinuxCNC component does.
-sys.path.insert(0, str(ROOT / "host" / "src"))
-from canopen_handwheel.core import Record, continuity  # noqa: E402
 
 AXIS_NAMES = ["none", "X", "Y", "Z", "W", "V"]
 STATE_NAMES = {
@@ -78,7 +79,7 @@ class Cnc(can.Listener):
     def __init__(self) -> None:
         self.lock = threading.Condition()
         self.axes: Dict[str, int] = {name: 0 for name in AXIS_NAMES[1:]}
-        self.record: Optional[Tuple[int, int, int, int, int]] = None
+        self.record: Optional[Record] = None
         self.state: Optional[int] = None
         self.booted = False
         self.emcy = "none"
@@ -116,7 +117,7 @@ class Cnc(can.Listener):
         if delta and 1 <= rec.axis <= 5:
             self.axes[AXIS_NAMES[rec.axis]] += delta
         self._last = rec
-        self.record = (rec.position, rec.axis, rec.multiplier, rec.status, rec.sequence)
+        self.record = rec
 
     def rates(self) -> Tuple[float, float]:
         """TPDO1 frames and all frames from the node per second, over the last second."""
@@ -132,9 +133,14 @@ class Cnc(can.Listener):
             return self.lock.wait_for(predicate, timeout)
 
 
-def describe_status(status: int) -> str:
-    names = [name for bit, name in enumerate(STATUS_BITS) if status & (1 << bit)]
-    return f"0x{status:02X} [{', '.join(names) or 'feed off'}, epoch {status >> 5}]"
+def describe_status(rec: Record) -> str:
+    """The record's status flags by name, its epoch and its session (0: no master wrote
+    one; the demo never does)."""
+    names = [name for bit, name in enumerate(STATUS_BITS) if rec.flags & (1 << bit)]
+    return (
+        f"0x{rec.flags:02X} [{', '.join(names) or 'feed off'}, epoch {rec.epoch}, "
+        f"session {rec.session}]"
+    )
 
 
 class Demo:
@@ -223,9 +229,12 @@ class Demo:
             feed = "no feed record yet"
             selection = "-"
         else:
-            position, axis, multiplier, status, sequence = record
-            feed = f"position {position:+d}  seq {sequence:3d}  status {describe_status(status)}"
-            selection = f"axis {AXIS_NAMES[axis] if axis < 6 else axis}  x{multiplier}"
+            feed = (
+                f"position {record.position:+d}  seq {record.sequence:5d}  "
+                f"status {describe_status(record)}"
+            )
+            axis = AXIS_NAMES[record.axis] if record.axis < 6 else record.axis
+            selection = f"axis {axis}  x{record.multiplier}"
         return [
             f"node {NODE_ID}: {state}, feed {'enabled' if self.feed_enabled else 'disabled'}",
             f"selection    {selection}",

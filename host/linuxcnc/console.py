@@ -27,8 +27,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-# This folder (sim_machine) and tools/ (the rig, the demo's key decoder) are not packages.
-sys.path[:0] = [str(HERE), str(ROOT / "tools")]
+# This folder (sim_machine) and tools/ (the rig, the demo's key decoder) are not packages;
+# host/src has the component's `Record`, with which the rig and the demo decode records.
+sys.path[:0] = [str(HERE), str(ROOT / "tools"), str(ROOT / "host" / "src")]
 
 from demo import screen, wheel_command  # noqa: E402  (the demo's keys and screen)
 from rig import Qemu, Stimulus  # noqa: E402

@@ -20,10 +20,15 @@ import pytest
 from can.interfaces.virtual import VirtualBus
 
 import fake_hal
+import records
 from canopen_handwheel import component, core
+from canopen_handwheel.core import Record
 
 ROOT = Path(__file__).resolve().parents[2]
 NODE = 16
+# Writes that leave the device's session as it is (README "Feed record"): the feed enable,
+# the session itself, store and restore, the error history.
+SESSION_KEEPERS = {0x2000, 0x2002, 0x1010, 0x1011, 0x1003}
 
 
 def test_the_package_eds_is_the_repository_one():
@@ -155,7 +160,9 @@ def test_pins_have_the_table_types():
 
 class Device:
     """A stand-in device on the virtual bus: python-canopen's SDO server (LocalNode with the
-    EDS) and a recorder of what the component sends."""
+    EDS, and the feed session 0x2002 if the EDS lacks it) that ends the session on every
+    write the device ends it on, and a recorder of what the component sends. `record` sends
+    a feed record in the session the device is in."""
 
     def __init__(self, channel: str) -> None:
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
@@ -173,9 +180,53 @@ class Device:
 
         self.network.listeners.append(Rec())
         self.node = canopen.LocalNode(NODE, component.default_eds())
+        if 0x2002 not in self.node.object_dictionary:
+            session = canopen.objectdictionary.ODVariable("Feed session", 0x2002)
+            session.data_type = canopen.objectdictionary.UNSIGNED8
+            session.access_type = "rw"
+            session.default = 0
+            self.node.object_dictionary.add_object(session)
+        self.node.add_write_callback(self._written)
         self.network.add_node(self.node)
         self.network.connect()
         self.seq = 0
+
+    def _written(self, index, subindex, od, data):
+        if index not in SESSION_KEEPERS:
+            self.node.sdo[0x2002].raw = 0
+
+    @property
+    def session(self) -> int:
+        return self.node.sdo[0x2002].raw
+
+    def power_cycle(self) -> None:
+        """The device's state after a power cycle whose boot-up nobody saw: no session, no
+        consumer entry, feed off, the sequence from 0."""
+        self.node.sdo[0x2002].raw = 0
+        self.node.sdo[0x1016][1].raw = 0
+        self.node.sdo[0x2000].raw = 0
+        self.seq = 0
+
+    def sdo_requests(self, since: int = 0):
+        """The component's SDO requests after the first `since` frames: ("upload", index,
+        sub) or ("download", index, sub, value)."""
+        out = []
+        with self.lock:
+            frames = self.frames[since:]
+        for cob, d in frames:
+            if cob != 0x600 + NODE or len(d) != 8:
+                continue
+            index, sub = int.from_bytes(d[1:3], "little"), d[3]
+            if d[0] == 0x40:
+                out.append(("upload", index, sub))
+            elif d[0] & 0xE3 == 0x23:
+                size = 4 - ((d[0] >> 2) & 3)
+                out.append(("download", index, sub, int.from_bytes(d[4 : 4 + size], "little")))
+        return out
+
+    def mark(self) -> int:
+        with self.lock:
+            return len(self.frames)
 
     def seen(self, cob_id, data=None):
         with self.lock:
@@ -187,12 +238,9 @@ class Device:
             return [t for (i, _), t in zip(self.frames, self.times) if i == cob_id]
 
     def record(self, position, axis=1, mult=1, status=0, epoch=0):
-        self.seq = (self.seq + 1) & 0xFF
-        status |= epoch << 5
-        self.network.send_message(
-            0x180 + NODE,
-            (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, self.seq]),
-        )
+        self.seq = (self.seq + 1) % core.SEQUENCE_MODULO
+        rec = Record(position, axis, mult, epoch, status, self.session, self.seq)
+        self.network.send_message(0x180 + NODE, rec.encode())
 
     def close(self):
         self.network.disconnect()
@@ -251,15 +299,17 @@ def test_component_on_a_virtual_bus(tmp_path):
     made = running.made
     stop, thread = running.stop, running.thread
     try:
-        # Heartbeat of master 1 first, then the consumer entry, feed off and NMT start.
+        # Heartbeat of master 1 first, then the consumer entry, feed off, the session and
+        # NMT start.
         wait(lambda: dev.seen(0x701, b"\x05"), what="master heartbeat")
         wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
         assert dev.node.sdo[0x1016][1].raw == 0x0001_01F4
         assert dev.node.sdo[0x2000].raw == 0
+        assert dev.session == 1
         comp = made["comp"]
-        # Records with the feed off; enable pin off: nothing to write.
-        dev.record(100, epoch=2)
-        wait(lambda: comp["connected"], what="connected")
+        # Records with the feed off; enable pin off: nothing to write. (The first records
+        # may reach the core before the worker's report of the session: another session's.)
+        wait(lambda: dev.record(100, epoch=2) or comp["connected"], what="connected")
         assert comp["axis"] == 1 and comp["position"] == 100 and not comp["feed-enabled"]
         comp["enable"] = True
         wait(lambda: dev.node.sdo[0x2000].raw == 1, what="0x2000 = 1")
@@ -271,7 +321,7 @@ def test_component_on_a_virtual_bus(tmp_path):
         assert comp["halui.axis.x.select"] and comp["feed-enabled"]
         # Bad data: a short record, an unknown axis, a jump no wheel makes.
         dev.network.send_message(0x180 + NODE, b"\x01\x02")
-        dev.record(500, axis=9, status=1, epoch=3)
+        dev.record(500, axis=7, status=1, epoch=3)
         wait(lambda: comp["frames-bad"] == 2, what="bad frames counted")
         assert comp["axis"] == 0 and not comp["axis.x.jog-enable"]
         dev.record(93, status=1, epoch=3)
@@ -341,8 +391,21 @@ def test_a_device_without_event_timer_gets_the_default():
 class SlcanDevice:
     """A device end of an SLCAN line on TCP, for a component in another process (`--interface
     slcan --channel socket://...`): one thread with `select` stamps every frame from the
-    component on arrival and sends the test's frames; nothing else runs in this process
-    meanwhile, so the stamps are the component's timing."""
+    component on arrival, answers its expedited SDO transfers from `objects` (ending the
+    session as the device does) and sends the test's frames; nothing else runs in this
+    process meanwhile, so the stamps are the component's timing."""
+
+    # (index, sub) -> (value, size): what the component's configuration reads and writes.
+    OBJECTS = {
+        (0x1016, 0): (1, 1),
+        (0x1016, 1): (0, 4),
+        (0x1800, 1): (0x4000_0180 + NODE, 4),
+        (0x1800, 3): (20, 2),
+        (0x1800, 5): (50, 2),
+        (0x2000, 0): (0, 1),
+        (0x2001, 0): (0, 1),
+        (0x2002, 0): (0, 1),
+    }
 
     def __init__(self) -> None:
         self.server = socket.socket()
@@ -354,9 +417,31 @@ class SlcanDevice:
         self.flood_line = b""  # sent `flood_rate` times a second (`flood`)
         self.flood_rate = 0.0
         self.flooded = 0
+        self.objects = dict(self.OBJECTS)
         self.done = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
+
+    @property
+    def session(self) -> int:
+        return self.objects[(0x2002, 0)][0]
+
+    def sdo(self, request: bytes) -> bytes:
+        """The answer to an expedited SDO request (an abort for anything else)."""
+        index, sub = int.from_bytes(request[1:3], "little"), request[3]
+        head = request[1:4]
+        if (index, sub) not in self.objects:
+            return bytes([0x80]) + head + (0x0602_0000).to_bytes(4, "little")
+        value, size = self.objects[(index, sub)]
+        if request[0] == 0x40:
+            return bytes([0x43 | (4 - size) << 2]) + head + value.to_bytes(4, "little")
+        if request[0] & 0xE3 == 0x23:
+            n = 4 - ((request[0] >> 2) & 3)
+            self.objects[(index, sub)] = (int.from_bytes(request[4 : 4 + n], "little"), size)
+            if index not in SESSION_KEEPERS:
+                self.objects[(0x2002, 0)] = (0, 1)
+            return bytes([0x60]) + head + bytes(4)
+        return bytes([0x80]) + head + (0x0504_0001).to_bytes(4, "little")
 
     def _run(self) -> None:
         conn, _ = self.server.accept()
@@ -385,6 +470,8 @@ class SlcanDevice:
                             cob, n = int(line[1:4], 16), int(line[4:5])
                             data = bytes.fromhex(line[5 : 5 + 2 * n].decode())
                             self.frames.append((now, cob, data))
+                            if cob == 0x600 + NODE and n == 8:
+                                out += self.encode([(0x580 + NODE, self.sdo(data))])
                         else:
                             out += b"\r"  # O, C, S...: acknowledged
                 if writable:
@@ -454,8 +541,8 @@ def test_the_heartbeat_keeps_its_period_under_load():
     for _ in range(20):  # made first, so that this process only sleeps while measuring
         burst = []
         for _ in range(1000):
-            pos, seq = pos + 1, (seq + 1) & 0xFF
-            burst.append((0x180 + NODE, pos.to_bytes(4, "little") + bytes([1, 1, 0x21, seq])))
+            pos, seq = pos + 1, seq + 1
+            burst.append((0x180 + NODE, records.rec(pos, seq=seq, epoch=1)))
         bursts.append(SlcanDevice.encode(burst))
     dev = SlcanDevice()
     proc = start_component("--interface", "slcan", "--channel", dev.channel)
@@ -561,6 +648,7 @@ def test_a_bus_that_errors_and_comes_back(monkeypatch, capfd):
     try:
         wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
         sender.start()
+        wait(lambda: comp["connected"], what="records of the session")
         state["pos"] = 4
         wait(lambda: comp["axis.x.jog-counts"] == 4, what="counts before")
         FlakyBus.broken.set()
@@ -646,8 +734,8 @@ def pin_changes(log: Path, pin: str):
 
 class SlcanFeed:
     """The component in its own process on an SlcanDevice, and the device's feed records on
-    X (epoch 1, enabled) with consecutive sequence numbers: `record` for a turn, and one
-    every 50 ms from a thread of its own (the event timer)."""
+    X (epoch 1, enabled, in the device's session) with consecutive sequence numbers: `record`
+    for a turn, and one every 50 ms from a thread of its own (the event timer)."""
 
     def __init__(self, tmp_path: Path) -> None:
         self.log = tmp_path / "hal.log"
@@ -667,10 +755,17 @@ class SlcanFeed:
     def record(self, detents: int = 0) -> None:
         with self.lock:
             self.pos += detents
-            self.seq = (self.seq + 1) & 0xFF
-            data = self.pos.to_bytes(4, "little", signed=True) + bytes([1, 1, 0x21, self.seq])
+            self.seq += 1
+            data = records.rec(self.pos, seq=self.seq, epoch=1, session=self.dev.session)
             self.sent.append((time.monotonic(), self.pos))
             self.dev.send(SlcanDevice.encode([(0x180 + NODE, data)]))
+
+    def wait_started(self) -> None:
+        """Until the component has configured the device (its NMT start came)."""
+        deadline = time.monotonic() + 10
+        while not any(c == 0 and d == bytes([1, NODE]) for _, c, d in list(self.dev.frames)):
+            assert time.monotonic() < deadline and self.proc.poll() is None, "no NMT start"
+            time.sleep(0.01)
 
     def _tick(self) -> None:
         while not self.dev.done.wait(0.05):
@@ -708,10 +803,7 @@ def test_a_frozen_component_moves_nothing_from_its_backlog(tmp_path):
     socket; continued, it reads them all but moves nothing; the next record moves again."""
     feed = SlcanFeed(tmp_path)
     try:
-        deadline = time.monotonic() + 10
-        while len(feed.dev.seen_at(0x701)) < 2:
-            assert time.monotonic() < deadline and feed.proc.poll() is None, "no heartbeat"
-            time.sleep(0.01)
+        feed.wait_started()
         feed.ticking.set()
         time.sleep(0.2)
         for _ in range(2):
@@ -742,10 +834,7 @@ def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(tmp_path):
     (python-canopen's EMCY consumer kept about 500 B per EMCY)."""
     feed = SlcanFeed(tmp_path)
     try:
-        deadline = time.monotonic() + 10
-        while len(feed.dev.seen_at(0x701)) < 2:
-            assert time.monotonic() < deadline and feed.proc.poll() is None, "no heartbeat"
-            time.sleep(0.01)
+        feed.wait_started()
         feed.ticking.set()
         feed.dev.flood((0x080 + NODE, bytes.fromhex("0050010000000000")), 5000)
         time.sleep(1.0)
@@ -804,3 +893,162 @@ def test_log_lines_from_threads_stay_whole(monkeypatch):
     for line in lines[:-1]:
         prefix, name, i = line.split(" ")
         assert prefix == "canopen-handwheel:" and name[0] == "t" and 0 <= int(i) < 200
+
+
+class FakeSdo:
+    """python-canopen's SDO client as the configuration uses it, on a dict of objects:
+    every transfer in `log`; `changes` makes a write store something else (a device that
+    does not take a value)."""
+
+    def __init__(self, objects, changes=None):
+        self.objects = dict(objects)
+        self.changes = changes or {}
+        self.log = []
+
+    def upload(self, index, sub):
+        self.log.append(("upload", index, sub))
+        value, size = self.objects[(index, sub)]
+        return value.to_bytes(size, "little")
+
+    def download(self, index, sub, data):
+        value = int.from_bytes(data, "little")
+        self.log.append(("download", index, sub, value))
+        size = self.objects[(index, sub)][1]
+        self.objects[(index, sub)] = (self.changes.get((index, sub), value), size)
+        if index not in SESSION_KEEPERS:
+            self.objects[(0x2002, 0)] = (0, 1)
+
+
+class FakeLink:
+    def __init__(self, sdo):
+        nmt = type("Nmt", (), {})()
+        self.node = type("Node", (), {"sdo": sdo, "nmt": nmt})()
+        self.sdo_reply_at = 1.5
+
+
+def test_the_configuration_steps_and_their_read_backs(capfd):
+    """Spec 4.5 in order: 0x2002 (intact check), the 0x1016 entry written and read back, the
+    event timer, the inhibit time below 1 ms made 2 ms with TPDO1 invalid meanwhile, 0x2001,
+    feed off, the session written last and read back, NMT start."""
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[(0x1800, 3)] = (5, 2)  # 0.5 ms
+    objects[(0x2001, 0)] = (1, 1)
+    objects[(0x2002, 0)] = (4, 1)  # another master's session
+    sdo = FakeSdo(objects)
+    action = core.Configure(1, 500, None, keep=2, tokens=(4, 5))
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert ok and abort is None
+    cob = 0x4000_0180 + NODE
+    assert sdo.log == [
+        ("upload", 0x2002, 0),
+        ("upload", 0x1016, 0),
+        ("upload", 0x1016, 1),
+        ("download", 0x1016, 1, 0x0001_01F4),
+        ("upload", 0x1016, 1),
+        ("upload", 0x1800, 5),
+        ("upload", 0x1800, 3),
+        ("upload", 0x1800, 1),
+        ("download", 0x1800, 1, cob | 0x8000_0000),
+        ("download", 0x1800, 3, 20),
+        ("download", 0x1800, 1, cob),
+        ("upload", 0x1800, 3),
+        ("upload", 0x1800, 1),
+        ("upload", 0x2001, 0),
+        ("download", 0x2001, 0, 0),
+        ("upload", 0x2001, 0),
+        ("download", 0x2000, 0, 0),
+        ("download", 0x2002, 0, 5),
+        ("upload", 0x2002, 0),
+    ]
+    assert result == core.Configured(
+        event_timer_ms=50, first_reply_at=1.5, found=4, intact=False, tried=5, session=5
+    )
+    line = (
+        "canopen-handwheel: device configured: session 5 (0x2002 = 4 before), 0x1016:1 = "
+        "0x000101F4, event timer 50 ms, inhibit time 2 ms, feed off; NMT start sent\n"
+    )
+    assert capfd.readouterr().err == line
+
+
+def test_an_intact_configuration_writes_nothing():
+    sdo = FakeSdo(dict(SlcanDevice.OBJECTS, **{}))
+    sdo.objects[(0x2002, 0)] = (3, 1)
+    action = core.Configure(1, 500, None, keep=3, tokens=(1, 2))
+    ok, _, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert ok and result.intact and result.session == 3 and result.tried is None
+    assert sdo.log == [("upload", 0x2002, 0)]
+
+
+@pytest.mark.parametrize("where", [(0x1016, 1), (0x1800, 3), (0x2002, 0)])
+def test_a_read_back_that_differs_fails_the_configuration(capfd, where):
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[(0x1800, 3)] = (0, 2)
+    sdo = FakeSdo(objects, changes={where: 7})
+    action = core.Configure(1, 500, None, tokens=(1,))
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert not ok and abort is None and result.found == 0 and result.session is None
+    assert result.tried == (1 if where == (0x2002, 0) else None)
+    err = capfd.readouterr().err
+    assert f"configuring the device: 0x{where[0]:04X}:{where[1]} reads 0x7, not" in err
+    assert ("download", 0x2000, 0, 1) not in sdo.log
+
+
+def test_a_missed_boot_up_is_configured_again_before_the_feed_is_enabled(capfd):
+    """Issue 34, finding 3 without the firmware: the device power-cycles unseen (no boot-up
+    reaches the component) and comes back Operational, in no session, its feed off. The
+    component checks 0x2002, configures the device (the 0x1016 entry read back) and only then
+    writes 0x2000 = 1; it logs the stop as the session's end."""
+    channel = f"hw-{time.monotonic_ns()}"
+    dev = Device(channel)
+    running = Running(channel)
+    comp = running.comp
+    try:
+        wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
+        comp["enable"] = True
+        wait(lambda: dev.record(0, status=0, epoch=1) or comp["connected"], what="connected")
+        wait(lambda: dev.node.sdo[0x2000].raw == 1, what="0x2000 = 1")
+        dev.record(0, status=1, epoch=2)
+        wait(lambda: comp["feed-enabled"], what="feed on")
+        mark = dev.mark()
+        dev.power_cycle()
+        wait(
+            lambda: dev.record(0, status=0, epoch=0) or dev.node.sdo[0x2000].raw == 1,
+            what="0x2000 = 1 again",
+        )
+        requests = dev.sdo_requests(mark)
+        enable = requests.index(("download", 0x2000, 0, 1))
+        entry = requests.index(("download", 0x1016, 1, 0x0001_01F4))
+        assert requests[0] == ("upload", 0x2002, 0)
+        assert entry < requests.index(("upload", 0x1016, 1), entry) < enable
+        assert requests.index(("download", 0x2002, 0, 2)) < enable
+        assert dev.session == 2
+        assert comp["feed-stops"] == 1 and comp["stop-reason"] == core.STOP_SESSION_ENDED
+    finally:
+        running.end()
+        dev.close()
+    err = capfd.readouterr().err
+    assert "a record of session 0, not 1: checking the device's configuration" in err
+    assert "feed stopped by the device: the session ended" in err
+
+
+def test_a_blocked_transmit_path_is_reported(capfd):
+    """The device's feed stopped by a blocked transmit path: its record shows status bit 3,
+    its EMCY 0x8100 follows; the component logs why and shows it on its pins."""
+    channel = f"hw-{time.monotonic_ns()}"
+    dev = Device(channel)
+    running = Running(channel)
+    comp = running.comp
+    try:
+        wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
+        comp["enable"] = True
+        wait(lambda: dev.record(0, status=1, epoch=1) or comp["feed-enabled"], what="feed on")
+        dev.record(0, status=core.STATUS_MASTER_LOST, epoch=2)
+        dev.network.send_message(0x080 + NODE, bytes.fromhex("0081110100000000"))
+        wait(lambda: comp["feed-stops"] == 1, what="the stop counted")
+        assert comp["stop-reason"] == core.STOP_TRANSMIT_BLOCKED
+    finally:
+        running.end()
+        dev.close()
+    assert "feed stopped by the device: transmit path blocked (EMCY 0x8100)" in (
+        capfd.readouterr().err
+    )

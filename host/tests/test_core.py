@@ -4,47 +4,48 @@ import pytest
 
 from canopen_handwheel import core
 from canopen_handwheel.core import Config, Configure, Configured, Core, WriteFeed
+from records import EMCY, EN, HB, ML, TPDO1, rec
 
-NODE = 16
-TPDO1, EMCY, HB = 0x180 + NODE, 0x080 + NODE, 0x700 + NODE
-EN = core.STATUS_ENABLED
-ML = core.STATUS_MASTER_LOST
 T = 0.1  # event timer
 
 
-def rec(position, axis=1, mult=1, status=EN, seq=0, epoch=0) -> bytes:
-    """A feed record's bytes; `epoch` goes into status bits 5-7."""
-    status |= (epoch % 8) << 5
-    return (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, seq & 0xFF])
+def result(action: Configure, event_timer_ms=100, first_reply_at=None) -> Configured:
+    """What a configuration that wrote the first token `action` offers reports."""
+    token = core.pick_token(action.tokens, 0)
+    return Configured(event_timer_ms, first_reply_at, found=0, tried=token, session=token)
 
 
 class Run:
-    """A core with a clock; records get consecutive sequence numbers unless given, and the
-    epoch steps as a device's does (from 1) on a change of axis, multiplier, enable or
-    master lost, unless given."""
+    """A core with a clock, configured (its session in every record) unless told not to be;
+    records get consecutive sequence numbers unless given, and the epoch steps as a
+    device's does (from 1) on a change of axis, multiplier, enable or master lost, unless
+    given."""
 
-    def __init__(self, axes="xyzwv", **kw):
+    def __init__(self, axes="xyzwv", configured=True, **kw):
         self.c = Core(Config(axes=axes, **kw))
         self.t = 0.0
         self.seq = 0
         self.epoch = 1
         self.sel = None
+        if configured:
+            self.configure()
 
     def at(self, dt=0.0):
         self.t += dt
         return self.t
 
-    def record(self, position, axis=1, mult=1, status=EN, seq=None, dt=0.01, epoch=None):
+    def record(self, position, axis=1, mult=1, flags=EN, seq=None, dt=0.01, epoch=None):
         if seq is None:
-            self.seq = (self.seq + 1) & 0xFF
+            self.seq = (self.seq + 1) % core.SEQUENCE_MODULO
             seq = self.seq
-        sel = (axis, mult, status & (EN | ML))
+        sel = (axis, mult, flags & (EN | ML))
         if epoch is None:
             if self.sel is not None and sel != self.sel:
                 self.epoch += 1
             epoch = self.epoch
         self.sel = sel
-        self.frame(TPDO1, rec(position, axis, mult, status, seq, epoch), dt)
+        session = self.c.session or 0
+        self.frame(TPDO1, rec(position, axis, mult, flags, seq, epoch, session), dt)
 
     def frame(self, cob_id, data, dt=0.01, drained=True):
         """A frame handled at once (`drained`: the shell found its receive path empty just
@@ -66,7 +67,7 @@ class Run:
     def configure(self, event_timer_ms=100):
         a = self.c.next_action(self.at())
         assert isinstance(a, Configure)
-        self.c.done(a, True, None, self.at(), Configured(event_timer_ms))
+        self.c.done(a, True, None, self.at(), result(a, event_timer_ms))
 
 
 def test_first_record_is_a_baseline_then_deltas_go_to_the_named_axis():
@@ -106,10 +107,10 @@ def test_a_selection_change_within_an_epoch_is_impossible(change):
         mult = 10
     else:
         status = 0
-    r.record(500, axis=axis, mult=mult, status=status, epoch=1)
+    r.record(500, axis=axis, mult=mult, flags=status, epoch=1)
     assert r.counts()["x"] == 5 and sum(r.counts().values()) == 5
     assert r.bad() == 1
-    r.record(600, axis=axis, mult=mult, status=status, epoch=1)  # continues the new baseline
+    r.record(600, axis=axis, mult=mult, flags=status, epoch=1)  # continues the new baseline
     expected = 0 if change == "enable" else 100
     assert r.bad() == (2 if change == "enable" else 1)  # disabled and moved: impossible
     assert sum(r.counts().values()) == 5 + expected
@@ -154,15 +155,15 @@ def test_which_sequence_gaps_and_epoch_steps_continue(epoch_step, gap, continues
 
 def test_disabled_records_move_nothing():
     r = Run()
-    r.record(0, status=0)
-    r.record(0, status=0)
+    r.record(0, flags=0)
+    r.record(0, flags=0)
     assert r.counts()["x"] == 0 and r.bad() == 0
-    r.record(7, status=0)  # moved while disabled, same epoch: impossible
+    r.record(7, flags=0)  # moved while disabled, same epoch: impossible
     assert r.counts()["x"] == 0 and r.bad() == 1
     r.record(7)  # enable rises: next epoch
     r.record(9)
     assert r.counts()["x"] == 2
-    r.record(20, status=0)  # disabled, next epoch, moved: impossible
+    r.record(20, flags=0)  # disabled, next epoch, moved: impossible
     assert r.counts()["x"] == 2 and r.bad() == 2
 
 
@@ -187,11 +188,11 @@ def test_motion_not_a_multiple_of_the_multiplier_is_impossible():
 def test_status_bits_that_are_no_epoch_keep_the_deltas():
     r = Run()
     r.record(0)
-    r.record(4, status=EN | core.STATUS_ENCODER_ERROR | core.STATUS_IGNORED_MOTION)
-    r.record(5, status=EN | core.STATUS_STEPS_DROPPED)
+    r.record(4, flags=EN | core.STATUS_ENCODER_ERROR | core.STATUS_IGNORED_MOTION)
+    r.record(5, flags=EN | core.STATUS_STEPS_DROPPED)
     assert r.counts()["x"] == 5
     assert not r.c.pins().encoder_error
-    r.record(5, status=EN | core.STATUS_ENCODER_ERROR)
+    r.record(5, flags=EN | core.STATUS_ENCODER_ERROR)
     assert r.c.pins().encoder_error
 
 
@@ -199,11 +200,9 @@ def test_status_bits_that_are_no_epoch_keep_the_deltas():
     "data",
     [
         rec(5, axis=6, epoch=1),
-        rec(5, axis=255, epoch=1),
-        rec(5, mult=0, epoch=1),
-        rec(5, mult=7, epoch=1),
-        rec(5, mult=255, epoch=1),
-        rec(5, status=EN | ML, epoch=1),
+        rec(5, axis=7, epoch=1),
+        rec(5, mult=0, epoch=1),  # multiplier code 3
+        rec(5, flags=EN | ML, epoch=1),
         rec(5, epoch=1)[:7],
         rec(5, epoch=1) + b"\x00",
         b"",
@@ -232,7 +231,7 @@ def test_impossible_records_alone_do_not_keep_the_connection():
     r = Run()
     r.record(0)
     for _ in range(10):
-        r.c.frame(TPDO1, rec(5, axis=9, epoch=1), r.at(0.1))
+        r.c.frame(TPDO1, rec(5, axis=7, epoch=1), r.at(0.1))
     assert not r.c.pins().connected and r.bad() == 10
 
 
@@ -295,7 +294,7 @@ def test_a_device_that_shows_no_epoch_moves_nothing():
     """Firmware from before the epoch bits: all 0, so every record looks like one epoch and
     a hidden switch to another axis would look like motion of the old one."""
     r = Run()
-    r.record(0, status=0, epoch=0)
+    r.record(0, flags=0, epoch=0)
     r.record(0, epoch=0)  # enable without an epoch step: impossible
     assert r.bad() == 1
     for pos in (10, 20, 30):
@@ -312,6 +311,7 @@ def test_the_epoch_must_show_again_after_a_boot_up():
     r.record(5, epoch=1)
     assert r.counts()["x"] == 5
     r.hb(core.BOOTUP)
+    r.configure()
     # A reset keeps the sequence going, with a break of 8.
     r.record(0, seq=10, epoch=0)
     r.record(3, seq=11, epoch=0)
@@ -322,41 +322,42 @@ def test_the_epoch_must_show_again_after_a_boot_up():
 
 
 def test_bootup_makes_the_next_record_a_baseline_and_asks_for_configuration():
+    """After a boot-up the records of the old session are another session's (the device
+    has none): nothing moves until the configuration wrote a new token, and the first
+    record of that session is a baseline."""
     r = Run()
-    r.configure()
     r.record(100)
     r.record(110)
     r.hb(core.BOOTUP)
-    assert isinstance(r.c.next_action(r.at()), Configure)
+    assert r.c.session is None
+    r.record(0, seq=9, epoch=1)  # before the configuration: session 0
+    a = r.c.next_action(r.at())
+    assert isinstance(a, Configure) and a.keep is None and 1 not in a.tokens
+    r.c.done(a, True, None, r.at(), result(a))
+    assert r.c.session == 2
     r.record(0, seq=10)  # a reset keeps the sequence going, with a break of 8
     r.record(3, seq=11)
     assert r.counts()["x"] == 13
     assert r.c.pins().records_lost == 0
 
 
-def test_after_a_power_cycle_records_behind_the_last_one_wait_for_the_order_expiry():
-    """A power cycle restarts the sequence at 0: its records look like copies of earlier
-    ones (behind the newest), so they move nothing until ORDER_EXPIRY has passed since the
-    newest record; then the next one is a baseline and motion counts again."""
+def test_after_a_power_cycle_the_first_records_of_the_new_session_move_at_once():
+    """A power cycle restarts the sequence at 0, below the last record before it: in the
+    new session that is no copy, so the second record after the configuration moves (it
+    cost 2 s of dead wheel when the reference outlived the boot-up)."""
     r = Run()
-    r.configure()
     for p in range(6):
-        r.record(p)  # sequences 1..6
+        r.record(p, seq=100 + p)
     assert r.counts()["x"] == 5
     r.hb(core.BOOTUP)
-    bad = r.c.pins().frames_bad
-    r.record(0, seq=0)
-    r.record(2, seq=1)
-    assert r.counts()["x"] == 5 and r.c.pins().frames_bad == bad + 2
-    r.at(core.ORDER_EXPIRY)
-    r.record(2, seq=2)
-    r.record(7, seq=3)
-    assert r.counts()["x"] == 10
+    r.configure()
+    r.record(0, seq=8)
+    r.record(2, seq=9)
+    assert r.counts()["x"] == 7 and r.bad() == 0
 
 
 def test_stale_records_drop_everything_and_the_next_is_a_baseline():
     r = Run()
-    r.configure()
     r.c.set_enable(True)
     r.record(0)
     r.record(1)
@@ -380,11 +381,18 @@ def test_jog_enable_needs_everything():
     assert not any(r.c.pins().jog_enable.values())  # enable pin false
     r.c.set_enable(True)
     assert r.c.pins().jog_enable == {"x": False, "y": True, "z": False}
-    r.hb(core.PRE_OPERATIONAL)
+    r.hb(core.STOPPED)
     assert not any(r.c.pins().jog_enable.values())
     r.hb(core.OPERATIONAL)
     assert r.c.pins().jog_enable["y"]
-    r.record(0, axis=2, status=0)
+    r.hb(core.PRE_OPERATIONAL)  # the session is dropped: configured again, then records
+    assert not any(r.c.pins().jog_enable.values())
+    r.configure()
+    r.hb(core.OPERATIONAL)
+    assert not any(r.c.pins().jog_enable.values())
+    r.record(0, axis=2)
+    assert r.c.pins().jog_enable["y"]
+    r.record(0, axis=2, flags=0)
     assert not any(r.c.pins().jog_enable.values())
     r.record(0, axis=4)  # W: not configured with --axes xyz
     p = r.c.pins()
@@ -445,9 +453,9 @@ def test_emcy_code_and_its_reset():
 
 def test_records_lost_from_sequence_gaps():
     r = Run()
-    r.record(0, seq=250)
-    r.record(0, seq=251)
-    r.record(0, seq=255)  # 3 lost
+    r.record(0, seq=65530)
+    r.record(0, seq=65531)
+    r.record(0, seq=65535)  # 3 lost
     r.record(0, seq=2)  # 2 lost across the wrap
     assert r.c.pins().records_lost == 5
     r.c.tick(r.at(1.0))  # stale: the gap to the next record is unknown, not counted
@@ -456,9 +464,9 @@ def test_records_lost_from_sequence_gaps():
 
 
 def test_configure_first_retried_while_it_fails():
-    r = Run()
+    r = Run(configured=False)
     a = r.c.next_action(r.at())
-    assert a == Configure(master=1, timeout_ms=500, event_timer_ms=None)
+    assert a == Configure(master=1, timeout_ms=500, event_timer_ms=None, tokens=core.TOKENS)
     assert r.c.next_action(r.at()) is None  # one at a time
     r.c.done(a, False, None, r.at())
     assert r.c.next_action(r.at(0.1)) is None
@@ -467,49 +475,47 @@ def test_configure_first_retried_while_it_fails():
 
 def test_feed_enable_follows_the_pin():
     r = Run()
-    r.configure()
-    r.record(0, status=0)
+    r.record(0, flags=0)
     assert r.c.next_action(r.at()) is None  # enable false, feed off: nothing to do
     r.c.set_enable(True)
     a = r.c.next_action(r.at())
     assert a == WriteFeed(1)
     r.c.done(a, True, None, r.at())
     assert r.c.next_action(r.at(0.1)) is None  # waits for the records to show it
-    r.record(0, status=EN)
+    r.record(0, flags=EN)
     assert r.c.next_action(r.at()) is None
     r.c.set_enable(False)
     assert not r.c.pins().jog_enable["x"]  # at once, before the device knows
-    r.record(0, status=EN, dt=0.1)
-    r.record(0, status=EN, dt=0.1)
+    r.record(0, flags=EN, dt=0.1)
+    r.record(0, flags=EN, dt=0.1)
     a = r.c.next_action(r.at())
     assert a == WriteFeed(0)
     r.c.done(a, True, None, r.at())
     for _ in range(10):
-        r.record(0, status=0, dt=0.1)
+        r.record(0, flags=0, dt=0.1)
         assert r.c.next_action(r.at()) is None
 
 
 def test_refused_feed_enable_is_retried():
     r = Run()
-    r.configure()
     r.c.set_enable(True)
-    r.record(0, status=core.STATUS_MASTER_LOST)
+    r.record(0, flags=core.STATUS_MASTER_LOST)
     a = r.c.next_action(r.at())
     r.c.done(a, False, core.ABORT_DEVICE_STATE, r.at())
-    r.record(0, status=core.STATUS_MASTER_LOST, dt=0.1)
+    r.record(0, flags=core.STATUS_MASTER_LOST, dt=0.1)
     assert r.c.next_action(r.at()) is None
     for _ in range(4):
-        r.record(0, status=core.STATUS_MASTER_LOST, dt=0.1)
+        r.record(0, flags=core.STATUS_MASTER_LOST, dt=0.1)
     assert r.c.next_action(r.at()) == WriteFeed(1)
 
 
 def test_no_feed_enable_while_unconfigured_stale_or_not_operational():
-    r = Run()
+    r = Run(configured=False)
     r.c.set_enable(True)
-    r.record(0, status=0)
+    r.record(0, flags=0)
     a = r.c.next_action(r.at())
     assert isinstance(a, Configure)  # configuration comes first
-    r.c.done(a, True, None, r.at(), Configured(100))
+    r.c.done(a, True, None, r.at(), result(a))
     r.hb(core.STOPPED)
     assert r.c.next_action(r.at()) is None
     r.hb(core.OPERATIONAL)
@@ -519,7 +525,6 @@ def test_no_feed_enable_while_unconfigured_stale_or_not_operational():
 
 def test_preoperational_device_is_configured_and_started_again():
     r = Run()
-    r.configure()
     r.hb(core.PRE_OPERATIONAL)
     assert isinstance(r.c.next_action(r.at()), Configure)
 
@@ -528,11 +533,10 @@ def test_shutdown_disables_the_feed_whatever_was_seen():
     """Before any record, with the feed on, off, stale, or a write of 1 unconfirmed."""
     r = Run()
     assert r.c.shutdown_action() == WriteFeed(0)
-    r.record(0, status=EN)
+    r.record(0, flags=EN)
     assert r.c.shutdown_action() == WriteFeed(0)
-    r.record(0, status=0)
+    r.record(0, flags=0)
     assert r.c.shutdown_action() == WriteFeed(0)
-    r.configure()
     r.c.set_enable(True)
     assert r.c.next_action(r.at()) == WriteFeed(1)  # pending, the record not seen yet
     assert r.c.shutdown_action() == WriteFeed(0)
@@ -548,17 +552,19 @@ def test_event_timer_plan():
     assert core.event_timer_plan(100, 100) is None
     assert core.event_timer_plan(100, 40) == 40
     assert core.event_timer_plan(0, 40) == 40
+    # At most 1 s: three silent periods stay within the order window (no session renewed
+    # for a device at rest); a device with a longer one or too short a one gets 100 ms.
+    assert 3 * core.EVENT_TIMER_MS_RANGE[1] / 1000 < core.ORDER_WINDOW
+    assert core.event_timer_plan(1000, None) is None
+    assert core.event_timer_plan(1001, None) == 100
+    assert core.event_timer_plan(9, None) == 100
 
 
 def test_staleness_follows_the_devices_event_timer():
     """Assumed 100 ms until configured; then what the device reported (here 250 ms):
     connected for up to 750 ms without a record, not longer."""
-    r = Run()
-    assert r.c.next_action(r.at()) == Configure(1, 500, None)
-    r.c.pending = None
-    r.record(0)
-    r.c.tick(r.at(0.31))
-    assert not r.c.pins().connected  # the assumed 100 ms
+    r = Run(configured=False)
+    assert r.c.stale_after == pytest.approx(0.3)  # the assumed 100 ms
     r.configure(event_timer_ms=250)
     assert r.c.event_timer == pytest.approx(0.25) and r.c.stale_after == pytest.approx(0.75)
     r.record(0)
@@ -569,21 +575,21 @@ def test_staleness_follows_the_devices_event_timer():
 
 
 def test_the_option_asks_for_the_event_timer_and_the_bucket_follows_it():
-    cfg = core.make_config(16, None, "xyz", 0.001, 2000, 100, max_detents_per_s=100)
-    assert cfg.event_timer_ms == 2000 and cfg.stale_after == pytest.approx(6.0)
-    r = Run(event_timer_ms=2000, max_detents_per_s=100)
-    assert r.c.next_action(r.at()) == Configure(1, 500, 2000)
+    cfg = core.make_config(16, None, "xyz", 0.001, 1000, 100, max_detents_per_s=100)
+    assert cfg.event_timer_ms == 1000 and cfg.stale_after == pytest.approx(3.0)
+    r = Run(event_timer_ms=1000, max_detents_per_s=100, configured=False)
+    assert r.c.next_action(r.at()) == Configure(1, 500, 1000, tokens=core.TOKENS)
     r.c.pending = None
     r.configure(event_timer_ms=20)  # what the device reports back rules
     assert r.c.stale_after == pytest.approx(0.06)
     assert r.c.allowance.cap == pytest.approx(100 * 0.5)  # the consumer timeout is longer
 
 
-@pytest.mark.parametrize("result", [None, Configured(0), Configured(9), Configured(60001)])
-def test_a_configuration_without_a_usable_event_timer_failed(result):
-    r = Run()
+@pytest.mark.parametrize("timer", [None, 0, 9, 1001])
+def test_a_configuration_without_a_usable_event_timer_failed(timer):
+    r = Run(configured=False)
     a = r.c.next_action(r.at())
-    r.c.done(a, True, None, r.at(), result)
+    r.c.done(a, True, None, r.at(), result(a, timer))
     assert not r.c.configured
     assert r.c.next_action(r.at(0.1)) is None
     assert isinstance(r.c.next_action(r.at(0.5)), Configure)
@@ -683,7 +689,7 @@ def test_pin_table():
     names = [n for n, _, _ in core.pin_table("xz")]
     assert "axis.x.jog-counts" in names and "halui.axis.z.select" in names
     assert "axis.y.jog-counts" not in names
-    assert len(names) == len(set(names)) == 2 * 5 + 15
+    assert len(names) == len(set(names)) == 2 * 5 + 17
 
 
 def test_a_boot_up_during_a_configuration_it_then_answered_configures_once():
@@ -691,21 +697,21 @@ def test_a_boot_up_during_a_configuration_it_then_answered_configures_once():
     configuration waits for an answer. If every answer came after the boot-up, that
     configuration stands (no second one); if the first came before, it is done again at
     once."""
-    r = Run()
+    r = Run(configured=False)
     a = r.c.next_action(r.at())
     r.hb(core.BOOTUP)
     booted = r.t
     assert r.c.next_action(r.at()) is None  # one configuration at a time
-    r.c.done(a, True, None, r.at(0.02), Configured(100, first_reply_at=booted + 0.001))
+    r.c.done(a, True, None, r.at(0.02), result(a, first_reply_at=booted + 0.001))
     assert r.c.configured and r.c.next_action(r.at()) is None
-    r = Run()
+    r = Run(configured=False)
     a = r.c.next_action(r.at())
     first = r.at(0.005)
     r.hb(core.BOOTUP)
-    r.c.done(a, True, None, r.at(0.02), Configured(100, first_reply_at=first))
+    r.c.done(a, True, None, r.at(0.02), result(a, first_reply_at=first))
     assert not r.c.configured and isinstance(r.c.next_action(r.at()), Configure)
-    r = Run()
+    r = Run(configured=False)
     a = r.c.next_action(r.at())
     r.hb(core.BOOTUP)
-    r.c.done(a, True, None, r.at(0.02), Configured(100))  # no time: not known to be after
+    r.c.done(a, True, None, r.at(0.02), result(a))  # no time: not known to be after
     assert not r.c.configured and isinstance(r.c.next_action(r.at()), Configure)

@@ -8,23 +8,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from canopen_handwheel import core
-from canopen_handwheel.core import Config, Core
+from canopen_handwheel.core import Config, Core, Record
+from records import EN, ML, SESSION, TPDO1, configured, rec
 
-NODE = 16
-TPDO1 = 0x180 + NODE
-EN = core.STATUS_ENABLED
-ML = core.STATUS_MASTER_LOST
 AXES = "xyzwv"
 
 
-def rec(position, axis, mult, status, seq, epoch=0) -> bytes:
-    """A feed record's bytes; `epoch` goes into status bits 5-7."""
-    status |= (epoch % 8) << 5
-    return (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, seq & 0xFF])
-
-
 def feed(frames: List[Tuple[float, bytes]], cfg: Optional[Config] = None) -> Core:
-    c = Core(cfg or Config())
+    c = configured(cfg)
     for t, data in frames:
         c.drained(t)
         c.frame(TPDO1, data, t)
@@ -38,11 +29,11 @@ def old_rule(frames: List[Tuple[float, bytes]]) -> Dict[str, int]:
     prev = None
     prev_t = None
     for t, data in frames:
-        pos = int.from_bytes(data[0:4], "little", signed=True)
-        sel = (data[4], data[5], data[6] & (EN | ML))
+        r = Record.decode(data)
+        sel = (r.axis, r.multiplier, r.flags & (EN | ML))
         if prev is not None and t - prev_t <= 0.3 and prev[1] == sel and sel[2] & EN:
-            counts[AXES[sel[0] - 1]] += core.wrap_s32(pos - prev[0])
-        prev, prev_t = (pos, sel), t
+            counts[AXES[sel[0] - 1]] += core.wrap_s32(r.position - prev[0])
+        prev, prev_t = (r.position, sel), t
     return counts
 
 
@@ -109,13 +100,13 @@ def test_the_issues_foreign_transmitter_moves_nothing():
     frames = BEFORE + [
         (0.031, rec(1_100_000_000, 1, 1, EN, 4, epoch=1)),
         (0.040, rec(21, 1, 1, EN, 4, epoch=1)),
-        (0.041, rec(-1_000_000_000, 1, 7, EN, 77, epoch=1)),
+        (0.041, rec(-1_000_000_000, 1, 0, EN, 77, epoch=1)),  # multiplier code 3
         (0.050, rec(22, 1, 1, EN, 5, epoch=1)),
         (0.060, rec(25, 1, 1, EN, 6, epoch=1)),
     ]
     c = feed(frames)
     # The jump is refused; the device's record with the same sequence number 4 but other
-    # bytes is impossible, so is the x7 record; the device's next record is a baseline (after
+    # bytes is impossible, so is the code-3 record; the device's next record is a baseline (after
     # the impossible ones), and 25 continues it.
     assert c.pins().jog_counts["x"] == 23
     assert c.pins().frames_bad == 3
@@ -158,7 +149,7 @@ class Device:
             return False
         pos, axis, mult, status, epoch = state
         self.txq.append((rec(pos, axis, mult, status, self.seq, epoch), dict(truth)))
-        self.seq = (self.seq + 1) & 0xFF
+        self.seq = (self.seq + 1) % core.SEQUENCE_MODULO
         self.last_sent = now
         return True
 
@@ -207,7 +198,7 @@ class Device:
         while self.store:
             item = self.store[0]
             if item[0] == "drop":
-                self.seq = (self.seq + min(item[1], 8)) & 0xFF
+                self.seq = (self.seq + min(item[1], 8)) % core.SEQUENCE_MODULO
             elif not self._emit(item[1], item[2], now):
                 break
             self.store.pop(0)
@@ -261,7 +252,7 @@ def test_device_model_never_leaks_motion(txq_size, store_size, lossy, steps):
     having moved between them; so no axis ever gets more than it was turned, and with no
     record lost or dropped and no staleness it gets exactly that."""
     dev = Device(txq_size=txq_size, store_size=store_size)
-    c = Core(Config())
+    c = configured()
     t = 0.0
     steps = [(("enable", True, 10), 0)] + steps  # the host enables the feed after boot-up
     prev_truth = None
@@ -301,7 +292,8 @@ def test_device_model_never_leaks_motion(txq_size, store_size, lossy, steps):
                 moved = c.counts[L] - before[L]
                 if moved:
                     assert prev_truth is not None
-                    assert data[4] == n and moved == truth[n] - prev_truth[n], (L, moved)
+                    axis = Record.decode(data).axis
+                    assert axis == n and moved == truth[n] - prev_truth[n], (L, moved)
                     assert all(truth[m] == prev_truth[m] for m in truth if m != n)
             prev_truth = truth
     p = c.pins()
@@ -321,7 +313,8 @@ def impossible(data: bytes) -> bool:
     """What the device never sends, on its own: the oracle for `frames-bad`."""
     if len(data) != 8:
         return True
-    return data[4] > 5 or data[5] not in (1, 10, 100) or (data[6] & EN and data[6] & ML) != 0
+    r = Record.decode(data)
+    return r.axis > 5 or r.multiplier not in (1, 10, 100) or (r.enabled and r.master_lost)
 
 
 RAW = st.tuples(st.just("raw"), st.binary(min_size=0, max_size=9))
@@ -330,11 +323,12 @@ RANDOM_RECORD = st.tuples(
     st.builds(
         rec,
         st.integers(-(2**31), 2**31 - 1),
-        st.integers(0, 6),
-        st.sampled_from([1, 10, 100, 0, 7]),
-        st.sampled_from([0, EN, ML, EN | ML, EN | core.STATUS_ENCODER_ERROR]),
-        st.integers(0, 255),
         st.integers(0, 7),
+        st.sampled_from([1, 10, 100, 0]),
+        st.sampled_from([0, EN, ML, EN | ML, EN | core.STATUS_ENCODER_ERROR]),
+        st.integers(0, 65535),
+        st.integers(0, 7),
+        st.sampled_from([SESSION, SESSION, 0, 2]),  # the core's session, none, another's
     ),
 )
 # A record that follows the last one sent (the same epoch with the next sequence number, or
@@ -362,7 +356,7 @@ def test_hostile_streams_are_counted_and_bounded(rate, mult, frames):
     and moves nothing, and the detents applied in any stretch of time never exceed what the
     bucket allows: the rate times the horizon plus the rate times the stretch."""
     cfg = Config(max_detents_per_s=rate)
-    c = Core(cfg)
+    c = configured(cfg)
     t = 0.0
     applied: List[Tuple[float, float]] = []  # (time, detents applied by the frame)
     last = (0, 1, mult, EN, 0, 1)  # position, axis, multiplier, status, sequence, epoch
@@ -382,8 +376,9 @@ def test_hostile_streams_are_counted_and_bounded(rate, mult, frames):
         if impossible(data):
             assert c.frames_bad == before_bad + 1 and moved == 0
         if moved:
-            assert data[5] in (1, 10, 100) and moved % data[5] == 0
-            applied.append((t, moved / data[5]))
+            m = Record.decode(data).multiplier
+            assert m in (1, 10, 100) and moved % m == 0
+            applied.append((t, moved / m))
     cap = rate * cfg.rate_horizon
     for i in range(len(applied)):
         total = 0.0

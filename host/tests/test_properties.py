@@ -4,56 +4,49 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from canopen_handwheel import core
-from canopen_handwheel.core import Config, Core, wrap_s32
+from canopen_handwheel.core import Config, Record, wrap_s32
+from records import EMCY, HB, SESSION, TPDO1, configure, configured, rec
 
-NODE = 16
-TPDO1, EMCY, HB = 0x180 + NODE, 0x080 + NODE, 0x700 + NODE
 T = 0.1
 S32 = st.integers(-(2**31), 2**31 - 1)
 
 
-def rec(position, axis, mult, status, seq, epoch=0) -> bytes:
-    status |= (epoch % 8) << 5
-    return (position & 0xFFFFFFFF).to_bytes(4, "little") + bytes([axis, mult, status, seq & 0xFF])
-
-
-def applies(prev, new, axes):
+def applies(prev: Record, new: Record, axes):
     """The rule of core.continuity restated from the contract: the letter `new` may move,
-    or None. `prev`, `new`: (position, axis, mult, status, seq) of two consecutive possible
-    records of the device."""
+    or None. `prev`, `new`: two consecutive possible records of the device."""
     if prev is None:
         return None
-    gap = (new[4] - prev[4] - 1) % 256
-    step = ((new[3] >> 5) - (prev[3] >> 5)) % 8
+    gap = (new.sequence - prev.sequence - 1) % 65536
+    step = (new.epoch - prev.epoch) % 8
     same = step == 0 and gap <= 6
     if not (same or (step == 1 and gap == 0)):
         return None
-    if same and (prev[1], prev[2], prev[3] & 1) != (new[1], new[2], new[3] & 1):
+    if same and (prev.axis, prev.multiplier, prev.enabled) != (
+        new.axis,
+        new.multiplier,
+        new.enabled,
+    ):
         return None
-    if not new[3] & 1 or not 1 <= new[1] <= len(axes):
+    if not new.enabled or not 1 <= new.axis <= len(axes):
         return None
-    return axes[new[1] - 1]
+    return axes[new.axis - 1]
 
 
-def possible(position, axis, mult, status, seq):
-    return axis <= 5 and mult in (1, 10, 100) and not (status & 1 and status & 8)
-
-
-def fields(data: bytes):
-    """(position, axis, mult, status, seq) of 8 record bytes."""
-    return (int.from_bytes(data[0:4], "little", signed=True), data[4], data[5], data[6], data[7])
+def possible(r: Record) -> bool:
+    return r.axis <= 5 and r.multiplier in (1, 10, 100) and not (r.enabled and r.master_lost)
 
 
 # One step of a hostile stream: (kind, ...).
 record_step = st.tuples(
     st.just("record"),
     S32,  # position
-    st.one_of(st.integers(0, 5), st.integers(0, 255)),  # axis byte, sometimes unknown
-    st.sampled_from([1, 10, 100, 7]),
-    st.integers(0, 255),  # status
-    st.integers(0, 255),  # sequence
+    st.one_of(st.integers(0, 5), st.integers(0, 7)),  # axis, sometimes one never sent
+    st.sampled_from([1, 10, 100, 0]),  # 0: multiplier code 3
+    st.integers(0, 31),  # status flags
+    st.one_of(st.integers(0, 40), st.integers(0, 65535)),  # sequence
     st.floats(0, 0.5),  # time since the last step
     st.sampled_from([True, True, True, False]),  # handled at once (else: maybe late)
+    st.sampled_from([SESSION, SESSION, SESSION, 0, 2]),  # the core's first session or not
 )
 step = st.one_of(
     record_step,
@@ -78,37 +71,41 @@ step = st.one_of(
 @settings(max_examples=200, deadline=None)
 @given(st.sampled_from(["xyzwv", "xyz", "x", "zx"]), st.lists(step, max_size=60))
 def test_any_stream_is_safe(axes, steps):
-    """Whatever arrives: no exception; counts move only on a possible, enabled record naming
-    their axis that continues the previous possible record by the contract's rule (the same
-    epoch within 6 records, or the next epoch directly after), with nothing in between; at
-    most one jog-enable, only for the selected axis, only with `enable` and fresh enabled
-    records; every pin in its HAL range; a change of jog mode moves nothing."""
-    c = Core(Config(axes=axes))
+    """Whatever arrives: no exception; counts move only on a possible, enabled record of the
+    core's session naming their axis, ahead of the order reference (`order_verdict`), that
+    continues the previous possible record by the contract's rule (the same epoch within 6
+    records, or the next epoch directly after), with nothing in between; at most one
+    jog-enable, only for the selected axis, only with `enable` and fresh enabled records of
+    the session; every pin in its HAL range; a change of jog mode moves nothing."""
+    c = configured(Config(axes=axes))
+    session = c.session
     t = 0.0
     prev = None  # previous TPDO1 record processed (decoded), None after an interruption
-    ref = None  # the bytes of the last record accepted (the ordering reference)
+    ref = None  # the order reference: (record, earliest arrival)
     drained_at = None
     sent = []  # every TPDO1 sent, for "again"
 
     def tpdo1(data: bytes):
         """The model's view of a TPDO1 handled at `t`: the letter it may move, if any."""
         nonlocal prev, ref
-        if len(data) != 8 or not possible(*fields(data)):
+        if len(data) != 8 or not possible(Record.decode(data)):
             prev = None
             return None
-        new = fields(data)
-        if data == ref:
-            return None  # a duplicate: nothing
-        if ref is not None and c.fresh:
-            ahead = (new[4] - ref[7]) % 256
-            if ahead == 0:
-                prev = None  # impossible
-                return None
-            if ahead >= 128:
-                return None  # behind: ignored
+        new = Record.decode(data)
+        if c.session is None or new.session != c.session:
+            return None  # another session's: nothing
+        verdict, _ = core.order_verdict(ref, new, t)
+        if verdict == core.RENEW:
+            prev = ref = None  # the session is dropped
+            return None
+        if verdict in (core.DUPLICATE, core.COPY):
+            return None
+        if verdict == core.SAME_NUMBER:
+            prev = None  # impossible
+            return None
         late = drained_at is None or t - drained_at > core.BACKLOG_LIMIT
         letter = applies(None if not c.fresh or late else prev, new, axes)
-        prev, ref = new, data
+        prev, ref = new, (new, t if drained_at is None else min(t, drained_at))
         return letter
 
     for s in steps:
@@ -117,8 +114,8 @@ def test_any_stream_is_safe(axes, steps):
         moved_ok = set()
         if kind in ("record", "again"):
             if kind == "record":
-                _, pos, axis, mult, status, seq, dt, at_once = s
-                data = rec(pos, axis, mult, status, seq)
+                _, pos, axis, mult, status, seq, dt, at_once, token = s
+                data = rec(pos, axis, mult, status, seq, 0, token)
             elif sent:
                 _, back, dt = s
                 data, at_once = sent[max(0, len(sent) - 1 - back)], True
@@ -160,13 +157,20 @@ def test_any_stream_is_safe(axes, steps):
             c.tick(t)
         elif kind == "done":
             a = c.next_action(t)
-            if a is not None:
-                c.done(a, s[1], s[2], t, core.Configured(100))
+            if isinstance(a, core.Configure):
+                ok, result = core.configure_outcome(a, 0, c.event_timer)
+                c.done(a, ok and s[1], s[2], t, result)
+            elif a is not None:
+                c.done(a, s[1], s[2], t)
+        if c.session != session:  # a new session, or none: nothing links across
+            prev = ref = None
+            session = c.session
         for L in axes:
             if c.counts[L] != before[L]:
                 assert L in moved_ok, (s, L, before, c.counts)
         p = c.pins()
         assert p.jog_vel_mode == (not c.position_mode)
+        assert not p.feed_enabled or (c.record.session == c.session and not c.foreign_newest)
         on = [L for L in axes if p.jog_enable[L]]
         assert len(on) <= 1
         if on:
@@ -197,7 +201,7 @@ def test_lost_records_cost_nothing(axis, start, moves, epoch):
     the axis gets exactly the wrapping distance between the first and the last record
     received, and the lost ones are counted."""
     assume(max_run_of_losses(moves) < 2)
-    c = Core(Config())
+    c = configured()
     t = 0.0
     seq = 0
     pos = start
@@ -233,14 +237,14 @@ def max_run_of_losses(moves):
 def test_silence_disconnects(steps, extra):
     """After any stream, three event-timer periods without a record: not connected, no
     jog-enable, no selection."""
-    c = Core(Config())
+    c = configured()
     t = 0.0
     last_record = None
     for s in steps:
         if s[0] == "record":
-            _, pos, axis, mult, status, seq, dt, _ = s
+            _, pos, axis, mult, status, seq, dt, _, token = s
             t += dt
-            c.frame(TPDO1, rec(pos, axis, mult, status, seq), t)
+            c.frame(TPDO1, rec(pos, axis, mult, status, seq, 0, token), t)
             last_record = t
         elif s[0] == "enable":
             c.set_enable(s[1])
@@ -257,13 +261,15 @@ def test_silence_disconnects(steps, extra):
 @given(st.lists(st.integers(-50, 50), min_size=2, max_size=50), st.integers(1, 5))
 def test_bootup_anywhere_never_becomes_motion(moves, where):
     """A device reset (boot-up, position and epoch back to 0, the sequence on with a break
-    of 8, the feed enabled again) in the middle of a stream: the first record after it is a
-    baseline, so the axis gets the moves before and after it only."""
-    c = Core(Config())
+    of 8, the component configuring a new session, the feed enabled again) in the middle of
+    a stream: the first record after it is a baseline, so the axis gets the moves before and
+    after it only."""
+    c = configured()
+    session = c.session
     t = 0.0
     pos = 12345
     c.drained(t)
-    c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, 0, 1), t)
+    c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, 0, 1, session), t)
     expected = 0
     cut = where % len(moves)
     seq = 0
@@ -272,13 +278,14 @@ def test_bootup_anywhere_never_becomes_motion(moves, where):
         if i == cut:
             c.drained(t)
             c.frame(HB, b"\x00", t)
-            pos, seq = 0, (seq + 8) & 0xFF
-            c.frame(TPDO1, rec(pos, 1, 1, 0, seq, 0), t)
-            seq = (seq + 1) & 0xFF
-            c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1), t)
+            session = configure(c, t)
+            pos, seq = 0, seq + 8
+            c.frame(TPDO1, rec(pos, 1, 1, 0, seq, 0, session), t)
+            seq += 1
+            c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1, session), t)
         pos = wrap_s32(pos + delta)
         expected += delta
-        seq = (seq + 1) & 0xFF
+        seq += 1
         c.drained(t + 0.01)
-        c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1), t + 0.01)
+        c.frame(TPDO1, rec(pos, 1, 1, core.STATUS_ENABLED, seq, 1, session), t + 0.01)
     assert c.counts["x"] == expected

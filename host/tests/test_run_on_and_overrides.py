@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from canopen_handwheel import core
 from canopen_handwheel.core import AxisMotion, Config, Core
-from test_core import EN, Run
+from records import EN, configured
+from test_core import Run
 
 # The slow axis of the field report: 2 units/s, 20 units/s^2 (in/s or mm/s alike), 0.25 s.
 V, A, BUDGET = 2.0, 20.0, 0.25
@@ -278,15 +279,15 @@ def test_override_count_enable_is_gated_like_jog_enable():
     assert not r.c.pins().jog_enable["f"]  # `enable` false
     r.c.set_enable(True)
     assert r.c.pins().jog_enable["f"]
-    r.record(0, axis=2, mult=1, status=0)  # the device reports the feed off
+    r.record(0, axis=2, mult=1, flags=0)  # the device reports the feed off
     assert not r.c.pins().jog_enable["f"]
-    r.record(5, axis=2, mult=1, status=0)  # motion while disabled: impossible, nothing
+    r.record(5, axis=2, mult=1, flags=0)  # motion while disabled: impossible, nothing
     assert r.counts()["f"] == 0
 
 
 def test_overrides_are_not_metered():
     r = Metered()
-    r.c = Core(Config(axes="xyzfs"))
+    r.c = configured(Config(axes="xyzfs"))
     r.c.set_motion_known(True)
     r.motion.update({"f": None, "s": None})
     r.enabled(axis=4)
@@ -314,7 +315,7 @@ def test_override_records_pass_the_record_rules():
 def test_status_bits_follow_the_override_position():
     r = Run(axes="xyzfs")
     r.c.set_enable(True)
-    r.record(0, axis=5, mult=1, status=EN)
+    r.record(0, axis=5, mult=1, flags=EN)
     assert r.c.pins().axis == 5
 
 

@@ -316,7 +316,7 @@ def test_a_full_transmit_side_never_loses_a_frame(brig):
     assert beat.data == bytes([OPERATIONAL])
     emcy = rig.frames.frames(EMCY, since=held)[0]
     assert emcy.data[:2] == bytes([0x20, 0x81])
-    assert feed_record(rig.frames.frames(TPDO1, since=held)[0])[0] == 1
+    assert feed_record(rig.frames.frames(TPDO1, since=held)[0]).position == 1
 
 
 def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(brig):
@@ -346,7 +346,7 @@ def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(brig):
     # hold moves one cycle per step and needs tens of seconds.
     assert time.monotonic() - started < 3.0, "the turn's ok comes in emulated real time"
     record = rig.frames.wait_for(
-        lambda f: f.id == TPDO1 and feed_record(f)[0] == 2, since=mark, what="position 2"
+        lambda f: f.id == TPDO1 and feed_record(f).position == 2, since=mark, what="position 2"
     )
     assert record
 

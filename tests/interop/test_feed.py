@@ -42,12 +42,13 @@ def test_no_pdo_feed_before_enable(rig):
     rig.stim.turn(3)
     # The turning is reported (status bit 4) but the position never moves.
     seen = rig.frames.wait_for(
-        lambda f: f.id == TPDO1 and feed_record(f)[3] & IGNORED_MOTION,
+        lambda f: f.id == TPDO1 and feed_record(f).flags & IGNORED_MOTION,
         since=mark,
         what="feed record with the ignored-motion bit",
     )
-    assert feed_record(seen) == (0, 1, 1, IGNORED_MOTION, feed_record(seen)[4])
-    assert all(r[0] == 0 for r in records(rig, mark)), "position never moves"
+    r = feed_record(seen)
+    assert (r.position, r.axis, r.multiplier, r.flags) == (0, 1, 1, IGNORED_MOTION)
+    assert all(r.position == 0 for r in records(rig, mark)), "position never moves"
     assert rig.read_signed(0x6004) == 0
     assert rig.read(0x2040, 1) == 3, "ignored detents counted"
     assert rig.read(0x2030) & STATUS_FLAGS == IGNORED_MOTION
@@ -61,15 +62,16 @@ def test_each_axis_and_multiplier_gives_detents_times_factor(rig, axis, factor):
     rig.wait_position(3 * factor, since=mark)
     rig.stim.turn(-1)
     last = rig.wait_position(2 * factor, since=mark)
-    assert feed_record(last)[:4] == (2 * factor, AXES[axis], factor, ENABLED)
+    r = feed_record(last)
+    assert (r.position, r.axis, r.multiplier, r.flags) == (2 * factor, AXES[axis], factor, ENABLED)
     # Every record on the way shows a position the turning actually passed through,
     # forward first, then back by one detent.
-    positions = [r[0] for r in records(rig, mark)]
+    positions = [r.position for r in records(rig, mark)]
     path = [p for i, p in enumerate(positions) if i == 0 or p != positions[i - 1]]
     assert set(path) <= {0, factor, 2 * factor, 3 * factor}, path
     assert path[-2:] == [3 * factor, 2 * factor], path
     assert path == sorted(path[:-1]) + [2 * factor], path
-    assert all(r[1:3] == (AXES[axis], factor) for r in records(rig, mark))
+    assert all((r.axis, r.multiplier) == (AXES[axis], factor) for r in records(rig, mark))
     assert rig.read_signed(0x6004) == 2 * factor
 
 
@@ -88,17 +90,19 @@ def test_axis_change_mid_turn_never_moves_the_other_axis(rig):
     rig.stim.ab(FORWARD[3])
     rig.stim.turn(1)
     rig.frames.wait_for(
-        lambda f: f.id == TPDO1 and feed_record(f)[:2] == (4, AXES["z"]),
+        lambda f: (
+            f.id == TPDO1 and (feed_record(f).position, feed_record(f).axis) == (4, AXES["z"])
+        ),
         since=mark,
         what="Z at position 4",
     )
     seen = records(rig, mark)
-    on_x = [r[0] for r in seen if r[1] == AXES["x"]]
-    on_z = [r[0] for r in seen if r[1] == AXES["z"]]
+    on_x = [r.position for r in seen if r.axis == AXES["x"]]
+    on_z = [r.position for r in seen if r.axis == AXES["z"]]
     assert on_x and max(on_x) == 2 and on_x[-1] == 2, f"X got its two detents only: {on_x}"
     assert on_z[0] == 2, f"Z starts where X stopped: {on_z}"
     assert on_z[-1] == 4, f"Z moves by its own two detents: {on_z}"
-    assert all(r[1] in (AXES["x"], AXES["z"]) for r in seen)
+    assert all(r.axis in (AXES["x"], AXES["z"]) for r in seen)
 
 
 def test_chatter_nets_zero(rig):
@@ -112,7 +116,7 @@ def test_chatter_nets_zero(rig):
     assert rig.read(0x2020, 1) == 0, "raw count back where it was"
     assert rig.read(0x2020, 2) == 0, "no illegal transition"
     assert rig.read_signed(0x6004) == 0
-    assert all(r[0] == 0 for r in records(rig, mark)), "never any feed"
+    assert all(r.position == 0 for r in records(rig, mark)), "never any feed"
 
 
 def test_rest_learnt_at_standstill_keeps_reversals_whole(rig):
@@ -149,7 +153,7 @@ def test_illegal_jumps_are_counted_with_emcy(rig):
     assert int.from_bytes(emcy.data[3:7], "little") in (1, 2)
     assert len(emcy.data) == 8
     rig.frames.wait_for(
-        lambda f: f.id == TPDO1 and feed_record(f)[3] == ENABLED | ENCODER_ERROR,
+        lambda f: f.id == TPDO1 and feed_record(f).flags == ENABLED | ENCODER_ERROR,
         since=mark,
         what="feed record with the encoder-error bit",
     )
@@ -198,7 +202,7 @@ def test_leaving_operational_stops_the_feed(rig):
     rig.stim.turn(1)
     rig.nmt_and_heartbeat(NMT_START, OPERATIONAL)
     entry = rig.frames.wait_id(TPDO1, since=hb.seq + 1)
-    position, axis, mult, status, _ = feed_record(entry)
-    assert (position, axis, mult) == (20, AXES["w"], 10), "no motion while stopped"
-    assert not status & ENABLED
+    r = feed_record(entry)
+    assert (r.position, r.axis, r.multiplier) == (20, AXES["w"], 10), "no motion while stopped"
+    assert not r.enabled
     assert rig.read(0x2000) == 0, "it never resumes on its own"

@@ -61,11 +61,12 @@ def test_master_heartbeat_loss_stops_the_feed_with_emcy_8130(rig):
         assert [e.code for e in rig.node.emcy.active] == [0x8130]
         # The feed record reports the stop: disabled, master lost, position kept.
         rec = rig.frames.wait_for(
-            lambda f: f.id == TPDO1 and feed_record(f)[3] & MASTER_LOST,
+            lambda f: f.id == TPDO1 and feed_record(f).flags & MASTER_LOST,
             since=loss_mark,
             what="feed record with the master-lost bit",
         )
-        assert feed_record(rec)[:4] == (1, 1, 1, MASTER_LOST)
+        r = feed_record(rec)
+        assert (r.position, r.axis, r.multiplier, r.flags) == (1, 1, 1, MASTER_LOST)
         assert rig.read(0x2000) == 0
         assert rig.read(0x1001) == 0x11
         assert rig.read(0x1003, 0) >= 1
@@ -76,7 +77,7 @@ def test_master_heartbeat_loss_stops_the_feed_with_emcy_8130(rig):
         rig.frames.wait_for(
             lambda f: f.id == TPDO1, since=turn_mark, timeout=2, what="a feed record"
         )
-        assert all(feed_record(f)[0] == 1 for f in rig.frames.frames(TPDO1, since=turn_mark))
+        assert all(feed_record(f).position == 1 for f in rig.frames.frames(TPDO1, since=turn_mark))
         assert rig.read_signed(0x6004) == 1
         # The master comes back: error reset, but the feed waits for a new enable.
         back_mark = rig.frames.mark()
@@ -88,6 +89,6 @@ def test_master_heartbeat_loss_stops_the_feed_with_emcy_8130(rig):
         enable_mark = rig.frames.mark()
         rig.stim.turn(1)
         rec = rig.wait_position(2, since=enable_mark)
-        assert feed_record(rec)[3] == ENABLED, "master-lost bit cleared by the new enable"
+        assert feed_record(rec).flags == ENABLED, "master-lost bit cleared by the new enable"
     finally:
         master.stop()

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from canopen_handwheel.core import Record
 from rig import NODE_ID, ROOT, START_TIMEOUT, Qemu, Stimulus
 
 TPDO1_LINE = f"t{0x180 + NODE_ID:03X}8".encode()
@@ -282,11 +283,7 @@ def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(host):
         host.wait(lambda c=counts: host.hal.counts() == c + 1, 5, f"detent {i} on X")
         pin_at = host.hal.changes("axis.x.jog-counts")[-1][0]
         turns.append(pin_at - turned)
-        sent = [
-            t
-            for t, data in host.relay.records
-            if int.from_bytes(data[0:4], "little", signed=True) == position + 1
-        ]
+        sent = [t for t, data in host.relay.records if Record.decode(data).position == position + 1]
         assert sent, f"no record of position {position + 1}"
         latencies.append(pin_at - sent[0])
         time.sleep(0.4)

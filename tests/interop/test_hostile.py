@@ -61,7 +61,7 @@ def test_feed_cannot_be_enabled_while_the_master_is_lost(rig):
         time.sleep(0.3)
         assert rig.read_signed(0x6004) == 1
         records = [feed_record(f) for f in rig.frames.frames(TPDO1, since=turned)]
-        assert records and all(r[0] == 1 and r[3] & MASTER_LOST for r in records), records
+        assert records and all(r.position == 1 and r.master_lost for r in records), records
         assert rig.read(0x2030) & MASTER_LOST, "the status bit still says why"
         assert rig.read(0x1001) == 0x11
         # The master is back: enabling works again and clears the bit.
@@ -71,7 +71,7 @@ def test_feed_cannot_be_enabled_while_the_master_is_lost(rig):
         rig.write(0x2000, 0, 1, 1)
         enabled = rig.frames.mark()
         rig.stim.turn(1)
-        assert feed_record(rig.wait_position(2, since=enabled))[3] == 0x01
+        assert feed_record(rig.wait_position(2, since=enabled)).flags == 0x01
     finally:
         master.stop()
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import pytest
 
@@ -121,7 +121,7 @@ def enabled_at_rest(rig, axis: str) -> int:
     is credited."""
     rig.feed_on(axis)
     first = rig.frames.wait_for(
-        lambda f: f.id == TPDO1 and feed_record(f)[3] & ENABLED and feed_record(f)[0] == 0,
+        lambda f: f.id == TPDO1 and feed_record(f).flags & ENABLED and feed_record(f).position == 0,
         what="the first enabled record",
     )
     return first.seq
@@ -179,7 +179,10 @@ def settle(rig, since: int) -> None:
 def repeats(records, record) -> bool:
     """Whether `record` says what the feed record before it said (sequence aside)."""
     i = records.index(record)
-    return i > 0 and records[i - 1].data[:7] == record.data[:7]
+    if i == 0:
+        return False
+    before, now = feed_record(records[i - 1]), feed_record(record)
+    return replace(before, sequence=0) == replace(now, sequence=0)
 
 
 @dataclass
@@ -240,18 +243,19 @@ class Credit:
 
 def stream(frames) -> str:
     """The feed records and boot-ups as the master received them, for failure messages:
-    (position, axis, multiplier, status flags, sequence) and epoch; a run of records that
-    repeat the one before (sequence aside) is shown once, with its length."""
+    (position, axis, multiplier, status flags, sequence), epoch and session; a run of records
+    that repeat the one before (sequence aside) is shown once, with its length."""
     out = []
     last = None
     for f in frames:
         if f.id == TPDO1:
-            if last is not None and f.data[:7] == last.data[:7] and out[-1][1] >= 1:
+            r = feed_record(f)
+            if last is not None and replace(r, sequence=0) == last and out[-1][1] >= 1:
                 out[-1][1] += 1
                 continue
-            rec = Record.decode(bytes(f.data))
-            out.append([f"{feed_record(f)} e{rec.epoch}", 1])
-            last = f
+            fields = (r.position, r.axis, r.multiplier, r.flags, r.sequence)
+            out.append([f"{fields} e{r.epoch} s{r.session}", 1])
+            last = replace(r, sequence=0)
         elif f.id == HEARTBEAT and f.data == bytes([BOOTUP]):
             out.append(["boot-up", 0])
             last = None
@@ -339,7 +343,7 @@ def test_reset_node_in_an_outage_never_moves_x_backwards(rig):
     rig.write(0x1017, 0, 0, 2)  # no heartbeat: only feed records fill the transmit side
     turned = sequence_to(rig, 239)
     last = rig.frames.frames(TPDO1)[-1]
-    assert feed_record(last)[4] == 238
+    assert feed_record(last).sequence == 238
     hold_bus(rig, True)
     turn_one_by_one(rig, 20)  # 17 of them fill the queue and the mailbox
     rig.nmt(NMT_RESET_NODE)
@@ -367,7 +371,7 @@ def test_reset_node_within_the_stall_limit_boots_up_first_and_breaks_the_sequenc
     mark = enabled_at_rest(rig, "x")
     rig.write(0x1017, 0, 0, 2)  # no heartbeat: the last frame before the hold is a record
     turned = sequence_to(rig, 0)
-    assert feed_record(rig.frames.frames(TPDO1)[-1])[4] == 255
+    assert feed_record(rig.frames.frames(TPDO1)[-1]).sequence == 255
     held = rig.frames.mark()
     start = emulated_ms(rig)
     rig.qemu.control(f"hold {SHORT_HOLD_MS}")
@@ -441,7 +445,9 @@ def test_a_turn_on_another_axis_in_a_short_hold_reaches_that_axis(rig):
     credit = Credit.of(seen)
     shown = stream(seen)
     assert credit.named() == {"x": 1, "y": 1, "z": 0, "w": 0, "v": 0}, f"{done:.1f} ms; {shown}"
-    on_y = [feed_record(f)[0] for f in seen if f.id == TPDO1 and feed_record(f)[1] == AXES["y"]]
+    on_y = [
+        feed_record(f).position for f in seen if f.id == TPDO1 and feed_record(f).axis == AXES["y"]
+    ]
     assert on_y and on_y[-1] == 3, f"Y's final position reached the master: {on_y}"
     if on_board(rig):
         answered = [f for f in seen if f.id == SDO_TX and f.data[:4] == UPLOAD_REPLY]
@@ -450,7 +456,11 @@ def test_a_turn_on_another_axis_in_a_short_hold_reaches_that_axis(rig):
         assert 16 <= len(answered) - 1 < replies, f"{len(answered) - 1} of {replies} replies"
     else:
         # The queue's 16 frames came before Y's final record: it was full.
-        final_y = next(f for f in seen if f.id == TPDO1 and feed_record(f)[:2] == (3, AXES["y"]))
+        final_y = next(
+            f
+            for f in seen
+            if f.id == TPDO1 and (feed_record(f).position, feed_record(f).axis) == (3, AXES["y"])
+        )
         before = rig.frames.frames(since=held)[: final_y.seq - held]
         assert len(before) >= 16, f"the queue was not full: {before}"
     assert rig.read(0x2000) == 1, "the feed is still on: no stall"
@@ -475,19 +485,19 @@ def test_a_long_hold_stops_the_feed_and_credits_nothing_late(rig):
     credit = Credit.of(seen)
     assert credit.named()["x"] == 2, f"credited {credit.named()}; {stream(seen)}"
     after = [feed_record(f) for f in rig.frames.frames(TPDO1, since=held)]
-    stopped = [r for r in after if r[3] & MASTER_LOST and not r[3] & ENABLED]
+    stopped = [r for r in after if r.master_lost and not r.enabled]
     assert stopped, f"no record of the stopped feed after the hold: {after}"
     assert rig.read(0x2000) == 0, "the feed is off"
-    position = after[-1][0]
+    position = after[-1].position
     again = rig.frames.mark()
     rig.write(0x2000, 0, 1, 1)
     rig.stim.turn(2)
     last = rig.frames.wait_for(
-        lambda f: f.id == TPDO1 and feed_record(f)[0] == position + 2,
+        lambda f: f.id == TPDO1 and feed_record(f).position == position + 2,
         since=again,
         what=f"X at {position + 2}",
     )
-    assert feed_record(last)[3] & (ENABLED | MASTER_LOST) == ENABLED, feed_record(last)
+    assert feed_record(last).flags & (ENABLED | MASTER_LOST) == ENABLED, feed_record(last)
     seen = rig.frames.frames(since=mark)
     credit = Credit.of(seen)
     assert credit.named()["x"] == 4, f"credited {credit.named()}; {stream(seen)}"

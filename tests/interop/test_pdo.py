@@ -53,7 +53,7 @@ def test_no_tpdo_outside_operational_and_tpdo1_on_entry(rig):
     assert first.data == bytes([0, 0, 0, 0, 0, 1, 0, 0])
     # The 100 ms event timer repeats it, the sequence counting the frames sent.
     records = rig.frames.wait_count(TPDO1, 5, timeout=3, since=mark)
-    assert [feed_record(f)[4] for f in records[:5]] == [0, 1, 2, 3, 4]
+    assert [feed_record(f).sequence for f in records[:5]] == [0, 1, 2, 3, 4]
     gaps = [b.t - a.t for a, b in zip(records, records[1:5])]
     assert all(0.03 < g < 0.3 for g in gaps), f"event timer gaps {gaps}"
     assert not rig.frames.frames(TPDO2, since=mark), "TPDO2 carries events only"

@@ -332,15 +332,15 @@ def test_killing_the_component_stops_the_feed(machine):
         what="EMCY 0x8130",
     )
     rec = machine.frames.wait_for(
-        lambda f: f.id == TPDO1 and f.data[6] & 0x08,
+        lambda f: f.id == TPDO1 and feed_record(f).master_lost,
         since=mark,
         timeout=3,
         what="record with master lost",
     )
-    assert not feed_record(rec)[3] & 0x01
+    assert not feed_record(rec).enabled
     mark = machine.frames.mark()
     machine.stim.turn(4)
     time.sleep(0.3)
     recs = machine.frames.frames(TPDO1, since=mark)
-    assert recs and all(feed_record(f)[0] == feed_record(rec)[0] for f in recs)
+    assert recs and all(feed_record(f).position == feed_record(rec).position for f in recs)
     machine.assert_still(start, 0.5)

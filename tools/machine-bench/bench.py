@@ -36,11 +36,13 @@ from pathlib import Path
 from unicorn.arm_const import UC_ARM_REG_PRIMASK
 
 HERE = Path(__file__).resolve().parent
-# This folder (cycles, probe) and tools/ (the chip model, package `stm32emu`).
-sys.path[:0] = [str(HERE), str(HERE.parent)]
+# This folder (cycles, probe), tools/ (the chip model, package `stm32emu`) and host/src (the
+# component's `Record`, the one decoder of feed records).
+sys.path[:0] = [str(HERE), str(HERE.parent), str(HERE.parents[1] / "host" / "src")]
 
 import cycles  # noqa: E402
 import probe  # noqa: E402
+from canopen_handwheel.core import Record  # noqa: E402
 from stm32emu import periph  # noqa: E402
 from stm32emu.image import FAULTS, Image  # noqa: E402
 from stm32emu.machine import Machine  # noqa: E402
@@ -459,8 +461,9 @@ def run(elf: str) -> Results:
     edges += rig.edge_suite("enabled")
     rig.settle("edge enabled")
     feed = rig.sent(start, TPDO1)
-    positions = {int.from_bytes(f.data[:4], "little", signed=True) for f in feed}
-    if len(positions) < 2 or any(f.data[4] != 1 or f.data[5] != 10 for f in feed):
+    records = [Record.decode(f.data) for f in feed]
+    positions = {r.position for r in records}
+    if len(positions) < 2 or any(r.axis != 1 or r.multiplier != 10 for r in records):
         raise ScenarioError(f"feed records do not follow the wheel: {[str(f) for f in feed[:4]]}")
 
     requests = [

@@ -2,11 +2,13 @@
 
 The interop suite (`tests/interop`, whose conftest.py holds only the pytest fixtures), the
 LinuxCNC suite, `cargo xtask demo` (tools/demo.py) and the LinuxCNC console import it from
-here. It is not installed: put `tools/` on `sys.path` (the suites' conftest.py files do) or
-run a script that lives in `tools/`.
+here. It is not installed: put `tools/` on `sys.path` (the suites' pytest.ini files do) or
+run a script that lives in `tools/`; `host/src` too, since `feed_record` decodes with the
+host component's `canopen_handwheel.core.Record` (standard library only).
 
 - `constants`: the repository root, the EDS, COB-IDs, NMT states and commands, timeouts;
-- `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record`;
+- `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record` (a
+  TPDO1 as a `Record`);
 - `emulator`: `free_ports`, `Qemu` (`cargo xtask qemu` in its own process group),
   `Stimulus` (the stimulus port), `connect_bus` (python-can's slcan bus on the CAN port);
 - `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`.

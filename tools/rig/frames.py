@@ -9,6 +9,8 @@ from typing import Callable, List, Optional
 
 import can
 
+from canopen_handwheel.core import FLAGS_MASK, Record
+
 from .constants import FRAME_TIMEOUT, TPDO1
 
 
@@ -121,13 +123,14 @@ class FrameRecorder(can.Listener):
                 self._cond.wait(left)
 
 
-# Bits 0-4 of a feed record's status byte are flags; bits 5-7 are the selection epoch.
-STATUS_FLAGS = 0x1F
+# Bits 0-4 of the feed status (0x2030, byte 5 of a feed record) are flags; bits 5-7 the
+# session.
+STATUS_FLAGS = FLAGS_MASK
 
 
-def feed_record(frame: Frame):
-    """(position, axis, multiplier, status flags (bits 0-4), sequence) of a TPDO1 feed
-    record (bits 5-7 of the status byte are the epoch)."""
+def feed_record(frame: Frame) -> Record:
+    """The feed record a TPDO1 carries, decoded by the host component's `Record` (the one
+    place the layout is written down in Python): position, axis, multiplier (1, 10, 100),
+    epoch, flags (status bits 0-4), session, sequence."""
     assert frame.id == TPDO1 and len(frame.data) == 8, f"not a feed record: {frame}"
-    d = frame.data
-    return (int.from_bytes(d[0:4], "little", signed=True), d[4], d[5], d[6] & STATUS_FLAGS, d[7])
+    return Record.decode(frame.data)

@@ -129,7 +129,7 @@ class Rig:
 
     def wait_position(self, position: int, since: int, timeout: float = FRAME_TIMEOUT) -> Frame:
         return self.frames.wait_for(
-            lambda f: f.id == TPDO1 and len(f.data) == 8 and feed_record(f)[0] == position,
+            lambda f: f.id == TPDO1 and len(f.data) == 8 and feed_record(f).position == position,
             since=since,
             timeout=timeout,
             what=f"feed record at position {position}",

@@ -241,6 +241,8 @@ class HalPins:
         c["records-lost"] = pins.records_lost
         c["frames-bad"] = pins.frames_bad
         c["state"] = pins.state
+        c["feed-stops"] = pins.feed_stops
+        c["stop-reason"] = pins.stop_reason
 
     def exit(self) -> None:
         try:
@@ -518,23 +520,41 @@ class Worker:
             self.events.put(("done", action, ok, abort, result))
 
 
+class Mismatch(Exception):
+    """A configuration step read back something else than it wrote: the configuration
+    failed (the core retries it)."""
+
+
 def carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.Event] = None):
-    """Carries out one action over `link`: (ok, SDO abort code or None, result)."""
+    """Carries out one action over `link`: (ok, SDO abort code or None, result). A
+    configuration's result is its `core.Configured`, filled in as far as it got."""
     import canopen
 
+    report = core.Configured() if isinstance(action, core.Configure) else None
     try:
-        return True, None, _carry_out(link, node_id, action, cancelled)
+        return True, None, _carry_out(link, node_id, action, cancelled, report)
     except Cancelled:
-        return False, None, None
+        return False, None, report
     except canopen.SdoAbortedError as e:
         log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
-        return False, e.code, None
-    except Exception as e:  # no answer, bus gone: the core retries
-        log(f"{describe(action)}: {e!r}")
-        return False, None, None
+        return False, e.code, report
+    except Exception as e:  # no answer, bus gone, a read-back that differs: the core retries
+        log(f"{describe(action)}: {e}" if isinstance(e, Mismatch) else f"{describe(action)}: {e!r}")
+        return False, None, report
 
 
-def _carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.Event]):
+# TPDO1's COB-ID entry 0x1800:1: bit 31 set makes the PDO invalid (its inhibit time can only
+# be changed then).
+PDO_INVALID = 0x8000_0000
+
+
+def _carry_out(
+    link: Link,
+    node_id: int,
+    action,
+    cancelled: Optional[threading.Event],
+    report: Optional[core.Configured] = None,
+):
     sdo = link.node.sdo
 
     def step() -> None:
@@ -549,33 +569,75 @@ def _carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.E
         step()
         sdo.download(index, sub, value.to_bytes(size, "little"))
 
+    def read_back(index: int, sub: int, value: int) -> None:
+        got = u32(index, sub)
+        if got != value:
+            raise Mismatch(f"0x{index:04X}:{sub} reads 0x{got:X}, not 0x{value:X}")
+
     if isinstance(action, core.Configure):
-        count = u32(0x1016, 0)
-        first_reply_at = link.sdo_reply_at
-        entries = {sub: u32(0x1016, sub) for sub in range(1, count + 1)}
-        sub, value = core.consumer_plan(entries, action.master, action.timeout_ms)
-        write(0x1016, sub, value, 4)
-        timer = u32(0x1800, 5)
-        wanted = core.event_timer_plan(timer, action.event_timer_ms)
-        if wanted is not None:
-            write(0x1800, 5, wanted, 2)
-            timer = u32(0x1800, 5)
-        if u32(0x2001, 0) != 0:
-            write(0x2001, 0, 0, 1)
-        # Feed off: a fresh start enables it again, stepping the selection epoch.
-        write(0x2000, 0, 0, 1)
-        step()
-        link.node.nmt.state = "OPERATIONAL"  # python-canopen's NMT start to the node
-        log(
-            f"device configured (0x1016:{sub} = 0x{value:08X}, event timer {timer} ms, "
-            "feed off), NMT start sent"
-        )
-        return core.Configured(event_timer_ms=timer, first_reply_at=first_reply_at)
+        assert report is not None
+        return _configure(link, action, report, u32, write, read_back, step)
     if isinstance(action, core.WriteFeed):
         write(0x2000, 0, action.value, 1)
         log(f"feed enable 0x2000 = {action.value}")
         return None
     raise TypeError(f"unknown action {action!r}")
+
+
+def _configure(
+    link: Link, action: core.Configure, report: core.Configured, u32, write, read_back, step
+):
+    """`core.Configure`'s steps; the core decided every value (`core.consumer_plan`,
+    `core.event_timer_plan`, `core.inhibit_plan`, `core.pick_token`)."""
+    report.found = found = u32(0x2002, 0)
+    report.first_reply_at = link.sdo_reply_at
+    if action.keep is not None and found == action.keep:
+        report.intact = True
+        report.session = found
+        return report
+    token = core.pick_token(action.tokens, found)
+    if token is None:
+        raise Mismatch(f"no session token to write (0x2002 reads {found})")
+    count = u32(0x1016, 0)
+    entries = {sub: u32(0x1016, sub) for sub in range(1, count + 1)}
+    sub, value = core.consumer_plan(entries, action.master, action.timeout_ms)
+    write(0x1016, sub, value, 4)
+    read_back(0x1016, sub, value)
+    timer = u32(0x1800, 5)
+    wanted = core.event_timer_plan(timer, action.event_timer_ms)
+    if wanted is not None:
+        write(0x1800, 5, wanted, 2)
+        read_back(0x1800, 5, wanted)
+        timer = wanted
+    inhibit = u32(0x1800, 3)
+    wanted = core.inhibit_plan(inhibit)
+    if wanted is not None:
+        cob = u32(0x1800, 1)
+        write(0x1800, 1, cob | PDO_INVALID, 4)
+        write(0x1800, 3, wanted, 2)
+        write(0x1800, 1, cob & ~PDO_INVALID, 4)
+        read_back(0x1800, 3, wanted)
+        read_back(0x1800, 1, cob & ~PDO_INVALID)
+        inhibit = wanted
+    if u32(0x2001, 0) != 0:
+        write(0x2001, 0, 0, 1)
+        read_back(0x2001, 0, 0)
+    # Feed off: a fresh start enables it again, stepping the selection epoch.
+    write(0x2000, 0, 0, 1)
+    # The session last: every write before it ended whatever session the device had.
+    report.tried = token
+    write(0x2002, 0, token, 1)
+    read_back(0x2002, 0, token)
+    report.session = token
+    report.event_timer_ms = timer
+    step()
+    link.node.nmt.state = "OPERATIONAL"  # python-canopen's NMT start to the node
+    log(
+        f"device configured: session {token} (0x2002 = {found} before), 0x1016:{sub} = "
+        f"0x{value:08X}, event timer {timer} ms, inhibit time {inhibit / 10:g} ms, feed off; "
+        "NMT start sent"
+    )
+    return report
 
 
 def describe(action) -> str:
@@ -665,6 +727,8 @@ def run(
                 if action is not None and worker is not None:
                     worker.submit(action)
             write_steps(pins, c.publish(clock(), axes.motion))
+            for line in c.take_log():
+                log(line)
         log(f"{getattr(stop, 'reason', 'asked to stop')}: stopping")
     finally:
         shut_down(args, cfg, c, link, worker)

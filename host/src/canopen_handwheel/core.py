@@ -19,7 +19,9 @@ The event API (stable; `replay` runs a list of these events through a `Core`):
   `set_run_on_budget(s)`: the input pins; `set_motion_known(bool)`: LinuxCNC shows its axes'
   motion (teleop mode);
 - `next_action(now)` -> the `Action` to carry out (`Configure`, `WriteFeed`) or None, and
-  `done(action, ok, abort, now, result)`: its outcome;
+  `done(action, ok, abort, now, result)`: its outcome (a `Configure`'s: a `Configured`);
+- `take_log()` -> the lines the core wants logged (a feed stop and its reason, a session
+  dropped, a configuration waiting for a token), for the shell to print;
 - `publish(now, motion)` -> the list of `Pins` snapshots to write now, in order, at least
   `GATE_HOLD` apart (`motion(letter)`: LinuxCNC's `AxisMotion` of an axis, asked in the
   run-on mode for an axis with new counts); `pins()` is the state they end in;
@@ -33,9 +35,10 @@ implements it.
 
 from __future__ import annotations
 
+import collections
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Deque, Dict, List, Optional, Tuple
 
 # Device heartbeat states.
 BOOTUP = 0x00
@@ -43,31 +46,178 @@ STOPPED = 0x04
 OPERATIONAL = 0x05
 PRE_OPERATIONAL = 0x7F
 
-# Feed record status bits.
+# The feed record (TPDO1, version 2), byte 4 (0x2011 "Feed selection"): bits 0-2 the axis
+# (0 none, 1..5 these letters; 6 and 7 never sent), bits 3-4 the multiplier code (an index
+# into MULTIPLIERS; 3 never sent), bits 5-7 the low three bits of the selection epoch (0x2010:3).
+DEVICE_AXES = "xyzwv"
+MULTIPLIERS = (1, 10, 100)
+AXIS_MASK = 0x07
+MULTIPLIER_SHIFT = 3
+EPOCH_SHIFT = 5
+EPOCH_MODULO = 8
+# Byte 5 (0x2030 "Feed status"): bits 0-4 these flags, bits 5-7 the session (0 none, 1..7 the
+# token a master wrote to 0x2002).
 STATUS_ENABLED = 0x01
 STATUS_ENCODER_ERROR = 0x02
 STATUS_STEPS_DROPPED = 0x04
 STATUS_MASTER_LOST = 0x08
 STATUS_IGNORED_MOTION = 0x10
-# Bits 5-7: the low three bits of the selection epoch (0x2010:3).
-EPOCH_SHIFT = 5
-EPOCH_MODULO = 8
+FLAGS_MASK = 0x1F
+SESSION_SHIFT = 5
+# Bytes 6-7 (0x2031 "Feed sequence", U16): +1 per record and per loss, +8 at a break.
+SEQUENCE_MODULO = 65536
 
-# The device's axis byte: 0 none, 1..5 these letters.
-DEVICE_AXES = "xyzwv"
-MULTIPLIERS = (1, 10, 100)
+# The device's sequence budget: at most SEQUENCE_BURST numbers at once, refilled by
+# SEQUENCE_PER_S a second of its clock; a session ends rather than exceed it. So between two
+# records of one session sent t seconds apart the sequence moved by at most
+# t * SEQUENCE_PER_S + SEQUENCE_BURST (on the device's clock).
+SEQUENCE_PER_S = 1000
+SEQUENCE_BURST = 64
+# How far the device's clock may run fast against the host's, as a fraction.
+CLOCK_TOLERANCE = 0.01
+_CLOCK_PPM = round(CLOCK_TOLERANCE * 1_000_000)
+# The contract's age: a copy (duplicated, delayed, replayed) of a genuine record up to this
+# old (s) never moves an axis. A session token is not written again for this long after the
+# host replaced it, so no copy of a record of its last use can reach its next one.
+COPY_AGE = 60.0
+# The longest a record of the session may follow the order reference (s); a later one is
+# not judged (its sequence could have run round far enough to look like a copy's or a
+# copy's like it): the host starts a new session instead.
+ORDER_WINDOW = 4.0
+# The longest a record takes from the device to the host's receive path (s): its queue
+# (a blocked transmit path is given up after 0.1 s), the bus, the adapter.
+IN_TRANSIT = 0.25
+_IN_TRANSIT_US = round(IN_TRANSIT * 1_000_000)
+# Session tokens the host writes to 0x2002 (0 means none).
+TOKENS = tuple(range(1, 8))
 
-# Ordering: a record whose sequence byte is 128..255 numbers after the reference's (mod 256)
-# lies behind it (an earlier record delivered again, a replay or a stale copy).
-SEQUENCE_MODULO = 256
-BEHIND_FROM = 128
 
-# How long the newest record stays the reference for "behind" (s). It outlives staleness and
-# a boot-up: a reset keeps the device's sequence going, so only copies of earlier records
-# fall behind it, and a copy that arrives after a silence or a reset never becomes a
-# reference that a later record could link to. A power cycle restarts the sequence: its
-# records count as behind until this has passed (or the sequence has moved past).
-ORDER_EXPIRY = 2.0
+def max_ahead(dt: float) -> int:
+    """The most sequence numbers a genuine record of the session can be ahead of the order
+    reference when the host handles it `dt` seconds after the reference reached it: what the
+    budget allows in `dt` plus the reference's time in transit, on a device clock up to
+    CLOCK_TOLERANCE fast, plus the burst. Integer arithmetic on microseconds, so that the
+    bound is exact at every boundary (the Rust port computes the same)."""
+    us = max(0, round(dt * 1_000_000)) + _IN_TRANSIT_US
+    return us * SEQUENCE_PER_S * (1_000_000 + _CLOCK_PPM) // 10**12 + SEQUENCE_BURST
+
+
+def oldest_copy_behind() -> int:
+    """The most sequence numbers a copy of a record of the session, at most COPY_AGE old,
+    can lie behind the newest record the host took: what the budget allows in that time.
+    The rule holds while this and `max_ahead(ORDER_WINDOW)` together stay below the
+    modulo (a test asserts it)."""
+    us = round(COPY_AGE * 1_000_000)
+    return us * SEQUENCE_PER_S * (1_000_000 + _CLOCK_PPM) // 10**12 + SEQUENCE_BURST
+
+
+# The verdicts of `order_verdict` on a record of the host's session.
+FIRST = "first"  # no reference yet: the session's first record, a baseline
+AHEAD = "ahead"  # a later record of the device
+DUPLICATE = "duplicate"  # the reference's bytes again
+SAME_NUMBER = "same number"  # the reference's sequence number with other bytes: impossible
+COPY = "copy"  # an earlier record again (or one far beyond what the device can have sent)
+RENEW = "renew"  # the reference is older than ORDER_WINDOW: start a new session
+
+
+def order_verdict(ref: Optional[Tuple["Record", float]], rec: "Record", now: float):
+    """(verdict, a): where `rec`, a record of the host's session handled at `now`, lies
+    against the order reference `ref` (the newest record of the session the host took, and
+    the earliest it can have reached the host). a = (rec's sequence - ref's) mod 65536.
+
+    A copy at most COPY_AGE old lies at most `oldest_copy_behind()` numbers behind the
+    reference, so a = 65536 minus that or more; a genuine later record is at most
+    `max_ahead(dt)` ahead. While dt stays within ORDER_WINDOW the two ranges do not meet,
+    so every copy reads as one, whatever its age within the contract's."""
+    if ref is None:
+        return FIRST, 0
+    ref_rec, ref_time = ref
+    dt = now - ref_time
+    if dt > ORDER_WINDOW:
+        return RENEW, 0
+    a = (rec.sequence - ref_rec.sequence) % SEQUENCE_MODULO
+    if a == 0:
+        return (DUPLICATE if rec == ref_rec else SAME_NUMBER), 0
+    if a <= max_ahead(dt):
+        return AHEAD, a
+    return COPY, a
+
+
+def free_tokens(last_use: Dict[int, float], now: float, own: Optional[int] = None):
+    """The tokens the host may write now, best first (a tuple): not `own` (its session), and
+    none whose records may have been sent less than COPY_AGE ago (`last_use`: when the host
+    superseded it, or last knew the device could be in it); never used ones first (lowest
+    first), then the least recently used. Every copy of a record of a token's last use is
+    then older than COPY_AGE when it is written again."""
+    free = [t for t in TOKENS if t != own and now - last_use.get(t, -math.inf) >= COPY_AGE]
+    return tuple(sorted(free, key=lambda t: (last_use.get(t, -math.inf), t)))
+
+
+def token_free_at(last_use: Dict[int, float], own: Optional[int] = None) -> float:
+    """When the first token other than `own` becomes free (`free_tokens`)."""
+    return min(last_use.get(t, -math.inf) + COPY_AGE for t in TOKENS if t != own)
+
+
+def pick_token(candidates: Tuple[int, ...], device_session: int) -> Optional[int]:
+    """The token a configuration writes: the first of `candidates` (`free_tokens`) that is
+    not the session the device holds (another master's, or one the host may have written
+    without seeing it read back). None: no candidate; the configuration fails."""
+    for token in candidates:
+        if token != device_session:
+            return token
+    return None
+
+
+# TPDO1 inhibit time 0x1800:3 (100 us units): below INHIBIT_MIN (1 ms) the device's records
+# could come faster than its sequence budget refills, ending the session; configuration then
+# sets INHIBIT_SET (2 ms, the default).
+INHIBIT_MIN = 10
+INHIBIT_SET = 20
+
+
+def inhibit_plan(device: int) -> Optional[int]:
+    """What to write to 0x1800:3 at configuration, or None to keep the device's value."""
+    return INHIBIT_SET if device < INHIBIT_MIN else None
+
+
+# Feed stops the component did not ask for (`stop-reason`): why the device stopped the feed.
+STOP_NONE = 0
+STOP_MASTER_LOST = 1
+STOP_TRANSMIT_BLOCKED = 2
+STOP_MASTER_WRITE = 3
+STOP_NOT_OPERATIONAL = 4
+STOP_SESSION_ENDED = 5
+STOP_REASONS = {
+    STOP_MASTER_LOST: "master heartbeat lost (EMCY 0x8130)",
+    STOP_TRANSMIT_BLOCKED: "transmit path blocked (EMCY 0x8100)",
+    STOP_MASTER_WRITE: "disabled by a master write (0x2000 = 0)",
+    STOP_NOT_OPERATIONAL: "the device left Operational",
+    STOP_SESSION_ENDED: "the session ended (reset, power cycle or another master's write)",
+}
+EMCY_MASTER_LOST = 0x8130
+EMCY_TRANSMIT_BLOCKED = 0x8100
+# Status bit 3 is set by both a lost master and a blocked transmit path; the EMCY that tells
+# them apart may reach the host after the record (s to wait for it).
+STOP_REASON_WAIT = 0.05
+# The core's log lines not yet taken by the shell (`Core.take_log`): a bounded queue, so that
+# nothing on the bus can make it grow.
+LOG_LINES = 32
+
+
+def stop_reason(master_lost: bool, emcy: Optional[int], left_operational: bool) -> int:
+    """Why the device stopped the feed, from what the host saw since the feed was last on:
+    the record's status bit 3 (a loss of communication), the last EMCY 0x8100 or 0x8130, a
+    heartbeat other than Operational. Bit 3 without either EMCY: the master was lost (the
+    device's own watch, whose EMCY a blocked path may have discarded). No bit 3: a master
+    wrote 0x2000 = 0, unless the device left Operational, which disables the feed too."""
+    if emcy == EMCY_TRANSMIT_BLOCKED:
+        return STOP_TRANSMIT_BLOCKED
+    if master_lost or emcy == EMCY_MASTER_LOST:
+        return STOP_MASTER_LOST
+    if left_operational:
+        return STOP_NOT_OPERATIONAL
+    return STOP_MASTER_WRITE
+
 
 # Backlog: a feed record handled longer than this after the shell last found its receive
 # path empty (`Core.drained`) may have waited in a buffer that long (a frozen, starved or
@@ -110,10 +260,12 @@ OVERRIDE_STEP_RANGE = (0.01, 100.0)
 # SDO abort: "data cannot be transferred because of the present device state".
 ABORT_DEVICE_STATE = 0x08000022
 
-# The event timer written when the device has none (0x1800:5 = 0), and assumed until the
-# first configuration when `--event-timer-ms` is not given (the device's default, too).
+# The event timer written when the device has none (0x1800:5 = 0) or one outside the range,
+# and assumed until the first configuration when `--event-timer-ms` is not given (the
+# device's default, too). At most 1 s: three periods of silence (staleness) then stay within
+# ORDER_WINDOW, so a device at rest never makes the host start a new session.
 DEFAULT_EVENT_TIMER_MS = 100
-EVENT_TIMER_MS_RANGE = (10, 60000)
+EVENT_TIMER_MS_RANGE = (10, 1000)
 
 
 def wrap_s32(value: int) -> int:
@@ -233,10 +385,11 @@ def event_timer_plan(device_ms: int, wanted_ms: Optional[int]) -> Optional[int]:
     """What to write to the device's event timer 0x1800:5 at configuration, or None to
     keep its value: `wanted_ms` (`--event-timer-ms`) when given and different, else
     `DEFAULT_EVENT_TIMER_MS` when the device has none (0: records only on change, so that
-    silence would not tell that it is gone)."""
+    silence would not tell that it is gone) or one outside `EVENT_TIMER_MS_RANGE`."""
     if wanted_ms is not None:
         return wanted_ms if wanted_ms != device_ms else None
-    return DEFAULT_EVENT_TIMER_MS if device_ms == 0 else None
+    low, high = EVENT_TIMER_MS_RANGE
+    return None if low <= device_ms <= high else DEFAULT_EVENT_TIMER_MS
 
 
 # How long the component's main loop may go without progress before its heartbeat stops
@@ -316,13 +469,18 @@ def rate_horizon(stale_after: float, consumer_timeout_ms: int) -> float:
 
 @dataclass(frozen=True)
 class Record:
-    """A feed record (TPDO1) as sent: position, axis byte, multiplier byte, status byte,
-    sequence byte."""
+    """A feed record (TPDO1, 8 bytes, version 2) field by field: the one place the layout
+    is written down in Python (README "Feed record"). `multiplier` is the factor (1, 10, 100;
+    0 for code 3, which the device never sends), `flags` status bits 0-4, `session` the
+    session the device was in, `sequence` the 16-bit feed sequence. Every 8 bytes decode,
+    and `encode` gives them back."""
 
     position: int
     axis: int
     multiplier: int
-    status: int
+    epoch: int
+    flags: int
+    session: int
     sequence: int
 
     @staticmethod
@@ -330,47 +488,64 @@ class Record:
         """The record in `data`, which must be 8 bytes (`ValueError` otherwise)."""
         if len(data) != 8:
             raise ValueError(f"a feed record is 8 bytes, not {len(data)}")
+        selection, status = data[4], data[5]
+        code = (selection >> MULTIPLIER_SHIFT) & 0x03
         return Record(
             position=int.from_bytes(data[0:4], "little", signed=True),
-            axis=data[4],
-            multiplier=data[5],
-            status=data[6],
-            sequence=data[7],
+            axis=selection & AXIS_MASK,
+            multiplier=MULTIPLIERS[code] if code < len(MULTIPLIERS) else 0,
+            epoch=selection >> EPOCH_SHIFT,
+            flags=status & FLAGS_MASK,
+            session=status >> SESSION_SHIFT,
+            sequence=int.from_bytes(data[6:8], "little"),
         )
 
     def encode(self) -> bytes:
-        return (self.position & 0xFFFF_FFFF).to_bytes(4, "little") + bytes(
-            [self.axis & 0xFF, self.multiplier & 0xFF, self.status & 0xFF, self.sequence & 0xFF]
+        """The 8 bytes. The position and the sequence wrap, the epoch is taken mod 8 (the
+        record carries their low bits); another field out of its range is a mistake of the
+        caller (`ValueError`), not something to wrap into a different record."""
+        if not 0 <= self.axis <= AXIS_MASK:
+            raise ValueError(f"axis {self.axis} does not fit 3 bits")
+        if self.multiplier not in MULTIPLIERS + (0,):
+            raise ValueError(f"multiplier {self.multiplier}: 1, 10, 100 (or 0 for code 3)")
+        if not 0 <= self.flags <= FLAGS_MASK:
+            raise ValueError(f"flags 0x{self.flags:X} do not fit 5 bits")
+        if not 0 <= self.session <= 7:
+            raise ValueError(f"session {self.session} does not fit 3 bits")
+        code = MULTIPLIERS.index(self.multiplier) if self.multiplier else 3
+        selection = (
+            self.axis | code << MULTIPLIER_SHIFT | (self.epoch % EPOCH_MODULO) << EPOCH_SHIFT
+        )
+        status = self.flags | self.session << SESSION_SHIFT
+        return (
+            (self.position & 0xFFFF_FFFF).to_bytes(4, "little")
+            + bytes([selection, status])
+            + (self.sequence % SEQUENCE_MODULO).to_bytes(2, "little")
         )
 
     @property
     def enabled(self) -> bool:
-        return bool(self.status & STATUS_ENABLED)
+        return bool(self.flags & STATUS_ENABLED)
 
     @property
     def master_lost(self) -> bool:
-        return bool(self.status & STATUS_MASTER_LOST)
-
-    @property
-    def epoch(self) -> int:
-        """The low three bits of the selection epoch this record describes (status 5-7)."""
-        return (self.status >> EPOCH_SHIFT) % EPOCH_MODULO
+        return bool(self.flags & STATUS_MASTER_LOST)
 
 
 def record_fault(rec: Record) -> Optional[str]:
     """Why the device can never send `rec` on its own, or None if it can."""
     if rec.axis > len(DEVICE_AXES):
-        return f"axis byte {rec.axis}"
+        return f"axis {rec.axis}"
     if rec.multiplier not in MULTIPLIERS:
-        return f"multiplier {rec.multiplier}"
+        return "multiplier code 3"
     if rec.enabled and rec.master_lost:
         return "feed enabled with master lost"
     return None
 
 
 def sequence_gap(prev: Record, rec: Record) -> int:
-    """The sequence numbers between `prev` and `rec` (records lost or dropped), mod 256."""
-    return (rec.sequence - prev.sequence - 1) % 256
+    """The sequence numbers between `prev` and `rec` (records lost or dropped), mod 65536."""
+    return (rec.sequence - prev.sequence - 1) % SEQUENCE_MODULO
 
 
 def _link(prev: Record, rec: Record) -> Tuple[Optional[int], Optional[str]]:
@@ -506,24 +681,38 @@ def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budg
 # Actions the shell carries out, one at a time; it reports back with `Core.done`.
 @dataclass(frozen=True)
 class Configure:
-    """Read 0x1016:1..2, write the `consumer_plan` entry, read 0x1800:5 and write it as
-    `event_timer_plan` says (then read it back), set 0x2001 = 0 if it is not, 0x2000 = 0
-    (feed off), then NMT start. Its outcome (`Core.done`) carries a `Configured`."""
+    """The configuration, in this order, every write read back (a difference fails it):
+    read 0x2002; if it is `keep` (the host's session, on a check after records of another
+    session) the configuration is intact and nothing is written. Otherwise: the 0x1016 entry
+    `consumer_plan` gives; the event timer 0x1800:5 as `event_timer_plan` says; the inhibit
+    time 0x1800:3 as `inhibit_plan` says (TPDO1 made invalid for the write, valid again
+    after); 0x2001 = 0; 0x2000 = 0 (feed off); 0x2002 = `pick_token(tokens, found)` (the
+    session, last: every write before it ends a session); then NMT start. Its outcome
+    (`Core.done`) carries a `Configured`, also when it failed part way."""
 
     master: int
     timeout_ms: int
     event_timer_ms: Optional[int] = None  # `--event-timer-ms`, if given
+    keep: Optional[int] = None  # the session that counts as intact (a check), if any
+    tokens: Tuple[int, ...] = ()  # `free_tokens`, best first
 
 
-@dataclass(frozen=True)
+@dataclass
 class Configured:
-    """What a successful `Configure` found: the device's event timer 0x1800:5 (ms) as read
-    back at its end, and when (the core's clock) the shell handled the device's answer to
-    its first transfer: a configuration answered only after a boot-up the core saw while it
-    ran was made in the device's new life and stands."""
+    """What a `Configure` found and did, filled in by the shell as it goes (so a failed one
+    tells how far it got): `found`, 0x2002 as read first; `intact`, it was `keep` and nothing
+    was written; `tried`, the token written to 0x2002; `session`, that token read back (or
+    the kept one); `event_timer_ms`, 0x1800:5 as read back; `first_reply_at`, when (the
+    core's clock) the shell handled the device's answer to its first transfer: a
+    configuration answered only after a boot-up the core saw while it ran was made in the
+    device's new life and stands."""
 
-    event_timer_ms: int
+    event_timer_ms: Optional[int] = None
     first_reply_at: Optional[float] = None
+    found: Optional[int] = None
+    intact: bool = False
+    tried: Optional[int] = None
+    session: Optional[int] = None
 
 
 @dataclass(frozen=True)
@@ -553,6 +742,8 @@ class Pins:
     state: int = -1  # last heartbeat state byte, -1 before any
     jog_vel_mode: bool = False  # LinuxCNC's velocity mode for every axis
     counts_dropped: int = 0  # counts the run-on budget dropped (wrapping)
+    feed_stops: int = 0  # feed stops by the device the component did not ask for (wrapping)
+    stop_reason: int = STOP_NONE  # the last one's reason (`STOP_REASONS`)
 
 
 def _with(pins: Pins, counts: Dict[str, int], gates: Dict[str, bool]) -> Pins:
@@ -566,9 +757,12 @@ class Core:
     enable: bool = False
     # What the device showed.
     state: Optional[int] = None  # last heartbeat state byte
-    record: Optional[Record] = None  # last accepted record
+    record: Optional[Record] = None  # last accepted record (of the session)
     record_time: Optional[float] = None
-    order: Optional[Tuple[Record, float]] = None  # newest accepted record and when (ordering)
+    # The order reference: the newest record of the session taken, and the earliest it can
+    # have reached the host (`order_verdict`).
+    order: Optional[Tuple[Record, float]] = None
+    foreign_newest: bool = False  # the newest possible record was of another session
     emcy_code: int = 0
     # Bookkeeping.
     counts: Dict[str, int] = field(default_factory=dict)
@@ -593,9 +787,33 @@ class Core:
     # Per axis: the jog target LinuxCNC has after the component's last metered counts, and
     # when they were written (`IN_FLIGHT`).
     sent_target: Dict[str, Tuple[float, float]] = field(default_factory=dict)
+    # The session (`Configure`): the token the host wrote and read back, None without one.
+    session: Optional[int] = None
+    superseded: Dict[int, float] = field(default_factory=dict)  # token -> when replaced
+    # Tokens the device may have been in since the last successful configuration, and when
+    # that was last known: the host's session once it dropped it, a token written without
+    # its read-back, a session the device reported or showed that the host never used. The
+    # next successful configuration ends them all: it supersedes them.
+    busy: Dict[int, float] = field(default_factory=dict)
+    check_due: bool = False  # a record of another session came: check the configuration
+    check_at: float = 0.0  # not before this (one check per `retry` at most)
+    check_logged: bool = False  # a check was logged in this session
+    waiting_logged: bool = False  # the wait for a free token was logged
+    # Feed stops (`feed-stops`, `stop-reason`): the component asked for the feed off (its
+    # 0x2000 = 0 since it last asked for it on), a stop waiting for its EMCY (when it was
+    # seen, and whether status bit 3 was set), what the device showed since the feed was
+    # last on: the last EMCY 0x8100 or 0x8130, a heartbeat other than Operational.
+    asked_off: bool = False
+    stop_seen: Optional[float] = None
+    stop_master_lost: bool = False
+    stop_emcy: Optional[int] = None
+    left_operational: bool = False
+    feed_stops: int = 0
+    stop_reason: int = STOP_NONE
+    feed_on: bool = False  # the last record of the session showed the feed on
+    log: Deque[str] = field(default_factory=lambda: collections.deque(maxlen=LOG_LINES))
     # Actions.
-    configured: bool = False
-    config_due: float = 0.0  # configure at this time (if not configured)
+    config_due: float = 0.0  # configure at this time (without a session)
     feed_due: float = 0.0  # earliest time for the next 0x2000 write
     pending: Optional[Action] = None
     booted_during: Optional[float] = None  # a boot-up while a `Configure` was pending
@@ -675,10 +893,18 @@ class Core:
         return self.mode == RUN_ON and self.motion_known
 
     def tick(self, now: float) -> None:
-        """Time passes: staleness."""
+        """Time passes: staleness; a feed stop whose EMCY did not come is reported."""
         self.now = max(self.now, now)
         if self.record_time is not None and not self.fresh:
             self.baseline = True
+        if self.stop_seen is not None and self.now - self.stop_seen >= STOP_REASON_WAIT:
+            self._stopped()
+
+    def take_log(self) -> List[str]:
+        """The log lines the core made since the last call, for the shell to print."""
+        lines = list(self.log)
+        self.log.clear()
+        return lines
 
     def done(
         self,
@@ -689,30 +915,104 @@ class Core:
         result: Optional[Configured] = None,
     ) -> None:
         """The outcome of the pending action (`abort`: the SDO abort code, if any; `result`:
-        what a successful `Configure` found). A configuration that reports no event timer,
-        or none the component can judge staleness by, failed."""
+        what a `Configure` found and did, as far as it got)."""
         self.tick(now)
         if action is not self.pending:
             return
         self.pending = None
         if isinstance(action, Configure):
-            low, high = EVENT_TIMER_MS_RANGE
-            booted, self.booted_during = self.booted_during, None
-            usable = ok and result is not None and low <= result.event_timer_ms <= high
-            before_boot = booted is not None and (
-                result is None or result.first_reply_at is None or result.first_reply_at <= booted
-            )
-            if usable and not before_boot:
-                self.configured = True
-                self.feed_due = 0.0
-                self._set_event_timer(result.event_timer_ms / 1000)
-            elif usable:
-                self.config_due = self.now  # it spoke to the device's life before: again
-            else:
-                self.config_due = self.now + self.cfg.retry
+            self._configure_done(action, ok, result or Configured())
         elif isinstance(action, WriteFeed):
             # Success shows in the next records; give them time before trying again.
             self.feed_due = self.now + self.cfg.retry
+
+    def _configure_done(self, action: Configure, ok: bool, r: Configured) -> None:
+        """A configuration's outcome. It stands if every step succeeded and was read back,
+        the token is one the core offered (or the kept session, still the core's), the event
+        timer is one the component can judge staleness by, and the device answered it in
+        the life the core knows (not before a boot-up seen meanwhile). A device found in
+        another session than the core's ended it: a feed it had on stopped."""
+        booted, self.booted_during = self.booted_during, None
+        before_boot = booted is not None and (
+            r.first_reply_at is None or r.first_reply_at <= booted
+        )
+        for token in (r.found, r.tried):
+            if token and token != self.session:
+                self.busy[token] = self.now
+        if r.found is not None and self.session is not None and r.found != self.session:
+            if self.feed_on and not self.asked_off:
+                self._report_stop(STOP_SESSION_ENDED)
+            self._drop_session(f"the device is in session {r.found}, not {self.session}")
+        low, high = EVENT_TIMER_MS_RANGE
+        if ok and r.intact and not before_boot:
+            if self.session is not None and r.session == action.keep == self.session:
+                self.check_due = False
+                self.check_at = self.now + self.cfg.retry
+                return
+        elif (
+            ok
+            and not before_boot
+            and r.session is not None
+            and r.session == r.tried
+            and r.session in action.tokens
+            and r.event_timer_ms is not None
+            and low <= r.event_timer_ms <= high
+        ):
+            self._new_session(r.session, r.found)
+            self._set_event_timer(r.event_timer_ms / 1000)
+            return
+        if self.session is None:
+            # It spoke to the device's life before a boot-up seen meanwhile, or checked a
+            # session dropped meanwhile: again at once; a failure: after the retry time.
+            again = ok and (before_boot or r.intact)
+            self.config_due = self.now if again else self.now + self.cfg.retry
+        else:
+            self.check_at = self.now + self.cfg.retry
+
+    def _new_session(self, token: int, found: Optional[int]) -> None:
+        """The configuration wrote `token` and read it back: it is the session now, with
+        no order reference (its first record is a baseline). Every token the device may have
+        been in until now is superseded now: its records stopped at the latest with this
+        configuration's first write."""
+        if self.session is not None:
+            self.busy[self.session] = self.now
+        if found:
+            self.busy[found] = self.now
+        for old in self.busy:
+            if old != token:
+                self.superseded[old] = self.now
+        self.busy = {}
+        self.session = token
+        self._forget_records()
+        self.check_due = False
+        self.check_logged = False
+        self.waiting_logged = False
+        self.asked_off = False  # a feed on in this session is a master's asking
+        self.feed_due = 0.0
+
+    def _drop_session(self, why: str) -> None:
+        """The host no longer holds its session: its order reference is gone (a boot-up, a
+        Pre-operational device, a reference too old, a device found in another session), so
+        a copy of one of its records could become a baseline that a later copy links to.
+        Every record is another session's until a new token is written and read back."""
+        if self.session is not None:
+            self.busy[self.session] = self.now
+            self.log.append(f"session {self.session} dropped ({why}); configuring the device")
+        self.session = None
+        self.check_due = False
+        self.config_due = self.now
+        self._forget_records()
+
+    def _forget_records(self) -> None:
+        self.order = None
+        self.record = None
+        self.record_time = None
+        self.baseline = True
+        self.suspect = False
+        self.epochs_shown = False
+        self.foreign_newest = False
+        self.feed_on = False
+        self.stop_seen = None
 
     # Decisions ------------------------------------------------------------------------
 
@@ -721,6 +1021,12 @@ class Core:
         self.allowance.cap = self.cfg.max_detents_per_s * self.rate_horizon
         if self.allowance.level is not None:
             self.allowance.level = min(self.allowance.level, self.allowance.cap)
+
+    @property
+    def configured(self) -> bool:
+        """The host holds a session: a configuration wrote its token and read it back, and
+        nothing since showed the device lost it."""
+        return self.session is not None
 
     @property
     def stale_after(self) -> float:
@@ -741,7 +1047,13 @@ class Core:
 
     @property
     def feed_enabled(self) -> bool:
-        return self.fresh and self.record is not None and self.record.enabled
+        """The newest record is of the host's session, fresh, and shows the feed on."""
+        return (
+            self.fresh
+            and self.record is not None
+            and self.record.enabled
+            and not self.foreign_newest
+        )
 
     def selected(self) -> Optional[str]:
         """The configured letter the device's switch selects, if any."""
@@ -753,29 +1065,58 @@ class Core:
         return None
 
     def next_action(self, now: float) -> Optional[Action]:
-        """The action to carry out now, if any (none while one is pending)."""
+        """The action to carry out now, if any (none while one is pending). Without a
+        session: a configuration; after a record of another session: a check (a
+        configuration that keeps the session if the device still has it); else the feed
+        enable. 0x2000 = 1 only while the newest record is of the host's session and shows
+        the feed off."""
         self.tick(now)
         if self.pending is not None:
             return None
         action: Optional[Action] = None
-        if not self.configured:
+        if self.session is None:
             if self.now >= self.config_due:
-                action = Configure(
-                    self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms
-                )
+                action = self._configure(keep=None)
+        elif self.check_due:
+            if self.now >= self.check_at:
+                action = self._configure(keep=self.session)
         elif self.operational and self.record is not None and self.now >= self.feed_due:
-            if self.enable and not self.record.enabled:
+            if self.enable and not self.record.enabled and not self.foreign_newest:
                 action = WriteFeed(1)
+                self.asked_off = False
             elif not self.enable and self.record.enabled:
                 action = WriteFeed(0)
+                self.asked_off = True
         self.pending = action
         return action
+
+    def _configure(self, keep: Optional[int]) -> Optional[Configure]:
+        """A `Configure` with the tokens free now; without any (every token used less than
+        COPY_AGE ago) a configuration waits until one is free (a check still runs: it
+        writes nothing if the device is in the session)."""
+        last_use = dict(self.superseded)
+        for token, t in self.busy.items():
+            last_use[token] = max(t, last_use.get(token, -math.inf))
+        tokens = free_tokens(last_use, self.now, self.session)
+        if not tokens and keep is None:
+            self.config_due = token_free_at(last_use, self.session)
+            if not self.waiting_logged:
+                self.waiting_logged = True
+                self.log.append(
+                    f"no session token free (each was in use less than {COPY_AGE:g} s ago): "
+                    f"configuring in {self.config_due - self.now:.1f} s"
+                )
+            return None
+        return Configure(
+            self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms, keep, tokens
+        )
 
     def shutdown_action(self) -> Action:
         """What to do before the component exits: disable the feed, whatever the last
         record showed. A write of 0x2000 = 1 may have been accepted without a record
         showing it yet, and a device that has been silent for a while may be back; one SDO
         exchange too many costs nothing."""
+        self.asked_off = True
         return WriteFeed(0)
 
     def gate(self, letter: str) -> bool:
@@ -879,7 +1220,7 @@ class Core:
             select={L: L == selected for L in self.cfg.axis_letters},
             connected=self.fresh,
             feed_enabled=self.feed_enabled,
-            encoder_error=bool(rec and rec.status & STATUS_ENCODER_ERROR),
+            encoder_error=bool(rec and rec.flags & STATUS_ENCODER_ERROR),
             axis=0 if rec is None or self.suspect else rec.axis,
             multiplier=self.record.multiplier if self.record else 1,
             position=self.record.position if self.record else 0,
@@ -889,6 +1230,8 @@ class Core:
             state=-1 if self.state is None else self.state,
             jog_vel_mode=self.mode == VELOCITY or (self.mode == RUN_ON and not self.motion_known),
             counts_dropped=self.counts_dropped,
+            feed_stops=self.feed_stops,
+            stop_reason=self.stop_reason,
         )
 
     # Frame handlers -------------------------------------------------------------------
@@ -904,21 +1247,25 @@ class Core:
         if record_fault(rec) is not None:
             self._impossible()
             return
+        if self.session is None or rec.session != self.session:
+            self._foreign(rec)
+            return
+        verdict, ahead = order_verdict(self.order, rec, self.now)
+        if verdict == RENEW:
+            self._drop_session(f"no record of it for more than {ORDER_WINDOW:g} s")
+            return
+        if verdict == DUPLICATE:
+            return  # the same frame twice (a known CAN effect): nothing at all
+        if verdict == SAME_NUMBER:
+            self._impossible()  # one number, two records
+            return
+        if verdict == COPY:
+            self._bad()  # an earlier record again: never a reference, no loss
+            return
         prev = self.record
         fresh = prev is not None and self.fresh
-        order = self.order if self.order and self.now - self.order[1] <= ORDER_EXPIRY else None
-        if order is not None and data == order[0].encode():
-            return  # the same frame twice (a known CAN effect): nothing at all
-        if order is not None:
-            ahead = (rec.sequence - order[0].sequence) % SEQUENCE_MODULO
-            if ahead == 0:
-                self._impossible()  # one number, two records
-                return
-            if ahead >= BEHIND_FROM:
-                self._bad()  # an earlier record again: never a reference, no loss
-                return
-            if fresh:
-                self.records_lost = wrap_s32(self.records_lost + ahead - 1)
+        if verdict == AHEAD and fresh:
+            self.records_lost = wrap_s32(self.records_lost + ahead - 1)
         late = self.drained_at is None or self.now - self.drained_at > BACKLOG_LIMIT
         continuous = fresh and not self.baseline and not late
         if rec.epoch != 0:
@@ -939,17 +1286,70 @@ class Core:
             self.counts[letter] = wrap_s32(self.counts[letter] + delta)
         self.record = rec
         self.record_time = now
-        self.order = (rec, self.now)
+        # The earliest it can have reached the host: after the receive path was last found
+        # empty (a record from a backlog may have waited there since).
+        arrived = self.now if self.drained_at is None else min(self.now, self.drained_at)
+        self.order = (rec, arrived)
+        self.foreign_newest = False
         self.suspect = False
         self.baseline = False
         if self.state in (None, BOOTUP):
             # PDOs only flow in Operational; the heartbeat will say so too.
             self.state = OPERATIONAL
+        self._watch_feed(rec)
         if credited and letter is not None:
             if self.credit_time is None:
                 self.credit_time = self.now
             if self.gate(letter):
                 self.credit_open[letter] = True
+
+    def _foreign(self, rec: Record) -> None:
+        """A possible record of another session (0: none; another token: another master's,
+        one of the host's earlier ones, or a copy): never a reference, never credited, not
+        counted bad. It closes the gates, and while the host has a session it makes the
+        host check its configuration (the device may have lost it unseen: a power cycle
+        whose boot-up did not arrive, another master's write). A token it shows that the
+        host never used may be the device's: not written until COPY_AGE after."""
+        self.foreign_newest = True
+        if rec.session and rec.session not in self.superseded:
+            self.busy[rec.session] = self.now
+        if self.session is not None and not self.check_due:
+            self.check_due = True
+            if not self.check_logged:  # once a session: copies may come for a minute
+                self.check_logged = True
+                self.log.append(
+                    f"a record of session {rec.session}, not {self.session}: checking the "
+                    "device's configuration (0x2002)"
+                )
+
+    def _watch_feed(self, rec: Record) -> None:
+        """A record of the session: a feed that was on and is off without the component
+        having asked is a stop by the device, reported with its reason (`stop_reason`),
+        after STOP_REASON_WAIT for the EMCY that tells a blocked transmit path from a lost
+        master when only status bit 3 says so."""
+        if self.stop_seen is not None and rec.enabled:
+            self._stopped()
+        if self.feed_on and not rec.enabled and not self.asked_off:
+            self.stop_seen = self.now
+            self.stop_master_lost = rec.master_lost
+            if not rec.master_lost or self.stop_emcy is not None:
+                self._stopped()
+        self.feed_on = rec.enabled
+        if rec.enabled:
+            self.stop_emcy = None
+            self.left_operational = False
+
+    def _stopped(self) -> None:
+        """The stop waiting for its reason, reported with what is known now."""
+        self._report_stop(stop_reason(self.stop_master_lost, self.stop_emcy, self.left_operational))
+
+    def _report_stop(self, reason: int) -> None:
+        self.feed_stops = wrap_s32(self.feed_stops + 1)
+        self.stop_reason = reason
+        self.log.append(f"feed stopped by the device: {STOP_REASONS[reason]}")
+        self.stop_seen = None
+        self.stop_master_lost = False
+        self.feed_on = False
 
     def _impossible(self) -> None:
         """A TPDO1 the device can never send: counted, and it breaks continuity; the
@@ -968,31 +1368,36 @@ class Core:
             self._bad()
             return
         self.emcy_code = int.from_bytes(data[0:2], "little")
+        if self.emcy_code in (EMCY_MASTER_LOST, EMCY_TRANSMIT_BLOCKED):
+            self.stop_emcy = self.emcy_code
+            if self.stop_seen is not None:
+                self._stopped()
 
     def _heartbeat(self, data: bytes, now: float) -> None:
         if len(data) != 1:
             self._bad()
             return
         state = data[0] & 0x7F
+        if state != OPERATIONAL:
+            self.left_operational = True
         if state == BOOTUP:
-            # A (re)started device: everything it had is gone.
-            self.configured = False
-            self.config_due = self.now
-            self.baseline = True
-            self.record = None
-            self.record_time = None
-            self.suspect = False
-            self.epochs_shown = False
+            # A (re)started device: everything it had is gone, the session too.
+            if self.feed_on and not self.asked_off:
+                self._report_stop(STOP_SESSION_ENDED)
+            self._drop_session("the device booted")
             self.emcy_code = 0
             if isinstance(self.pending, Configure):
                 # Its outcome counts only if the device answered it after this boot-up
                 # (`done`); another one now would only run after it, in the same worker.
                 self.booted_during = self.now
-        elif state == PRE_OPERATIONAL and self.configured and self.pending is None:
-            # Someone (or a missed boot-up) left it Pre-operational: configure and start.
-            self.configured = False
-            self.config_due = self.now
-            self.epochs_shown = False
+        elif state in (PRE_OPERATIONAL, STOPPED):
+            if self.feed_on and not self.asked_off:
+                self._report_stop(STOP_NOT_OPERATIONAL)
+            configuring = isinstance(self.pending, Configure) and self.pending.keep is None
+            if state == PRE_OPERATIONAL and self.session is not None and not configuring:
+                # Someone (or a missed boot-up) left it Pre-operational: configure and start
+                # (a configuration under way ends with the start itself).
+                self._drop_session("the device is Pre-operational")
         self.state = state
 
 
@@ -1067,8 +1472,19 @@ COMPONENT_PINS = [
         "out",
         "counts the run-on mode dropped because the axis could not move them within the budget",
     ),
-    ("connected", "bit", "out", "feed records arrive (none for three event-timer periods: false)"),
-    ("feed-enabled", "bit", "out", "the device reports feed enabled (status bit 0)"),
+    (
+        "connected",
+        "bit",
+        "out",
+        "feed records of the component's session arrive (none for three event-timer periods: "
+        "false)",
+    ),
+    (
+        "feed-enabled",
+        "bit",
+        "out",
+        "the newest record is of the component's session and shows feed enabled (status bit 0)",
+    ),
     ("encoder-error", "bit", "out", "illegal quadrature transition in this epoch (status bit 1)"),
     ("axis", "s32", "out", "the device's axis switch: 0 none, 1..5 = X, Y, Z, W, V"),
     ("multiplier", "s32", "out", "1, 10 or 100"),
@@ -1078,16 +1494,29 @@ COMPONENT_PINS = [
         "records-lost",
         "s32",
         "out",
-        "feed records missed or dropped by the device (gaps in the sequence byte)",
+        "feed records missed or dropped by the device (gaps in the feed sequence)",
     ),
     (
         "frames-bad",
         "s32",
         "out",
         "frames the device cannot send (wrong DLC, impossible record, motion beyond "
-        "`--max-detents-per-s`); no motion from them",
+        "`--max-detents-per-s`) and copies of earlier records; no motion from them",
     ),
     ("state", "s32", "out", "the device's last heartbeat state (5 Operational), -1 before any"),
+    (
+        "feed-stops",
+        "s32",
+        "out",
+        "feed stops by the device the component did not ask for (each also logged with its reason)",
+    ),
+    (
+        "stop-reason",
+        "s32",
+        "out",
+        "the last such stop's reason: 0 none yet, 1 master heartbeat lost, 2 transmit path "
+        "blocked, 3 disabled by a master write, 4 the device left Operational, 5 session ended",
+    ),
 ]
 
 
@@ -1109,6 +1538,21 @@ def pin_table(axes: str) -> List[Tuple[str, str, str]]:
 
 # Replaying events ----------------------------------------------------------------------------
 
+
+def configure_outcome(action: Configure, found: int, event_timer: float):
+    """(ok, `Configured`): what carrying out `action` on a device whose 0x2002 reads `found`
+    and whose every write succeeds reports: intact when `found` is the session to keep,
+    else the token `pick_token` gives written and read back (none: failed), the event timer
+    `event_timer` (s) read back."""
+    if action.keep is not None and found == action.keep:
+        return True, Configured(found=found, intact=True, session=found)
+    token = pick_token(action.tokens, found)
+    if token is None:
+        return False, Configured(found=found)
+    ms = round(event_timer * 1000)
+    return True, Configured(event_timer_ms=ms, found=found, tried=token, session=token)
+
+
 Event = tuple  # ("frame", cob_id, data, t) | ("drained", t) | ("tick", t) | ("enable", bool)
 
 
@@ -1116,13 +1560,25 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     """A `Core` (of `cfg`, default `Config()`) after `events`, each handled as the shell
     does in a round of its own: the event, then `publish` at its time. Events:
     ("frame", cob_id, data, t), ("drained", t), ("tick", t), ("enable", bool),
-    ("position-mode", bool), ("velocity-mode", bool). Times never go backwards in a real
-    run; the core takes the latest time it was given. A malformed event raises `ValueError`
-    (a vector's mistake, not the bus's)."""
+    ("position-mode", bool), ("velocity-mode", bool), and ("configure", found, t): the
+    configuration the core asks for at `t` carried out at once on a device whose 0x2002 reads
+    `found` (`configure_outcome`: the session kept if it is the core's, else the token
+    `pick_token` gives written), so that the records after it can carry the core's session.
+    Times never go backwards in a real run; the core takes the latest time it was given. A
+    malformed event, or a "configure" when the core asks for none, raises `ValueError` (a
+    vector's mistake, not the bus's)."""
     c = Core(cfg or Config())
     for event in events:
         kind = event[0] if isinstance(event, (tuple, list)) and event else None
-        if kind == "frame" and len(event) == 4:
+        if kind == "configure" and len(event) == 3:
+            _, found, t = event
+            action = c.next_action(float(t))
+            if not isinstance(action, Configure):
+                raise ValueError(f"no configuration due at {t}: {action!r}")
+            ok, result = configure_outcome(action, int(found), c.event_timer)
+            c.done(action, ok, None, float(t), result)
+            c.publish(float(t))
+        elif kind == "frame" and len(event) == 4:
             _, cob_id, data, t = event
             c.frame(int(cob_id), bytes(data), float(t))
             c.publish(float(t))
