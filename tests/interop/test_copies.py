@@ -39,8 +39,9 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, List, Optional
+from typing import Callable, Iterator, List, Optional
 
 import pytest
 
@@ -232,31 +233,32 @@ def board(request, tmp_path):
         yield b
 
 
-def start(board: BoardProcess, tmp: Path, mult: int = 1) -> Host:
-    """The component on X at `mult`, the feed enabled."""
+@contextmanager
+def started(board: BoardProcess, tmp: Path, mult: int = 1) -> Iterator[Host]:
+    """The component on X at `mult`, the feed enabled; closed (with the relay) on exit."""
     host = Host(board, tmp)
-    host.stim.axis("x")
-    host.stim.mult(mult)
-    host.must(host.enabled, 60, "jog-enable of X (configured, started, feed enabled)")
-    return host
+    try:
+        host.stim.axis("x")
+        host.stim.mult(mult)
+        host.must(host.enabled, 60, "jog-enable of X (configured, started, feed enabled)")
+        yield host
+    finally:
+        host.close()
+        # Shown with a failure (pytest prints a failed test's output).
+        tail = "\n".join(host.log().splitlines()[-40:])
+        print(f"--- last lines of {host.log_path} ---\n{tail}")
 
 
 @pytest.fixture
 def host(board, tmp_path):
-    h = start(board, tmp_path)
-    try:
+    with started(board, tmp_path) as h:
         yield h
-    finally:
-        h.close()
 
 
 @pytest.fixture
 def host100(board, tmp_path):
-    h = start(board, tmp_path, mult=100)
-    try:
+    with started(board, tmp_path, mult=100) as h:
         yield h
-    finally:
-        h.close()
 
 
 # Finding 1 ------------------------------------------------------------------------------------
