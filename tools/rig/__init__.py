@@ -11,7 +11,9 @@ host component's `canopen_handwheel.core.Record` (standard library only).
   TPDO1 as a `Record`);
 - `emulator`: `free_ports`, `Qemu` (`cargo xtask qemu` in its own process group),
   `Stimulus` (the stimulus port), `connect_bus` (python-can's slcan bus on the CAN port);
-- `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`.
+- `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`;
+- `relay` (imported as `rig.relay`, not re-exported): `Relay`, an SLCAN relay between one
+  client (the host component) and the emulator that drops, copies and adds frames.
 """
 
 from .constants import (

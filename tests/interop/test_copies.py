@@ -1,0 +1,644 @@
+"""Issue 34, findings 1-5: the host component (`host/src`, LinuxCNC's `hal` replaced by
+host/tests/fake_hal.py, which logs every pin change with its time) against the release image
+on the emulated board, through the SLCAN relay of tools/rig/relay.py, which drops frames,
+re-sends exact copies of genuine feed records and speaks as another node.
+
+Each test asserts the feed contract as it must hold once issue 34 is fixed (the README's
+"lost, duplicated and replayed frames never move an axis"), and each failed on the code the
+issue was filed against, with the failure its docstring names:
+
+1. copies of genuine X records of any age (k records back, k around every wrap of the
+   sequence byte and beyond it) never move X backwards, never credit more than was turned,
+   and never leave the wheel dead (the next detent is credited at once);
+2. a Y record 255 records and 7 selector moves old, re-sent while X is selected, never moves Y;
+3. after a power cycle whose boot-up the component missed, started by another node's NMT
+   start, the component configures the device (0x1016 written and read back) before it
+   enables the feed again, and a stopped component then makes the device stop the feed;
+4. a quick power cycle costs no more than the component's configuration: every detent turned
+   after the feed is enabled again is credited, the first one soon after the configuration,
+   and no frame counts as bad;
+5. a feed stop by a blocked transmit path is reported: the device's EMCY 0x8100 once its
+   frames get out, the component's `feed stopped by the device` log line naming the transmit
+   path, its `feed-stops` pin counting 1 and `stop-reason` showing 2.
+
+Names the fix introduces (the `feed-stops` and `stop-reason` pins, the log line, EMCY 0x8100)
+are those of the issue's design. The records are read with the component's own decoder
+(`canopen_handwheel.core.Record`), whatever their layout; the relay decodes none.
+
+Board only (the fixture starts a `BoardProcess`): `power` and `hold` are the board's; the
+board's stimulus turns a detent in 2.4 ms (four edges 600 us apart), so at the default 2 ms
+inhibit time every detent of a `turn` is a feed record of its own, about 400 a second of the
+board's time (which runs slower than the host's on a busy machine).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterator, List, Optional
+
+import pytest
+
+from canopen_handwheel.core import Record
+from conftest import BoardProcess, stopped_after
+from rig import (
+    AXES,
+    BOOTUP,
+    EMCY,
+    FRAME_TIMEOUT,
+    HEARTBEAT,
+    NMT,
+    NMT_START,
+    OPERATIONAL,
+    ROOT,
+    SDO_RX,
+    START_TIMEOUT,
+    TPDO1,
+    Frame,
+    Stimulus,
+)
+from rig.relay import Relay, is_bootup
+from test_host_component import COMPONENT_RUN
+
+CONSUMER_TIMEOUT = 0.5  # what the component tells the device: 5 x its 100 ms heartbeat
+EMCY_MASTER_LOST = 0x8130
+EMCY_TRANSMIT_BLOCKED = 0x8100  # the issue's design, section 5
+STOP_TRANSMIT_BLOCKED = 2  # `stop-reason` for it
+
+
+def decode(frame: Frame) -> Record:
+    return Record.decode(bytes(frame.data))
+
+
+class HalLog:
+    """The component's pin changes as fake_hal writes them (`<time> <pin> <value>`), read
+    incrementally: `values` is the newest of every pin, `changes` all of them in order."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.path.write_text("")
+        self._offset = 0
+        self._rest = b""
+        self.changes: List[tuple] = []  # (time, pin, value as written)
+        self.values: dict = {}
+
+    def poll(self) -> None:
+        with open(self.path, "rb") as f:
+            f.seek(self._offset)
+            data = f.read()
+        self._offset += len(data)
+        *lines, self._rest = (self._rest + data).split(b"\n")
+        for line in lines:
+            t, pin, value = line.decode().split(" ")
+            self.changes.append((float(t), pin, value))
+            self.values[pin] = value
+
+    def value(self, pin: str) -> Optional[str]:
+        self.poll()
+        return self.values.get(pin)
+
+    def number(self, pin: str) -> int:
+        """An integer pin's newest value (0 before any change is logged)."""
+        return int(self.value(pin) or 0)
+
+    def history(self, pin: str, since: float = 0.0) -> List[tuple]:
+        """(time, value) of the pin's changes at or after `since`."""
+        self.poll()
+        return [(t, v) for t, p, v in self.changes if p == pin and t >= since]
+
+    def at(self, pin: str, when: float) -> Optional[str]:
+        """The pin's value as it was at `when`."""
+        self.poll()
+        value = None
+        for t, p, v in self.changes:
+            if t > when:
+                break
+            if p == pin:
+                value = v
+        return value
+
+
+class Host:
+    """The emulated board, the relay on its CAN port, the stimulus line and the component
+    on the relay's channel (`enable` true)."""
+
+    def __init__(self, board: BoardProcess, tmp: Path) -> None:
+        self.board = board
+        self.relay = Relay(board)
+        self.relay.device.wait_id(HEARTBEAT, bytes([BOOTUP]), timeout=START_TIMEOUT)
+        self.stim = Stimulus(board.stim_port, board)
+        self.hal = HalLog(tmp / "hal.log")
+        self.log_path = tmp / "component.log"
+        self.err = open(self.log_path, "w")
+        script = COMPONENT_RUN.format(
+            tests=str(ROOT / "host" / "tests"), src=str(ROOT / "host" / "src")
+        )
+        env = dict(os.environ, FAKE_HAL_LOG=str(self.hal.path), FAKE_HAL_SET="enable=1")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", script, "--interface", "slcan", "--channel"]
+            + [self.relay.channel, "--axes", "xyz"],
+            env=env,
+            stderr=self.err,
+        )
+
+    # Waiting ---------------------------------------------------------------------------------
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait(self, pred: Callable[[], bool], timeout: float) -> bool:
+        """Polls `pred` (the pins' log, the relay's records) until true or `timeout`."""
+        deadline = time.monotonic() + timeout
+        while True:
+            if pred():
+                return True
+            assert self.proc.poll() is None, f"the component ended:\n{self.log()[-3000:]}"
+            self.relay.check()
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.005)
+
+    def must(self, pred: Callable[[], bool], timeout: float, what: str) -> None:
+        assert self.wait(pred, timeout), f"no {what} within {timeout} s:\n{self.log()[-3000:]}"
+
+    def counts(self, axis: str) -> int:
+        return self.hal.number(f"axis.{axis}.jog-counts")
+
+    def enabled(self, axis: str = "x") -> bool:
+        return self.hal.value(f"axis.{axis}.jog-enable") == "True"
+
+    def newest(self) -> Frame:
+        newest = self.relay.newest_record()
+        assert newest is not None, "no feed record yet"
+        return newest
+
+    def caught_up(self) -> bool:
+        """The component shows the newest genuine record's position (it took it)."""
+        newest = self.relay.newest_record()
+        return newest is not None and self.hal.number("position") == decode(newest).position
+
+    def select(self, axis: str) -> int:
+        """Moves the switch; returns the index (in `relay.records`) of the first record that
+        shows the new axis."""
+        mark = self.relay.record_count()
+        self.stim.axis(axis)
+        found: List[Frame] = []
+
+        def shown() -> bool:
+            found[:] = [f for f in self.relay.records_since(mark) if decode(f).axis == AXES[axis]]
+            return bool(found)
+
+        self.must(shown, FRAME_TIMEOUT, f"feed record showing axis {axis}")
+        return found[0].seq
+
+    def first_enabled(
+        self, since: int = 0, after: float = 0.0, timeout: float = FRAME_TIMEOUT
+    ) -> Frame:
+        """The first record with the feed enabled at index `since` or later, received
+        after the time `after`."""
+        found: List[Frame] = []
+
+        def shown() -> bool:
+            found[:] = [
+                f for f in self.relay.records_since(since) if f.t > after and decode(f).enabled
+            ]
+            return bool(found)
+
+        self.must(shown, timeout, "enabled feed record")
+        return found[0]
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGCONT)
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.err.close()
+        self.stim.close()
+        self.relay.close()
+
+
+@pytest.fixture(params=["board"])  # `-k board` selects these with the suite's board runs
+def board(request, tmp_path):
+    with stopped_after(request, BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")) as b:
+        yield b
+
+
+@contextmanager
+def started(board: BoardProcess, tmp: Path, mult: int = 1) -> Iterator[Host]:
+    """The component on X at `mult`, the feed enabled; closed (with the relay) on exit."""
+    host = Host(board, tmp)
+    try:
+        host.stim.axis("x")
+        host.stim.mult(mult)
+        host.must(host.enabled, 60, "jog-enable of X (configured, started, feed enabled)")
+        yield host
+    finally:
+        host.close()
+        # Shown with a failure (pytest prints a failed test's output).
+        tail = "\n".join(host.log().splitlines()[-40:])
+        print(f"--- last lines of {host.log_path} ---\n{tail}")
+
+
+@pytest.fixture
+def host(board, tmp_path):
+    with started(board, tmp_path) as h:
+        yield h
+
+
+@pytest.fixture
+def host100(board, tmp_path):
+    with started(board, tmp_path, mult=100) as h:
+        yield h
+
+
+# Finding 1 ------------------------------------------------------------------------------------
+
+# How far back the copies are: around every wrap of an 8-bit sequence (128, 256, 512), the
+# 249..255 that read as "a few ahead", and far beyond it (1000 records: 2.5 s of turning).
+COPY_AGES = (1000, 129, 200, 249, 250, 255, 256, 257, 511, 512)
+TURN = 40  # detents turned fast before each copy (more come before the first)
+# The detent after a copy must be credited this soon after its record passed the relay.
+LIVELY = 0.5
+# The component's view of the newest record once it has passed the relay (a busy host).
+CATCH_UP = 3.0
+
+
+def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
+    """Finding 1: X turned fast at x100 (a record a detent at the 2 ms inhibit time); for
+    every k of COPY_AGES, with X at rest, the genuine record from k records back is re-sent
+    once, right after a genuine record, and then one detent is turned. Per k, X's counts
+    never step back, never exceed what the records since the k's start say was turned, and
+    the detent after the copy is credited (exactly its 100 counts) within LIVELY of its record
+    passing the relay: the wheel is not dead. Over all, X is credited at most what was turned
+    while enabled (exactly that unless a busy host made the component take a record from a
+    backlog, a baseline). Before the fix a copy 249-255 (or 511) back read as a few records
+    ahead and was credited backwards, 129-248 (and 1000) back became the reference and left
+    the wheel dead for up to 2 s, 256 (512) back had the newest's sequence number, a bad
+    record that made the next one a baseline."""
+    h = host100
+    relay = h.relay
+    first = h.first_enabled().seq  # copies only of records of the feed enabled
+    report = []
+    h.wait(h.caught_up, CATCH_UP)
+    total_counts, total_position = h.counts("x"), decode(h.newest()).position
+    for k in COPY_AGES:
+        # In step: the component took the newest record (a copy before may have left it
+        # waiting out its order reference).
+        h.wait(h.caught_up, CATCH_UP)
+        start_counts = h.counts("x")
+        start_position = decode(h.newest()).position
+        since = time.monotonic()
+        # Fast turning: at least k records of the enabled feed, and some motion each time.
+        h.stim.turn(TURN)
+        while relay.record_count() - first <= k + 2:
+            h.stim.turn(min(300, k + 3 - (relay.record_count() - first)))
+        h.must(h.caught_up, CATCH_UP, "the component at the newest record after the turn")
+        copy = relay.replay(k, since=first)
+        assert copy.wait(FRAME_TIMEOUT), f"the copy {k} back was never sent"
+        counts = h.counts("x")
+        before = decode(h.newest()).position
+        mark = relay.device.mark()
+        h.stim.turn(1)
+        detent = relay.device.wait_for(
+            lambda f, b=before: f.id == TPDO1 and decode(f).position == b + 100,
+            since=mark,
+            what="the record of the detent after the copy",
+        )
+        lively = h.wait(lambda c=counts: h.counts("x") == c + 100, LIVELY)
+        late = time.monotonic() - detent.t
+        truth = before + 100 - start_position
+        values = [start_counts] + [int(v) for _, v in h.hal.history("axis.x.jog-counts", since)]
+        backwards = [b - a for a, b in zip(values, values[1:]) if b < a]
+        over = [v - start_counts for v in values if v - start_counts > truth]
+        problems = []
+        if backwards:
+            problems.append(f"stepped back {backwards}")
+        if over:
+            problems.append(f"credited {max(over)} of {truth} turned")
+        if not lively:
+            problems.append(
+                f"the detent after the copy not credited {late:.2f} s after its record "
+                f"(X {h.counts('x') - counts:+d})"
+            )
+        if problems:
+            copied, newest = decode(copy.copy), decode(copy.newest)
+            report.append(
+                f"k={k} (copy: position {copied.position} sequence {copied.sequence}, after "
+                f"position {newest.position} sequence {newest.sequence}): " + "; ".join(problems)
+            )
+    h.wait(h.caught_up, CATCH_UP)
+    turned = decode(h.newest()).position - total_position
+    credited = h.counts("x") - total_counts
+    print(f"X credited {credited} of {turned} turned, {len(COPY_AGES)} copies")
+    assert not report, "copies moved X:\n" + "\n".join(report)
+    assert credited <= turned
+
+
+# Finding 2 ------------------------------------------------------------------------------------
+
+# Copies of records of the first Y selection, this many records back: 255 brought the 8-bit
+# sequence round to "the next one"; the others are its neighbours.
+Y_COPY_AGES = (255, 254, 256, 253, 257)
+SWITCH_MOVES = "xyxyxyx"  # from Y: seven moves, ending on X
+
+
+def test_a_y_record_seven_moves_and_255_records_old_never_moves_y(host):
+    """Finding 2: Y selected and turned 3 detents (credited), a few records at rest; then 7
+    switch moves (X, Y, ... X: the 3-bit epoch comes round) and X turned fast; a record of
+    that first Y selection is re-sent while X is selected, exactly 255 records after it
+    (then 254, 256, 253 and 257). Y's counts must not change, X's never step back. Before
+    the fix the 255-back copy read as the previous epoch's final record, the one right
+    after the newest, and Y was credited minus all the motion since."""
+    h = host
+    relay = h.relay
+    y_first = h.select("y")
+    h.stim.turn(3)
+    h.must(lambda: h.counts("y") == 3, FRAME_TIMEOUT, "Y +3")
+    # A few more records of this selection at rest (the event timer's).
+    h.must(lambda: relay.record_count() - y_first >= 8, FRAME_TIMEOUT, "8 records of Y")
+    y_last = relay.record_count() - 1
+    y_records = relay.records_since(y_first)[: y_last - y_first + 1]
+    assert all(decode(f).axis == AXES["y"] for f in y_records)
+    y_counts = h.counts("y")
+    x_counts = h.counts("x")
+    moves_at = time.monotonic()
+    for axis in SWITCH_MOVES:
+        h.select(axis)
+    h.must(lambda: h.enabled("x"), FRAME_TIMEOUT, "jog-enable of X after the moves")
+
+    def of_y(copy: Frame, newest: Frame) -> bool:
+        return y_first <= copy.seq <= y_last
+
+    copies = [relay.replay(k, source=of_y) for k in Y_COPY_AGES]
+    for _ in range(20):
+        if copies[-1].fired.is_set():
+            break
+        h.stim.turn(50)
+    assert all(c.fired.is_set() for c in copies), f"copies not sent: {copies}"
+    h.must(h.caught_up, CATCH_UP, "the component at the newest record")
+    y_changes = h.hal.history("axis.y.jog-counts", moves_at)
+    x_values = [x_counts] + [int(v) for _, v in h.hal.history("axis.x.jog-counts", moves_at)]
+    x_back = [b - a for a, b in zip(x_values, x_values[1:]) if b < a]
+    sent = [
+        f"{c.back} back: sequence {decode(c.copy).sequence} after {decode(c.newest).sequence}"
+        for c in copies
+    ]
+    assert y_changes == [] and h.counts("y") == y_counts, (
+        f"Y moved while X was selected: {y_counts} -> {h.counts('y')} "
+        f"(changes {y_changes}); copies {sent}"
+    )
+    assert not x_back, f"X stepped back {x_back}; copies {sent}"
+
+
+# Finding 3 ------------------------------------------------------------------------------------
+
+UPLOAD = 0x40
+DOWNLOAD = 0x20
+
+
+def sdo_requests(frames: List[Frame]) -> List[tuple]:
+    """(time, "up"/"down", index, sub, data bytes 4-7) of the SDO initiate requests sent to
+    the device."""
+    out = []
+    for f in frames:
+        if f.id != SDO_RX or len(f.data) != 8:
+            continue
+        kind = {UPLOAD: "up", DOWNLOAD: "down"}.get(f.data[0] & 0xE0)
+        if kind is not None:
+            out.append((f.t, kind, f.data[1] | f.data[2] << 8, f.data[3], f.data[4:8]))
+    return out
+
+
+def configuration_before_enable(frames: List[Frame]) -> Optional[str]:
+    """Why the requests in `frames` do not configure the device before the first 0x2000 = 1
+    (a 0x1016 entry written, then read back), or None."""
+    requests = sdo_requests(frames)
+    enable = next(
+        (i for i, r in enumerate(requests) if r[1:4] == ("down", 0x2000, 0) and r[4][0] == 1),
+        None,
+    )
+    if enable is None:
+        return "no 0x2000 = 1 written"
+    before = requests[:enable]
+    written = [(i, r[3]) for i, r in enumerate(before) if r[1:3] == ("down", 0x1016)]
+    read_back = [
+        sub for i, sub in written if any(r[1:4] == ("up", 0x1016, sub) for r in before[i + 1 :])
+    ]
+    if read_back:
+        return None
+    shown = [f"{r[1]} {r[2]:04X}:{r[3]}" for r in before[-12:]] or ["nothing"]
+    return (
+        f"0x2000 = 1 written with no 0x1016 entry written and read back before it since the "
+        f"power cycle (requests before it: {', '.join(shown)})"
+    )
+
+
+FREEZE = 1.5  # s the component is stopped
+FROZEN_DETENTS = 6  # one every 50 ms while frozen
+STOP_SLACK = 0.3  # s beyond the consumer timeout: reading the board's clock
+
+
+def board_ms(board: BoardProcess) -> float:
+    """The board's emulated time, ms since its power-on."""
+    return float(board.status()["ms"])
+
+
+def test_a_device_started_by_another_node_after_a_lost_boot_up_is_configured(host, board):
+    """Finding 3: board `power`, the boot-up dropped by the relay, then an NMT "start all"
+    from another node (the test, on the bus): the component must configure the device
+    (0x1016 written and read back) before it writes 0x2000 = 1, and say so in its log. Then
+    the component is stopped (SIGSTOP, 1.5 s) while X turns a detent every 50 ms for 0.3 s:
+    the device must stop the feed (a record with status bit 3, EMCY 0x8130) within the
+    consumer timeout of the freeze on the board's clock (plus STOP_SLACK: the clock is read
+    over the control line). Before the fix the component only wrote 0x2000 = 1 and the
+    device, with no consumer entry, kept feeding."""
+    h = host
+    relay = h.relay
+    boot = relay.drop(is_bootup())
+    device_mark, host_mark = relay.device.mark(), relay.host.mark()
+    records_mark = relay.record_count()
+    log_start = len(h.log())
+    board.control("power")
+    assert boot.wait(FRAME_TIMEOUT), "no boot-up after the power cycle"
+    relay.send(NMT, bytes([NMT_START, 0]))
+    relay.device.wait_id(HEARTBEAT, bytes([OPERATIONAL]), since=device_mark)
+    # The feed enabled again (only the component writes 0x2000 = 1).
+    enabled = h.first_enabled(records_mark, after=boot.frames[0].t, timeout=10)
+    problems = []
+    why = configuration_before_enable(relay.host.frames(since=host_mark))
+    if why is not None:
+        problems.append(why)
+    if not re.search(r"configured", h.log()[log_start:]):
+        problems.append("the component's log says nothing configured after the power cycle")
+    # Frozen while turning (the stop comes at the earliest 0.4 s on: the turning is over).
+    stop_mark = relay.device.mark()
+    h.proc.send_signal(signal.SIGSTOP)
+    frozen = time.monotonic()
+    try:
+        frozen_ms = board_ms(board)
+        for i in range(FROZEN_DETENTS):
+            h.stim.turn(1)
+            time.sleep(max(0.0, frozen + 0.05 * (i + 1) - time.monotonic()))
+        stopped = h.wait(
+            lambda: any(decode(f).master_lost for f in relay.device.frames(TPDO1, stop_mark)),
+            frozen + FREEZE - time.monotonic(),
+        )
+        stopped_ms = board_ms(board)
+        time.sleep(max(0.0, frozen + FREEZE - time.monotonic()))
+    finally:
+        h.proc.send_signal(signal.SIGCONT)
+    after = relay.device.frames(since=stop_mark)
+    records = [f for f in after if f.id == TPDO1]
+    master_lost = EMCY_MASTER_LOST.to_bytes(2, "little")
+    emcy = [f for f in after if f.id == EMCY and f.data[:2] == master_lost]
+    if not stopped or not emcy:
+        fed = sum(1 for f in records if decode(f).enabled)
+        problems.append(
+            f"the device kept feeding with the component stopped {FREEZE} s: {fed} enabled "
+            f"records of {len(records)}, {'one' if stopped else 'none'} with status bit 3, "
+            f"{'no' if not emcy else 'an'} EMCY 0x8130"
+        )
+    else:
+        # On the board's clock: from the freeze (the last heartbeat was before it) to a
+        # moment after the record showed the stop.
+        delay = (stopped_ms - frozen_ms) / 1000
+        print(f"feed stopped within {delay:.3f} s of the board's time after the freeze")
+        if delay > CONSUMER_TIMEOUT + STOP_SLACK:
+            problems.append(f"the feed stopped {delay:.3f} s after the freeze (board's time)")
+    print(f"power cycle: feed enabled again {enabled.t - boot.frames[0].t:.3f} s after the boot-up")
+    assert not problems, "\n".join(problems)
+
+
+# Finding 4 ------------------------------------------------------------------------------------
+
+DETENT_PERIOD = 0.05  # one detent per 50 ms from the power-on
+DETENTS = 60
+# From the end of the configuration (the component's NMT start) to the first credit: the
+# record that shows the device started, 0x2000 = 1 and its record, the next detent (50 ms).
+CREDIT_SLACK = 0.4
+
+
+def test_a_quick_power_cycle_costs_only_the_configuration(host, board):
+    """Finding 4: the sequence brought to 100..130 records (the last record before the
+    cut), then board `power` while X turns a detent every 50 ms from the power-on for 3 s.
+    After the component reconfigured the device, every detent turned after the feed is
+    enabled again is credited, the first credit comes at most CREDIT_SLACK after the end of
+    the configuration (its NMT start), every detent turned from then on is credited, and
+    `frames-bad` does not rise. Before the fix the
+    new life's records (sequence 8 on) lay 1..128 behind the old reference, which outlived
+    the boot-up for 2 s: the wheel was dead for 2 s and every such record counted bad."""
+    h = host
+    relay = h.relay
+    while decode(h.newest()).sequence < 100:
+        h.stim.turn(min(10, 100 - decode(h.newest()).sequence))
+        h.must(h.caught_up, CATCH_UP, "the component at the newest record")
+    last_sequence = decode(h.newest()).sequence
+    bad_before = h.hal.number("frames-bad")
+    device_mark, host_mark = relay.device.mark(), relay.host.mark()
+    records_mark = relay.record_count()
+    board.control("power")
+    powered = time.monotonic()
+    turned: List[float] = []  # when each detent's `turn` was answered (its edges were before)
+    for i in range(DETENTS):
+        h.stim.turn(1)
+        turned.append(time.monotonic())
+        time.sleep(max(0.0, powered + DETENT_PERIOD * (i + 1) - time.monotonic()))
+    boot = relay.device.wait_id(HEARTBEAT, bytes([BOOTUP]), since=device_mark)
+    h.must(h.caught_up, CATCH_UP, "the component at the newest record after the turning")
+    start = relay.host.wait_for(
+        lambda f: f.id == NMT and f.data[:1] == bytes([NMT_START]) and f.t > boot.t,
+        since=host_mark,
+        what="the component's NMT start after the boot-up",
+    )
+    enabled = h.first_enabled(records_mark, after=boot.t)
+    truth = decode(h.newest()).position - decode(enabled).position
+    counts_at_boot = int(h.hal.at("axis.x.jog-counts", boot.t) or 0)
+    credited = h.counts("x") - counts_at_boot
+    credits = h.hal.history("axis.x.jog-counts", boot.t)
+    configured = start.t - boot.t
+    first_credit = credits[0][0] - boot.t if credits else None
+    bad = h.hal.number("frames-bad") - bad_before
+    # Detents turned well after the configuration ended: the feed was enabled by then.
+    due = sum(1 for t in turned if t > start.t + CREDIT_SLACK)
+    print(
+        f"power cycle after sequence {last_sequence}: configured {configured:.3f} s after the "
+        f"boot-up, feed enabled {enabled.t - boot.t:.3f} s, first credit "
+        f"{'never' if first_credit is None else f'{first_credit:.3f} s'}; credited "
+        f"{credited} of {truth} (of {due} turned from {CREDIT_SLACK} s after the configuration "
+        f"on); frames-bad +{bad}"
+    )
+    problems = []
+    if first_credit is None or first_credit > configured + CREDIT_SLACK:
+        problems.append(
+            f"first credit {'never' if first_credit is None else f'{first_credit:.3f} s'} "
+            f"after the boot-up, the configuration took {configured:.3f} s"
+        )
+    if credited != truth:
+        problems.append(f"credited {credited} of {truth} turned with the feed enabled")
+    if credited < due:
+        problems.append(
+            f"credited {credited} of the {due} detents turned from {CREDIT_SLACK} s after the "
+            "configuration on"
+        )
+    if bad:
+        problems.append(f"frames-bad +{bad} for a healthy device")
+    assert not problems, f"after sequence {last_sequence}: " + "; ".join(problems)
+
+
+# Finding 5 ------------------------------------------------------------------------------------
+
+HOLD_MS = 150
+
+
+def test_a_feed_stop_by_a_blocked_transmit_path_is_reported(host, board):
+    """Finding 5: a 150 ms bus hold (`hold`: the node's frames wait, the master's pass)
+    while the feed is enabled and X turns: the device stops the feed after 100 ms and, once
+    its frames get out again, sends EMCY 0x8100 (manufacturer byte 0 = 0x01); the component
+    logs `feed stopped by the device: ...` naming the transmit path, its `feed-stops` pin
+    counts 1 and `stop-reason` shows 2. Before the fix nothing told: no EMCY, no log line,
+    no pin, and the component enabled the feed again within milliseconds."""
+    h = host
+    relay = h.relay
+    counts = h.counts("x")
+    h.stim.turn(1)
+    h.must(lambda: h.counts("x") == counts + 1, FRAME_TIMEOUT, "X +1")
+    device_mark = relay.device.mark()
+    log_start = len(h.log())
+    held = time.monotonic()
+    board.control(f"hold {HOLD_MS}")
+    for _ in range(4):
+        h.stim.turn(1)  # 25 ms after its last edge on the board's clock
+    problems = []
+    try:
+        emcy = relay.device.wait_for(
+            lambda f: f.id == EMCY and f.data[:2] == EMCY_TRANSMIT_BLOCKED.to_bytes(2, "little"),
+            since=device_mark,
+            what="EMCY 0x8100",
+        )
+        if emcy.data[3] != 0x01:
+            problems.append(f"EMCY 0x8100 with manufacturer byte {emcy.data[3]:#04x}: {emcy}")
+    except AssertionError:
+        emcies = relay.device.frames(EMCY, since=device_mark)
+        problems.append(f"no EMCY 0x8100 after the hold (EMCYs: {emcies})")
+    line = re.compile(r"^canopen-handwheel: feed stopped by the device\b.*transmit", re.M | re.I)
+    if not h.wait(lambda: bool(line.search(h.log()[log_start:])), 2.0):
+        problems.append(
+            "no log line `feed stopped by the device: ...` naming the transmit path; since "
+            f"the hold: {h.log()[log_start:].strip()!r}"
+        )
+    if not h.wait(lambda: h.hal.value("feed-stops") == "1", 2.0):
+        problems.append(f"feed-stops is {h.hal.value('feed-stops')}, not 1")
+    reasons = [v for _, v in h.hal.history("stop-reason", held)]
+    if str(STOP_TRANSMIT_BLOCKED) not in reasons:
+        problems.append(f"stop-reason never showed {STOP_TRANSMIT_BLOCKED} (changes {reasons})")
+    assert not problems, "the stop by the held bus went unreported:\n" + "\n".join(problems)
