@@ -9,6 +9,7 @@
 
 mod flash_bench;
 
+use canopen_slave::Instant;
 use flash_bench::{Cut, CutFlash, Node, LOAD, SAVE};
 use handwheel_device::page::ERASE_INTERVAL_MS;
 
@@ -193,4 +194,82 @@ fn repeated_cut_moves_are_charged_and_bounded() {
     let mut node = Node::boot(flash.powered_up());
     assert_eq!(node.state().heartbeat, 105, "the sixth save's");
     assert!(covers(node.debt, flash.erases));
+}
+
+/// How a device waits after a run of cut moves before it stores again.
+#[derive(Clone, Copy, Debug)]
+enum Then {
+    /// Stores right after the power-on.
+    PowerOn,
+    /// Stores after an NMT reset node.
+    ResetNode,
+    /// Stores after nine days of powered time: every erase of the budget paid back.
+    NineDays,
+}
+
+/// Issue 34, finding 7: the page full, seven moves in a row each cut inside their first
+/// flash operation (the first inside the record's first half-word on the spare page, each
+/// later one inside what it writes before the spare page's erase). No erase ever began, so
+/// nothing of the budget is spent: after a power-on, a reset node or nine powered days, a
+/// changed save and a restore defaults are accepted and stored.
+#[test]
+#[ignore = "issue 34 item 7: the parameter store locks; un-ignored by the fix"]
+fn seven_moves_cut_inside_their_first_flash_operation_leave_the_store_usable() {
+    let mut flash = prepared(6);
+    for run in 0..7u64 {
+        let mut cutting = flash.powered_up();
+        cutting.cut = Some(Cut::Inside(0, run * 7919 + 1));
+        let mut node = Node::boot(cutting);
+        let _ = save(&mut node, 900 + run as u16);
+        flash = node.flash();
+        assert!(flash.dead, "move {run} was cut");
+    }
+    assert_eq!(flash.erases, 0, "no erase began");
+    let mut refused = Vec::new();
+    for then in [Then::PowerOn, Then::ResetNode, Then::NineDays] {
+        // A few power cycles first: none of them may change what the store does.
+        let mut booted = flash.powered_up();
+        for _ in 0..3 {
+            let mut node = Node::boot(booted.powered_up());
+            assert_eq!(node.state().heartbeat, 105, "{then:?}: the sixth save's");
+            booted = node.flash();
+        }
+        let mut node = Node::boot(booted.powered_up());
+        match then {
+            Then::PowerOn => {}
+            Then::ResetNode => {
+                let id = node.node_id() as u8;
+                node.exchange(0x000, &[0x81, id]);
+            }
+            Then::NineDays => {
+                node.now = Instant::from_millis(9 * ERASE_INTERVAL_MS);
+            }
+        }
+        // The changed save, then (whether or not it was accepted) restore defaults.
+        match save(&mut node, 400) {
+            Ok(()) => {
+                let mut again = Node::boot(node.flash().powered_up());
+                assert_eq!(again.state().heartbeat, 500, "{then:?}: the changed save's");
+                again.now = node.now;
+                node = again;
+            }
+            Err(code) => refused.push((then, "changed save", code)),
+        }
+        match node.write_u32(0x1011, 1, LOAD) {
+            Ok(()) => {
+                let mut restored = Node::boot(node.flash().powered_up());
+                let defaults = restored.state();
+                assert_eq!(
+                    (defaults.node, defaults.heartbeat),
+                    (16, 1000),
+                    "{then:?}: the defaults"
+                );
+            }
+            Err(code) => refused.push((then, "restore defaults", code)),
+        }
+    }
+    assert!(
+        refused.is_empty(),
+        "refused after seven cut moves: {refused:#x?}"
+    );
 }
