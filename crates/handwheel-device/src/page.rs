@@ -7,7 +7,7 @@
 //! - **A log of records, erased only when full.** A changed store appends its record (layout
 //!   in [`record`]) after the last one in the active page's first [`RECORDS_END`] bytes. The
 //!   handwheel's full parameter set is a 154-byte record, so a page takes six changed
-//!   stores. The page's last [`MARK_SLOTS`] 16-byte slots hold debt marks.
+//!   stores. The page's last [`TICK_AREA`] bytes hold erase ticks (below).
 //! - **Never erase the only copy.** A record that does not fit moves to the other (spare)
 //!   page: it is programmed there first, one page generation newer, and only then is the
 //!   full page erased (the classic two-page EEPROM emulation). A boot takes the page of the
@@ -15,19 +15,28 @@
 //!   old state (the new record is incomplete) or the new one (it is complete), never an
 //!   older one or none: a cut inside the erase of the old page leaves it partly erased, but
 //!   older than the new page. A spare page that is not blank (a move cut off) is erased
-//!   before the move, after a debt mark in a free slot of the active page has recorded that
-//!   erase (a mark cut off spoils only its own slot).
+//!   before the move.
 //! - **A wear budget.** Erases are rationed by a token bucket in the form of a "generic cell
 //!   rate" debt: each erase adds [`ERASE_INTERVAL_MS`] (24 h) of debt, powered time pays it
 //!   back, and an erase that would push the debt past [`ERASE_BURST`] (8) intervals is
 //!   refused: nothing is written, [`StorageError::WearLimit`] (SDO abort 0x08000020, LSS
-//!   error 255 / 1). Every erase is preceded by an entry that carries the debt including it
-//!   (the moved record, or a debt mark), and a boot starts from the larger of the active
-//!   page's last entry's and last mark's, so neither a power cycle nor a power cut refills
-//!   the bucket. Blank pages have no debt. A move whose spare page needs an erase while every
-//!   mark slot of the active page is used (only after [`MARK_SLOTS`] + 1 moves in a row cut
-//!   off by power loss) is refused the same way: the stored state stays, and stores that fit
-//!   still succeed.
+//!   error 255 / 1). No erase begins before the page a boot would take carries a debt that
+//!   includes it, so neither a power cycle nor a power cut refills the bucket: the full
+//!   page's erase is in the debt of the moved record; the erase of a spare page left dirty
+//!   is in an *erase tick* on the active page, unless the debt stored there covers it
+//!   already. A tick is a half-word of the page's tick area programmed to 0x0000; a boot
+//!   adds one interval per tick to the debt of the page's last entry, up to [`DEBT_LIMIT`]
+//!   (the most the budget allows, so that a page needs at most [`ERASE_BURST`] ticks). A
+//!   tick cut off by a power loss (a half-word neither erased nor 0x0000) counts for
+//!   nothing, since its erase never began, and the next move programs 0x0000 over it (the
+//!   flash controller takes 0x0000 over any half-word): a cut tick takes no room. A tick
+//!   area with no room left (only a crafted page) reads as [`DEBT_LIMIT`]. Blank pages have
+//!   no debt.
+//! - **No lock.** The budget alone refuses a changed store, for the one erase its move needs
+//!   first: the dirty spare page's, else the full page's. With a dirty spare page and no
+//!   second erase in the budget, the move leaves the full page as it is (the next move
+//!   erases it first). So whatever power cuts left behind, one interval of powered time in
+//!   one session (plus one debt unit, 2^26 us) always gives a changed store its move.
 //!
 //! Arithmetic: a master storming changed stores gets 6 x (8 + 1) = 54 of them, then 6 per
 //! 24 h of powered time. Erases over a life of `h` powered hours are at most 8 + h / 24 (of
@@ -37,17 +46,28 @@
 //! budget, the debt is only repaid while the device is powered and stored again with the
 //! next record, so a device switched off every few hours can refuse stores that need an
 //! erase for longer than a day.
+//!
+//! Pages written before erase ticks may hold *debt marks* (a [`record`] entry of header and
+//! CRC at the start of one of the tick area's six 16-byte slots, written before a spare
+//! page's erase). An intact one still counts in the page's debt, and its half-words are no
+//! tick positions; a mark a power cut left half written reads as ticks cut off, or as a
+//! tick where one of its half-words is 0x0000 (one interval more than needed).
 
 use canopen_slave::{Instant, Storage, StorageError};
 
 use crate::record::{self, Log, NodeSettings, Record, DEBT_MAX, MARK_LEN, RECORD_MAX};
 
-/// Debt-mark slots at the end of each page.
-pub const MARK_SLOTS: usize = 6;
-/// Bytes per mark slot: a mark and two erased bytes.
+/// Bytes at the end of each page for erase ticks (one half-word each), in the six 16-byte
+/// slots that held debt marks before ticks.
+pub const TICK_AREA: usize = MARK_SLOTS * MARK_SLOT;
+/// Slots of the tick area where a page written before ticks may hold a debt mark.
+const MARK_SLOTS: usize = 6;
+/// Bytes per slot: a mark and two erased bytes.
 const MARK_SLOT: usize = 16;
-/// Records go below this offset; the mark slots follow.
-pub const RECORDS_END: usize = PAGE_SIZE - MARK_SLOTS * MARK_SLOT;
+/// Records go below this offset; the tick area follows.
+pub const RECORDS_END: usize = PAGE_SIZE - TICK_AREA;
+/// The value of an erase tick.
+const TICK: [u8; 2] = [0, 0];
 /// Erased bytes kept behind the last record, so that a walk of the records stops there.
 const RECORD_GAP: usize = 4;
 
@@ -62,11 +82,15 @@ pub const ERASE_BURST: u64 = 8;
 /// The debt in a record is in units of 2^26 us (about 67 s): a shift instead of a division.
 const DEBT_UNIT_SHIFT: u32 = 26;
 const INTERVAL_US: u64 = ERASE_INTERVAL_MS * 1000;
+/// The largest debt the budget allows, in stored debt units rounded up: no boot starts from
+/// more, and a boot that starts from this needs no tick before an erase.
+pub const DEBT_LIMIT: u16 = (ERASE_BURST * INTERVAL_US).div_ceil(1 << DEBT_UNIT_SHIFT) as u16;
 // The largest debt must fit a record's 14-bit debt field.
-const _: () = assert!((ERASE_BURST * INTERVAL_US) >> DEBT_UNIT_SHIFT < DEBT_MAX as u64);
+const _: () = assert!(DEBT_LIMIT < DEBT_MAX);
 // Six of the handwheel's records (154 bytes) fit, a mark fits its slot, and programming
 // goes by half-words.
 const _: () = assert!(6 * 154 + RECORD_GAP <= RECORDS_END && MARK_LEN <= MARK_SLOT);
+const _: () = assert!(RECORDS_END.is_multiple_of(2) && MARK_LEN.is_multiple_of(2));
 const _: () = assert!(RECORD_MAX + RECORD_GAP <= RECORDS_END && RECORD_MAX.is_multiple_of(2));
 
 /// A failed erase or program.
@@ -90,8 +114,10 @@ pub trait Flash {
     fn page(&self, page: usize) -> &[u8];
     /// Erases page `page`: every byte reads 0xFF after success.
     fn erase(&mut self, page: usize) -> Result<(), FlashError>;
-    /// Programs `bytes` (even length) at the even `offset` of page `page`, into erased bytes
-    /// only (the caller checks that they read 0xFF before asking).
+    /// Programs `bytes` (even length) at the even `offset` of page `page`: into erased bytes
+    /// (the caller checks that they read 0xFF before asking), except an erase tick, the
+    /// half-word 0x0000, which may also go over a tick a power cut left half done (the
+    /// STM32F1's flash controller programs 0x0000 over any half-word, PM0075 2.3.3).
     fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError>;
 
     /// The engine loaded the stored parameters (at an initialisation), stored with these
@@ -135,21 +161,35 @@ impl WearBudget {
 }
 
 /// The pages as a boot reads them: which one is active (holds the stored state), its log,
-/// its newest mark and its first free mark slot.
+/// its newest debt mark, its erase ticks and where the next one goes.
 struct View<'a> {
     active: usize,
     log: Log<'a>,
-    /// The debt and generation of the active page's newest intact mark.
+    /// The debt and generation of the active page's newest intact debt mark (written by
+    /// firmware before erase ticks).
     mark: Option<(u16, u8)>,
-    /// The offset of the active page's first blank mark slot.
-    free_slot: Option<usize>,
+    /// The active page's complete erase ticks: tick positions that read 0x0000.
+    ticks: u16,
+    /// The offset of the active page's first tick position that is not a complete tick:
+    /// erased, or a tick a power cut left half done.
+    next_tick: Option<usize>,
 }
 
 impl View<'_> {
-    /// The debt a boot starts from: the larger of the last entry's and the newest mark's.
+    /// The debt a boot starts from: the larger of the last entry's and the newest mark's,
+    /// one interval more per tick, at most [`DEBT_LIMIT`] (which a full tick area reads as).
     fn debt(&self) -> u16 {
         let mark = self.mark.map_or(0, |(debt, _)| debt);
-        self.log.debt.unwrap_or(0).max(mark)
+        let base = self.log.debt.unwrap_or(0).max(mark);
+        match self.next_tick {
+            Some(_) => {
+                // At most 48 ticks: no sum here comes near 2^64.
+                let ticks = (u64::from(self.ticks) * INTERVAL_US).div_ceil(1 << DEBT_UNIT_SHIFT);
+                // At most DEBT_LIMIT, a u16.
+                (u64::from(base) + ticks).min(u64::from(DEBT_LIMIT)) as u16
+            }
+            None => DEBT_LIMIT,
+        }
     }
 
     /// The active page's generation (0 for a page without entries).
@@ -167,13 +207,21 @@ fn read(page: &[u8]) -> View<'_> {
         active: 0,
         log: record::scan(page),
         mark: None,
-        free_slot: None,
+        ticks: 0,
+        next_tick: None,
     };
-    for at in (RECORDS_END..PAGE_SIZE).step_by(MARK_SLOT) {
-        if blank(page, at, MARK_SLOT) {
-            view.free_slot = view.free_slot.or(Some(at));
-        } else if let Some(mark) = page.get(at..).and_then(record::decode_mark) {
+    for slot in (RECORDS_END..PAGE_SIZE).step_by(MARK_SLOT) {
+        let mut positions = slot;
+        if let Some(mark) = page.get(slot..).and_then(record::decode_mark) {
             view.mark = Some(mark);
+            positions += MARK_LEN;
+        }
+        for at in (positions..slot + MARK_SLOT).step_by(2) {
+            match page.get(at..at + 2) {
+                Some(half) if half == TICK => view.ticks += 1,
+                Some(_) => view.next_tick = view.next_tick.or(Some(at)),
+                None => {}
+            }
         }
     }
     view
@@ -289,29 +337,46 @@ impl<F: Flash> ParameterPage<F> {
             record::encode(settings, blob, debt, &mut buf.0).ok_or(StorageError::WriteFailed)?;
             return self.program(active, log.free, &buf.0, len);
         }
-        // The move: the spare page's erase if it is not blank (a move cut off), the active
-        // page's after the record is on the spare; both taken before anything is written.
+        // The move. A spare page that is not blank (a move cut off, or one that left the
+        // full page as it was) is erased first, with its erase in the budget and, before it
+        // begins, in the debt a boot would start from (a tick, unless that debt covers it
+        // already). The full page is erased once the record is on the spare page; when the
+        // spare page needed an erase and the budget has no second one, the full page stays
+        // as it is, the dirty spare page of the next move.
         let spare = 1 - active;
         let spare_blank = blank(self.flash.page(spare), 0, PAGE_SIZE);
         let mut budget = self.budget;
-        let erases = if spare_blank { 1 } else { 2 };
-        let slot = view.free_slot;
-        if (!spare_blank && slot.is_none()) || !(0..erases).all(|_| budget.take(now)) {
+        if !spare_blank && !budget.take(now) {
             return Err(StorageError::WearLimit);
         }
+        let tick = !spare_blank && budget.stored(now) > view.debt();
+        let erase_full = budget.take(now);
+        if spare_blank && !erase_full {
+            return Err(StorageError::WearLimit);
+        }
+        // Never refused here: with no tick position left the page's debt is DEBT_LIMIT,
+        // which no debt the budget allows exceeds, so no tick is needed.
+        let tick_at = match (tick, view.next_tick) {
+            (false, _) => None,
+            (true, Some(at)) => Some(at),
+            (true, None) => return Err(StorageError::WearLimit),
+        };
         self.budget = budget;
-        let debt = budget.stored(now);
         let next = (generation + 1) % record::GENERATIONS;
-        record::encode(settings, blob, record::debt_field(debt, next), &mut buf.0)
-            .ok_or(StorageError::WriteFailed)?;
-        if let (false, Some(slot)) = (spare_blank, slot) {
-            // The mark makes the spare's erase part of the stored debt before it starts.
-            let mark = record::encode_mark(record::debt_field(debt, generation));
-            self.program(active, slot, &mark, MARK_LEN)?;
+        let debt = record::debt_field(budget.stored(now), next);
+        record::encode(settings, blob, debt, &mut buf.0).ok_or(StorageError::WriteFailed)?;
+        if !spare_blank {
+            if let Some(at) = tick_at {
+                // Over an erased half-word, or over a tick a power cut left half done.
+                self.program(active, at, &TICK, TICK.len())?;
+            }
             self.erase(spare)?;
         }
         self.program(spare, 0, &buf.0, len)?;
-        self.erase(active)
+        if erase_full {
+            self.erase(active)?;
+        }
+        Ok(())
     }
 
     fn erase(&mut self, page: usize) -> Result<(), StorageError> {

@@ -23,9 +23,10 @@
 //! no room for appending (the next store erases). An erased page (all 0xFF) holds nothing.
 //!
 //! A *debt mark* is an entry of header and CRC only, node-ID 0, bit-rate code 1, length 0: it
-//! stores no state, only a newer debt (written before an erase of the other page, in slots
-//! at the page's end, see `page`). A record walk reads one as an entry without a record;
-//! firmware before marks reads one as a damaged record.
+//! stores no state, only a newer debt. Firmware before erase ticks wrote one before an erase
+//! of the other page, in slots at the page's end; `page` still reads them there. A record
+//! walk reads one as an entry without a record; firmware before marks reads one as a
+//! damaged record.
 
 use canopen_slave::NodeId;
 use handwheel_core::BitRate;
@@ -175,7 +176,8 @@ pub fn encode(
     Some(len)
 }
 
-/// A debt mark with the raw debt field `debt` ([`debt_field`]).
+/// A debt mark with the raw debt field `debt` ([`debt_field`]), as firmware before erase ticks
+/// wrote them (tests craft such pages with it).
 pub fn encode_mark(debt: u16) -> [u8; MARK_LEN] {
     let mut out = [0; MARK_LEN];
     out[..4].copy_from_slice(&MAGIC);

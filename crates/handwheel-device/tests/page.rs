@@ -5,15 +5,15 @@
 use canopen_slave::{Instant, Storage, StorageError};
 use handwheel_core::BitRate;
 use handwheel_device::page::{
-    Flash, FlashError, ParameterPage, WearBudget, ERASE_BURST, ERASE_INTERVAL_MS, MARK_SLOTS,
-    PAGES, PAGE_SIZE, RECORDS_END,
+    Flash, FlashError, ParameterPage, WearBudget, DEBT_LIMIT, ERASE_BURST, ERASE_INTERVAL_MS,
+    PAGES, PAGE_SIZE, RECORDS_END, TICK_AREA,
 };
-use handwheel_device::record::NodeSettings;
+use handwheel_device::record::{self, NodeSettings};
 use proptest::prelude::*;
 
 /// The flash pages as NOR flash behaves: erase sets every bit of a page, programming only
-/// clears bits (programming a half-word that is not erased is refused here: the page must
-/// never ask). `bytes` holds the pages one after the other.
+/// clears bits (programming a half-word that is not erased is refused here, but for 0x0000,
+/// which the STM32F1 takes over anything). `bytes` holds the pages one after the other.
 #[derive(Clone, Debug)]
 struct SimFlash {
     bytes: Vec<u8>,
@@ -63,9 +63,8 @@ impl Flash for SimFlash {
         );
         for (i, pair) in bytes.chunks_exact(2).enumerate() {
             let at = offset + 2 * i;
-            assert_eq!(
-                &self.bytes[at..at + 2],
-                &[0xFF, 0xFF],
+            assert!(
+                self.bytes[at..at + 2] == [0xFF, 0xFF] || pair == [0, 0],
                 "programming a half-word that is not erased, at {at}"
             );
             self.bytes[at..at + 2].copy_from_slice(pair);
@@ -298,38 +297,127 @@ fn a_store_cut_off_by_a_power_loss_leaves_the_previous_record() {
     assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(4))));
 }
 
-#[test]
-fn a_spare_page_left_dirty_is_erased_after_a_debt_mark_or_the_move_is_refused() {
+/// Six stores on a fresh part, then the spare page made dirty as a move cut off leaves it.
+fn full_with_dirty_spare() -> SimFlash {
     let mut page = ParameterPage::new(SimFlash::new());
     for n in 0..6 {
         page.store(at_ms(0), &blob(n)).unwrap();
     }
     let mut flash = page.into_flash();
-    // The spare page is not blank (a move cut off by a power loss).
     flash.bytes[PAGE_SIZE + 100] = 0x00;
-    // Every mark slot of the active page used (spoilt by cuts): no erase without a mark.
-    let mut used = flash.clone();
-    for slot in 0..MARK_SLOTS {
-        used.bytes[RECORDS_END + 16 * slot] = 0x00;
-    }
-    let mut page = ParameterPage::new(used);
-    assert_eq!(page.store(at_ms(0), &blob(9)), Err(StorageError::WearLimit));
-    assert_eq!((page.flash().erases, page.flash().programs), (0, 6 * 77));
-    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(5))));
-    // A free slot: the mark (7 half-words) with both erases in its debt, the spare's erase,
-    // the record on the spare page, the full page's erase.
+    flash
+}
+
+/// The debt units of `n` erase intervals, rounded up as a stored debt is.
+fn units(n: u64) -> u16 {
+    (n * ERASE_INTERVAL_MS * 1000).div_ceil(1 << 26) as u16
+}
+
+#[test]
+fn a_spare_page_left_dirty_is_erased_after_an_erase_tick() {
+    let flash = full_with_dirty_spare();
     let mut page = ParameterPage::new(flash);
+    assert_eq!(page.stored_debt(), 0);
     page.store(at_ms(0), &blob(9)).unwrap();
+    // The tick (one half-word, 0x0000, first of the tick area), the spare's erase, the
+    // record on the spare page, the full page's erase.
     assert_eq!(
         (page.flash().erases, page.flash().programs),
-        (2, 6 * 77 + 7 + 77)
+        (2, 6 * 77 + 1 + 77)
     );
     assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(9))));
     assert!(page.flash().page(0).iter().all(|&b| b == 0xFF));
-    let two_days = (2 * ERASE_INTERVAL_MS * 1000).div_ceil(1 << 26) as u16;
     assert_eq!(
         ParameterPage::new(page.into_flash()).stored_debt(),
-        two_days
+        units(2)
+    );
+}
+
+#[test]
+fn each_erase_tick_adds_an_interval_to_the_boot_debt_and_a_cut_one_nothing() {
+    let flash = full_with_dirty_spare();
+    // A tick the move wrote before the power went in the spare's erase: one interval.
+    let mut ticked = flash.clone();
+    ticked.bytes[RECORDS_END..RECORDS_END + 2].fill(0);
+    assert_eq!(ParameterPage::new(ticked.clone()).stored_debt(), units(1));
+    // A tick a cut left half done: nothing, and the next move finishes it in place.
+    let mut half = flash.clone();
+    half.bytes[RECORDS_END] = 0x5A;
+    let mut page = ParameterPage::new(half);
+    assert_eq!(page.stored_debt(), 0);
+    page.store(at_ms(0), &blob(9)).unwrap();
+    assert_eq!(
+        (page.flash().erases, page.flash().programs),
+        (2, 6 * 77 + 1 + 77)
+    );
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(9))));
+    // Ticks never take the boot debt past the budget's limit, and a tick area with no room
+    // left reads as that limit.
+    let mut many = flash.clone();
+    many.bytes[RECORDS_END..RECORDS_END + 2 * 20].fill(0);
+    assert_eq!(ParameterPage::new(many).stored_debt(), DEBT_LIMIT);
+    // No room: an intact mark (of no debt) in every slot, a tick behind each (six in all).
+    let mut crafted = flash.clone();
+    let mark = record::encode_mark(record::debt_field(0, 0));
+    for slot in (RECORDS_END..PAGE_SIZE).step_by(16) {
+        crafted.bytes[slot..slot + mark.len()].copy_from_slice(&mark);
+        crafted.bytes[slot + 14..slot + 16].fill(0);
+    }
+    assert_eq!(
+        ParameterPage::new(crafted.clone()).stored_debt(),
+        DEBT_LIMIT
+    );
+    // Even so, one interval of powered time (and one debt unit) gives the move its first
+    // erase: the spare page's. The budget has no second one for the full page, which stays
+    // as it is: the new page is the newer generation, and holds the record.
+    let mut page = ParameterPage::new(crafted);
+    let unit_ms = (1u64 << 26) / 1000 + 1;
+    assert_eq!(
+        page.store(at_ms(ERASE_INTERVAL_MS), &blob(9)),
+        Err(StorageError::WearLimit)
+    );
+    page.store(at_ms(ERASE_INTERVAL_MS + unit_ms), &blob(9))
+        .unwrap();
+    assert_eq!(page.flash().erases, 1);
+    let page = ParameterPage::new(page.into_flash());
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(9))));
+    assert!(
+        page.flash().page(0)[..154] != [0xFF; 154],
+        "the full page kept"
+    );
+    // The move's erase is in the record's debt: the next erase needs another interval.
+    assert!(page.stored_debt() > DEBT_LIMIT - units(1));
+}
+
+#[test]
+fn debt_marks_of_older_firmware_still_count_and_spoilt_ones_lock_nothing() {
+    let flash = full_with_dirty_spare();
+    // An intact mark with two days of debt in the first slot (generation 0, as the page's
+    // records): the boot starts from it, and the tick goes behind it, not over it.
+    let mut marked = flash.clone();
+    let mark = record::encode_mark(record::debt_field(units(2), 0));
+    marked.bytes[RECORDS_END..RECORDS_END + mark.len()].copy_from_slice(&mark);
+    let mut page = ParameterPage::new(marked);
+    assert_eq!(page.stored_debt(), units(2));
+    page.store(at_ms(0), &blob(9)).unwrap();
+    // Two days, the spare's erase and the full page's.
+    assert_eq!(
+        ParameterPage::new(page.into_flash()).stored_debt(),
+        units(4)
+    );
+    // Every slot spoilt by marks cut off (older firmware refused every move from here on):
+    // a move now, charged for its own erases only.
+    let mut spoilt = flash;
+    for slot in 0..TICK_AREA / 16 {
+        spoilt.bytes[RECORDS_END + 16 * slot] = 0x48;
+    }
+    let mut page = ParameterPage::new(spoilt);
+    assert_eq!(page.stored_debt(), 0);
+    page.store(at_ms(0), &blob(9)).unwrap();
+    assert_eq!(stored(&page), Some((NodeSettings::DEFAULT, blob(9))));
+    assert_eq!(
+        ParameterPage::new(page.into_flash()).stored_debt(),
+        units(2)
     );
 }
 

@@ -154,6 +154,9 @@ pub struct Node {
     pub debt: u16,
     /// The frames of the boot.
     pub booted: Vec<Frame>,
+    /// Engine time of the next exchange: [`NOW`] after a boot; a test moves it on to let
+    /// powered time pass.
+    pub now: Instant,
 }
 
 impl Node {
@@ -180,6 +183,7 @@ impl Node {
             settings,
             debt,
             booted: tx.0,
+            now: NOW,
         }
     }
 
@@ -190,8 +194,9 @@ impl Node {
     pub fn exchange(&mut self, id: u16, data: &[u8]) -> Vec<Frame> {
         let mut tx = Sink(Vec::new());
         let frame = Frame::new(id, data).unwrap();
-        self.device.on_frame(NOW, &frame, &mut self.wheel, &mut tx);
-        self.device.poll(NOW, &mut self.wheel, &mut tx);
+        self.device
+            .on_frame(self.now, &frame, &mut self.wheel, &mut tx);
+        self.device.poll(self.now, &mut self.wheel, &mut tx);
         tx.0
     }
 
