@@ -2,7 +2,10 @@
 `crates/feed-check` writes (`feed-check --vectors FILE`, run by `cargo xtask test`, which sets
 HANDWHEEL_FEED_VECTORS) is replayed through `core.replay`, and the per-axis counts must be
 exactly what the checker's rule credited for it. The checker proves its rule safe against the
-real device code; this keeps `core.py` the same rule."""
+real device code; this keeps `core.py` the same rule. Since feed record v2 a stream holds the
+configurations its host made (("configure", found, t): `core.replay_core`), so that its
+records carry the session the core wrote; the tokens must be the ones `core.free_tokens` and
+`core.pick_token` choose."""
 
 import json
 import os

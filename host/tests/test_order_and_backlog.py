@@ -546,7 +546,7 @@ def test_slcan_lines_are_read_in_bulk():
     server.bind(("127.0.0.1", 0))
     server.listen(1)
     port = server.getsockname()[1]
-    good = [(0x190, bytes([i & 0xFF, 1, 2, 3, 4, 5, 6, i >> 8])) for i in range(20000)]
+    good = [(TPDO1, records.rec(i, seq=i)) for i in range(20000)]
     junk = b"t19X8zz\rt1909" + b"00" * 9 + b"\r" + b"x" * 200
     junk += b"\rT0000019081122334455667788\r\a\r"
     lines = SlcanLines.encode(good[:10]) + junk + SlcanLines.encode(good[10:])

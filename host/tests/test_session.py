@@ -564,6 +564,22 @@ def test_a_blocked_transmit_path_whose_emcy_comes_after_the_record():
     assert d.c.take_log() == ["feed stopped by the device: transmit path blocked (EMCY 0x8100)"]
 
 
+def test_the_emcy_counts_also_after_the_feed_is_on_again():
+    """The component enables the feed again at once: an enabled record may come before the
+    EMCY 0x8100 that tells why the feed stopped."""
+    d = on_and_turning()
+    stopped_with(d, ML)
+    d.c.done(d.c.next_action(d.at()), True, None, d.at())  # 0x2000 = 1 again
+    d.epoch += 1
+    d.send(0, dt=0.005)
+    assert d.pins().feed_stops == 0
+    d.emcy(core.EMCY_TRANSMIT_BLOCKED, dt=0.005)
+    assert (d.pins().feed_stops, d.pins().stop_reason) == (1, core.STOP_TRANSMIT_BLOCKED)
+    d.epoch += 1
+    d.send(0, flags=0)  # the next stop: a master's write, the old EMCY forgotten
+    assert (d.pins().feed_stops, d.pins().stop_reason) == (2, core.STOP_MASTER_WRITE)
+
+
 def test_bit_3_without_an_emcy_is_reported_after_the_wait():
     d = on_and_turning()
     stopped_with(d, ML)
@@ -589,6 +605,13 @@ def test_the_device_leaving_operational(state):
         d.hb(core.OPERATIONAL)
         stopped_with(d, 0)
         assert d.pins().feed_stops == 1
+
+
+def test_a_stop_waiting_for_its_emcy_is_reported_when_the_session_ends():
+    d = on_and_turning()
+    stopped_with(d, ML)
+    d.hb(core.BOOTUP)
+    assert (d.pins().feed_stops, d.pins().stop_reason) == (1, core.STOP_MASTER_LOST)
 
 
 def test_a_boot_up_ends_the_session():

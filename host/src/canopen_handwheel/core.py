@@ -1004,6 +1004,10 @@ class Core:
         self._forget_records()
 
     def _forget_records(self) -> None:
+        """No record of a session before: a stop still waiting for its EMCY is reported
+        with what is known."""
+        if self.stop_seen is not None:
+            self._stopped()
         self.order = None
         self.record = None
         self.record_time = None
@@ -1326,16 +1330,15 @@ class Core:
         """A record of the session: a feed that was on and is off without the component
         having asked is a stop by the device, reported with its reason (`stop_reason`),
         after STOP_REASON_WAIT for the EMCY that tells a blocked transmit path from a lost
-        master when only status bit 3 says so."""
-        if self.stop_seen is not None and rec.enabled:
-            self._stopped()
-        if self.feed_on and not rec.enabled and not self.asked_off:
+        master when only status bit 3 says so (also when the feed is on again by then: the
+        component enables it again at once)."""
+        if self.feed_on and not rec.enabled and not self.asked_off and self.stop_seen is None:
             self.stop_seen = self.now
             self.stop_master_lost = rec.master_lost
             if not rec.master_lost or self.stop_emcy is not None:
                 self._stopped()
         self.feed_on = rec.enabled
-        if rec.enabled:
+        if rec.enabled and self.stop_seen is None:
             self.stop_emcy = None
             self.left_operational = False
 
@@ -1349,7 +1352,8 @@ class Core:
         self.log.append(f"feed stopped by the device: {STOP_REASONS[reason]}")
         self.stop_seen = None
         self.stop_master_lost = False
-        self.feed_on = False
+        self.stop_emcy = None
+        self.left_operational = False
 
     def _impossible(self) -> None:
         """A TPDO1 the device can never send: counted, and it breaks continuity; the
@@ -1393,6 +1397,7 @@ class Core:
         elif state in (PRE_OPERATIONAL, STOPPED):
             if self.feed_on and not self.asked_off:
                 self._report_stop(STOP_NOT_OPERATIONAL)
+                self.feed_on = False  # leaving Operational disabled it
             configuring = isinstance(self.pending, Configure) and self.pending.keep is None
             if state == PRE_OPERATIONAL and self.session is not None and not configuring:
                 # Someone (or a missed boot-up) left it Pre-operational: configure and start
