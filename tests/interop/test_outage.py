@@ -128,17 +128,18 @@ def enabled_at_rest(rig, axis: str) -> int:
 
 
 def sequence_to(rig, target: int) -> int:
-    """Brings the feed record sequence (0x2031, the next record's) to `target` (at most 35
-    records ahead of 220) and leaves the event timer off (records only on motion); returns
-    the detents it turned. Records every 2 ms (the inhibit time) bring it near quickly, then
-    one record a detent lands on it."""
+    """Brings the low byte of the feed record sequence (0x2031, the next record's) to `target`
+    (at most 35 records ahead of 220), where the 8-bit sequence of the first record format
+    wrapped (the 16-bit one carries on), and leaves the event timer off (records only on
+    motion); returns the detents it turned. Records every 2 ms (the inhibit time) bring it
+    near quickly, then one record a detent lands on it."""
     rig.write(0x1800, 5, 2, 2)
     deadline = time.monotonic() + 10
     while rig.read(0x2031) < 220:
         assert time.monotonic() < deadline, "the event timer sends no records"
     rig.write(0x1800, 5, 0, 2)
     turned = 0
-    while (sequence := rig.read(0x2031)) != target:
+    while (sequence := rig.read(0x2031)) % 256 != target:
         assert (target - sequence) % 256 <= 36, f"the sequence went past it: {sequence}"
         rig.stim.turn(1)
         turned += 1
@@ -371,7 +372,7 @@ def test_reset_node_within_the_stall_limit_boots_up_first_and_breaks_the_sequenc
     mark = enabled_at_rest(rig, "x")
     rig.write(0x1017, 0, 0, 2)  # no heartbeat: the last frame before the hold is a record
     turned = sequence_to(rig, 0)
-    assert feed_record(rig.frames.frames(TPDO1)[-1]).sequence == 255
+    assert feed_record(rig.frames.frames(TPDO1)[-1]).sequence % 256 == 255
     held = rig.frames.mark()
     start = emulated_ms(rig)
     rig.qemu.control(f"hold {SHORT_HOLD_MS}")

@@ -26,16 +26,14 @@ def test_tpdo_read_returns_the_default_mapping(rig):
     assert (feed.inhibit_time, feed.event_timer) == (20, 100)
     assert mapping(feed) == [
         (0x6004, 0, 32),
-        (0x2010, 1, 8),
-        (0x2010, 2, 8),
+        (0x2011, 0, 8),
         (0x2030, 0, 8),
-        (0x2031, 0, 8),
+        (0x2031, 0, 16),
     ]
     assert feed.length == 64
     assert [v.name for v in feed.map] == [
         "Position value",
-        "Selection.Axis",
-        "Selection.Multiplier",
+        "Feed selection",
         "Feed status",
         "Feed sequence",
     ]
@@ -49,8 +47,8 @@ def test_no_tpdo_outside_operational_and_tpdo1_on_entry(rig):
     rig.frames.assert_none(lambda f: f.id in (TPDO1, TPDO2), 0.5, since=mark, what="PDOs")
     rig.start()
     first = rig.frames.wait_id(TPDO1, since=mark)
-    # Position 0, no axis, x1, no status bit, sequence 0.
-    assert first.data == bytes([0, 0, 0, 0, 0, 1, 0, 0])
+    # Position 0, no axis, x1 (code 0), epoch 0, no status bit, no session, sequence 0.
+    assert first.data == bytes(8)
     # The 100 ms event timer repeats it, the sequence counting the frames sent.
     records = rig.frames.wait_count(TPDO1, 5, timeout=3, since=mark)
     assert [feed_record(f).sequence for f in records[:5]] == [0, 1, 2, 3, 4]

@@ -193,7 +193,7 @@ def test_conformance_table_aborts(rig):
     assert rig.read(0x2040, 3) == 40
     assert rig.read(0x1017) == 1000
     assert rig.read(0x1800, 1) == 0x40000190  # unchanged (bit 30: no RTR)
-    assert rig.read(0x1A00, 0) == 5
+    assert rig.read(0x1A00, 0) == 4
 
 
 def test_unknown_and_block_commands_abort_with_exact_frames(rig):
