@@ -388,6 +388,12 @@ impl FeedAccumulator {
         &self.outbox
     }
 
+    /// Another pace of the record sequence ([`FeedOutbox::set_pace`]), for a checker that
+    /// narrows the sequence. The firmware never calls it.
+    pub fn set_sequence_pace(&mut self, pace: crate::outbox::SequencePace) {
+        self.outbox.set_pace(pace);
+    }
+
     /// Signed unit steps waiting to be sent.
     pub const fn pending_steps(&self) -> i32 {
         self.pending_steps

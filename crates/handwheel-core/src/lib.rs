@@ -37,7 +37,7 @@ pub use decoder::{
 };
 pub use edge::{EdgeSnapshot, EdgeState, Mutex};
 pub use feed::{FeedState, FeedStatus, UnitStep};
-pub use outbox::{FeedOutbox, HELD_EPOCHS, MAX_DROP_GAP, SEQUENCE_BURST};
+pub use outbox::{FeedOutbox, SequencePace, HELD_EPOCHS, MAX_DROP_GAP, SEQUENCE_BURST};
 pub use pdo::{CounterStride, FeedRecord, FeedRecordError, RecordField, UnitStepEncoder};
 pub use selector::{
     Axis, Debouncer, Multiplier, Selection, Selector, SelectorInput, SelectorLines,

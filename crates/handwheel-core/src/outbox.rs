@@ -58,6 +58,23 @@ pub const MAX_DROP_GAP: u8 = 8;
 /// Sequence numbers the pace allows at once; the bucket refills by one per millisecond.
 pub const SEQUENCE_BURST: u16 = 64;
 
+/// The sequence's pace: how many numbers at once, and how often one more.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct SequencePace {
+    /// Numbers at once.
+    pub burst: u16,
+    /// Microseconds per number refilled.
+    pub us_per_number: u32,
+}
+
+impl SequencePace {
+    /// The firmware's: [`SEQUENCE_BURST`] at once, one per millisecond.
+    pub const SHIPPED: Self = Self {
+        burst: SEQUENCE_BURST,
+        us_per_number: 1000,
+    };
+}
+
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
 #[derive(Clone, Debug)]
 pub struct FeedOutbox {
@@ -76,6 +93,7 @@ pub struct FeedOutbox {
     refilled_us: u64,
     /// A number was taken from an empty bucket since the last [`FeedOutbox::take_overdrawn`].
     overdrawn: bool,
+    pace: SequencePace,
 }
 
 impl Default for FeedOutbox {
@@ -99,19 +117,28 @@ impl FeedOutbox {
             allowance: SEQUENCE_BURST,
             refilled_us: 0,
             overdrawn: false,
+            pace: SequencePace::SHIPPED,
         }
     }
 
-    /// Time passes (`now_us`, the device's clock in µs): one number more per whole
-    /// millisecond since the last refill, up to [`SEQUENCE_BURST`]. (A loop of at most
-    /// [`SEQUENCE_BURST`] steps rather than a 64-bit division, which the firmware would have to
-    /// link for this alone.)
+    /// Another pace than [`SequencePace::SHIPPED`], for a checker that narrows the sequence
+    /// (the bucket starts full). The firmware never calls it.
+    pub fn set_pace(&mut self, pace: SequencePace) {
+        self.pace = pace;
+        self.allowance = pace.burst;
+    }
+
+    /// Time passes (`now_us`, the device's clock in µs): one number more per whole period of
+    /// the pace since the last refill, up to its burst. (A loop of at most a burst of steps
+    /// rather than a 64-bit division, which the firmware would have to link for this alone.)
     pub fn refill(&mut self, now_us: u64) {
-        while self.allowance < SEQUENCE_BURST && now_us >= self.refilled_us.saturating_add(1000) {
+        let period = u64::from(self.pace.us_per_number);
+        while self.allowance < self.pace.burst && now_us >= self.refilled_us.saturating_add(period)
+        {
             self.allowance += 1;
-            self.refilled_us += 1000;
+            self.refilled_us += period;
         }
-        if self.allowance == SEQUENCE_BURST {
+        if self.allowance >= self.pace.burst {
             self.refilled_us = self.refilled_us.max(now_us);
         }
     }
