@@ -1,10 +1,13 @@
-//! The host's rule, as `host/src/canopen_handwheel/core.py` runs it (`Core._tpdo1`), for the
-//! model: which feed records link, what they credit, what starts afresh.
+//! The host's rule, as `host/src/canopen_handwheel/core.py` runs it (`Core._tpdo1`,
+//! `order_verdict`, `max_ahead`, `free_tokens`), for the model: sessions, which feed records
+//! link, what they credit, what starts afresh, what is a copy.
 //!
-//! The sequence and epoch widths are parameters: the model lowers them so that wrap-around
-//! is reached in a few steps. At the shipped widths (8 and 3 bits) this is the component's
-//! rule, and `cargo xtask test` replays the streams the model reaches through `core.py`
-//! itself (the vectors of [`crate::vectors`]), so the two cannot drift apart.
+//! The widths and the pace are parameters: the model lowers the sequence's width, and the
+//! device's pace with it, so that the wrap is reached in a few dozen records. What the rule
+//! depends on is differences modulo the width and the pace's bound on how many numbers the
+//! device can take in a given time; both scale together (`RuleConfig::holds`). At the shipped
+//! values this is the component's rule, and `cargo xtask test` replays the streams the model
+//! reaches through `core.py` itself (the vectors of [`crate::vectors`]).
 
 /// Device axis numbers the host maps to its letters: 1 = X, 2 = Y (`--axes xy`).
 pub const AXES: usize = 2;
@@ -13,10 +16,13 @@ pub const AXES: usize = 2;
 const STATUS_ENABLED: u8 = 0x01;
 const STATUS_MASTER_LOST: u8 = 0x08;
 
+/// Session tokens the host writes (0 means none).
+pub const TOKENS: u8 = 7;
+
 /// The rule's settings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct RuleConfig {
-    /// Bits of the sequence byte the host sees (8 on the wire).
+    /// Bits of the sequence the host sees (16 on the wire).
     pub sequence_bits: u8,
     /// Bits of the epoch the host sees (3 on the wire).
     pub epoch_bits: u8,
@@ -25,23 +31,40 @@ pub struct RuleConfig {
     /// A record handled longer than this after the host last found its receive path empty
     /// may have waited in a backlog: it is only a baseline.
     pub backlog_limit_ms: u64,
-    /// The newest record stays the reference for "behind" this long after it came.
-    pub order_expiry_ms: u64,
+    /// The device's pace: numbers at once.
+    pub burst: u64,
+    /// The device's pace: microseconds per number.
+    pub us_per_number: u64,
+    /// How long a record may take to reach the host, µs.
+    pub in_transit_us: u64,
+    /// How far the device's clock may run fast, parts per million.
+    pub clock_ppm: u64,
+    /// The longest a record of the session may follow the order reference, µs.
+    pub order_window_us: u64,
+    /// The contract's age of copies, µs; a token is written again only this long after the
+    /// host replaced it.
+    pub copy_age_us: u64,
 }
 
 impl RuleConfig {
     /// The component's rule for a device whose event timer is `event_timer_ms`.
     pub const fn shipped(event_timer_ms: u64) -> Self {
         Self {
-            sequence_bits: 8,
+            sequence_bits: 16,
             epoch_bits: 3,
             stale_after_ms: 3 * event_timer_ms,
             backlog_limit_ms: 100,
-            order_expiry_ms: 2000,
+            burst: 64,
+            us_per_number: 1000,
+            in_transit_us: 250_000,
+            clock_ppm: 10_000,
+            order_window_us: 4_000_000,
+            copy_age_us: 60_000_000,
         }
     }
 
-    const fn sequence_modulo(&self) -> u16 {
+    /// The sequence's modulo as the host sees it.
+    pub const fn sequence_modulo(&self) -> u64 {
         1 << self.sequence_bits
     }
 
@@ -52,8 +75,30 @@ impl RuleConfig {
     /// The largest gap still read as "the same epoch": each epoch takes at least one
     /// sequence number, so this many missing numbers hide at most this many epochs, one
     /// fewer than the epoch field needs to come round.
-    pub const fn same_epoch_max_gap(&self) -> u16 {
-        self.epoch_modulo() as u16 - 2
+    pub const fn same_epoch_max_gap(&self) -> u64 {
+        self.epoch_modulo() as u64 - 2
+    }
+
+    /// Numbers the device can take in `us` on a clock up to `clock_ppm` fast, plus a burst
+    /// (`core.py`'s `max_ahead` and `oldest_copy_behind`).
+    const fn numbers_in(&self, us: u64) -> u64 {
+        us * (1_000_000 + self.clock_ppm) / (self.us_per_number * 1_000_000) + self.burst
+    }
+
+    /// The most numbers a genuine record of the session can be ahead of the reference, `dt_us`
+    /// after the reference reached the host.
+    pub const fn max_ahead(&self, dt_us: u64) -> u64 {
+        self.numbers_in(dt_us + self.in_transit_us)
+    }
+
+    /// The most numbers a copy up to the contract's age lies behind the newest record.
+    pub const fn oldest_copy_behind(&self) -> u64 {
+        self.numbers_in(self.copy_age_us)
+    }
+
+    /// Whether the rule's ranges do not meet: every copy within the age reads as one.
+    pub const fn holds(&self) -> bool {
+        self.max_ahead(self.order_window_us) + self.oldest_copy_behind() < self.sequence_modulo()
     }
 }
 
@@ -70,25 +115,35 @@ pub struct Record {
     pub flags: u8,
     /// Epoch, low `epoch_bits`.
     pub epoch: u8,
+    /// Session, 0..7.
+    pub session: u8,
     /// Sequence, low `sequence_bits`.
-    pub sequence: u8,
+    pub sequence: u64,
 }
 
 impl Record {
     /// The wire bytes read with the lowered widths; `None` for a record the device can
     /// never send (counted bad, a baseline).
     pub fn decode(bytes: [u8; 8], config: &RuleConfig) -> Option<Self> {
-        let flags = bytes[6] & 0x1F;
-        let valid = bytes[4] <= 5
-            && matches!(bytes[5], 1 | 10 | 100)
+        let flags = bytes[5] & 0x1F;
+        let axis = bytes[4] & 0x07;
+        let multiplier = match (bytes[4] >> 3) & 0x03 {
+            0 => 1,
+            1 => 10,
+            2 => 100,
+            _ => return None,
+        };
+        let valid = axis <= 5
             && flags & (STATUS_ENABLED | STATUS_MASTER_LOST) != STATUS_ENABLED | STATUS_MASTER_LOST;
         valid.then(|| Self {
             position: i32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]),
-            axis: bytes[4],
-            multiplier: bytes[5],
+            axis,
+            multiplier,
             flags,
-            epoch: (bytes[6] >> 5) % config.epoch_modulo(),
-            sequence: (u16::from(bytes[7]) % config.sequence_modulo()) as u8,
+            epoch: (bytes[4] >> 5) % config.epoch_modulo(),
+            session: bytes[5] >> 5,
+            sequence: u64::from(u16::from_le_bytes([bytes[6], bytes[7]]))
+                % config.sequence_modulo(),
         })
     }
 
@@ -115,18 +170,30 @@ pub struct Credit<T> {
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct HostRule<T> {
     config: RuleConfig,
-    /// The last accepted record, its tag, and when it came.
-    reference: Option<(Record, [u8; 8], T, u64)>,
+    /// The host's session token, once a configuration wrote it.
+    session: Option<u8>,
+    /// A session the host dropped and has not replaced yet: stamped when it is.
+    dropped: Option<u8>,
+    /// Per token, whether the host ever replaced it.
+    superseded: [bool; TOKENS as usize],
+    /// The newest accepted record of the session, its bytes, its tag, when it was handled
+    /// and the earliest it can have reached the host (µs).
+    reference: Option<(Record, [u8; 8], T, u64, u64)>,
     /// The next record is a baseline.
     baseline: bool,
     /// The device showed a non-zero epoch since it (re)booted.
     epochs_shown: bool,
     last_drained: u64,
+    /// The host wants to (re)configure the device: it lost its session, or saw a record of
+    /// another one.
+    pub configure_due: bool,
+    /// Per token, when the host last replaced it (ms), or last knew the device could be in it.
+    last_use: [Option<u64>; TOKENS as usize],
     /// Per axis, wrapping sums of the credited deltas (`jog-counts`).
     pub counts: [i32; AXES],
     /// Records the host missed (sequence gaps).
     pub records_lost: i32,
-    /// Frames that cannot be the device's (impossible, behind).
+    /// Frames that cannot be the device's (impossible, copies).
     pub frames_bad: i32,
 }
 
@@ -135,38 +202,101 @@ impl<T: Clone> HostRule<T> {
     pub fn new(config: RuleConfig) -> Self {
         Self {
             config,
+            session: None,
+            dropped: None,
+            superseded: [false; TOKENS as usize],
             reference: None,
             baseline: true,
             epochs_shown: false,
             last_drained: 0,
+            configure_due: true,
+            last_use: [None; TOKENS as usize],
             counts: [0; AXES],
             records_lost: 0,
             frames_bad: 0,
         }
     }
 
-    /// The receive path was found empty at `now`.
+    /// The host's session, if it has one.
+    pub const fn session(&self) -> Option<u8> {
+        self.session
+    }
+
+    /// The token the next configuration writes at `now_ms` (`core.py`'s `free_tokens` and
+    /// `pick_token`): not the host's own, not `device` (the device's present session), none
+    /// replaced less than the contract's age ago; never used ones first, lowest first, then
+    /// the least recently used. `None`: none is free yet.
+    pub fn next_token(&self, now_ms: u64, device: u8) -> Option<u8> {
+        let age_ms = self.config.copy_age_us / 1000;
+        (1..=TOKENS)
+            .filter(|&t| Some(t) != self.session && t != device)
+            .filter(|&t| self.last_use[usize::from(t - 1)].is_none_or(|at| now_ms >= at + age_ms))
+            .min_by_key(|&t| (self.last_use[usize::from(t - 1)], t))
+    }
+
+    /// A configuration that wrote `token` and read it back completed at `now_ms`: the
+    /// session, with no reference yet; the token it replaces was last used now.
+    pub fn configured(&mut self, token: u8, now_ms: u64) {
+        for old in [self.session, self.dropped.take()].into_iter().flatten() {
+            self.last_use[usize::from(old - 1)] = Some(now_ms);
+            self.superseded[usize::from(old - 1)] = true;
+        }
+        self.session = Some(token);
+        self.reference = None;
+        self.baseline = true;
+        self.configure_due = false;
+    }
+
+    /// The configuration found the device still in the host's session: nothing to do.
+    pub fn intact(&mut self) {
+        self.configure_due = false;
+    }
+
+    /// The receive path was found empty at `now` (ms).
     pub fn drained(&mut self, now: u64) {
         self.last_drained = self.last_drained.max(now);
     }
 
-    /// The device's heartbeat: after a boot-up nothing links to what came before, but the
-    /// newest record stays the reference for "behind" (a reset keeps the sequence going, so
-    /// only copies of older records fall behind it).
+    /// The device's heartbeat: a boot-up or Pre-operational ends the session as the host
+    /// sees it (it configures again).
     pub fn heartbeat(&mut self, state: u8) {
-        if state & 0x7F == 0 {
+        let state = state & 0x7F;
+        if state == 0 {
             self.baseline = true;
             self.epochs_shown = false;
         }
+        if state == 0 || (state == 0x7F && self.session.is_some()) {
+            self.drop_session();
+        }
     }
 
-    /// A TPDO1 of 8 bytes, handled at `now`. Returns the motion it credits, if any.
+    fn drop_session(&mut self) {
+        if let Some(old) = self.session.take() {
+            self.dropped = Some(old);
+        }
+        self.reference = None;
+        self.baseline = true;
+        self.configure_due = true;
+    }
+
+    /// A TPDO1 of 8 bytes, handled at `now` (ms). Returns the motion it credits, if any.
     pub fn record(&mut self, bytes: [u8; 8], tag: T, now: u64) -> Option<Credit<T>> {
         let Some(rec) = Record::decode(bytes, &self.config) else {
             self.frames_bad += 1;
             self.baseline = true;
             return None;
         };
+        if self.session != Some(rec.session) {
+            // Another session's (or none): never a reference, never credited; check.
+            // A token the host never replaced may be the device's: kept out for the age.
+            if rec.session != 0 && !self.superseded[usize::from(rec.session - 1)] {
+                self.last_use[usize::from(rec.session - 1)] = Some(now);
+            }
+            if self.session.is_some() {
+                self.configure_due = true;
+            }
+            return None;
+        }
         let fresh = self
             .reference
             .as_ref()
@@ -174,25 +304,28 @@ impl<T: Clone> HostRule<T> {
         if !fresh {
             self.baseline = true;
         }
-        if let Some((prev, prev_bytes, _, at)) = &self.reference {
-            if now.saturating_sub(*at) <= self.config.order_expiry_ms {
-                let ahead = (u16::from(rec.sequence) + self.config.sequence_modulo()
-                    - u16::from(prev.sequence))
-                    % self.config.sequence_modulo();
-                if ahead == 0 {
-                    if *prev_bytes != bytes {
-                        self.frames_bad += 1;
-                        self.baseline = true;
-                    }
-                    return None;
-                }
-                if ahead >= self.config.sequence_modulo() / 2 {
+        let now_us = now * 1000;
+        if let Some((prev, prev_bytes, _, _, arrived_us)) = &self.reference {
+            let dt = now_us.saturating_sub(*arrived_us);
+            if dt > self.config.order_window_us {
+                self.drop_session();
+                return None;
+            }
+            let m = self.config.sequence_modulo();
+            let ahead = (rec.sequence + m - prev.sequence) % m;
+            if ahead == 0 {
+                if *prev_bytes != bytes {
                     self.frames_bad += 1;
-                    return None;
+                    self.baseline = true;
                 }
-                if fresh {
-                    self.records_lost += i32::from(ahead - 1);
-                }
+                return None;
+            }
+            if ahead > self.config.max_ahead(dt) {
+                self.frames_bad += 1;
+                return None;
+            }
+            if fresh {
+                self.records_lost += (ahead - 1) as i32;
             }
         }
         if rec.epoch != 0 {
@@ -203,7 +336,7 @@ impl<T: Clone> HostRule<T> {
             .reference
             .as_ref()
             .filter(|_| !self.baseline)
-            .map(|(prev, _, tag, _)| (*prev, tag.clone()));
+            .map(|(prev, _, tag, _, _)| (*prev, tag.clone()));
         if let Some((prev, prev_tag)) = linked {
             let delta = self.link(&prev, &rec);
             let letter = usize::from(rec.axis).checked_sub(1).filter(|&a| a < AXES);
@@ -220,7 +353,8 @@ impl<T: Clone> HostRule<T> {
                 });
             }
         }
-        self.reference = Some((rec, bytes, tag, now));
+        let arrived_us = now.min(self.last_drained) * 1000;
+        self.reference = Some((rec, bytes, tag, now, arrived_us));
         self.baseline = false;
         credit
     }
@@ -230,7 +364,7 @@ impl<T: Clone> HostRule<T> {
     /// itself counts as bad.
     fn link(&mut self, prev: &Record, rec: &Record) -> Option<i32> {
         let m = self.config.sequence_modulo();
-        let gap = (u16::from(rec.sequence) + 2 * m - u16::from(prev.sequence) - 1) % m;
+        let gap = (rec.sequence + 2 * m - prev.sequence - 1) % m;
         let d = (rec.epoch + self.config.epoch_modulo() - prev.epoch) % self.config.epoch_modulo();
         let delta = rec.position.wrapping_sub(prev.position);
         let same = d == 0 && gap <= self.config.same_epoch_max_gap();
@@ -248,5 +382,38 @@ impl<T: Clone> HostRule<T> {
             return None;
         }
         Some(delta)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_rule_keeps_copies_and_new_records_apart() {
+        let c = RuleConfig::shipped(100);
+        assert_eq!(c.max_ahead(c.order_window_us), 4356);
+        assert_eq!(c.oldest_copy_behind(), 60_664);
+        assert!(c.holds());
+    }
+
+    #[test]
+    fn tokens_wait_the_copy_age_after_their_last_use() {
+        let mut h: HostRule<()> = HostRule::new(RuleConfig::shipped(100));
+        assert_eq!(h.next_token(0, 0), Some(1));
+        assert_eq!(h.next_token(0, 1), Some(2), "never the device's");
+        h.configured(1, 0);
+        assert_eq!(h.next_token(10, 0), Some(2));
+        h.configured(2, 10);
+        assert_eq!(h.next_token(20, 0), Some(3), "1 was replaced 10 ms ago");
+        for t in 3..=7 {
+            h.configured(t, 20);
+        }
+        assert_eq!(
+            h.next_token(30, 0),
+            None,
+            "every other token replaced within 60 s"
+        );
+        assert_eq!(h.next_token(60_010, 0), Some(1));
     }
 }
