@@ -2,20 +2,46 @@
 //! to reach one kind of trouble (full queues and outbox, wrap-around, resets, channel faults,
 //! time) in few steps.
 
+use handwheel_core::SequencePace;
+
 use crate::host::RuleConfig;
 use crate::model::Bounds;
 
-const fn rule(sequence_bits: u8, epoch_bits: u8) -> RuleConfig {
+/// The shipped rule with the epoch field lowered.
+const fn rule(epoch_bits: u8) -> RuleConfig {
     RuleConfig {
-        sequence_bits,
         epoch_bits,
         ..RuleConfig::shipped(100)
     }
 }
 
+/// The narrowed device pace: 12 numbers at once (a break of 8 and its record fit, as in the
+/// shipped 64), one per 10 ms.
+const NARROW_PACE: SequencePace = SequencePace {
+    burst: 12,
+    us_per_number: 10_000,
+};
+
+/// The rule narrowed with the sequence: 7 bits (a wrap is 128 numbers), the pace above, 10 ms
+/// in transit, an order window of 150 ms and copies up to 800 ms old: the same relation as
+/// the shipped values (`RuleConfig::holds`: max_ahead(150 ms) = 28, an 800 ms old copy at
+/// most 92 behind, 28 + 92 < 128), reached in about a hundred records instead of 65 536.
+const fn narrow(epoch_bits: u8) -> RuleConfig {
+    RuleConfig {
+        sequence_bits: 7,
+        epoch_bits,
+        burst: NARROW_PACE.burst as u64,
+        us_per_number: NARROW_PACE.us_per_number as u64,
+        in_transit_us: 10_000,
+        order_window_us: 150_000,
+        copy_age_us: 800_000,
+        ..RuleConfig::shipped(50)
+    }
+}
+
 const BASE: Bounds = Bounds {
     name: "",
-    rule: rule(8, 3),
+    rule: rule(3),
     transmit_capacity: 3,
     turns: 0,
     switches: 0,
@@ -27,7 +53,10 @@ const BASE: Bounds = Bounds {
     event_timer_ms: 100,
     inhibit_100us: 0,
     channel_faults: 0,
-    replay_depth: 0,
+    copy_depth: 0,
+    copy_age_ms: 0,
+    pace: SequencePace::SHIPPED,
+    configures: 0,
     host_stalls: 0,
     master_beats: 0,
     consumer_ms: 250,
@@ -41,7 +70,7 @@ pub const ALL: &[Bounds] = &[
     // lowered to 2 bits, so that 4 unseen epochs bring it round.
     Bounds {
         name: "nmt and outbox",
-        rule: rule(8, 2),
+        rule: rule(2),
         transmit_capacity: 1,
         turns: 2,
         switches: 2,
@@ -49,29 +78,58 @@ pub const ALL: &[Bounds] = &[
         nmt: 2,
         ..BASE
     },
-    // Resets and power cycles with the sequence lowered to 5 bits (the smallest width in
-    // which a break of 8 still reads as a gap), from where it is about to wrap.
+    // Resets and power cycles with the sequence and its pace narrowed, from where it is about
+    // to wrap.
     Bounds {
         name: "resets and wrap",
-        rule: rule(5, 3),
+        rule: narrow(3),
+        pace: NARROW_PACE,
+        event_timer_ms: 50,
+        tick_ms: 50,
         transmit_capacity: 1,
         turns: 1,
         feed_writes: 1,
         nmt: 2,
         power_cycles: 1,
-        warmups: &[25, 26, 27, 28, 29, 30, 31],
+        configures: 1,
+        warmups: &[121, 123, 125, 127],
         ..BASE
     },
-    // Lost, doubled and replayed frames.
+    // Lost and doubled frames and copies of any record of the contract's age, with the
+    // sequence narrowed and started near its wrap.
     Bounds {
-        name: "channel faults",
+        name: "copies of any age",
+        rule: narrow(3),
+        pace: NARROW_PACE,
+        event_timer_ms: 50,
+        tick_ms: 50,
         transmit_capacity: 2,
-        turns: 2,
+        turns: 1,
         switches: 1,
-        feed_writes: 1,
-        nmt: 1,
+        ticks: 1,
         channel_faults: 2,
-        replay_depth: 3,
+        copy_depth: 80,
+        copy_age_ms: 800,
+        warmups: &[80, 124],
+        ..BASE
+    },
+    // A power cycle whose boot-up may be lost, copies of records from before it, and the
+    // host configuring again when its rule asks.
+    Bounds {
+        name: "power cycles and copies",
+        rule: narrow(3),
+        pace: NARROW_PACE,
+        event_timer_ms: 50,
+        tick_ms: 50,
+        transmit_capacity: 2,
+        turns: 1,
+        feed_writes: 1,
+        power_cycles: 1,
+        channel_faults: 2,
+        copy_depth: 80,
+        copy_age_ms: 800,
+        configures: 1,
+        warmups: &[60],
         ..BASE
     },
     // Time: holds longer than the stall limit, event-timer records, staleness, a host that
@@ -80,7 +138,7 @@ pub const ALL: &[Bounds] = &[
         name: "time and stalls",
         turns: 2,
         switches: 1,
-        ticks: 6,
+        ticks: 5,
         tick_ms: 100,
         host_stalls: 1,
         ..BASE

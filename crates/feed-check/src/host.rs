@@ -170,12 +170,8 @@ pub struct Credit<T> {
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct HostRule<T> {
     config: RuleConfig,
-    /// The host's session token, once a configuration wrote it.
+    /// The host's session token, once a configuration wrote it and read it back.
     session: Option<u8>,
-    /// A session the host dropped and has not replaced yet: stamped when it is.
-    dropped: Option<u8>,
-    /// Per token, whether the host ever replaced it.
-    superseded: [bool; TOKENS as usize],
     /// The newest accepted record of the session, its bytes, its tag, when it was handled
     /// and the earliest it can have reached the host (µs).
     reference: Option<(Record, [u8; 8], T, u64, u64)>,
@@ -184,11 +180,14 @@ pub struct HostRule<T> {
     /// The device showed a non-zero epoch since it (re)booted.
     epochs_shown: bool,
     last_drained: u64,
-    /// The host wants to (re)configure the device: it lost its session, or saw a record of
-    /// another one.
-    pub configure_due: bool,
-    /// Per token, when the host last replaced it (ms), or last knew the device could be in it.
-    last_use: [Option<u64>; TOKENS as usize],
+    /// A record of another session came: check the configuration (not before `check_at`).
+    check_due: bool,
+    check_at: u64,
+    /// Per token, when the host replaced it (ms) (`core.py`'s `superseded`).
+    superseded: [Option<u64>; TOKENS as usize],
+    /// Per token, when the host last knew the device could be in it without having replaced
+    /// it (`core.py`'s `busy`).
+    busy: [Option<u64>; TOKENS as usize],
     /// Per axis, wrapping sums of the credited deltas (`jog-counts`).
     pub counts: [i32; AXES],
     /// Records the host missed (sequence gaps).
@@ -197,20 +196,27 @@ pub struct HostRule<T> {
     pub frames_bad: i32,
 }
 
+/// A check runs again at most this long after the last one (ms; `core.py`'s `retry`).
+const CHECK_RETRY_MS: u64 = 500;
+
+fn slot(token: u8) -> usize {
+    usize::from(token - 1)
+}
+
 impl<T: Clone> HostRule<T> {
     /// A host that has seen nothing yet.
     pub fn new(config: RuleConfig) -> Self {
         Self {
             config,
             session: None,
-            dropped: None,
-            superseded: [false; TOKENS as usize],
             reference: None,
             baseline: true,
             epochs_shown: false,
             last_drained: 0,
-            configure_due: true,
-            last_use: [None; TOKENS as usize],
+            check_due: false,
+            check_at: 0,
+            superseded: [None; TOKENS as usize],
+            busy: [None; TOKENS as usize],
             counts: [0; AXES],
             records_lost: 0,
             frames_bad: 0,
@@ -222,34 +228,70 @@ impl<T: Clone> HostRule<T> {
         self.session
     }
 
-    /// The token the next configuration writes at `now_ms` (`core.py`'s `free_tokens` and
-    /// `pick_token`): not the host's own, not `device` (the device's present session), none
-    /// replaced less than the contract's age ago; never used ones first, lowest first, then
-    /// the least recently used. `None`: none is free yet.
-    pub fn next_token(&self, now_ms: u64, device: u8) -> Option<u8> {
-        let age_ms = self.config.copy_age_us / 1000;
-        (1..=TOKENS)
-            .filter(|&t| Some(t) != self.session && t != device)
-            .filter(|&t| self.last_use[usize::from(t - 1)].is_none_or(|at| now_ms >= at + age_ms))
-            .min_by_key(|&t| (self.last_use[usize::from(t - 1)], t))
+    /// Whether the host asks for a configuration at `now_ms` (`core.py`'s `next_action`
+    /// giving a `Configure`): without a session when a token is free, or a check.
+    pub fn configure_due(&self, now_ms: u64) -> bool {
+        match self.session {
+            None => (1..=TOKENS).any(|t| self.free(t, now_ms)),
+            Some(_) => self.check_due && now_ms >= self.check_at,
+        }
     }
 
-    /// A configuration that wrote `token` and read it back completed at `now_ms`: the
-    /// session, with no reference yet; the token it replaces was last used now.
-    pub fn configured(&mut self, token: u8, now_ms: u64) {
-        for old in [self.session, self.dropped.take()].into_iter().flatten() {
-            self.last_use[usize::from(old - 1)] = Some(now_ms);
-            self.superseded[usize::from(old - 1)] = true;
+    fn last_use(&self, token: u8) -> Option<u64> {
+        self.superseded[slot(token)].max(self.busy[slot(token)])
+    }
+
+    fn free(&self, token: u8, now_ms: u64) -> bool {
+        Some(token) != self.session
+            && self
+                .last_use(token)
+                .is_none_or(|at| now_ms >= at + self.config.copy_age_us / 1000)
+    }
+
+    /// The token a configuration writes at `now_ms` on a device whose 0x2002 reads
+    /// `device` (`core.py`'s `free_tokens` and `pick_token`): not the host's own, none the
+    /// host or the device used less than the contract's age ago, never used ones first,
+    /// lowest first, then the least recently used; never the device's. `None`: none.
+    pub fn next_token(&self, now_ms: u64, device: u8) -> Option<u8> {
+        let mut free: Vec<u8> = (1..=TOKENS).filter(|&t| self.free(t, now_ms)).collect();
+        free.sort_by_key(|&t| (self.last_use(t), t));
+        free.into_iter().find(|&t| t != device)
+    }
+
+    /// A configuration at `now_ms` found the device in `found`: still the host's session
+    /// (nothing written), or the host wrote and read back `token`.
+    pub fn configured(&mut self, found: u8, token: Option<u8>, now_ms: u64) {
+        for t in [Some(found), token].into_iter().flatten() {
+            if t != 0 && Some(t) != self.session {
+                self.busy[slot(t)] = Some(now_ms);
+            }
         }
+        if self.session.is_some() && Some(found) == self.session && token.is_none() {
+            self.check_due = false;
+            self.check_at = now_ms + CHECK_RETRY_MS;
+            return;
+        }
+        if self.session.is_some() && Some(found) != self.session {
+            self.drop_session(now_ms);
+        }
+        let Some(token) = token else {
+            return;
+        };
+        if let Some(old) = self.session {
+            self.busy[slot(old)] = Some(now_ms);
+        }
+        if found != 0 {
+            self.busy[slot(found)] = Some(now_ms);
+        }
+        for t in 1..=TOKENS {
+            if t != token && self.busy[slot(t)].is_some() {
+                self.superseded[slot(t)] = Some(now_ms);
+            }
+        }
+        self.busy = [None; TOKENS as usize];
         self.session = Some(token);
         self.reference = None;
-        self.baseline = true;
-        self.configure_due = false;
-    }
-
-    /// The configuration found the device still in the host's session: nothing to do.
-    pub fn intact(&mut self) {
-        self.configure_due = false;
+        self.check_due = false;
     }
 
     /// The receive path was found empty at `now` (ms).
@@ -257,26 +299,26 @@ impl<T: Clone> HostRule<T> {
         self.last_drained = self.last_drained.max(now);
     }
 
-    /// The device's heartbeat: a boot-up or Pre-operational ends the session as the host
-    /// sees it (it configures again).
-    pub fn heartbeat(&mut self, state: u8) {
+    /// The device's heartbeat at `now` (ms): a boot-up ends the session (it configures
+    /// again), and so does Pre-operational while it has one.
+    pub fn heartbeat(&mut self, state: u8, now: u64) {
         let state = state & 0x7F;
         if state == 0 {
             self.baseline = true;
             self.epochs_shown = false;
         }
         if state == 0 || (state == 0x7F && self.session.is_some()) {
-            self.drop_session();
+            self.drop_session(now);
         }
     }
 
-    fn drop_session(&mut self) {
+    fn drop_session(&mut self, now: u64) {
         if let Some(old) = self.session.take() {
-            self.dropped = Some(old);
+            self.busy[slot(old)] = Some(now);
         }
+        self.check_due = false;
         self.reference = None;
         self.baseline = true;
-        self.configure_due = true;
     }
 
     /// A TPDO1 of 8 bytes, handled at `now` (ms). Returns the motion it credits, if any.
@@ -287,13 +329,13 @@ impl<T: Clone> HostRule<T> {
             return None;
         };
         if self.session != Some(rec.session) {
-            // Another session's (or none): never a reference, never credited; check.
-            // A token the host never replaced may be the device's: kept out for the age.
-            if rec.session != 0 && !self.superseded[usize::from(rec.session - 1)] {
-                self.last_use[usize::from(rec.session - 1)] = Some(now);
+            // Another session's (or none): never a reference, never credited; check. A
+            // token the host never replaced may be the device's: kept out for the age.
+            if rec.session != 0 && self.superseded[slot(rec.session)].is_none() {
+                self.busy[slot(rec.session)] = Some(now);
             }
             if self.session.is_some() {
-                self.configure_due = true;
+                self.check_due = true;
             }
             return None;
         }
@@ -308,7 +350,7 @@ impl<T: Clone> HostRule<T> {
         if let Some((prev, prev_bytes, _, _, arrived_us)) = &self.reference {
             let dt = now_us.saturating_sub(*arrived_us);
             if dt > self.config.order_window_us {
-                self.drop_session();
+                self.drop_session(now);
                 return None;
             }
             let m = self.config.sequence_modulo();
@@ -402,12 +444,12 @@ mod tests {
         let mut h: HostRule<()> = HostRule::new(RuleConfig::shipped(100));
         assert_eq!(h.next_token(0, 0), Some(1));
         assert_eq!(h.next_token(0, 1), Some(2), "never the device's");
-        h.configured(1, 0);
+        h.configured(0, Some(1), 0);
         assert_eq!(h.next_token(10, 0), Some(2));
-        h.configured(2, 10);
+        h.configured(1, Some(2), 10);
         assert_eq!(h.next_token(20, 0), Some(3), "1 was replaced 10 ms ago");
         for t in 3..=7 {
-            h.configured(t, 20);
+            h.configured(t - 1, Some(t), 20);
         }
         assert_eq!(
             h.next_token(30, 0),

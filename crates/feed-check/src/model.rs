@@ -14,7 +14,9 @@ use std::fmt::{self, Write as _};
 use std::hash::{Hash, Hasher};
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
-use handwheel_core::{AbLevels, BitRate, DecoderConfig, EdgeState, LinkedWheel, SelectorInput};
+use handwheel_core::{
+    AbLevels, BitRate, DecoderConfig, EdgeState, LinkedWheel, Mutex, SelectorInput, SequencePace,
+};
 use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState};
 use stateright::{Model, Property};
 
@@ -85,8 +87,12 @@ pub enum Action {
     Lose,
     /// The bus takes the next frame and the host receives it twice.
     Duplicate,
-    /// The host receives again the feed record it received this many records ago.
-    Replay(u8),
+    /// The host receives an exact copy of the feed record it received this many records ago
+    /// (any record it received within the contract's copy age, [`Bounds::copy_age_ms`]).
+    Copy(u8),
+    /// The host configures the device (the component's `Configure`, when its rule asks for
+    /// one): the bounds' settings written again, then a session token, then NMT start.
+    Configure,
     /// The host stops reading (frozen, starved): frames wait in its socket.
     HostStall,
     /// The host reads again: the backlog, then its receive path is empty.
@@ -126,8 +132,13 @@ pub struct Bounds {
     pub inhibit_100us: u16,
     /// Frames lost, duplicated or replayed at most.
     pub channel_faults: u8,
-    /// How far back a replay may reach, in feed records delivered.
-    pub replay_depth: u8,
+    /// How far back a copy may reach, in feed records delivered (bounds the state; the age
+    /// limit below is the contract's).
+    pub copy_depth: u8,
+    /// The contract's age of copies (model ms): a record delivered longer ago is never copied.
+    pub copy_age_ms: u64,
+    /// The device's pace (narrowed with the sequence the host sees).
+    pub pace: SequencePace,
     /// Host stalls at most.
     pub host_stalls: u8,
     /// Master heartbeats at most; with any, the device watches the master (0x1016:1, node 1,
@@ -135,6 +146,8 @@ pub struct Bounds {
     pub master_beats: u8,
     /// The device's heartbeat consumer time for the master, ms.
     pub consumer_ms: u16,
+    /// Configurations by the host (after the first) at most.
+    pub configures: u8,
     /// The bound the property sets on lateness: nothing is credited later than this after
     /// it was turned.
     pub late_ms: u64,
@@ -215,13 +228,13 @@ pub struct World {
     /// Frames the device handed out that the bus has not taken.
     transmit: VecDeque<Wire>,
     transmit_completed: u32,
-    /// Feed records the host received, newest last, for replays.
-    delivered: VecDeque<Wire>,
+    /// Feed records the host received and when (ms), newest last, for copies.
+    delivered: VecDeque<(Wire, u64)>,
     host: HostRule<Tag>,
     host_stalled: bool,
     host_backlog: VecDeque<Wire>,
     truth: Truth,
-    used: [u8; 9],
+    used: [u8; 10],
     /// The first breach of the property, if any.
     pub violation: Option<String>,
     /// What the host was given, in order, when recording test vectors (`None` while
@@ -243,12 +256,25 @@ pub enum HostEvent {
     },
     /// The host found its receive path empty (ms).
     Drained(u64),
+    /// The host configured the device, whose 0x2002 read this, at a time (ms).
+    Configure(u8, u64),
 }
 
 impl World {
     /// The host's counts per axis (X, Y).
     pub fn host_counts(&self) -> [i32; AXES] {
         self.host.counts
+    }
+
+    /// The host's session.
+    pub fn host_session(&self) -> Option<u8> {
+        self.host.session()
+    }
+
+    /// The device's session.
+    pub fn device_session(&self) -> u8 {
+        let mut wheel = self.real.wheel.clone();
+        wheel.lock(|h| h.feed.session())
     }
 }
 
@@ -266,6 +292,7 @@ enum Budget {
     ChannelFaults,
     HostStalls,
     MasterBeats,
+    Configures,
 }
 
 /// A transmit path of bounded size.
@@ -362,6 +389,7 @@ impl FeedModel {
             Budget::ChannelFaults => self.bounds.channel_faults,
             Budget::HostStalls => self.bounds.host_stalls,
             Budget::MasterBeats => self.bounds.master_beats,
+            Budget::Configures => self.bounds.configures,
         }
     }
 
@@ -395,17 +423,51 @@ impl FeedModel {
                 moves: vec![Vec::new()],
                 credited_upto: vec![0],
             },
-            used: [0; 9],
+            used: [0; 10],
             violation: None,
             log,
         };
         // The first round joins the bus and starts the device.
+        self.pace(&mut w);
         self.step(&mut w, None);
         self.select(&mut w);
         self.pass_all(&mut w);
+        self.configure(&mut w);
+        self.pass_all(&mut w);
+        // The pace's bucket full again before the exploration starts.
+        w.now_ms +=
+            u64::from(self.bounds.pace.us_per_number) * u64::from(self.bounds.pace.burst) / 1000;
+        self.step(&mut w, None);
+        self.pass_all(&mut w);
+        self.sdo_write(&mut w, 0x2000, 0, &[1]);
+        self.pass_all(&mut w);
+        w
+    }
+
+    /// The device's pace as the bounds narrow it (at power-on; resets keep it).
+    fn pace(&self, w: &mut World) {
+        let pace = self.bounds.pace;
+        w.real.wheel.lock(|h| h.feed.set_sequence_pace(pace));
+    }
+
+    /// The host's configuration (the component's `Configure`): the device's 0x2002 read
+    /// (still the host's session: nothing to do), else no producer heartbeat (fewer frames to
+    /// interleave), the bounds' event timer and inhibit time, the master's heartbeat watched
+    /// when the bounds have beats, 0x2000 = 0, a fresh session token, NMT start. Its frames
+    /// reach the device at once; what the device answers goes the way of every frame. The host
+    /// takes the session when the device holds it (the component reads it back).
+    fn configure(&self, w: &mut World) {
+        let device = w.real.wheel.lock(|h| h.feed.session());
+        self.log(w, HostEvent::Configure(device, w.now_ms));
+        if w.host.session().is_some_and(|own| own == device) {
+            w.host.configured(device, None, w.now_ms);
+            return;
+        }
+        let Some(token) = w.host.next_token(w.now_ms, device) else {
+            w.host.configured(device, None, w.now_ms);
+            return;
+        };
         let timer = self.bounds.event_timer_ms.to_le_bytes();
-        // No producer heartbeat (fewer frames to interleave; the boot-up still goes out), and
-        // the event timer of the bounds.
         let inhibit = self.bounds.inhibit_100us.to_le_bytes();
         let cob_id = |flags: u32| (flags | 0x180 | u32::from(NODE)).to_le_bytes();
         let (invalid, valid) = (cob_id(0xC000_0000), cob_id(0x4000_0000));
@@ -417,20 +479,25 @@ impl FeedModel {
             (0x1800, 3, &inhibit[..]),
             (0x1800, 1, &valid[..]),
         ] {
-            self.sdo_write(&mut w, index, sub, data);
-            self.pass_all(&mut w);
+            self.sdo_write(w, index, sub, data);
         }
         if self.bounds.master_beats > 0 {
             let entry = ((1u32 << 16) | u32::from(self.bounds.consumer_ms)).to_le_bytes();
-            self.sdo_write(&mut w, 0x1016, 1, &entry);
-            self.pass_all(&mut w);
-            self.receive(&mut w, 0x701, &[0x05]);
+            self.sdo_write(w, 0x1016, 1, &entry);
+            self.receive(w, 0x701, &[0x05]);
         }
-        self.nmt(&mut w, Nmt::Start);
-        self.pass_all(&mut w);
-        self.sdo_write(&mut w, 0x2000, 0, &[1]);
-        self.pass_all(&mut w);
-        w
+        self.sdo_write(w, 0x2000, 0, &[0]);
+        self.sdo_write(w, 0x2002, 0, &[token]);
+        let written = w.real.wheel.lock(|h| h.feed.session()) == token;
+        w.host
+            .configured(device, written.then_some(token), w.now_ms);
+        self.nmt(w, Nmt::Start);
+    }
+
+    fn log(&self, w: &mut World, event: HostEvent) {
+        if let Some(log) = &mut w.log {
+            log.push(event);
+        }
     }
 
     /// One round of the node (`Node::poll`, what the firmware's loop calls) at the model's
@@ -508,6 +575,7 @@ impl FeedModel {
         w.transmit.clear();
         w.real.node = new_node(storage);
         w.real.wheel = LinkedWheel::local(DecoderConfig::default(), w.real.levels);
+        self.pace(w);
         self.step(w, None);
         self.select(w);
     }
@@ -527,8 +595,12 @@ impl FeedModel {
         w.now_ms += 1;
         w.transmit_completed = w.transmit_completed.wrapping_add(1);
         if frame.id == TPDO1 {
-            w.delivered.push_back(frame.clone());
-            if w.delivered.len() > 8 {
+            w.delivered.push_back((frame.clone(), w.now_ms));
+            while w.delivered.len() > usize::from(self.bounds.copy_depth)
+                || w.delivered
+                    .front()
+                    .is_some_and(|(_, at)| at + self.bounds.copy_age_ms < w.now_ms)
+            {
                 w.delivered.pop_front();
             }
         }
@@ -566,7 +638,7 @@ impl FeedModel {
             });
         }
         if frame.id == HEARTBEAT && frame.len == 1 {
-            w.host.heartbeat(frame.data[0]);
+            w.host.heartbeat(frame.data[0], w.now_ms);
         } else if frame.id == TPDO1 && frame.len == 8 {
             if let Some(credit) = w.host.record(frame.data, frame.tag, w.now_ms) {
                 if w.violation.is_none() {
@@ -623,8 +695,9 @@ impl FeedModel {
         for _ in 0..turns {
             self.turn(&mut w);
             self.pass_all(&mut w);
-            // The inhibit time (2 ms) lets the record of the next detent go.
-            w.now_ms += 2;
+            // The inhibit time (2 ms) lets the record of the next detent go, and the pace
+            // has a number for it.
+            w.now_ms += (u64::from(self.bounds.pace.us_per_number) / 1000 + 1).max(2);
         }
         w
     }
@@ -698,8 +771,15 @@ impl Model for FeedModel {
             }
         }
         if b(Budget::ChannelFaults) {
-            let depth = w.delivered.len().min(usize::from(self.bounds.replay_depth));
-            actions.extend((1..=depth as u8).map(Action::Replay));
+            let young = w
+                .delivered
+                .iter()
+                .filter(|(_, at)| at + self.bounds.copy_age_ms >= w.now_ms)
+                .count();
+            actions.extend((1..=young as u8).map(Action::Copy));
+        }
+        if w.host.configure_due(w.now_ms) && !w.host_stalled && b(Budget::Configures) {
+            actions.push(Action::Configure);
         }
         if b(Budget::HostStalls) && !w.host_stalled {
             actions.push(Action::HostStall);
@@ -720,9 +800,10 @@ impl Model for FeedModel {
             Action::Nmt(_) => self.spend(&mut w, Budget::Nmt),
             Action::PowerCycle => self.spend(&mut w, Budget::PowerCycles),
             Action::Tick => self.spend(&mut w, Budget::Ticks),
-            Action::Lose | Action::Duplicate | Action::Replay(_) => {
+            Action::Lose | Action::Duplicate | Action::Copy(_) => {
                 self.spend(&mut w, Budget::ChannelFaults)
             }
+            Action::Configure => self.spend(&mut w, Budget::Configures),
             Action::HostStall => self.spend(&mut w, Budget::HostStalls),
             Action::MasterBeat => self.spend(&mut w, Budget::MasterBeats),
             Action::Pass | Action::HostResume => true,
@@ -752,11 +833,12 @@ impl Model for FeedModel {
                 w.transmit_completed = w.transmit_completed.wrapping_add(1);
                 self.step(&mut w, None);
             }
-            Action::Replay(back) => {
+            Action::Copy(back) => {
                 let index = w.delivered.len() - usize::from(back);
-                let frame = w.delivered[index].clone();
+                let frame = w.delivered[index].0.clone();
                 self.to_host(&mut w, frame);
             }
+            Action::Configure => self.configure(&mut w),
             Action::HostStall => w.host_stalled = true,
             Action::MasterBeat => self.receive(&mut w, 0x701, &[0x05]),
             Action::HostResume => {

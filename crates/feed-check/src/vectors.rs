@@ -72,6 +72,13 @@ pub fn write(bounds: &Bounds, walks: usize, steps: usize, seed: u64, out: &mut S
                 HostEvent::Drained(at_ms) => {
                     let _ = write!(out, "{sep}[\"drained\", {}]", *at_ms as f64 / 1000.0);
                 }
+                HostEvent::Configure(found, at_ms) => {
+                    let _ = write!(
+                        out,
+                        "{sep}[\"configure\", {found}, {}]",
+                        *at_ms as f64 / 1000.0
+                    );
+                }
             }
         }
         let _ = writeln!(

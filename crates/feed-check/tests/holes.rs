@@ -28,14 +28,33 @@ fn setting(name: &str) -> Bounds {
 }
 
 #[test]
-fn without_the_ordering_rule_a_replay_is_credited_again() {
-    let mut b = setting("channel faults");
-    b.rule.order_expiry_ms = 0;
-    let found = breach(b).expect("a replayed record becomes a reference");
+fn without_the_pace_bound_a_copy_is_credited() {
+    // A host that took any number ahead as new (as if the device's pace allowed anything)
+    // credits a copy of an earlier record.
+    let mut b = setting("copies of any age");
+    b.rule.burst = 10_000;
+    b.switches = 0;
+    b.ticks = 0;
+    b.warmups = &[124];
+    let found = breach(b).expect("a copy is read as a new record");
     assert!(
-        found.contains("again") || found.contains("backwards"),
+        found.contains("again") || found.contains("backwards") || found.contains("never"),
         "{found}"
     );
+}
+
+#[test]
+fn copies_older_than_the_contract_alias_at_the_wrap() {
+    // The checker reaches the wrap: with copies twice the contract's age (narrowed: 800 ms,
+    // 128 numbers) some copy lies far enough behind to read as a few ahead.
+    let mut b = setting("copies of any age");
+    b.copy_age_ms = 1_600;
+    b.copy_depth = 160;
+    b.switches = 0;
+    b.ticks = 0;
+    b.channel_faults = 1;
+    b.warmups = &[124];
+    assert!(breach(b).is_some(), "an old copy is credited");
 }
 
 #[test]
