@@ -138,7 +138,7 @@ pub const ALL: &[Bounds] = &[
         name: "time and stalls",
         turns: 2,
         switches: 1,
-        ticks: 5,
+        ticks: 4,
         tick_ms: 100,
         host_stalls: 1,
         ..BASE
