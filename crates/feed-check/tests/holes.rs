@@ -61,6 +61,8 @@ fn copies_older_than_the_contract_alias_at_the_wrap() {
 fn without_the_backlog_rule_a_stalled_host_credits_late() {
     let mut b = setting("time and stalls");
     b.rule.backlog_limit_ms = u64::MAX;
+    // A stall longer than the lateness bound (500 ms) needs more ticks than the setting's.
+    b.ticks = 6;
     let found = breach(b).expect("the backlog of a stalled host is credited");
     assert!(found.contains("ms after it was turned"), "{found}");
 }
