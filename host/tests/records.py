@@ -26,17 +26,9 @@ def record(
     return Record(position, axis, mult, epoch, flags, session, seq % core.SEQUENCE_MODULO)
 
 
-def rec(
-    position: int,
-    axis: int = 1,
-    mult: int = 1,
-    flags: int = EN,
-    seq: int = 0,
-    epoch: int = 0,
-    session: int = SESSION,
-) -> bytes:
-    """A feed record's 8 bytes."""
-    return record(position, axis, mult, flags, seq, epoch, session).encode()
+def rec(*args, **kwargs) -> bytes:
+    """A feed record's 8 bytes (`record`'s arguments)."""
+    return record(*args, **kwargs).encode()
 
 
 def configure(c: Core, now: float, found: int = 0, due: bool = True) -> Optional[int]:

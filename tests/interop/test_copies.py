@@ -63,6 +63,7 @@ from rig import (
     Frame,
     Stimulus,
 )
+from rig.component import HalLog, end_component
 from rig.relay import Relay, is_bootup
 from test_host_component import COMPONENT_RUN
 
@@ -74,54 +75,6 @@ STOP_TRANSMIT_BLOCKED = 2  # `stop-reason` for it
 
 def decode(frame: Frame) -> Record:
     return Record.decode(bytes(frame.data))
-
-
-class HalLog:
-    """The component's pin changes as fake_hal writes them (`<time> <pin> <value>`), read
-    incrementally: `values` is the newest of every pin, `changes` all of them in order."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.path.write_text("")
-        self._offset = 0
-        self._rest = b""
-        self.changes: List[tuple] = []  # (time, pin, value as written)
-        self.values: dict = {}
-
-    def poll(self) -> None:
-        with open(self.path, "rb") as f:
-            f.seek(self._offset)
-            data = f.read()
-        self._offset += len(data)
-        *lines, self._rest = (self._rest + data).split(b"\n")
-        for line in lines:
-            t, pin, value = line.decode().split(" ")
-            self.changes.append((float(t), pin, value))
-            self.values[pin] = value
-
-    def value(self, pin: str) -> Optional[str]:
-        self.poll()
-        return self.values.get(pin)
-
-    def number(self, pin: str) -> int:
-        """An integer pin's newest value (0 before any change is logged)."""
-        return int(self.value(pin) or 0)
-
-    def history(self, pin: str, since: float = 0.0) -> List[tuple]:
-        """(time, value) of the pin's changes at or after `since`."""
-        self.poll()
-        return [(t, v) for t, p, v in self.changes if p == pin and t >= since]
-
-    def at(self, pin: str, when: float) -> Optional[str]:
-        """The pin's value as it was at `when`."""
-        self.poll()
-        value = None
-        for t, p, v in self.changes:
-            if t > when:
-                break
-            if p == pin:
-                value = v
-        return value
 
 
 class Host:
@@ -214,14 +167,7 @@ class Host:
         return found[0]
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        end_component(self.proc)
         self.err.close()
         self.stim.close()
         self.relay.close()

@@ -20,6 +20,7 @@ import pytest
 
 from canopen_handwheel.core import Record
 from rig import NODE_ID, ROOT, START_TIMEOUT, Qemu, Stimulus
+from rig.component import HalLog, end_component
 
 TPDO1_LINE = f"t{0x180 + NODE_ID:03X}8".encode()
 BOOTUP_LINE = f"t{0x700 + NODE_ID:03X}100".encode()
@@ -137,29 +138,6 @@ class Relay:
         self.server.close()
 
 
-class HalLog:
-    """The component's pin changes as fake_hal logs them: (time, pin, value)."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def changes(self, pin: str, since: float = 0.0):
-        out = []
-        for line in self.path.read_text().splitlines():
-            t, name, value = line.split(" ")
-            if name == pin and float(t) >= since:
-                out.append((float(t), value))
-        return out
-
-    def value(self, pin: str):
-        """The pin's last written value as logged (`True`/`False`, digits), or None."""
-        changes = self.changes(pin)
-        return changes[-1][1] if changes else None
-
-    def counts(self) -> int:
-        return int(self.value("axis.x.jog-counts") or 0)
-
-
 class Component:
     """The emulator, the relay, the stimulus and the component process (`enable` true)."""
 
@@ -203,14 +181,7 @@ class Component:
         raise AssertionError("no VmRSS")
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        end_component(self.proc)
         self.err.close()
         self.stim.close()
         self.relay.close()
@@ -233,10 +204,10 @@ def test_a_frozen_component_moves_nothing_from_its_backlog(host):
     first 0.3 s, then continued: `axis.x.jog-counts` does not move from the records that
     waited (the device has meanwhile stopped the feed for master loss); afterwards the feed
     is enabled again and turning moves X exactly."""
-    start = host.hal.counts()
+    start = host.hal.number("axis.x.jog-counts")
     host.stim.turn(2)
-    host.wait(lambda: host.hal.counts() == start + 2, 5, "X +2")
-    before = host.hal.counts()
+    host.wait(lambda: host.hal.number("axis.x.jog-counts") == start + 2, 5, "X +2")
+    before = host.hal.number("axis.x.jog-counts")
     host.proc.send_signal(signal.SIGSTOP)
     frozen = time.monotonic()
     try:
@@ -252,13 +223,15 @@ def test_a_frozen_component_moves_nothing_from_its_backlog(host):
     arrived = [t for t, _ in host.relay.records if frozen < t < resumed]
     assert len(arrived) >= 10, "the device sent its records during the freeze"
     time.sleep(1.5)
-    after = host.hal.changes("axis.x.jog-counts", since=resumed)
+    after = host.hal.history("axis.x.jog-counts", since=resumed)
     assert after == [], f"counts moved from the backlog: {after}"
     host.wait(host.enabled, 10, "the feed enabled again")
     host.stim.turn(3)
-    host.wait(lambda: host.hal.counts() == before + 3, 5, "X +3 after the freeze")
+    host.wait(
+        lambda: host.hal.number("axis.x.jog-counts") == before + 3, 5, "X +3 after the freeze"
+    )
     time.sleep(0.3)
-    assert host.hal.counts() == before + 3
+    assert host.hal.number("axis.x.jog-counts") == before + 3
 
 
 def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(host):
@@ -274,14 +247,16 @@ def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(host):
     flood_start, flooded_start = time.monotonic(), host.relay.flooded
     latencies = []  # record reaching the host -> pin
     turns = []  # `turn` command sent -> pin (the detent is made in between)
-    first = host.hal.counts()
+    first = host.hal.number("axis.x.jog-counts")
     for i in range(10):
-        counts = host.hal.counts()
+        counts = host.hal.number("axis.x.jog-counts")
         position = int(host.hal.value("position") or 0)
         turned = time.monotonic()
         host.stim.turn(1)
-        host.wait(lambda c=counts: host.hal.counts() == c + 1, 5, f"detent {i} on X")
-        pin_at = host.hal.changes("axis.x.jog-counts")[-1][0]
+        host.wait(
+            lambda c=counts: host.hal.number("axis.x.jog-counts") == c + 1, 5, f"detent {i} on X"
+        )
+        pin_at = host.hal.history("axis.x.jog-counts")[-1][0]
         turns.append(pin_at - turned)
         sent = [t for t, data in host.relay.records if Record.decode(data).position == position + 1]
         assert sent, f"no record of position {position + 1}"
@@ -297,7 +272,7 @@ def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(host):
         f"RSS {rss_start / 1e6:.1f} MB, grown {rss_grown / 1e3:.0f} kB"
     )
     assert flood_rate > 0.8 * rate, flood_rate
-    assert host.hal.counts() == first + 10
+    assert host.hal.number("axis.x.jog-counts") == first + 10
     assert max(latencies) < 0.1, latencies
     assert max(turns) < 0.25, turns
     assert rss_grown < 2_000_000, rss_grown

@@ -64,6 +64,18 @@ const BASE: Bounds = Bounds {
     warmups: &[],
 };
 
+/// The narrowed sequence and pace, their 50 ms event timer and tick, and copies of any
+/// record of the narrowed contract's age (800 ms).
+const NARROW: Bounds = Bounds {
+    rule: narrow(3),
+    pace: NARROW_PACE,
+    event_timer_ms: 50,
+    tick_ms: 50,
+    copy_depth: 80,
+    copy_age_ms: 800,
+    ..BASE
+};
+
 /// What `cargo xtask test` explores.
 pub const ALL: &[Bounds] = &[
     // Stops, starts and selection changes while the transmit path is full: the epoch field
@@ -82,10 +94,6 @@ pub const ALL: &[Bounds] = &[
     // to wrap.
     Bounds {
         name: "resets and wrap",
-        rule: narrow(3),
-        pace: NARROW_PACE,
-        event_timer_ms: 50,
-        tick_ms: 50,
         transmit_capacity: 1,
         turns: 1,
         feed_writes: 1,
@@ -93,44 +101,33 @@ pub const ALL: &[Bounds] = &[
         power_cycles: 1,
         configures: 1,
         warmups: &[121, 123, 125, 127],
-        ..BASE
+        copy_depth: 0,
+        ..NARROW
     },
     // Lost and doubled frames and copies of any record of the contract's age, with the
     // sequence narrowed and started near its wrap.
     Bounds {
         name: "copies of any age",
-        rule: narrow(3),
-        pace: NARROW_PACE,
-        event_timer_ms: 50,
-        tick_ms: 50,
         transmit_capacity: 2,
         turns: 1,
         switches: 1,
         ticks: 1,
         channel_faults: 2,
-        copy_depth: 80,
-        copy_age_ms: 800,
         warmups: &[80, 124],
-        ..BASE
+        ..NARROW
     },
     // A power cycle whose boot-up may be lost, copies of records from before it, and the
     // host configuring again when its rule asks.
     Bounds {
         name: "power cycles and copies",
-        rule: narrow(3),
-        pace: NARROW_PACE,
-        event_timer_ms: 50,
-        tick_ms: 50,
         transmit_capacity: 2,
         turns: 1,
         feed_writes: 1,
         power_cycles: 1,
         channel_faults: 2,
-        copy_depth: 80,
-        copy_age_ms: 800,
         configures: 1,
         warmups: &[60],
-        ..BASE
+        ..NARROW
     },
     // Time: holds longer than the stall limit, event-timer records, staleness, a host that
     // stalls and reads a backlog.
