@@ -13,7 +13,9 @@ host component's `canopen_handwheel.core.Record` (standard library only).
   `Stimulus` (the stimulus port), `connect_bus` (python-can's slcan bus on the CAN port);
 - `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`;
 - `relay` (imported as `rig.relay`, not re-exported): `Relay`, an SLCAN relay between one
-  client (the host component) and the emulator that drops, copies and adds frames.
+  client (the host component) and the emulator that drops, copies and adds frames;
+- `component` (imported as `rig.component`): `HalLog`, the host component's pins as its fake
+  `hal` logs them, and `end_component`.
 """
 
 from .constants import (
