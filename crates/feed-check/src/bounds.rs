@@ -71,7 +71,8 @@ const NARROW: Bounds = Bounds {
     pace: NARROW_PACE,
     event_timer_ms: 50,
     tick_ms: 50,
-    copy_depth: 80,
+    // The pace allows at most 800 / 10 + 12 = 92 records in 800 ms: every one can be copied.
+    copy_depth: 92,
     copy_age_ms: 800,
     ..BASE
 };
