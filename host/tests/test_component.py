@@ -405,6 +405,8 @@ class SlcanDevice:
         (0x2000, 0): (0, 1),
         (0x2001, 0): (0, 1),
         (0x2002, 0): (0, 1),
+        (0x1A00, 0): (len(core.FEED_RECORD_MAPPING), 1),
+        **{(0x1A00, i + 1): (m, 4) for i, m in enumerate(core.FEED_RECORD_MAPPING)},
     }
 
     def __init__(self) -> None:
@@ -956,6 +958,9 @@ def test_the_configuration_steps_and_their_read_backs(capfd):
         ("upload", 0x2001, 0),
         ("download", 0x2001, 0, 0),
         ("upload", 0x2001, 0),
+        ("upload", 0x1A00, 0),
+        *[("upload", 0x1A00, i) for i in range(1, len(core.FEED_RECORD_MAPPING) + 1)],
+        ("upload", 0x1800, 1),
         ("download", 0x2000, 0, 0),
         ("download", 0x2002, 0, 5),
         ("upload", 0x2002, 0),
@@ -991,6 +996,28 @@ def test_a_read_back_that_differs_fails_the_configuration(capfd, where):
     err = capfd.readouterr().err
     assert f"configuring the device: 0x{where[0]:04X}:{where[1]} reads 0x7, not" in err
     assert ("download", 0x2000, 0, 1) not in sdo.log
+
+
+@pytest.mark.parametrize(
+    "where, value, why",
+    [
+        ((0x1A00, 2), 0x2010_0108, "TPDO1 maps"),
+        ((0x1800, 1), 0x4000_0191, "TPDO1 is on 0x191"),
+        ((0x1800, 1), 0xC000_0190, "TPDO1 is invalid"),
+    ],
+)
+def test_a_remapped_or_moved_tpdo1_fails_the_configuration(capfd, where, value, why):
+    """Another master remapped TPDO1 or moved it (each ended the session): the component's
+    configuration does not take records it would misread; it fails before the feed is
+    enabled or a session written."""
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[where] = (value, 4)
+    sdo = FakeSdo(objects)
+    action = core.Configure(1, 500, None, tokens=(1,))
+    ok, _, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert not ok and result.session is None and result.tried is None
+    assert why in capfd.readouterr().err
+    assert not [e for e in sdo.log if e[0] == "download" and e[1] in (0x2000, 0x2002)]
 
 
 def test_a_missed_boot_up_is_configured_again_before_the_feed_is_enabled(capfd):

@@ -716,3 +716,27 @@ def test_the_feed_is_enabled_only_on_the_hosts_own_session(steps):
                 if a.value == 1:
                     assert c.session is not None and newest == c.session and not booted
                 c.done(a, s[1], None, t)
+
+
+def test_the_mapping_the_configuration_requires_is_the_eds_default():
+    """`FEED_RECORD_MAPPING` is TPDO1's default mapping as the object table (and its EDS) give
+    it, and the fields `Record` decodes fill its 64 bits exactly."""
+    import configparser
+
+    from canopen_handwheel import component
+
+    eds = configparser.ConfigParser()
+    eds.read(component.default_eds())
+    count = int(eds["1A00sub0"]["DefaultValue"], 0)
+    default = tuple(int(eds[f"1A00sub{i}"]["DefaultValue"], 0) for i in range(1, count + 1))
+    assert default == core.FEED_RECORD_MAPPING
+    assert sum(m & 0xFF for m in core.FEED_RECORD_MAPPING) == 64
+
+
+def test_tpdo1_must_be_valid_on_the_nodes_identifier():
+    assert core.tpdo1_cob_id_fault(0x4000_0190, 16) is None
+    assert core.tpdo1_cob_id_fault(0x190, 16) is None
+    assert "invalid" in core.tpdo1_cob_id_fault(0xC000_0190, 16)
+    assert "0x191" in core.tpdo1_cob_id_fault(0x4000_0191, 16)
+    assert "0x280" in core.tpdo1_cob_id_fault(0x4000_0280, 16)
+    assert core.tpdo1_cob_id_fault(0x6000_0190, 16) is not None, "29-bit identifiers"

@@ -576,7 +576,7 @@ def _carry_out(
 
     if isinstance(action, core.Configure):
         assert report is not None
-        return _configure(link, action, report, u32, write, read_back, step)
+        return _configure(link, node_id, action, report, u32, write, read_back, step)
     if isinstance(action, core.WriteFeed):
         write(0x2000, 0, action.value, 1)
         log(f"feed enable 0x2000 = {action.value}")
@@ -585,7 +585,14 @@ def _carry_out(
 
 
 def _configure(
-    link: Link, action: core.Configure, report: core.Configured, u32, write, read_back, step
+    link: Link,
+    node_id: int,
+    action: core.Configure,
+    report: core.Configured,
+    u32,
+    write,
+    read_back,
+    step,
 ):
     """`core.Configure`'s steps; the core decided every value (`core.consumer_plan`,
     `core.event_timer_plan`, `core.inhibit_plan`, `core.pick_token`)."""
@@ -622,6 +629,12 @@ def _configure(
     if u32(0x2001, 0) != 0:
         write(0x2001, 0, 0, 1)
         read_back(0x2001, 0, 0)
+    mapping = tuple(u32(0x1A00, sub) for sub in range(1, u32(0x1A00, 0) + 1))
+    if mapping != core.FEED_RECORD_MAPPING:
+        raise Mismatch(f"TPDO1 maps {[f'0x{m:08X}' for m in mapping]}, not the feed record")
+    fault = core.tpdo1_cob_id_fault(u32(0x1800, 1), node_id)
+    if fault is not None:
+        raise Mismatch(fault)
     # Feed off: a fresh start enables it again, stepping the selection epoch.
     write(0x2000, 0, 0, 1)
     # The session last: every write before it ended whatever session the device had.

@@ -168,6 +168,23 @@ def pick_token(candidates: Tuple[int, ...], device_session: int) -> Optional[int
     return None
 
 
+# TPDO1's mapping 0x1A00 as the feed record needs it (README "Feed record"): position 0x6004,
+# selection 0x2011, status 0x2030, sequence 0x2031 (16 bits). A configuration that finds
+# another mapping fails (it is logged and retried; the feed is never enabled): another master
+# remapped the PDO, and what it carries would not be the record the rule reads.
+FEED_RECORD_MAPPING = (0x6004_0020, 0x2011_0008, 0x2030_0008, 0x2031_0010)
+
+
+def tpdo1_cob_id_fault(cob_id: int, node: int) -> Optional[str]:
+    """Why TPDO1's COB-ID entry 0x1800:1 (read back after the configuration) does not carry
+    the feed record where the component reads it, or None: valid, on 0x180 + node-ID."""
+    if cob_id & 0x8000_0000:
+        return "TPDO1 is invalid (0x1800:1 bit 31)"
+    if cob_id & 0x7FF != 0x180 + node or cob_id & 0x2000_0000:
+        return f"TPDO1 is on 0x{cob_id & 0x1FFF_FFFF:X}, not 0x{0x180 + node:X}"
+    return None
+
+
 # TPDO1 inhibit time 0x1800:3 (100 us units): below INHIBIT_MIN (1 ms) the device's records
 # could come faster than its sequence budget refills, ending the session; configuration then
 # sets INHIBIT_SET (2 ms, the default).
