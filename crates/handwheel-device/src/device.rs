@@ -76,6 +76,19 @@ impl StallWatch {
     }
 }
 
+/// A sink that keeps what waits when asked to discard it ([`Mutant::ResetKeepsPending`]).
+///
+/// [`Mutant::ResetKeepsPending`]: crate::mutant::Mutant::ResetKeepsPending
+#[cfg(feature = "mutants")]
+struct KeepPending<'a>(&'a mut dyn FrameSink);
+
+#[cfg(feature = "mutants")]
+impl FrameSink for KeepPending<'_> {
+    fn send(&mut self, frame: Frame) -> Result<(), canopen_slave::SinkFull> {
+        self.0.send(frame)
+    }
+}
+
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
 /// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
 /// through its RTIC [`Mutex`] on every call.
@@ -140,12 +153,31 @@ impl<S: Storage> HandwheelDevice<S> {
         wheel: &mut impl Mutex<T = Handwheel>,
         tx: &mut dyn FrameSink,
     ) {
+        #[cfg(feature = "mutants")]
+        if self.app.mutant == Some(crate::mutant::Mutant::ResetKeepsPending) {
+            let mut ctx = AppContext {
+                app: &mut self.app,
+                wheel: &mut *wheel,
+            };
+            self.engine
+                .on_frame(now, frame, &mut ctx, &mut KeepPending(tx));
+            self.service(wheel);
+            return;
+        }
         let mut ctx = AppContext {
             app: &mut self.app,
             wheel: &mut *wheel,
         };
         self.engine.on_frame(now, frame, &mut ctx, tx);
         self.service(now, wheel);
+    }
+
+    /// Runs the bug `mutant` from now on (`None`: the real code). For the feed checker's
+    /// mutation tests only; the firmware never has this.
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn set_mutant(&mut self, mutant: Option<crate::mutant::Mutant>) {
+        self.app.mutant = mutant;
     }
 
     /// Time-driven work, and the wheel's new motion: call at
