@@ -161,7 +161,7 @@ impl<S: Storage> HandwheelDevice<S> {
             };
             self.engine
                 .on_frame(now, frame, &mut ctx, &mut KeepPending(tx));
-            self.service(wheel);
+            self.service(now, wheel);
             return;
         }
         let mut ctx = AppContext {
