@@ -158,7 +158,6 @@ pub const ALL: &[Bounds] = &[
     Bounds {
         name: "master loss",
         turns: 1,
-        backward: true,
         feed_writes: 1,
         ticks: 5,
         tick_ms: 100,
@@ -258,13 +257,14 @@ pub const ISSUE34: &[Bounds] = &[
         copy_depth: 0,
         ..NARROW
     },
-    // Everything issue 34 added at once: NMT from any node, a power cycle (its boot-up lost
-    // or not), a lost or doubled frame or a copy, time settling, turns both ways, bxCAN's
-    // ordering.
+    // Everything issue 34 added at once, near the wrap: NMT from any node, a power cycle
+    // (its boot-up lost or not), a lost or doubled frame or a copy, time settling, turns both
+    // ways. One FIFO: with bxCAN's mailboxes the boot-up of a power cycle can be overtaken
+    // (`UNFILED`, "boot-up overtaken").
     Bounds {
         name: "issue 34 at once",
         transmit_capacity: 2,
-        mailboxes: 1,
+        mailboxes: 0,
         turns: 1,
         backward: true,
         feed_writes: 1,
@@ -273,7 +273,7 @@ pub const ISSUE34: &[Bounds] = &[
         channel_faults: 1,
         configures: 1,
         settles: 1,
-        warmups: &[&[Warm::Turns(6)], &[Warm::Turns(118)]],
+        warmups: &[&[Warm::Turns(118)]],
         ..NARROW
     },
     // NMT and time with copies: stops and starts around the wrap, held epochs, event-timer
@@ -318,5 +318,22 @@ pub const UNFILED: &[Bounds] = &[
         tick_ms: 95,
         warmups: &[&[Warm::Held(6)]],
         ..BASE
+    },
+    // A power cycle right after a reset node whose boot-up the host saw: the host configures
+    // before the second boot-up reaches it (the bus held for it while bxCAN's mailboxes let
+    // the answers, 0x590, and the records, 0x190, overtake it, 0x710). When it arrives the
+    // host ends the session it just opened: what was turned meanwhile is never credited,
+    // though no record was missing. Nothing wrong is credited.
+    Bounds {
+        name: "boot-up overtaken",
+        transmit_capacity: 2,
+        mailboxes: 1,
+        turns: 1,
+        feed_writes: 1,
+        nmt: 1,
+        power_cycles: 1,
+        configures: 1,
+        settles: 1,
+        ..NARROW
     },
 ];
