@@ -5,7 +5,7 @@
 //!
 //! A setting stops at its first breach. `--through`: explore on past breaches, to the end (to
 //! measure a setting that breaches today as it will be once it passes). `--mutant NAME`: run the device bug NAME
-//! (`nmt-stop`, `reset`, `snapshot`; the mutation tests' bugs) instead of the real code.
+//! (`nmt-stop`, `reset`, `snapshot`, `stall-completions`; the mutation tests' bugs) instead of the real code.
 //! `--vectors FILE`: write the test vectors for `core.py` first.
 
 use std::collections::BTreeSet;
@@ -18,7 +18,7 @@ use handwheel_device::mutant::Mutant;
 use stateright::{Checker, HasDiscoveries, Model};
 
 const USAGE: &str =
-    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot] [setting name parts]";
+    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot|stall-completions] [setting name parts]";
 
 fn main() -> ExitCode {
     let mut failed = false;
@@ -127,6 +127,7 @@ fn mutant_named(name: &str) -> Option<Mutant> {
         "nmt-stop" => Some(Mutant::NmtStopKeepsHeld),
         "reset" => Some(Mutant::ResetKeepsPending),
         "snapshot" => Some(Mutant::TpdoReadAtSend),
+        "stall-completions" => Some(Mutant::StallCompletions),
         _ => None,
     }
 }

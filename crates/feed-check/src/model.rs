@@ -263,7 +263,8 @@ struct Wire {
 struct Path {
     queue: VecDeque<Wire>,
     boxes: Vec<Wire>,
-    /// Times the path moved (a frame into a mailbox or onto the bus), wrapping.
+    /// Times the path moved (a frame into a mailbox or onto the bus), wrapping: what the
+    /// stall watch counted before its fix (the stall-completions mutant still does).
     completed: u32,
 }
 
@@ -413,11 +414,11 @@ pub struct Spec {
     last_beat: Option<u64>,
     /// The master counts as lost (its heartbeat missed the consumer time).
     master_lost: bool,
-    /// Since when frames wait for the bus with none getting out, and the count of moves
-    /// then; whether that stall stopped the feed already.
+    /// Since when frames wait for the bus, the path not empty once (the device's stall watch
+    /// counts from there).
     stall_since: Option<u64>,
-    stall_completed: u32,
-    stall_handled: bool,
+    /// The path was found blocked and has not run empty since: 0x2000 = 1 is refused.
+    transmit_blocked: bool,
     /// The host received a record the device made since the last of those: detents turned
     /// now are owed.
     synced: bool,
@@ -554,17 +555,15 @@ impl CanIo for Port<'_> {
     fn transmit_state(&mut self) -> TransmitState {
         let state = TransmitState {
             waiting: self.path.waiting(),
-            completed: self.path.completed,
         };
         let spec = &mut *self.spec;
-        if !state.waiting || state.completed != spec.stall_completed {
-            spec.stall_completed = state.completed;
-            spec.stall_since = state.waiting.then_some(self.now_ms);
-            spec.stall_handled = false;
+        if !state.waiting {
+            spec.stall_since = None;
+            spec.transmit_blocked = false;
         } else {
             let since = *spec.stall_since.get_or_insert(self.now_ms);
-            if !spec.stall_handled && self.now_ms >= since + TRANSMIT_STALL_MS {
-                spec.stall_handled = true;
+            if !spec.transmit_blocked && self.now_ms >= since + TRANSMIT_STALL_MS {
+                spec.transmit_blocked = true;
                 spec.enabled = false;
                 self.stalled = true;
             }
@@ -591,6 +590,9 @@ impl Port<'_> {
                     self.wrongly_enabled = Some("not Operational");
                 } else if enable && spec.master_lost {
                     self.wrongly_enabled = Some("the master is lost");
+                } else if enable && spec.transmit_blocked {
+                    self.wrongly_enabled =
+                        Some("its transmit path has not drained since it was blocked");
                 }
                 spec.enabled = enable;
             }
@@ -891,6 +893,11 @@ impl FeedModel {
             locks: &mut w.locks,
             landed: None,
         };
+        // What only the stall-completions mutant reads: frames that left the path so far.
+        w.real
+            .node
+            .device_mut()
+            .mutant_transmit_completed(port.path.completed);
         // The model's time stays far below the tick count's wrap.
         let out = w.real.node.poll(
             now as u32,
@@ -1047,7 +1054,7 @@ impl FeedModel {
         self.reset(w);
         w.transmit.clear();
         w.spec.stall_since = None;
-        w.spec.stall_handled = false;
+        w.spec.transmit_blocked = false;
         w.real.node = new_node(storage, self.bounds.mutant);
         w.real.wheel = LinkedWheel::local(DecoderConfig::default(), w.real.levels);
         self.pace(w);
@@ -1214,7 +1221,7 @@ impl FeedModel {
                 "out of Operational"
             } else if spec.master_lost {
                 "after the master was lost"
-            } else if spec.stall_handled {
+            } else if spec.transmit_blocked {
                 "after its frames waited 100 ms"
             } else {
                 "not enabled by an accepted write"

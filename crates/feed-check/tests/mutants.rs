@@ -36,3 +36,10 @@ fn a_record_read_at_send_time_credits_the_wrong_axis() {
     let found = killed("edges in a round", Mutant::TpdoReadAtSend);
     assert!(found.contains("a detent turned on X"), "{found}");
 }
+
+#[test]
+fn a_stall_watch_restarted_by_every_frame_keeps_the_feed_on_a_trickling_bus() {
+    // The model's own stall watch (the device's promise) trips where the mutant's does not.
+    let found = killed("trickling bus", Mutant::StallCompletions);
+    assert!(found.contains("after its frames waited 100 ms"), "{found}");
+}

@@ -19,14 +19,3 @@ fn a_boot_up_overtaken_by_a_configuration_loses_owed_motion() {
     let found = found("boot-up overtaken");
     assert!(found.contains("no record was missing"), "{found}");
 }
-
-/// A bus that takes a frame every 95 ms never trips the stall watch: records arrive late,
-/// and what they carry is either credited late or never.
-#[test]
-fn a_trickling_bus_delivers_records_late() {
-    let found = found("trickling bus");
-    assert!(
-        found.contains("ms after it was turned") || found.contains("no record was missing"),
-        "{found}"
-    );
-}

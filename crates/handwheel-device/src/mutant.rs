@@ -15,4 +15,7 @@ pub enum Mutant {
     /// TPDO1 reads its mapped objects when it is built, each under its own lock of the wheel,
     /// and the outbox takes the state at send time as sent, instead of one snapshot.
     TpdoReadAtSend,
+    /// The transmit path's stall watch counts its 100 ms from the last frame that got out
+    /// (the rule before the fix): a bus that takes a frame now and then never trips it.
+    StallCompletions,
 }
