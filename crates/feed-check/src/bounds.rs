@@ -147,7 +147,7 @@ pub const ALL: &[Bounds] = &[
     // stalls and reads a backlog.
     Bounds {
         name: "time and stalls",
-        turns: 2,
+        turns: 1,
         switches: 1,
         ticks: 4,
         tick_ms: 100,
@@ -159,7 +159,7 @@ pub const ALL: &[Bounds] = &[
         name: "master loss",
         turns: 1,
         feed_writes: 1,
-        ticks: 5,
+        ticks: 4,
         tick_ms: 100,
         master_beats: 1,
         ..BASE
