@@ -2,23 +2,26 @@
 //! `HandwheelDevice` with its engine, accumulator and outbox), the transmit path in front of
 //! the bus (a FIFO software queue feeding mailboxes that bxCAN empties by identifier), a
 //! channel that passes, loses and duplicates frames and delivers copies of any earlier feed
-//! record, the host's rule ([`HostRule`]) and the truth ([`crate::truth`]): what the stimulus
-//! turned on each axis while the device had the feed enabled.
+//! record up to the contract's age, the host's rule ([`HostRule`], with the sessions it opens)
+//! and the truth ([`crate::truth`]): what the stimulus turned on each axis while the device had
+//! the feed enabled.
 //!
 //! Every action is one thing the outside world can do: the operator turns (forward or back,
 //! between two rounds of the device or landing inside one, at a chosen access of the CAN side
 //! to the wheel), moves the axis or the multiplier switch; a master sends NMT or writes
 //! 0x2000; the device loses power; time passes; the bus takes a frame (or the channel loses
-//! or doubles it, or delivers a copy of an earlier record); the host stalls or resumes; the
-//! master's heartbeat comes; or time settles (half a second without faults, so that motion
+//! or doubles it, or delivers a copy of an earlier record); the host configures (when its rule
+//! asks), stalls or resumes; the master's heartbeat comes; or time settles (half a second without faults, so that motion
 //! owed to the host must have come). Not taking a frame is the bus being held. The property
 //! is checked in every state the actions reach, within the budgets of a [`Bounds`].
 //!
 //! What the device must do besides (README "What the device promises") is judged against the
 //! model's own view of it, [`Spec`]: the feed enabled only by a 0x2000 write accepted in
-//! Operational with the master present, and off once the device left Operational, lost the
-//! master's heartbeat for its consumer time or had its frames wait 100 ms with none getting
-//! out; and nothing made before a reset reaching the bus after it.
+//! Operational with the master present and the transmit path drained since it was last
+//! blocked, and off once the device left Operational, lost the master's heartbeat for its
+//! consumer time, changed or ended its session, or had frames wait 100 ms without the path
+//! running empty; the session the token written last (0 after a reset, a write of anything it
+//! stands for, or the pace); and nothing made before a reset reaching the bus after it.
 
 use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
