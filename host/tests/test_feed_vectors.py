@@ -5,7 +5,8 @@ exactly what the checker's rule credited for it. The checker proves its rule saf
 real device code; this keeps `core.py` the same rule. Since feed record v2 a stream holds the
 configurations its host made (("configure", found, t): `core.replay_core`), so that its
 records carry the session the core wrote; the tokens must be the ones `core.free_tokens` and
-`core.pick_token` choose."""
+`core.pick_token` choose. Besides the model's random walks, the vectors hold streams at each
+limit of the rule, met and missed by one (`crates/feed-check/src/boundaries.rs`)."""
 
 import json
 import os
@@ -36,3 +37,51 @@ def test_core_credits_exactly_what_the_checked_rule_credits():
         moved += bool(want["x"] or want["y"])
     # The vectors must exercise crediting, not only silence.
     assert moved >= len(vectors) // 4
+    # And every limit of the rule met exactly and missed by one (`boundaries.rs`).
+    boundaries = [v["name"] for v in vectors if v["name"].startswith("boundary:")]
+    assert len(boundaries) >= 21, boundaries
+
+
+def _differs(vectors) -> list:
+    """The names of the vectors whose replay now credits other counts."""
+    differ = []
+    for v in vectors:
+        counts = core.replay([tuple(e) for e in v["events"]], core.Config(axes="xy"))
+        if (counts["x"], counts["y"]) != (v["counts"]["x"], v["counts"]["y"]):
+            differ.append(v["name"])
+    return differ
+
+
+# Single changes of the rule that the boundary vectors must notice: a limit moved by one
+# unit (a number, a millisecond) or a comparison off by one.
+RULE_MUTANTS = {
+    "burst + 1": ("SEQUENCE_BURST", lambda v: v + 1),
+    "in transit + 1 ms": ("_IN_TRANSIT_US", lambda v: v + 1000),
+    "order window + 1 ms": ("ORDER_WINDOW", lambda v: v + 0.001),
+    "order window - 1 ms": ("ORDER_WINDOW", lambda v: v - 0.001),
+    "same-epoch gap + 1": ("SAME_EPOCH_MAX_GAP", lambda v: v + 1),
+    "same-epoch gap - 1": ("SAME_EPOCH_MAX_GAP", lambda v: v - 1),
+    "backlog limit + 1 ms": ("BACKLOG_LIMIT", lambda v: v + 0.001),
+    "backlog limit - 1 ms": ("BACKLOG_LIMIT", lambda v: v - 0.001),
+    "max_ahead - 1": ("max_ahead", lambda f: lambda dt: f(dt) - 1),
+    "max_ahead + 1": ("max_ahead", lambda f: lambda dt: f(dt) + 1),
+}
+
+
+@pytest.mark.skipif(not VECTORS, reason="HANDWHEEL_FEED_VECTORS not set (cargo xtask test sets it)")
+@pytest.mark.parametrize("mutant", sorted(RULE_MUTANTS))
+def test_the_boundary_vectors_notice_a_changed_limit(monkeypatch, mutant):
+    boundaries = [v for v in load() if v["name"].startswith("boundary:")]
+    assert _differs(boundaries) == [], "the rule as shipped agrees"
+    name, change = RULE_MUTANTS[mutant]
+    monkeypatch.setattr(core, name, change(getattr(core, name)))
+    assert _differs(boundaries), f"no boundary vector notices {mutant}"
+
+
+@pytest.mark.skipif(not VECTORS, reason="HANDWHEEL_FEED_VECTORS not set (cargo xtask test sets it)")
+@pytest.mark.parametrize("late", [-0.001, 0.001])
+def test_the_boundary_vectors_notice_a_changed_stale_limit(monkeypatch, late):
+    boundaries = [v for v in load() if v["name"].startswith("boundary:")]
+    stale = core.Core.stale_after
+    monkeypatch.setattr(core.Core, "stale_after", property(lambda c: stale.fget(c) + late))
+    assert _differs(boundaries)

@@ -47,6 +47,7 @@
 //! (`handwheel_device::mutant`): the checker must find a breach in each, so that a passing run
 //! means something.
 
+pub mod boundaries;
 pub mod bounds;
 pub mod host;
 pub mod model;
