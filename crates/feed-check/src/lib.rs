@@ -2,30 +2,54 @@
 //!
 //! # The property
 //!
-//! For every sequence of wheel turns, axis switch moves, feed enables and disables, NMT
-//! commands (start, stop, pre-operational, reset node, reset communication), power cycles of
-//! the device, time passing, bus holds of any length (frames wait in a transmit path of the
-//! device's real size), frames lost, duplicated or replayed by the channel, and stalls of the
-//! host: every motion the host credits to an axis is motion the device counted on that axis
-//! while the feed was enabled, forward when it was turned forward, credited at most once, and
-//! credited no later than a stated bound after it was turned (the model's `late_ms`; 500 ms,
-//! the component's default master-loss timeout, for the shipped settings).
+//! For every sequence of wheel turns (forward and back, at x1, x10 and x100, between two
+//! rounds of the device or inside one), axis and multiplier switch moves, feed enables and
+//! disables, NMT commands from any node (start, stop, pre-operational, reset node, reset
+//! communication), power cycles of the device (their boot-up seen or lost), time passing,
+//! bus holds of any length (frames wait in a transmit path of the device's real kind: a FIFO
+//! queue feeding mailboxes that the bus empties by identifier), frames lost or duplicated,
+//! exact copies of any earlier feed record up to the contract's age, the host opening
+//! sessions (its configurations, a token in 0x2002 last), stalls of the host and the master's
+//! heartbeat coming or not:
+//! - every motion the host credits to an axis is motion the operator turned on that axis
+//!   while the feed was enabled, with its sign and multiplier, credited at most once, and
+//!   no later than a stated bound after it was turned (the model's `late_ms`; 500 ms, the
+//!   component's default master-loss timeout, for the shipped settings);
+//! - exactly that when no record is missing: a detent turned while the host is in step
+//!   (nothing happened since its last record after which a record may be missing) is
+//!   credited within the bound;
+//! - the device keeps the promises the host's rule builds on: the feed is enabled only by a
+//!   0x2000 write it accepted in Operational with the master present and a transmit path
+//!   that drained since it was last blocked, and stops when it leaves Operational, loses the
+//!   master's heartbeat, changes or ends its session (a new token, a write of anything the
+//!   session stands for, a reset, its pace) or has frames waiting 100 ms without the path
+//!   running empty; its session is the token written last; nothing it made before a reset
+//!   reaches the bus after it.
 //!
 //! # How it is checked
 //!
-//! [`model::FeedModel`] is a `stateright` model whose state holds the real
-//! `HandwheelDevice` (engine, accumulator, outbox, TPDO1, NMT and reset handling), a transmit
-//! path of bounded size in front of the bus, the channel, the host's rule ([`host`], what
-//! `core.py` runs, with the sequence and epoch widths as parameters so that wrap-around comes
-//! within a few steps) and the truth (every detent the device counted: its era, position,
-//! axis and time). Every credit the host makes is judged against the truth; the checker
+//! [`model::FeedModel`] is a `stateright` model whose state holds the real node (the step
+//! function `Node::poll` over `HandwheelDevice`: engine, accumulator, outbox, TPDO1, NMT and
+//! reset handling), its wheel, the transmit path, the channel with the feed records it
+//! delivered, the host's rule ([`host`], what `core.py` runs, with the sequence and epoch
+//! widths and the device's pace as parameters, so that wrap-around comes within about a
+//! hundred records), the model's
+//! own view of what the device must do ([`model::Spec`]) and the truth ([`truth`]: the
+//! detents the stimulus turned on each axis while the device had the feed enabled, never the
+//! device's position). Every credit the host makes is judged against the truth; the checker
 //! explores every interleaving of the actions within the budgets of each [`model::Bounds`]
 //! breadth first and fails with the shortest path to a breach. [`bounds::ALL`] lists the
-//! settings `cargo xtask test` runs; [`bounds::HOLES`] are weakened rules the checker must
-//! find breaches in, so that a passing run means something.
+//! settings `cargo xtask test` runs; [`bounds::ISSUE34`] the settings that reached what issue
+//! 34 found on the code before feed record v2, which pass now (`tests/issue34.rs`);
+//! [`bounds::UNFILED`] breaches found on today's code that no issue names yet
+//! (`tests/unfiled.rs`). `tests/holes.rs` weakens the host's rule or lets copies be older
+//! than the contract, and `tests/mutants.rs` runs plausible device bugs
+//! (`handwheel_device::mutant`): the checker must find a breach in each, so that a passing run
+//! means something.
 
 pub mod boundaries;
 pub mod bounds;
 pub mod host;
 pub mod model;
+pub mod truth;
 pub mod vectors;

@@ -1,24 +1,62 @@
-//! Runs the feed contract's checker over every setting of `bounds::ALL` and prints what it
-//! explored; exits 1 with the shortest path to the first breach.
+//! Runs the feed contract's checker over every setting of `bounds::ALL` (or those whose
+//! names contain one of the arguments, in `bounds::ALL`, `bounds::ISSUE34` and
+//! `bounds::UNFILED`) and prints
+//! what it explored; exits 1 with the shortest path to the first breach.
+//!
+//! A setting stops at its first breach. `--through`: explore on past breaches, to the end (to
+//! measure a setting that breaches today as it will be once it passes). `--mutant NAME`: run the device bug NAME
+//! (`nmt-stop`, `reset`, `snapshot`, `stall-completions`; the mutation tests' bugs) instead of the real code.
+//! `--vectors FILE`: write the test vectors for `core.py` first.
 
+use std::collections::BTreeSet;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use feed_check::bounds;
-use feed_check::model::FeedModel;
-use stateright::{Checker, Model};
+use feed_check::model::{Bounds, FeedModel};
+use handwheel_device::mutant::Mutant;
+use stateright::{Checker, HasDiscoveries, Model};
+
+const USAGE: &str =
+    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot|stall-completions] [setting name parts]";
 
 fn main() -> ExitCode {
     let mut failed = false;
     let started = Instant::now();
     let mut total = 0;
     let mut args: Vec<String> = std::env::args().skip(1).collect();
-    if let Some(i) = args.iter().position(|a| a == "--vectors") {
-        let Some(path) = args.get(i + 1).cloned() else {
-            eprintln!("usage: feed-check [--vectors FILE] [setting name parts]");
-            return ExitCode::from(2);
+    let mut value = |flag: &str| -> Result<Option<String>, ExitCode> {
+        let Some(i) = args.iter().position(|a| a == flag) else {
+            return Ok(None);
+        };
+        let Some(v) = args.get(i + 1).cloned() else {
+            eprintln!("{USAGE}");
+            return Err(ExitCode::from(2));
         };
         args.drain(i..=i + 1);
+        Ok(Some(v))
+    };
+    let vectors = match value("--vectors") {
+        Ok(v) => v,
+        Err(code) => return code,
+    };
+    let mutant = match value("--mutant").map(|m| m.as_deref().map(mutant_named)) {
+        Ok(None) => None,
+        Ok(Some(Some(m))) => Some(m),
+        Ok(Some(None)) | Err(_) => {
+            eprintln!("{USAGE}");
+            return ExitCode::from(2);
+        }
+    };
+    let mut flag = |name: &str| {
+        let at = args.iter().position(|a| a == name);
+        at.map(|i| args.remove(i)).is_some()
+    };
+    let through = flag("--through");
+    if through {
+        feed_check::model::THROUGH_BREACHES.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+    if let Some(path) = vectors {
         let mut out = String::new();
         for (n, b) in bounds::ALL.iter().enumerate() {
             if (b.rule.sequence_bits, b.rule.epoch_bits) == (16, 3) {
@@ -33,16 +71,26 @@ fn main() -> ExitCode {
         println!("feed-check: vectors for core.py in {path}");
     }
     let only = args;
-    for bounds in bounds::ALL {
-        if !only.is_empty() && !only.iter().any(|o| bounds.name.contains(o.as_str())) {
-            continue;
-        }
+    let chosen: Vec<Bounds> = if only.is_empty() {
+        bounds::ALL.to_vec()
+    } else {
+        bounds::ALL
+            .iter()
+            .chain(bounds::ISSUE34)
+            .chain(bounds::UNFILED)
+            .filter(|b| only.iter().any(|o| b.name.contains(o.as_str())))
+            .copied()
+            .collect()
+    };
+    for mut bounds in chosen {
+        bounds.mutant = mutant.or(bounds.mutant);
         let t = Instant::now();
-        let checker = FeedModel { bounds: *bounds }
-            .checker()
-            .threads(2)
-            .spawn_bfs()
-            .join();
+        let model = FeedModel { bounds };
+        let mut checker = model.checker().threads(2);
+        if through {
+            checker = checker.finish_when(HasDiscoveries::AnyOf(BTreeSet::new()));
+        }
+        let checker = checker.spawn_bfs().join();
         let states = checker.unique_state_count();
         total += states;
         println!(
@@ -52,11 +100,14 @@ fn main() -> ExitCode {
             checker.max_depth(),
             t.elapsed().as_secs_f64()
         );
-        for property in (FeedModel { bounds: *bounds }).properties() {
+        for property in (FeedModel { bounds }).properties() {
             if let Some(path) = checker.discovery(property.name) {
                 failed = true;
                 let last = path.last_state().violation.clone().unwrap_or_default();
                 println!("  BREACH: {last}");
+                if let Some(warmup) = bounds.warmups.get(path.last_state().warmup()) {
+                    println!("  from the warm-up {warmup:?}");
+                }
                 println!("  after: {:?}", path.into_actions());
             }
         }
@@ -69,5 +120,15 @@ fn main() -> ExitCode {
         ExitCode::FAILURE
     } else {
         ExitCode::SUCCESS
+    }
+}
+
+fn mutant_named(name: &str) -> Option<Mutant> {
+    match name {
+        "nmt-stop" => Some(Mutant::NmtStopKeepsHeld),
+        "reset" => Some(Mutant::ResetKeepsPending),
+        "snapshot" => Some(Mutant::TpdoReadAtSend),
+        "stall-completions" => Some(Mutant::StallCompletions),
+        _ => None,
     }
 }

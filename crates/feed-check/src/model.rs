@@ -1,32 +1,66 @@
 //! The model: the real device as the firmware runs it (`Node::poll`, the step function, over
-//! `HandwheelDevice` with its engine, accumulator and outbox), a transmit path of bounded size in front of the bus, a channel that passes, loses,
-//! duplicates and replays frames, the host's rule ([`HostRule`]) and the truth: every detent
-//! the device counted, on which axis and when.
+//! `HandwheelDevice` with its engine, accumulator and outbox), the transmit path in front of
+//! the bus (a FIFO software queue feeding mailboxes that bxCAN empties by identifier), a
+//! channel that passes, loses and duplicates frames and delivers copies of any earlier feed
+//! record up to the contract's age, the host's rule ([`HostRule`], with the sessions it opens)
+//! and the truth ([`crate::truth`]): what the stimulus turned on each axis while the device had
+//! the feed enabled.
 //!
-//! Every action is one thing the outside world can do: the operator turns or switches, a
-//! master sends NMT or writes 0x2000, the device loses power, time passes, the bus takes a
-//! frame (or loses, doubles or replays one), the host stalls or resumes. Not taking a frame
-//! is the bus being held. The property is checked in every state the actions reach, within
-//! the budgets of a [`Bounds`].
+//! Every action is one thing the outside world can do: the operator turns (forward or back,
+//! between two rounds of the device or landing inside one, at a chosen access of the CAN side
+//! to the wheel), moves the axis or the multiplier switch; a master sends NMT or writes
+//! 0x2000; the device loses power; time passes; the bus takes a frame (or the channel loses
+//! or doubles it, or delivers a copy of an earlier record); the host configures (when its rule
+//! asks), stalls or resumes; the master's heartbeat comes; or time settles (half a second without faults, so that motion
+//! owed to the host must have come). Not taking a frame is the bus being held. The property
+//! is checked in every state the actions reach, within the budgets of a [`Bounds`].
+//!
+//! What the device must do besides (README "What the device promises") is judged against the
+//! model's own view of it, [`Spec`]: the feed enabled only by a 0x2000 write accepted in
+//! Operational with the master present and the transmit path drained since it was last
+//! blocked, and off once the device left Operational, lost the master's heartbeat for its
+//! consumer time, changed or ended its session, or had frames wait 100 ms without the path
+//! running empty; the session the token written last (0 after a reset, a write of anything it
+//! stands for, or the pace); and nothing made before a reset reaching the bus after it.
 
 use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
 use std::hash::{Hash, Hasher};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, BitRate, DecoderConfig, EdgeState, LinkedWheel, Mutex, SelectorInput, SequencePace,
+    AbLevels, BitRate, DecoderConfig, EdgeState, Handwheel, LinkedWheel, Mutex, SelectorInput,
+    SequencePace,
 };
-use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState};
+use handwheel_device::mutant::Mutant;
+use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState, TRANSMIT_STALL_MS};
 use stateright::{Model, Property};
 
 use crate::host::{Credit, HostRule, RuleConfig, AXES};
+use crate::truth::{AxisTruth, Detent, Miss};
 
 /// The device's node-ID in the model.
 pub const NODE: u8 = 16;
 const TPDO1: u16 = 0x180 + NODE as u16;
 const HEARTBEAT: u16 = 0x700 + NODE as u16;
 const SDO_RX: u16 = 0x600 + NODE as u16;
+const SDO_TX: u16 = 0x580 + NODE as u16;
+/// The master's node-ID, whose heartbeat the device watches in settings with master beats.
+const MASTER: u16 = 1;
+/// Axis letters for messages.
+const LETTERS: [&str; AXES] = ["X", "Y"];
+/// The multiplier switch's positions.
+const FACTORS: [i32; 3] = [1, 10, 100];
+/// Time steps of [`Action::Settle`], ms: the master's heartbeat comes at least this often.
+const SETTLE_STEP_MS: u64 = 50;
+/// Rounds the model runs back to back while the node asks for no sleep at all (a feed
+/// record made due at the end of a round goes out in the next one, at once).
+const BACK_TO_BACK: usize = 4;
+
+/// Explore on past breaches (`feed-check --through`): for measuring how large a setting that
+/// breaches on today's code will be once it passes.
+pub static THROUGH_BREACHES: AtomicBool = AtomicBool::new(false);
 
 /// NMT commands a master may send.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -67,15 +101,24 @@ impl Nmt {
 /// One thing the world does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Action {
-    /// The operator turns one detent forward.
+    /// The operator turns one detent forward; the edge wakes the device for a round.
     Turn,
+    /// One detent backward.
+    TurnBack,
+    /// One detent forward that lands while the device runs the next action's round(s): at
+    /// the CAN side's `n`-th access to the wheel (1 = before the first).
+    TurnAt(u8),
+    /// One detent backward, landing like [`Action::TurnAt`].
+    TurnBackAt(u8),
     /// The operator moves the axis switch to the other axis (X <-> Y).
     SwitchAxis,
+    /// The operator moves the multiplier switch on (x1 -> x10 -> x100 -> x1).
+    SwitchMultiplier,
     /// A master writes 0x2000 = 1 (without waiting for the answer).
     Enable,
     /// A master writes 0x2000 = 0.
     Disable,
-    /// A master sends an NMT command.
+    /// A master (any node) sends an NMT command.
     Nmt(Nmt),
     /// The device loses power and boots again (what waits for the bus is lost with it).
     PowerCycle,
@@ -88,7 +131,8 @@ pub enum Action {
     /// The bus takes the next frame and the host receives it twice.
     Duplicate,
     /// The host receives an exact copy of the feed record it received this many records ago
-    /// (any record it received within the contract's copy age, [`Bounds::copy_age_ms`]).
+    /// (1 = the newest; any record it received within the contract's copy age,
+    /// [`Bounds::copy_age_ms`]).
     Copy(u8),
     /// The host configures the device (the component's `Configure`, when its rule asks for
     /// one): the bounds' settings written again, then a session token, then NMT start.
@@ -100,6 +144,25 @@ pub enum Action {
     /// The master's heartbeat (node 1) reaches the device; without it for the consumer time
     /// the device counts the master as lost. A stalled host sends none.
     MasterBeat,
+    /// Time passes until every detent owed to the host is older than the bound, the bus
+    /// taking every frame, no fault, the master alive: what is owed must have come.
+    Settle,
+}
+
+/// A warm-up step: what happens, with every frame taken by the bus and received, before the
+/// exploration starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Warm {
+    /// Detents forward, each with its record (2 ms apart: the inhibit time).
+    Turns(u8),
+    /// Detents backward.
+    Backs(u8),
+    /// The axis switch moved.
+    Switch,
+    /// The multiplier switch moved.
+    Multiplier,
+    /// Detents forward whose records wait in the transmit path: the bus takes nothing.
+    Held(u8),
 }
 
 /// What one exploration may do: how often each kind of action, and the settings.
@@ -109,12 +172,24 @@ pub struct Bounds {
     pub name: &'static str,
     /// The host's rule and its widths.
     pub rule: RuleConfig,
-    /// Frames the transmit path holds (software queue and mailboxes: 16 + 3 on the board).
+    /// Frames the transmit path holds: the software queue and the mailboxes (16 + 3 on the
+    /// board).
     pub transmit_capacity: usize,
-    /// Detents turned at most.
+    /// How many of them are mailboxes (3 on bxCAN), which the bus empties lowest identifier
+    /// first; 0: one FIFO whose head is on the bus (the QEMU variant's serial link).
+    pub mailboxes: usize,
+    /// Detents turned between rounds at most.
     pub turns: u8,
+    /// Detents may be turned backward too.
+    pub backward: bool,
+    /// Detents landing inside a round at most.
+    pub inner_turns: u8,
+    /// The last access to the wheel such a detent may land at.
+    pub inner_locks: u8,
     /// Axis switch moves at most.
     pub switches: u8,
+    /// Multiplier switch moves at most.
+    pub multipliers: u8,
     /// 0x2000 writes at most.
     pub feed_writes: u8,
     /// NMT commands at most.
@@ -130,7 +205,7 @@ pub struct Bounds {
     /// TPDO1's inhibit time (0x1800:3), 100 us; 20 by default. 0 lets every change go at
     /// once, which fills the transmit path in fewer steps.
     pub inhibit_100us: u16,
-    /// Frames lost, duplicated or replayed at most.
+    /// Frames lost or duplicated and copies of earlier feed records delivered, at most.
     pub channel_faults: u8,
     /// How far back a copy may reach, in feed records delivered (bounds the state; the age
     /// limit below is the contract's).
@@ -139,6 +214,8 @@ pub struct Bounds {
     pub copy_age_ms: u64,
     /// The device's pace (narrowed with the sequence the host sees).
     pub pace: SequencePace,
+    /// Configurations by the host (after the first) at most.
+    pub configures: u8,
     /// Host stalls at most.
     pub host_stalls: u8,
     /// Master heartbeats at most; with any, the device watches the master (0x1016:1, node 1,
@@ -146,24 +223,30 @@ pub struct Bounds {
     pub master_beats: u8,
     /// The device's heartbeat consumer time for the master, ms.
     pub consumer_ms: u16,
-    /// Configurations by the host (after the first) at most.
-    pub configures: u8,
     /// The bound the property sets on lateness: nothing is credited later than this after
-    /// it was turned.
+    /// it was turned, and what is owed is credited by then.
     pub late_ms: u64,
-    /// Detents turned (and their records received) before the exploration starts, one initial
-    /// state for each: where the sequence stands when the trouble begins.
-    pub warmups: &'static [u8],
+    /// [`Action::Settle`] at most.
+    pub settles: u8,
+    /// What happens before the exploration starts, one initial state for each: where the
+    /// sequence, the epoch and the history of copies stand when the trouble begins.
+    pub warmups: &'static [&'static [Warm]],
+    /// The device bug to run ([`Mutant`]), for the mutation tests; `None`: the real code.
+    pub mutant: Option<Mutant>,
 }
 
 /// Where a frame came from, which the host cannot see.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Tag {
-    /// Which run of positions: +1 at every power cycle and reset node (the position
-    /// restarts at 0).
-    pub era: u8,
     /// When the device made the frame.
     pub made_ms: u64,
+    /// Resets and power cycles before it was made.
+    pub boot: u8,
+    /// Made before something after which records may be missing (and so not what tells
+    /// that the host is back in step).
+    pub stale: bool,
+    /// A copy delivered by the channel, not the device's frame.
+    pub copy: bool,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -172,6 +255,73 @@ struct Wire {
     data: [u8; 8],
     len: u8,
     tag: Tag,
+}
+
+/// The transmit path: a FIFO software queue in front of the mailboxes. A frame moves from the
+/// queue's head into a mailbox only while it outranks (has a lower identifier than) every
+/// frame pending there (so each identifier's frames stay in order); with every mailbox full
+/// it displaces the lowest-ranked one back to the queue's head. The bus takes the
+/// highest-ranked mailbox. (`src/can/port.rs` over `bxcan::Can::transmit`.)
+#[derive(Clone, Debug, Default, PartialEq, Eq, Hash)]
+struct Path {
+    queue: VecDeque<Wire>,
+    boxes: Vec<Wire>,
+    /// Times the path moved (a frame into a mailbox or onto the bus), wrapping: what the
+    /// stall watch counted before its fix (the stall-completions mutant still does).
+    completed: u32,
+}
+
+impl Path {
+    fn waiting(&self) -> bool {
+        !self.queue.is_empty() || !self.boxes.is_empty()
+    }
+
+    fn pump(&mut self, mailboxes: usize) {
+        while let Some(front) = self.queue.front() {
+            if mailboxes == 0 || self.boxes.iter().any(|b| b.id <= front.id) {
+                return;
+            }
+            let Some(next) = self.queue.pop_front() else {
+                return;
+            };
+            if self.boxes.len() == mailboxes {
+                let lowest = (0..self.boxes.len())
+                    .max_by_key(|&i| self.boxes[i].id)
+                    .expect("mailboxes are full");
+                let displaced = self.boxes.swap_remove(lowest);
+                self.queue.push_front(displaced);
+            }
+            self.boxes.push(next);
+            self.completed = self.completed.wrapping_add(1);
+        }
+    }
+
+    /// The frame the bus takes next.
+    fn next(&self) -> Option<&Wire> {
+        if self.boxes.is_empty() {
+            self.queue.front()
+        } else {
+            self.boxes.iter().min_by_key(|w| w.id)
+        }
+    }
+
+    /// The bus takes the next frame.
+    fn take(&mut self, mailboxes: usize) -> Option<Wire> {
+        let taken = if mailboxes == 0 {
+            self.queue.pop_front()
+        } else {
+            let i = (0..self.boxes.len()).min_by_key(|&i| self.boxes[i].id)?;
+            Some(self.boxes.remove(i))
+        };
+        self.completed = self.completed.wrapping_add(1);
+        self.pump(mailboxes);
+        taken
+    }
+
+    fn clear(&mut self) {
+        self.queue.clear();
+        self.boxes.clear();
+    }
 }
 
 /// The node and its wheel: real code, compared and hashed through their `Debug` form
@@ -197,9 +347,47 @@ impl PartialEq for Real {
     }
 }
 
+/// Feeds what is formatted into a hasher in pieces of a small buffer, building no string
+/// (hashing states is most of the checker's time).
+struct HashWriter<'a, H> {
+    hasher: &'a mut H,
+    buffer: [u8; 256],
+    len: usize,
+}
+
+impl<H: Hasher> HashWriter<'_, H> {
+    fn flush(&mut self) {
+        self.hasher.write(&self.buffer[..self.len]);
+        self.len = 0;
+    }
+}
+
+impl<H: Hasher> fmt::Write for HashWriter<'_, H> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        let bytes = s.as_bytes();
+        if self.len + bytes.len() > self.buffer.len() {
+            self.flush();
+            if bytes.len() > self.buffer.len() {
+                self.hasher.write(bytes);
+                return Ok(());
+            }
+        }
+        self.buffer[self.len..self.len + bytes.len()].copy_from_slice(bytes);
+        self.len += bytes.len();
+        Ok(())
+    }
+}
+
 impl Hash for Real {
     fn hash<H: Hasher>(&self, state: &mut H) {
-        self.fingerprint().hash(state);
+        // The same value is always formatted in the same pieces, so equal states hash equal.
+        let mut w = HashWriter {
+            hasher: state,
+            buffer: [0; 256],
+            len: 0,
+        };
+        let _ = write!(w, "{:?}{:?}{:?}", self.node, self.wheel, self.levels);
+        w.flush();
     }
 }
 
@@ -209,13 +397,34 @@ impl fmt::Debug for Real {
     }
 }
 
-/// Detents the device counted, per era, by position: the axis (index into [`AXES`]) and
-/// when.
-#[derive(Clone, Debug, PartialEq, Eq, Hash, Default)]
-struct Truth {
-    moves: Vec<Vec<(usize, u64)>>,
-    /// Per era, the position up to which motion was credited.
-    credited_upto: Vec<i32>,
+/// The model's own view of what the device must be doing, from what the world did to it
+/// (never from its state): the checks of README "What the device promises", and which
+/// records went missing.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Spec {
+    /// The device is Operational (NMT commands, resets and power cycles it was given).
+    operational: bool,
+    /// The feed may be enabled: a 0x2000 = 1 was accepted and nothing stopped it since.
+    enabled: bool,
+    /// Resets of the node or communication and power cycles so far.
+    boot: u8,
+    /// The master's session (0x2002) the device must be in: the token last written, 0 after
+    /// a reset or a write of anything the session stands for.
+    session: u8,
+    /// The device watches the master's heartbeat (0x1016 written since its last reset).
+    watching: bool,
+    /// The master's last heartbeat the device took, ms.
+    last_beat: Option<u64>,
+    /// The master counts as lost (its heartbeat missed the consumer time).
+    master_lost: bool,
+    /// Since when frames wait for the bus, the path not empty once (the device's stall watch
+    /// counts from there).
+    stall_since: Option<u64>,
+    /// The path was found blocked and has not run empty since: 0x2000 = 1 is refused.
+    transmit_blocked: bool,
+    /// The host received a record the device made since the last of those: detents turned
+    /// now are owed.
+    synced: bool,
 }
 
 /// One state of the world.
@@ -223,17 +432,29 @@ struct Truth {
 pub struct World {
     real: Real,
     now_ms: u64,
-    era: u8,
     axis: usize,
+    multiplier: usize,
     /// Frames the device handed out that the bus has not taken.
-    transmit: VecDeque<Wire>,
-    /// Feed records the host received and when (ms), newest last, for copies.
+    transmit: Path,
+    /// Feed records the host received from the bus and when (ms), oldest first, for copies
+    /// (as far back as the bounds' copy age and depth, while copies are left in the budget).
     delivered: VecDeque<(Wire, u64)>,
     host: HostRule<Tag>,
     host_stalled: bool,
     host_backlog: VecDeque<Wire>,
-    truth: Truth,
-    used: [u8; 10],
+    truth: [AxisTruth; AXES],
+    spec: Spec,
+    /// A detent that lands at this access to the wheel during the next action's rounds
+    /// (backward?, access).
+    pending: Option<(bool, u8)>,
+    /// Accesses to the wheel so far in this action.
+    locks: u8,
+    /// The object (index, value) of the SDO write this action makes, until the device
+    /// answers it.
+    writing: Option<(u16, u32)>,
+    used: [u8; 13],
+    /// Which warm-up this state started from.
+    warmup: u8,
     /// The first breach of the property, if any.
     pub violation: Option<String>,
     /// What the host was given, in order, when recording test vectors (`None` while
@@ -265,6 +486,11 @@ impl World {
         self.host.counts
     }
 
+    /// Which of the bounds' warm-ups this state started from.
+    pub fn warmup(&self) -> usize {
+        usize::from(self.warmup)
+    }
+
     /// The host's session.
     pub fn host_session(&self) -> Option<u8> {
         self.host.session()
@@ -283,7 +509,9 @@ impl Eq for World {}
 #[derive(Clone, Copy)]
 enum Budget {
     Turns,
+    InnerTurns,
     Switches,
+    Multipliers,
     FeedWrites,
     Nmt,
     PowerCycles,
@@ -291,17 +519,25 @@ enum Budget {
     ChannelFaults,
     HostStalls,
     MasterBeats,
+    Settles,
     Configures,
 }
 
-/// A transmit path of bounded size.
 /// The CAN port of one round: at most one received frame, the transmit path, a controller
 /// that is always on the bus and error-active.
 struct Port<'a> {
     rx: Option<Frame>,
-    queue: &'a mut VecDeque<Wire>,
+    path: &'a mut Path,
     capacity: usize,
+    mailboxes: usize,
     tag: Tag,
+    spec: &'a mut Spec,
+    now_ms: u64,
+    writing: &'a mut Option<(u16, u32)>,
+    /// The path counts as blocked now (the device stops the feed and discards what waits).
+    stalled: bool,
+    /// The device took 0x2000 = 1 although it must not have: why.
+    wrongly_enabled: Option<&'static str>,
 }
 
 impl CanIo for Port<'_> {
@@ -317,10 +553,25 @@ impl CanIo for Port<'_> {
         0
     }
 
+    /// The device looks once per round; the model's own stall watch looks at the same time
+    /// (before the device may discard what waits).
     fn transmit_state(&mut self) -> TransmitState {
-        TransmitState {
-            waiting: !self.queue.is_empty(),
+        let state = TransmitState {
+            waiting: self.path.waiting(),
+        };
+        let spec = &mut *self.spec;
+        if !state.waiting {
+            spec.stall_since = None;
+            spec.transmit_blocked = false;
+        } else {
+            let since = *spec.stall_since.get_or_insert(self.now_ms);
+            if !spec.transmit_blocked && self.now_ms >= since + TRANSMIT_STALL_MS {
+                spec.transmit_blocked = true;
+                spec.enabled = false;
+                self.stalled = true;
+            }
         }
+        state
     }
 
     fn switch_bit_rate(&mut self, _: BitRate) -> bool {
@@ -328,43 +579,135 @@ impl CanIo for Port<'_> {
     }
 }
 
-/// The switch lines: the model's axis (X or Y) at x1.
-struct Lines(usize);
-
-impl SelectorInput for Lines {
-    fn read_lines(&mut self) -> (u8, u8) {
-        (1 << self.0, 1)
+impl Port<'_> {
+    /// What a write the device took does to the feed (README "What the device promises"):
+    /// 0x2000 enables (only in Operational with the master present) or disables it; a new
+    /// token in 0x2002 opens that session with the feed off; a write of anything else the
+    /// session stands for ends it, and the feed with it.
+    fn written(&mut self, index: u16, value: u32) {
+        let spec = &mut *self.spec;
+        match index {
+            0x2000 => {
+                let enable = value == 1;
+                if enable && !spec.operational {
+                    self.wrongly_enabled = Some("not Operational");
+                } else if enable && spec.master_lost {
+                    self.wrongly_enabled = Some("the master is lost");
+                } else if enable && spec.transmit_blocked {
+                    self.wrongly_enabled =
+                        Some("its transmit path has not drained since it was blocked");
+                }
+                spec.enabled = enable;
+            }
+            0x2002 => {
+                let token = (value & 0b111) as u8;
+                if token != spec.session {
+                    spec.session = token;
+                    spec.enabled = false;
+                }
+            }
+            0x1003 | 0x1010 | 0x1011 => {}
+            _ => {
+                // 0x1016: the master's heartbeat is watched from now on.
+                spec.watching |= index == 0x1016;
+                if spec.session != 0 {
+                    spec.session = 0;
+                    spec.enabled = false;
+                }
+            }
+        }
     }
 }
 
 impl FrameSink for Port<'_> {
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
-        if self.queue.len() >= self.capacity {
+        // The device's answer to the write: it took it, now (later in this round a stop may
+        // end its effect again).
+        if frame.id() == SDO_TX && frame.data().first() == Some(&0x60) {
+            let index = u16::from_le_bytes([frame.data()[1], frame.data()[2]]);
+            if let Some((_, value)) = self.writing.take_if(|(i, _)| *i == index) {
+                self.written(index, value);
+            }
+        }
+        if self.path.queue.len() >= self.capacity - self.mailboxes {
             return Err(SinkFull);
         }
         let mut data = [0; 8];
         data[..frame.data().len()].copy_from_slice(frame.data());
-        self.queue.push_back(Wire {
+        self.path.queue.push_back(Wire {
             id: frame.id(),
             data,
             len: frame.data().len() as u8,
             tag: self.tag,
         });
+        self.path.pump(self.mailboxes);
         Ok(())
     }
 
     fn discard_pending(&mut self) {
-        self.queue.clear();
+        self.path.clear();
+    }
+}
+
+/// The switch lines: the model's axis (X or Y) and multiplier.
+struct Lines(usize, usize);
+
+impl SelectorInput for Lines {
+    fn read_lines(&mut self) -> (u8, u8) {
+        (1 << self.0, 1 << self.1)
+    }
+}
+
+/// The CAN side's wheel for one action's rounds: a detent may land at a chosen access.
+struct ModelWheel<'a> {
+    inner: &'a mut LinkedWheel<EdgeState>,
+    levels: &'a mut AbLevels,
+    pending: &'a mut Option<(bool, u8)>,
+    locks: &'a mut u8,
+    /// The detent landed, backward?, and whether the device's feed was enabled then.
+    landed: Option<(bool, bool)>,
+}
+
+/// One detent's four edges.
+fn detent(wheel: &mut LinkedWheel<EdgeState>, levels: &mut AbLevels, back: bool) {
+    for _ in 0..4 {
+        *levels = if back {
+            levels.next_reverse()
+        } else {
+            levels.next_forward()
+        };
+        let _ = wheel.edge().on_edge(*levels);
+    }
+}
+
+impl Mutex for ModelWheel<'_> {
+    type T = Handwheel;
+
+    fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+        *self.locks = self.locks.saturating_add(1);
+        if let Some((back, at)) = *self.pending {
+            if at == *self.locks {
+                *self.pending = None;
+                detent(self.inner, self.levels, back);
+                // The edge's detent is taken in by this access: it counts as feed if the
+                // device has the feed enabled now.
+                let enabled = self.inner.feed().enabled();
+                self.landed = Some((back, enabled));
+            }
+        }
+        self.inner.lock(f)
     }
 }
 
 /// A node as the firmware makes it at power-on, with `storage` as its parameter page.
-fn new_node(storage: MemoryStorage) -> Node<MemoryStorage> {
+fn new_node(storage: MemoryStorage, mutant: Option<Mutant>) -> Node<MemoryStorage> {
     let node_id = NodeId::new(NODE).expect("a valid node-ID");
-    Node::new(
+    let mut node = Node::new(
         HandwheelDevice::new(node_id, 0x5EED, storage),
         BitRate::Kbit1000,
-    )
+    );
+    node.device_mut().set_mutant(mutant);
+    node
 }
 
 /// The model of one [`Bounds`].
@@ -376,17 +719,21 @@ pub struct FeedModel {
 
 impl FeedModel {
     fn budget(&self, b: Budget) -> u8 {
+        let bounds = &self.bounds;
         match b {
-            Budget::Turns => self.bounds.turns,
-            Budget::Switches => self.bounds.switches,
-            Budget::FeedWrites => self.bounds.feed_writes,
-            Budget::Nmt => self.bounds.nmt,
-            Budget::PowerCycles => self.bounds.power_cycles,
-            Budget::Ticks => self.bounds.ticks,
-            Budget::ChannelFaults => self.bounds.channel_faults,
-            Budget::HostStalls => self.bounds.host_stalls,
-            Budget::MasterBeats => self.bounds.master_beats,
-            Budget::Configures => self.bounds.configures,
+            Budget::Turns => bounds.turns,
+            Budget::InnerTurns => bounds.inner_turns,
+            Budget::Switches => bounds.switches,
+            Budget::Multipliers => bounds.multipliers,
+            Budget::FeedWrites => bounds.feed_writes,
+            Budget::Nmt => bounds.nmt,
+            Budget::PowerCycles => bounds.power_cycles,
+            Budget::Ticks => bounds.ticks,
+            Budget::ChannelFaults => bounds.channel_faults,
+            Budget::HostStalls => bounds.host_stalls,
+            Budget::MasterBeats => bounds.master_beats,
+            Budget::Settles => bounds.settles,
+            Budget::Configures => bounds.configures,
         }
     }
 
@@ -401,25 +748,27 @@ impl FeedModel {
     pub fn initial_with(&self, log: Option<Vec<HostEvent>>) -> World {
         let levels = AbLevels::from_bits(0);
         let real = Real {
-            node: new_node(MemoryStorage::new()),
+            node: new_node(MemoryStorage::new(), self.bounds.mutant),
             wheel: LinkedWheel::local(DecoderConfig::default(), levels),
             levels,
         };
         let mut w = World {
             real,
             now_ms: 0,
-            era: 0,
             axis: 0,
-            transmit: VecDeque::new(),
+            multiplier: 0,
+            transmit: Path::default(),
             delivered: VecDeque::new(),
             host: HostRule::new(self.bounds.rule),
             host_stalled: false,
             host_backlog: VecDeque::new(),
-            truth: Truth {
-                moves: vec![Vec::new()],
-                credited_upto: vec![0],
-            },
-            used: [0; 10],
+            truth: Default::default(),
+            spec: Spec::default(),
+            pending: None,
+            locks: 0,
+            writing: None,
+            used: [0; 13],
+            warmup: 0,
             violation: None,
             log,
         };
@@ -435,8 +784,10 @@ impl FeedModel {
             u64::from(self.bounds.pace.us_per_number) * u64::from(self.bounds.pace.burst) / 1000;
         self.step(&mut w, None);
         self.pass_all(&mut w);
-        self.sdo_write(&mut w, 0x2000, 0, &[1]);
+        self.feed_write(&mut w, true);
         self.pass_all(&mut w);
+        assert!(w.spec.enabled, "the initial enable was refused");
+        w.locks = 0;
         w
     }
 
@@ -448,10 +799,11 @@ impl FeedModel {
 
     /// The host's configuration (the component's `Configure`): the device's 0x2002 read
     /// (still the host's session: nothing to do), else no producer heartbeat (fewer frames to
-    /// interleave), the bounds' event timer and inhibit time, the master's heartbeat watched
-    /// when the bounds have beats, 0x2000 = 0, a fresh session token, NMT start. Its frames
-    /// reach the device at once; what the device answers goes the way of every frame. The host
-    /// takes the session when the device holds it (the component reads it back).
+    /// interleave; the boot-up still goes out), the bounds' event timer and inhibit time, the
+    /// master's heartbeat watched when the bounds have beats, 0x2000 = 0, a fresh session
+    /// token, NMT start. Its frames reach the device at once; what the device answers goes the
+    /// way of every frame. The host takes the session when the device holds it (the component
+    /// reads it back).
     fn configure(&self, w: &mut World) {
         let device = w.real.wheel.lock(|h| h.feed.session());
         self.log(w, HostEvent::Configure(device, w.now_ms));
@@ -478,9 +830,10 @@ impl FeedModel {
             self.sdo_write(w, index, sub, data);
         }
         if self.bounds.master_beats > 0 {
-            let entry = ((1u32 << 16) | u32::from(self.bounds.consumer_ms)).to_le_bytes();
+            let entry =
+                ((u32::from(MASTER) << 16) | u32::from(self.bounds.consumer_ms)).to_le_bytes();
             self.sdo_write(w, 0x1016, 1, &entry);
-            self.receive(w, 0x701, &[0x05]);
+            self.master_beat(w);
         }
         self.sdo_write(w, 0x2000, 0, &[0]);
         self.sdo_write(w, 0x2002, 0, &[token]);
@@ -497,29 +850,134 @@ impl FeedModel {
     }
 
     /// One round of the node (`Node::poll`, what the firmware's loop calls) at the model's
-    /// time, with `frame` received.
-    fn step(&self, w: &mut World, frame: Option<Frame>) -> Outputs {
-        let mut port = Port {
-            rx: frame,
-            queue: &mut w.transmit,
-            capacity: self.bounds.transmit_capacity,
-            tag: Tag {
-                era: w.era,
-                made_ms: w.now_ms,
-            },
-        };
-        // The model's time stays far below the tick count's wrap.
-        let ticks = w.now_ms as u32;
-        w.real
-            .node
-            .poll(ticks, &mut port, &mut Lines(w.axis), &mut w.real.wheel)
+    /// time, with `frame` received, and the rounds that follow at once while the node asks
+    /// for no sleep.
+    ///
+    /// The firmware also runs the next round at once when one ends with a feed record due
+    /// (a stall's stop, a detent taken in by the round's last access to the wheel). The model
+    /// does so after a round a detent landed in; otherwise the next action's round, which
+    /// every action that reaches the device begins with, sends it (fewer states, and only
+    /// orders the firmware could also take, a little later).
+    fn step(&self, w: &mut World, frame: Option<Frame>) {
+        let mut frame = frame;
+        for _ in 0..BACK_TO_BACK {
+            let landing = w.pending.is_some();
+            let out = self.round(w, frame.take());
+            if out.sleep_ms > 0 || !landing || w.pending.is_some() {
+                break;
+            }
+        }
     }
 
-    /// The switch is at the model's axis: rounds a millisecond apart until the node's
-    /// debouncer takes it (four samples, 5 ms apart). Nothing else happens meanwhile.
+    fn round(&self, w: &mut World, frame: Option<Frame>) -> Outputs {
+        let now = w.now_ms;
+        let tag = Tag {
+            made_ms: now,
+            boot: w.spec.boot,
+            stale: false,
+            copy: false,
+        };
+        let mut port = Port {
+            rx: frame,
+            path: &mut w.transmit,
+            capacity: self.bounds.transmit_capacity,
+            mailboxes: self.bounds.mailboxes,
+            tag,
+            spec: &mut w.spec,
+            now_ms: now,
+            writing: &mut w.writing,
+            stalled: false,
+            wrongly_enabled: None,
+        };
+        let mut wheel = ModelWheel {
+            inner: &mut w.real.wheel,
+            levels: &mut w.real.levels,
+            pending: &mut w.pending,
+            locks: &mut w.locks,
+            landed: None,
+        };
+        // What only the stall-completions mutant reads: frames that left the path so far.
+        w.real
+            .node
+            .device_mut()
+            .mutant_transmit_completed(port.path.completed);
+        // The model's time stays far below the tick count's wrap.
+        let out = w.real.node.poll(
+            now as u32,
+            &mut port,
+            &mut Lines(w.axis, w.multiplier),
+            &mut wheel,
+        );
+        let (landed, stalled, wrongly) = (wheel.landed, port.stalled, port.wrongly_enabled);
+        if let Some(why) = wrongly {
+            self.breach(w, format!("device: 0x2000 = 1 accepted while {why}"));
+        }
+        if let Some((back, enabled)) = landed {
+            self.turned(w, back, enabled);
+        }
+        if stalled {
+            self.records_missing(w);
+        }
+        self.watch_master(w);
+        out
+    }
+
+    /// The master's heartbeat: lost once the consumer time passed without one (the device's
+    /// engine looks in every round, as the model does after it).
+    fn watch_master(&self, w: &mut World) {
+        let spec = &mut w.spec;
+        let consumer = u64::from(self.bounds.consumer_ms);
+        if spec.watching
+            && !spec.master_lost
+            && spec
+                .last_beat
+                .is_some_and(|beat| w.now_ms >= beat + consumer)
+        {
+            spec.master_lost = true;
+            spec.enabled = false;
+            self.records_missing(w);
+        }
+    }
+
+    /// A detent was turned (now, at the model's switch positions): truth if the device had
+    /// the feed enabled when it took it in.
+    fn turned(&self, w: &mut World, back: bool, enabled: bool) {
+        if !enabled {
+            return;
+        }
+        let units = FACTORS[w.multiplier] * if back { -1 } else { 1 };
+        w.truth[w.axis].turned(Detent {
+            units,
+            at: w.now_ms,
+            owed: w.spec.synced,
+        });
+    }
+
+    /// Something happened after which records may be missing: nothing turned so far is
+    /// owed, nor is anything until the host has a record made after it.
+    fn records_missing(&self, w: &mut World) {
+        for frame in w.transmit.queue.iter_mut().chain(&mut w.transmit.boxes) {
+            frame.tag.stale = true;
+        }
+        for frame in &mut w.host_backlog {
+            frame.tag.stale = true;
+        }
+        w.spec.synced = false;
+        for t in &mut w.truth {
+            t.excuse();
+        }
+    }
+
+    /// The switch is at the model's axis and multiplier: rounds a millisecond apart until
+    /// the node's debouncer takes it (four samples, 5 ms apart). Nothing else happens
+    /// meanwhile.
     fn select(&self, w: &mut World) {
         for _ in 0..40 {
-            if self.step(w, None).log.selection.is_some() {
+            let out = self.round(w, None);
+            if out.log.selection.is_some() {
+                if out.sleep_ms == 0 {
+                    self.step(w, None);
+                }
                 return;
             }
             w.now_ms += 1;
@@ -533,42 +991,74 @@ impl FeedModel {
     }
 
     fn nmt(&self, w: &mut World, command: Nmt) {
-        if command == Nmt::ResetNode {
-            w.era += 1;
-            w.truth.moves.push(Vec::new());
-            w.truth.credited_upto.push(0);
+        self.records_missing(w);
+        match command {
+            Nmt::Start => w.spec.operational = true,
+            Nmt::Stop | Nmt::PreOperational => {
+                w.spec.operational = false;
+                w.spec.enabled = false;
+            }
+            Nmt::ResetNode | Nmt::ResetCommunication => self.reset(w),
         }
         self.receive(w, 0x000, &[command.byte(), NODE]);
     }
 
+    /// A reset or power-up: Pre-operational, feed off, the master's heartbeat no longer
+    /// watched (0x1016 is back at its default, nothing).
+    fn reset(&self, w: &mut World) {
+        let spec = &mut w.spec;
+        spec.boot = spec.boot.wrapping_add(1);
+        spec.session = 0;
+        spec.operational = false;
+        spec.enabled = false;
+        spec.watching = false;
+        spec.master_lost = false;
+        spec.last_beat = None;
+    }
+
+    /// An SDO write (expedited download); the device's answer says whether it took it (see
+    /// [`Port::written`]).
     fn sdo_write(&self, w: &mut World, index: u16, sub: u8, value: &[u8]) {
         let cmd = 0x23 | (((4 - value.len()) as u8) << 2);
         let mut data = [cmd, index as u8, (index >> 8) as u8, sub, 0, 0, 0, 0];
         data[4..4 + value.len()].copy_from_slice(value);
+        let mut bytes = [0; 4];
+        bytes[..value.len()].copy_from_slice(value);
+        w.writing = Some((index, u32::from_le_bytes(bytes)));
         self.receive(w, SDO_RX, &data);
+        w.writing = None;
     }
 
-    fn turn(&self, w: &mut World) {
-        let before = w.real.wheel.feed().position();
-        for _ in 0..4 {
-            w.real.levels = w.real.levels.next_forward();
-            let _ = w.real.wheel.edge().on_edge(w.real.levels);
+    /// A write of 0x2000.
+    fn feed_write(&self, w: &mut World, enable: bool) {
+        self.sdo_write(w, 0x2000, 0, &[u8::from(enable)]);
+    }
+
+    /// The master's heartbeat, taken at the start of the round, before the device looks at
+    /// its consumer time.
+    fn master_beat(&self, w: &mut World) {
+        if w.spec.watching {
+            w.spec.last_beat = Some(w.now_ms);
+            w.spec.master_lost = false;
         }
-        let after = w.real.wheel.feed().position();
-        let era = usize::from(w.era);
-        for _ in before..after {
-            w.truth.moves[era].push((w.axis, w.now_ms));
-        }
+        self.receive(w, 0x700 + MASTER, &[0x05]);
+    }
+
+    fn turn(&self, w: &mut World, back: bool) {
+        detent(&mut w.real.wheel, &mut w.real.levels, back);
+        let enabled = w.real.wheel.feed().enabled();
+        self.turned(w, back, enabled);
         self.step(w, None);
     }
 
     fn power_cycle(&self, w: &mut World) {
         let storage = w.real.node.device_mut().engine().storage().clone();
-        w.era += 1;
-        w.truth.moves.push(Vec::new());
-        w.truth.credited_upto.push(0);
+        self.records_missing(w);
+        self.reset(w);
         w.transmit.clear();
-        w.real.node = new_node(storage);
+        w.spec.stall_since = None;
+        w.spec.transmit_blocked = false;
+        w.real.node = new_node(storage, self.bounds.mutant);
         w.real.wheel = LinkedWheel::local(DecoderConfig::default(), w.real.levels);
         self.pace(w);
         self.step(w, None);
@@ -576,27 +1066,32 @@ impl FeedModel {
     }
 
     fn pass_all(&self, w: &mut World) {
-        while !w.transmit.is_empty() {
+        while w.transmit.waiting() && w.violation.is_none() {
             self.pass(w, 1);
         }
     }
 
     /// The bus takes the next frame (a millisecond passes: generously a frame's time); the
-    /// host receives it `copies` times.
+    /// host receives it `copies` times (0: lost on its way).
     fn pass(&self, w: &mut World, copies: usize) {
-        let Some(frame) = w.transmit.pop_front() else {
+        let Some(frame) = w.transmit.take(self.bounds.mailboxes) else {
             return;
         };
         w.now_ms += 1;
-        if frame.id == TPDO1 {
+        if frame.tag.boot != w.spec.boot {
+            self.breach(
+                w,
+                format!(
+                    "device: a frame ({:#05x}) made before a reset went out after it",
+                    frame.id
+                ),
+            );
+        }
+        if copies == 0 {
+            self.records_missing(w);
+        }
+        if frame.id == TPDO1 && copies > 0 && self.left(w, Budget::ChannelFaults) {
             w.delivered.push_back((frame.clone(), w.now_ms));
-            while w.delivered.len() > usize::from(self.bounds.copy_depth)
-                || w.delivered
-                    .front()
-                    .is_some_and(|(_, at)| at + self.bounds.copy_age_ms < w.now_ms)
-            {
-                w.delivered.pop_front();
-            }
         }
         for _ in 0..copies {
             self.to_host(w, frame.clone());
@@ -605,11 +1100,14 @@ impl FeedModel {
         self.step(w, None);
     }
 
+    /// A frame reaches the host. A host that reads finds its receive path empty right before
+    /// and after it (it reads all the time); a stalled one leaves it in its backlog.
     fn to_host(&self, w: &mut World, frame: Wire) {
         if w.host_stalled {
             w.host_backlog.push_back(frame);
             return;
         }
+        self.host_drained(w);
         self.host_handles(w, &frame);
         self.host_drained(w);
     }
@@ -635,74 +1133,214 @@ impl FeedModel {
             w.host.heartbeat(frame.data[0], w.now_ms);
         } else if frame.id == TPDO1 && frame.len == 8 {
             if let Some(credit) = w.host.record(frame.data, frame.tag, w.now_ms) {
+                self.judge(w, &credit);
+            }
+            // A record of the host's session: what is turned from now on must reach it.
+            let session = frame.data[5] >> 5;
+            if !frame.tag.copy && !frame.tag.stale && w.host.session() == Some(session) {
+                w.spec.synced = true;
+            }
+        }
+    }
+
+    fn breach(&self, w: &mut World, message: String) {
+        if w.violation.is_none() {
+            w.violation = Some(message);
+        }
+    }
+
+    /// The property for one credit: a run of the detents turned on that axis while enabled,
+    /// in order, none credited before, none older than the bound, skipping none owed.
+    fn judge(&self, w: &mut World, credit: &Credit<Tag>) {
+        let (axis, delta, now, late) = (credit.axis, credit.delta, w.now_ms, self.bounds.late_ms);
+        let letter = LETTERS[axis];
+        let truth = &mut w.truth[axis];
+        let why = match truth.credit(delta, now, late) {
+            Ok(()) => return,
+            Err(Miss::Skipped(d)) => format!(
+                "an owed detent ({:+} at {} ms) skipped: no record was missing",
+                d.units, d.at
+            ),
+            Err(Miss::Unsound) => {
+                let other = &w.truth[1 - axis];
+                let truth = &w.truth[axis];
+                if truth.explains_from_start(delta, now, late, true) {
+                    "motion credited again".to_string()
+                } else if let Some(age) = truth.explains_late(delta, now) {
+                    format!("a detent {age} ms after it was turned")
+                } else if other.explains_from_start(delta, now, u64::MAX, false) {
+                    format!("a detent turned on {}", LETTERS[1 - axis])
+                } else {
+                    let units = truth.detents().iter().map(|d| d.units);
+                    let back: i32 = units.clone().filter(|&u| u < 0).sum();
+                    let forward: i32 = units.filter(|&u| u > 0).sum();
+                    if delta < back {
+                        format!("backwards, more than the {back} turned back")
+                    } else if delta > forward {
+                        format!("more than the {forward} turned forward")
+                    } else {
+                        "no run of what was turned on it while enabled".to_string()
+                    }
+                }
+            }
+        };
+        let turned: Vec<String> = w.truth[axis]
+            .detents()
+            .iter()
+            .map(|d| format!("{:+}@{}", d.units, d.at))
+            .collect();
+        let message = format!(
+            "{letter} credited {delta} at {now} ms: {why} (turned on {letter} while enabled, \
+             last {late} ms: [{}]; from {:?} to {:?})",
+            turned.join(" "),
+            credit.from.0,
+            credit.to.0
+        );
+        self.breach(w, message);
+    }
+
+    /// After every action: what the device promises about its feed, and what is owed.
+    fn after(&self, w: &mut World) {
+        let session = w.real.wheel.feed().session();
+        if session != w.spec.session {
+            if session == 0 {
+                // The device ended the session itself: a loss took numbers beyond its pace
+                // (records are missing, and the host must configure again).
+                w.spec.session = 0;
+                w.spec.enabled = false;
+                self.records_missing(w);
+            } else {
+                let message = format!(
+                    "device: in session {session}, not the {} written last",
+                    w.spec.session
+                );
+                self.breach(w, message);
+            }
+        }
+        let enabled = w.real.wheel.feed().enabled();
+        if enabled && !w.spec.enabled {
+            let spec = &w.spec;
+            let why = if !spec.operational {
+                "out of Operational"
+            } else if spec.master_lost {
+                "after the master was lost"
+            } else if spec.transmit_blocked {
+                "after its frames waited 100 ms"
+            } else {
+                "not enabled by an accepted write"
+            };
+            self.breach(w, format!("device: feed enabled {why}"));
+        } else if !enabled && w.spec.enabled {
+            self.breach(w, "device: feed disabled by itself".to_string());
+        }
+        let (now, late) = (w.now_ms, self.bounds.late_ms);
+        for (letter, truth) in LETTERS.iter().zip(&mut w.truth) {
+            if let Some(d) = truth.owed().filter(|d| now - d.at > late) {
+                let message = format!(
+                    "{letter} not credited {:+} turned at {} ms, by {now} ms: no record was \
+                     missing",
+                    d.units, d.at
+                );
                 if w.violation.is_none() {
-                    w.violation = self.judge(w, &credit).err();
+                    w.violation = Some(message);
+                }
+            }
+            truth.age(now, late);
+        }
+        // Only what a copy may still be of: delivered within the contract's age, as far
+        // back as the bounds' depth, and nothing once the channel's faults are spent.
+        let (age, depth) = (self.bounds.copy_age_ms, usize::from(self.bounds.copy_depth));
+        if self.left(w, Budget::ChannelFaults) {
+            while w.delivered.len() > depth
+                || w.delivered.front().is_some_and(|(_, at)| at + age < now)
+            {
+                w.delivered.pop_front();
+            }
+        } else {
+            w.delivered.clear();
+        }
+        w.locks = 0;
+    }
+
+    /// Time passes, fault-free, until every owed detent is older than the bound.
+    fn settle(&self, w: &mut World) {
+        let Some(oldest) = w
+            .truth
+            .iter()
+            .filter_map(AxisTruth::owed)
+            .map(|d| d.at)
+            .min()
+        else {
+            return;
+        };
+        let until = oldest + self.bounds.late_ms + 1;
+        loop {
+            self.pass_all(w);
+            if w.now_ms >= until || w.violation.is_some() {
+                return;
+            }
+            w.now_ms = (w.now_ms + SETTLE_STEP_MS).min(until);
+            if w.spec.watching && !w.spec.master_lost {
+                self.master_beat(w);
+            } else {
+                self.step(w, None);
+            }
+        }
+    }
+
+    fn warmed(&self, mut w: World, index: usize) -> World {
+        let script = self.bounds.warmups[index];
+        for &step in script {
+            match step {
+                Warm::Turns(n) | Warm::Backs(n) => {
+                    for _ in 0..n {
+                        self.turn(&mut w, matches!(step, Warm::Backs(_)));
+                        self.pass_all(&mut w);
+                        // The inhibit time (2 ms) lets the record of the next detent go, and
+                        // the pace has a number for it.
+                        w.now_ms += (u64::from(self.bounds.pace.us_per_number) / 1000 + 1).max(2);
+                        // Credited: the truth keeps only what may still be.
+                        for truth in &mut w.truth {
+                            truth.forget_credited();
+                        }
+                    }
+                }
+                Warm::Switch => {
+                    w.axis = (w.axis + 1) % AXES;
+                    self.select(&mut w);
+                    self.pass_all(&mut w);
+                }
+                Warm::Multiplier => {
+                    w.multiplier = (w.multiplier + 1) % FACTORS.len();
+                    self.select(&mut w);
+                    self.pass_all(&mut w);
+                }
+                Warm::Held(n) => {
+                    for _ in 0..n {
+                        self.turn(&mut w, false);
+                    }
                 }
             }
         }
-    }
-
-    /// The property for one credit: motion of the credited axis only, forward, counted by the
-    /// device in one era, never credited before, and no older than the bound.
-    fn judge(&self, w: &mut World, credit: &Credit<Tag>) -> Result<(), String> {
-        let (from, from_tag) = &credit.from;
-        let (to, to_tag) = &credit.to;
-        let axis = ["X", "Y"][credit.axis];
-        if from_tag.era != to_tag.era {
-            return Err(format!(
-                "{axis} credited {} across a reset (era {} -> {})",
-                credit.delta, from_tag.era, to_tag.era
-            ));
+        if let Some(v) = &w.violation {
+            panic!("warm-up {index} of {:?} breaches: {v}", self.bounds.name);
         }
-        if credit.delta < 0 {
-            return Err(format!("{axis} credited {}: backwards", credit.delta));
+        for truth in &mut w.truth {
+            truth.forget_credited();
         }
-        let era = usize::from(to_tag.era);
-        if from.position < w.truth.credited_upto[era] {
-            return Err(format!(
-                "{axis} credited positions {}..{} again (credited up to {})",
-                from.position, to.position, w.truth.credited_upto[era]
-            ));
-        }
-        for p in from.position..to.position {
-            let Some(&(turned_axis, at)) = w.truth.moves[era].get(p as usize) else {
-                return Err(format!("{axis} credited position {}: never turned", p + 1));
-            };
-            if turned_axis != credit.axis {
-                return Err(format!(
-                    "{axis} credited a detent turned on {}",
-                    ["X", "Y"][turned_axis]
-                ));
-            }
-            if w.now_ms - at > self.bounds.late_ms {
-                return Err(format!(
-                    "{axis} credited a detent {} ms after it was turned",
-                    w.now_ms - at
-                ));
-            }
-        }
-        w.truth.credited_upto[era] = to.position;
-        Ok(())
-    }
-
-    fn warmed(&self, mut w: World, turns: u8) -> World {
-        for _ in 0..turns {
-            self.turn(&mut w);
-            self.pass_all(&mut w);
-            // The inhibit time (2 ms) lets the record of the next detent go, and the pace
-            // has a number for it.
-            w.now_ms += (u64::from(self.bounds.pace.us_per_number) / 1000 + 1).max(2);
-        }
+        w.warmup = index as u8;
+        w.locks = 0;
         w
     }
 
     /// An initial state `like` (one of [`Model::init_states`]) made again with the host's
     /// input recorded from power-on.
     pub fn recorded(&self, like: &World) -> World {
-        // The warm-up's detents are the only ones of era 0 in an initial state.
         let start = self.initial_with(Some(Vec::new()));
-        let warmup = like.truth.moves[0].len() - start.truth.moves[0].len();
-        self.warmed(start, warmup as u8)
+        if self.bounds.warmups.is_empty() {
+            return start;
+        }
+        self.warmed(start, usize::from(like.warmup))
     }
 
     fn spend(&self, w: &mut World, b: Budget) -> bool {
@@ -728,23 +1366,37 @@ impl Model for FeedModel {
         if self.bounds.warmups.is_empty() {
             return vec![start];
         }
-        self.bounds
-            .warmups
-            .iter()
-            .map(|&turns| self.warmed(start.clone(), turns))
+        (0..self.bounds.warmups.len())
+            .map(|i| self.warmed(start.clone(), i))
             .collect()
     }
 
     fn actions(&self, w: &World, actions: &mut Vec<Action>) {
-        if w.violation.is_some() {
+        if w.violation.is_some() && !THROUGH_BREACHES.load(Ordering::Relaxed) {
             return;
         }
         let b = |kind| self.left(w, kind);
+        let free = w.pending.is_none();
+        let backward = self.bounds.backward;
         if b(Budget::Turns) {
             actions.push(Action::Turn);
+            if backward {
+                actions.push(Action::TurnBack);
+            }
         }
-        if b(Budget::Switches) {
+        if b(Budget::InnerTurns) && free {
+            for lock in 1..=self.bounds.inner_locks {
+                actions.push(Action::TurnAt(lock));
+                if backward {
+                    actions.push(Action::TurnBackAt(lock));
+                }
+            }
+        }
+        if b(Budget::Switches) && free {
             actions.push(Action::SwitchAxis);
+        }
+        if b(Budget::Multipliers) && free {
+            actions.push(Action::SwitchMultiplier);
         }
         if b(Budget::FeedWrites) {
             actions.extend([Action::Enable, Action::Disable]);
@@ -752,19 +1404,19 @@ impl Model for FeedModel {
         if b(Budget::Nmt) {
             actions.extend(Nmt::ALL.map(Action::Nmt));
         }
-        if b(Budget::PowerCycles) {
+        if b(Budget::PowerCycles) && free {
             actions.push(Action::PowerCycle);
         }
         if b(Budget::Ticks) {
             actions.push(Action::Tick);
         }
-        if !w.transmit.is_empty() {
+        if w.transmit.next().is_some() {
             actions.push(Action::Pass);
             if b(Budget::ChannelFaults) {
                 actions.extend([Action::Lose, Action::Duplicate]);
             }
         }
-        if b(Budget::ChannelFaults) {
+        if b(Budget::ChannelFaults) && free {
             let young = w
                 .delivered
                 .iter()
@@ -772,24 +1424,35 @@ impl Model for FeedModel {
                 .count();
             actions.extend((1..=young as u8).map(Action::Copy));
         }
-        if w.host.configure_due(w.now_ms) && !w.host_stalled && b(Budget::Configures) {
+        if b(Budget::Configures) && free && !w.host_stalled && w.host.configure_due(w.now_ms) {
             actions.push(Action::Configure);
         }
-        if b(Budget::HostStalls) && !w.host_stalled {
+        if b(Budget::HostStalls) && !w.host_stalled && free {
             actions.push(Action::HostStall);
         }
         if w.host_stalled {
-            actions.push(Action::HostResume);
+            if free {
+                actions.push(Action::HostResume);
+            }
         } else if b(Budget::MasterBeats) {
             actions.push(Action::MasterBeat);
+        }
+        if b(Budget::Settles)
+            && free
+            && !w.host_stalled
+            && w.truth.iter().any(|t| t.owed().is_some())
+        {
+            actions.push(Action::Settle);
         }
     }
 
     fn next_state(&self, last: &World, action: Action) -> Option<World> {
         let mut w = last.clone();
         let ok = match action {
-            Action::Turn => self.spend(&mut w, Budget::Turns),
+            Action::Turn | Action::TurnBack => self.spend(&mut w, Budget::Turns),
+            Action::TurnAt(_) | Action::TurnBackAt(_) => self.spend(&mut w, Budget::InnerTurns),
             Action::SwitchAxis => self.spend(&mut w, Budget::Switches),
+            Action::SwitchMultiplier => self.spend(&mut w, Budget::Multipliers),
             Action::Enable | Action::Disable => self.spend(&mut w, Budget::FeedWrites),
             Action::Nmt(_) => self.spend(&mut w, Budget::Nmt),
             Action::PowerCycle => self.spend(&mut w, Budget::PowerCycles),
@@ -800,19 +1463,28 @@ impl Model for FeedModel {
             Action::Configure => self.spend(&mut w, Budget::Configures),
             Action::HostStall => self.spend(&mut w, Budget::HostStalls),
             Action::MasterBeat => self.spend(&mut w, Budget::MasterBeats),
+            Action::Settle => self.spend(&mut w, Budget::Settles),
             Action::Pass | Action::HostResume => true,
         };
         if !ok {
             return None;
         }
+        let was_pending = w.pending.is_some();
         match action {
-            Action::Turn => self.turn(&mut w),
+            Action::Turn => self.turn(&mut w, false),
+            Action::TurnBack => self.turn(&mut w, true),
+            Action::TurnAt(lock) => w.pending = Some((false, lock)),
+            Action::TurnBackAt(lock) => w.pending = Some((true, lock)),
             Action::SwitchAxis => {
                 w.axis = (w.axis + 1) % AXES;
                 self.select(&mut w);
             }
-            Action::Enable => self.sdo_write(&mut w, 0x2000, 0, &[1]),
-            Action::Disable => self.sdo_write(&mut w, 0x2000, 0, &[0]),
+            Action::SwitchMultiplier => {
+                w.multiplier = (w.multiplier + 1) % FACTORS.len();
+                self.select(&mut w);
+            }
+            Action::Enable => self.feed_write(&mut w, true),
+            Action::Disable => self.feed_write(&mut w, false),
             Action::Nmt(command) => self.nmt(&mut w, command),
             Action::PowerCycle => self.power_cycle(&mut w),
             Action::Tick => {
@@ -821,33 +1493,42 @@ impl Model for FeedModel {
             }
             Action::Pass => self.pass(&mut w, 1),
             Action::Duplicate => self.pass(&mut w, 2),
-            Action::Lose => {
-                w.transmit.pop_front();
-                w.now_ms += 1;
-                self.step(&mut w, None);
-            }
+            Action::Lose => self.pass(&mut w, 0),
             Action::Copy(back) => {
                 let index = w.delivered.len() - usize::from(back);
-                let frame = w.delivered[index].0.clone();
+                let mut frame = w.delivered[index].0.clone();
+                frame.tag.copy = true;
                 self.to_host(&mut w, frame);
             }
             Action::Configure => self.configure(&mut w),
-            Action::HostStall => w.host_stalled = true,
-            Action::MasterBeat => self.receive(&mut w, 0x701, &[0x05]),
+            Action::HostStall => {
+                w.host_stalled = true;
+                self.records_missing(&mut w);
+            }
+            Action::MasterBeat => self.master_beat(&mut w),
             Action::HostResume => {
                 w.host_stalled = false;
+                self.records_missing(&mut w);
                 while let Some(frame) = w.host_backlog.pop_front() {
                     self.host_handles(&mut w, &frame);
                 }
                 self.host_drained(&mut w);
             }
+            Action::Settle => self.settle(&mut w),
         }
+        // A detent meant to land inside this action's rounds that found no such access:
+        // that interleaving does not exist.
+        if was_pending && w.pending.is_some() {
+            return None;
+        }
+        self.after(&mut w);
         Some(w)
     }
 
     fn properties(&self) -> Vec<Property<Self>> {
         vec![Property::always(
-            "every credit is motion of that axis, forward, once, in time",
+            "every credit is motion turned on that axis while enabled, with its sign, once, \
+             in time, all of it when no record is missing; the device keeps its promises",
             |_, w: &World| w.violation.is_none(),
         )]
     }

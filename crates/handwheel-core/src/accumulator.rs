@@ -358,6 +358,14 @@ impl FeedAccumulator {
         let _ = self.end_session_if_overdrawn();
     }
 
+    /// A mutant of [`FeedAccumulator::stop_records`] for the feed checker's mutation tests
+    /// (see [`FeedOutbox::mutant_stop_keeping_held`]).
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn mutant_stop_records_keeping_held(&mut self) {
+        self.outbox.mutant_stop_keeping_held();
+    }
+
     /// Reset node: back to power-on values, except what lets the host tell that a reset
     /// happened: the selection (hardware state) stays, the epoch steps and the record
     /// sequence goes on with a break ([`FeedOutbox::break_continuity`]), so that the first

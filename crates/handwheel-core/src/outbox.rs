@@ -240,6 +240,18 @@ impl FeedOutbox {
         self.break_continuity();
     }
 
+    /// A mutant of [`FeedOutbox::stop`] for the feed checker's mutation tests: records stop,
+    /// but the held epochs stay and nothing breaks the sequence.
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn mutant_stop_keeping_held(&mut self) {
+        if !self.reporting {
+            return;
+        }
+        self.reporting = false;
+        self.last_sent = None;
+    }
+
     /// Nothing after this continues what came before: the next record's sequence number is
     /// at least [`MAX_DROP_GAP`] after the last one handed out. For a reset of the node or of
     /// communication, and for records that were discarded before they reached the bus.

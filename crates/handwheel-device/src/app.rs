@@ -154,6 +154,9 @@ pub struct FeedApp {
     /// whether TPDO1 is ready, so that every mapped object reads the same record however the
     /// edge task moves the wheel meanwhile.
     pub(crate) record: Option<FeedRecord>,
+    /// The bug the feed checker's mutation tests run, if any.
+    #[cfg(feature = "mutants")]
+    pub(crate) mutant: Option<crate::mutant::Mutant>,
 }
 
 impl FeedApp {
@@ -167,6 +170,8 @@ impl FeedApp {
             master_lost: false,
             transmit_blocked: false,
             record: None,
+            #[cfg(feature = "mutants")]
+            mutant: None,
         }
     }
 }
@@ -245,6 +250,12 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             self.wheel.lock(|w| w.feed.start_records());
         } else {
             self.stop(StopReason::NotOperational);
+            #[cfg(feature = "mutants")]
+            if self.mutant(crate::mutant::Mutant::NmtStopKeepsHeld) {
+                self.wheel
+                    .lock(|w| w.feed.mutant_stop_records_keeping_held());
+                return;
+            }
             // PDOs stop here: what was not reported by now (the stopped epoch's final state
             // among it) would reach the host only at the next start, as stale motion. It is
             // dropped, and the sequence gap makes the host start afresh.
@@ -265,12 +276,18 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
     fn on_reset_application(&mut self) {
         let (nmt, master_lost) = (self.app.nmt, self.app.master_lost);
         let transmit_blocked = self.app.transmit_blocked;
+        #[cfg(feature = "mutants")]
+        let mutant = self.app.mutant;
         *self.app = FeedApp::new();
         // Engine and port state, not application state: the engine ends the loss itself, the
         // stall watch the block.
         self.app.nmt = nmt;
         self.app.master_lost = master_lost;
         self.app.transmit_blocked = transmit_blocked;
+        #[cfg(feature = "mutants")]
+        {
+            self.app.mutant = mutant;
+        }
         self.wheel.lock(|w| {
             w.reset_decoder(WheelParameters::DEFAULT.decoder);
             w.feed.reset();
@@ -278,6 +295,11 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
     }
 
     fn tpdo_ready(&mut self, pdo: u8) -> bool {
+        #[cfg(feature = "mutants")]
+        if pdo == 1 && self.mutant(crate::mutant::Mutant::TpdoReadAtSend) {
+            self.app.record = None;
+            return true;
+        }
         if pdo == 1 {
             self.app.record = Some(self.wheel.lock(|w| w.feed.record()));
         }
@@ -328,6 +350,11 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
 }
 
 impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
+    #[cfg(feature = "mutants")]
+    fn mutant(&self, m: crate::mutant::Mutant) -> bool {
+        self.app.mutant == Some(m)
+    }
+
     /// Reads an application object. `record`: for the feed record (TPDO1), whose state
     /// objects carry what the outbox sends next (a closed epoch's final state while one is
     /// held) rather than the present state, whatever the master mapped.

@@ -48,13 +48,22 @@ struct StallWatch {
     /// The path was found blocked and has not run empty since: the feed may not start again
     /// (what it sends would queue behind a path that does not drain).
     blocked: bool,
+    /// Frames that left the path as last told ([`Mutant::StallCompletions`]).
+    ///
+    /// [`Mutant::StallCompletions`]: crate::mutant::Mutant::StallCompletions
+    #[cfg(feature = "mutants")]
+    completed: u32,
 }
 
 impl StallWatch {
     /// Whether the path counts as blocked now (once, until it runs empty).
     fn observe(&mut self, now: Instant, state: TransmitState) -> bool {
         if !state.waiting {
-            *self = Self::default();
+            *self = Self {
+                #[cfg(feature = "mutants")]
+                completed: self.completed,
+                ..Self::default()
+            };
             return false;
         }
         let since = *self.since.get_or_insert(now);
@@ -70,6 +79,19 @@ impl StallWatch {
         self.since
             .filter(|_| !self.blocked)
             .map(|since| since.add_millis(TRANSMIT_STALL_MS))
+    }
+}
+
+/// A sink that keeps what waits when asked to discard it ([`Mutant::ResetKeepsPending`]).
+///
+/// [`Mutant::ResetKeepsPending`]: crate::mutant::Mutant::ResetKeepsPending
+#[cfg(feature = "mutants")]
+struct KeepPending<'a>(&'a mut dyn FrameSink);
+
+#[cfg(feature = "mutants")]
+impl FrameSink for KeepPending<'_> {
+    fn send(&mut self, frame: Frame) -> Result<(), canopen_slave::SinkFull> {
+        self.0.send(frame)
     }
 }
 
@@ -137,12 +159,46 @@ impl<S: Storage> HandwheelDevice<S> {
         wheel: &mut impl Mutex<T = Handwheel>,
         tx: &mut dyn FrameSink,
     ) {
+        #[cfg(feature = "mutants")]
+        if self.app.mutant == Some(crate::mutant::Mutant::ResetKeepsPending) {
+            let mut ctx = AppContext {
+                app: &mut self.app,
+                wheel: &mut *wheel,
+            };
+            self.engine
+                .on_frame(now, frame, &mut ctx, &mut KeepPending(tx));
+            self.service(now, wheel);
+            return;
+        }
         let mut ctx = AppContext {
             app: &mut self.app,
             wheel: &mut *wheel,
         };
         self.engine.on_frame(now, frame, &mut ctx, tx);
         self.service(now, wheel);
+    }
+
+    /// Runs the bug `mutant` from now on (`None`: the real code). For the feed checker's
+    /// mutation tests only; the firmware never has this.
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn set_mutant(&mut self, mutant: Option<crate::mutant::Mutant>) {
+        self.app.mutant = mutant;
+    }
+
+    /// Frames that left the transmit path so far (wrapping), before a round: what the old
+    /// stall watch counted. Only [`Mutant::StallCompletions`](crate::mutant::Mutant) reads it.
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn mutant_transmit_completed(&mut self, completed: u32) {
+        if self.app.mutant == Some(crate::mutant::Mutant::StallCompletions)
+            && completed != self.stall.completed
+        {
+            // A frame got out: the 100 ms start again, and the block ends.
+            self.stall.completed = completed;
+            self.stall.since = None;
+            self.stall.blocked = false;
+        }
     }
 
     /// Time-driven work, and the wheel's new motion: call at

@@ -31,6 +31,9 @@
 mod app;
 mod device;
 pub mod duties;
+#[cfg(feature = "mutants")]
+#[doc(hidden)]
+pub mod mutant;
 pub mod node;
 pub mod node_config;
 pub mod od;

@@ -1,0 +1,21 @@
+//! Plausible single bugs in the device's feed path, for the feed checker's mutation tests
+//! (`crates/feed-check/tests/mutants.rs`): a checker that stops finding any of them fails
+//! there. Compiled only with the hidden `mutants` feature, which the firmware never enables;
+//! selected per device at run time ([`HandwheelDevice::set_mutant`](crate::HandwheelDevice::set_mutant)).
+
+/// One bug, each where the real code would have it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Mutant {
+    /// Leaving Operational (an NMT stop, pre-operational, a reset) keeps the held epochs and
+    /// does not break the record sequence: what the outbox held goes out after the next start.
+    NmtStopKeepsHeld,
+    /// A reset of the node or of communication does not discard the frames that wait for the
+    /// bus: they go out after it, and a full transmit path refuses the boot-up.
+    ResetKeepsPending,
+    /// TPDO1 reads its mapped objects when it is built, each under its own lock of the wheel,
+    /// and the outbox takes the state at send time as sent, instead of one snapshot.
+    TpdoReadAtSend,
+    /// The transmit path's stall watch counts its 100 ms from the last frame that got out
+    /// (the rule before the fix): a bus that takes a frame now and then never trips it.
+    StallCompletions,
+}
