@@ -54,6 +54,8 @@ pub struct CanPort<L> {
     link: L,
     queue: TxQueue<TX_QUEUE_LEN>,
     stats: CanStats,
+    /// The path ran empty since the device last asked (`transmit_state`).
+    ran_empty: bool,
 }
 
 impl<L: CanLink> CanPort<L> {
@@ -63,6 +65,7 @@ impl<L: CanLink> CanPort<L> {
             link,
             queue: TxQueue::new(),
             stats: CanStats::default(),
+            ran_empty: false,
         }
     }
 
@@ -81,6 +84,7 @@ impl<L: CanLink> CanPort<L> {
     pub fn on_transmit_room(&mut self) {
         self.link.acknowledge_transmit();
         self.pump();
+        self.note_if_empty();
     }
 
     /// Discards every frame not on the bus yet: the queue and what the controller holds (a
@@ -88,12 +92,21 @@ impl<L: CanLink> CanPort<L> {
     pub fn discard_pending(&mut self) {
         self.queue.clear();
         self.link.abort_pending();
+        self.note_if_empty();
     }
 
-    /// Whether frames wait (for the device's stall watch).
-    pub fn transmit_state(&self) -> TransmitState {
+    fn note_if_empty(&mut self) {
+        if self.queue.is_empty() && self.link.idle() {
+            self.ran_empty = true;
+        }
+    }
+
+    /// Whether frames wait, and whether the path ran empty since the last call (for the
+    /// device's stall watch).
+    pub fn transmit_state(&mut self) -> TransmitState {
         TransmitState {
             waiting: !self.queue.is_empty() || !self.link.idle(),
+            ran_empty: core::mem::take(&mut self.ran_empty),
         }
     }
 

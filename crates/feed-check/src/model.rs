@@ -269,6 +269,8 @@ struct Path {
     /// Times the path moved (a frame into a mailbox or onto the bus), wrapping: what the
     /// stall watch counted before its fix (the stall-completions mutant still does).
     completed: u32,
+    /// The bus took the last waiting frame since the device last looked.
+    ran_empty: bool,
 }
 
 impl Path {
@@ -315,12 +317,14 @@ impl Path {
         };
         self.completed = self.completed.wrapping_add(1);
         self.pump(mailboxes);
+        self.ran_empty |= !self.waiting();
         taken
     }
 
     fn clear(&mut self) {
         self.queue.clear();
         self.boxes.clear();
+        self.ran_empty = true;
     }
 }
 
@@ -558,12 +562,14 @@ impl CanIo for Port<'_> {
     fn transmit_state(&mut self) -> TransmitState {
         let state = TransmitState {
             waiting: self.path.waiting(),
+            ran_empty: std::mem::take(&mut self.path.ran_empty),
         };
         let spec = &mut *self.spec;
-        if !state.waiting {
+        if !state.waiting || state.ran_empty {
             spec.stall_since = None;
             spec.transmit_blocked = false;
-        } else {
+        }
+        if state.waiting {
             let since = *spec.stall_since.get_or_insert(self.now_ms);
             if !spec.transmit_blocked && self.now_ms >= since + TRANSMIT_STALL_MS {
                 spec.transmit_blocked = true;

@@ -38,6 +38,9 @@ pub const TRANSMIT_STALL_MS: u64 = 100;
 pub struct TransmitState {
     /// Frames wait for the bus (in the queue or the controller).
     pub waiting: bool,
+    /// The path ran empty since the last report, however briefly (the transmit interrupt
+    /// drained it while the rounds were held up, say), whatever waits now.
+    pub ran_empty: bool,
 }
 
 /// Notices a transmit path that has not run empty for [`TRANSMIT_STALL_MS`].
@@ -58,13 +61,15 @@ struct StallWatch {
 impl StallWatch {
     /// Whether the path counts as blocked now (once, until it runs empty).
     fn observe(&mut self, now: Instant, state: TransmitState) -> bool {
-        if !state.waiting {
+        if !state.waiting || state.ran_empty {
             *self = Self {
                 #[cfg(feature = "mutants")]
                 completed: self.completed,
                 ..Self::default()
             };
-            return false;
+            if !state.waiting {
+                return false;
+            }
         }
         let since = *self.since.get_or_insert(now);
         if self.blocked || now.as_micros() < since.as_micros() + TRANSMIT_STALL_MS * 1000 {

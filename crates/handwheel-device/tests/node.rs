@@ -25,6 +25,8 @@ struct Port {
     rx_overruns: u32,
     /// Frames wait for a bus that takes nothing.
     blocked: bool,
+    /// The path ran empty between two rounds (reported once).
+    ran_empty: bool,
     discards: usize,
 }
 
@@ -55,6 +57,7 @@ impl CanIo for Port {
     fn transmit_state(&mut self) -> TransmitState {
         TransmitState {
             waiting: self.blocked,
+            ran_empty: std::mem::take(&mut self.ran_empty),
         }
     }
 
@@ -385,6 +388,23 @@ fn a_path_that_never_runs_empty_counts_as_blocked_however_much_gets_out() {
     assert_eq!(r.port.discards, 1, "100 ms after the path was last empty");
     r.poll(300);
     assert_eq!(r.port.discards, 1, "once until the path runs empty");
+}
+
+#[test]
+fn a_path_that_ran_empty_between_two_rounds_counts_afresh() {
+    // Rounds held up (a long flash write, an interrupt storm) while the transmit interrupt
+    // drained the path: what waits at the next round is new, whatever waited before.
+    let mut r = Rig::new(true);
+    r.poll(0);
+    r.receive(1, 0x000, &[0x01, NODE]);
+    r.port.blocked = true;
+    r.poll(2);
+    r.port.ran_empty = true;
+    r.poll(90);
+    r.poll(150);
+    assert_eq!(r.port.discards, 0, "waiting since 90 ms, not since 2 ms");
+    r.poll(190);
+    assert_eq!(r.port.discards, 1, "100 ms after the path last ran empty");
 }
 
 #[test]
