@@ -22,7 +22,8 @@ pub enum Received {
     Overrun,
 }
 
-/// What the port needs of the controller.
+/// What the port needs of the controller: bxcan's `Can` (`bxcan_port::Bxcan`) gets these
+/// methods through this trait, a foreign type having no inherent methods of this crate.
 pub trait CanLink {
     /// Offers `frame` for transmission. `Ok(None)`: taken; `Ok(Some(displaced))`: taken, and
     /// a less urgent pending frame came back out of the controller (it goes back to the head

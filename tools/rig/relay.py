@@ -91,7 +91,7 @@ def parse_line(line: bytes) -> Optional[SlcanFrame]:
 
 
 def encode(frame: SlcanFrame) -> bytes:
-    """The SLCAN line of `frame`, with its `\\r` (upper-case hex, as the emulators send)."""
+    """The SLCAN line of `frame`, with its `\\r` (upper-case hex, as the board sends)."""
     if frame.extended:
         head = f"{'R' if frame.remote else 'T'}{frame.id:08X}{frame.length}"
     else:
