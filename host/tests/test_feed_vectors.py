@@ -5,7 +5,8 @@ exactly what the checker's rule credited for it. The checker proves its rule saf
 real device code; this keeps `core.py` the same rule. Since feed record v2 a stream holds the
 configurations its host made (("configure", found, t): `core.replay_core`), so that its
 records carry the session the core wrote; the tokens must be the ones `core.free_tokens` and
-`core.pick_token` choose."""
+`core.pick_token` choose. Besides the model's random walks, the vectors hold streams at each
+limit of the rule, met and missed by one (`crates/feed-check/src/boundaries.rs`)."""
 
 import json
 import os
@@ -36,3 +37,6 @@ def test_core_credits_exactly_what_the_checked_rule_credits():
         moved += bool(want["x"] or want["y"])
     # The vectors must exercise crediting, not only silence.
     assert moved >= len(vectors) // 4
+    # And every limit of the rule met exactly and missed by one (`boundaries.rs`).
+    boundaries = [v["name"] for v in vectors if v["name"].startswith("boundary:")]
+    assert len(boundaries) >= 21, boundaries

@@ -59,9 +59,6 @@ pub struct CanStats {
     pub tx_displaced: u32,
     /// Frames refused because the transmit queue was full (the sender keeps them).
     pub tx_refused: u32,
-    /// Times the transmit path moved: a frame taken by the controller, or a mailbox done
-    /// (wrapping). Unchanged while frames wait: the bus takes nothing.
-    pub tx_progress: u32,
 }
 
 /// The `canopen` task's CAN port, as the step function's [`CanIo`]: the receive queue's

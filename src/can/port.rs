@@ -80,7 +80,6 @@ impl<L: CanLink> CanPort<L> {
     /// The transmit interrupt: the controller has room again.
     pub fn on_transmit_room(&mut self) {
         self.link.acknowledge_transmit();
-        self.stats.tx_progress = self.stats.tx_progress.wrapping_add(1);
         self.pump();
     }
 
@@ -91,11 +90,10 @@ impl<L: CanLink> CanPort<L> {
         self.link.abort_pending();
     }
 
-    /// Whether frames wait, and how many times the path moved (for the device's stall watch).
+    /// Whether frames wait (for the device's stall watch).
     pub fn transmit_state(&self) -> TransmitState {
         TransmitState {
             waiting: !self.queue.is_empty() || !self.link.idle(),
-            completed: self.stats.tx_progress,
         }
     }
 
@@ -103,7 +101,6 @@ impl<L: CanLink> CanPort<L> {
         while let Some(next) = self.queue.front() {
             match self.link.transmit(next) {
                 Ok(displaced) => {
-                    self.stats.tx_progress = self.stats.tx_progress.wrapping_add(1);
                     self.queue.pop_front();
                     if let Some(displaced) = displaced {
                         // The pop above made room, so this cannot fail.

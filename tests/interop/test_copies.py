@@ -21,6 +21,9 @@ issue was filed against, with the failure its docstring names:
    frames get out, the component's `feed stopped by the device` log line naming the transmit
    path, its `feed-stops` pin counting 1 and `stop-reason` showing 2.
 
+A later test covers a hole found by the feed checker after the issue: a bus that takes a frame
+now and then, never idle for the stall watch's 100 ms, delivers the records ever later.
+
 Names the fix introduces (the `feed-stops` and `stop-reason` pins, the log line, EMCY 0x8100)
 are those of the issue's design. The records are read with the component's own decoder
 (`canopen_handwheel.core.Record`), whatever their layout; the relay decodes none.
@@ -582,3 +585,48 @@ def test_a_feed_stop_by_a_blocked_transmit_path_is_reported(host, board):
     if str(STOP_TRANSMIT_BLOCKED) not in reasons:
         problems.append(f"stop-reason never showed {STOP_TRANSMIT_BLOCKED} (changes {reasons})")
     assert not problems, "the stop by the held bus went unreported:\n" + "\n".join(problems)
+
+
+# A trickling bus --------------------------------------------------------------------------------
+
+TRICKLE_MS = 95  # just under the stall watch's 100 ms: a frame gets out before it runs out
+TRICKLE_TURN = 20  # detents turned at once: 20 records, 48 ms of the board's time
+LATE = 1.0  # s after the turn: no credit later (the old watch's queue took 1.9 s of board time)
+TRICKLE_WATCH = 3.0  # s the bus trickles while the test watches
+
+
+def test_a_trickling_bus_moves_nothing_late(host, board):
+    """A bus that leaves the node one frame per 95 ms (`trickle`: other traffic takes the
+    rest) while X turns 20 detents at once. The transmit path never runs empty, so the device
+    counts it as blocked 100 ms after the turn: it stops the feed, drops the records that wait
+    and reports EMCY 0x8100; X is credited at most the few records that got out meanwhile,
+    none later than LATE after the turn. Before the fix the stall watch counted from the last
+    frame that got out, never tripped, and the 20 records reached the component one per 95 ms,
+    each credited, the last about 2 s after it was turned."""
+    h = host
+    relay = h.relay
+    counts = h.counts("x")
+    h.stim.turn(1)
+    h.must(lambda: h.counts("x") == counts + 1, FRAME_TIMEOUT, "X +1")
+    h.wait(h.caught_up, CATCH_UP)
+    start = h.counts("x")
+    device_mark = relay.device.mark()
+    board.control(f"trickle {TRICKLE_MS}")
+    try:
+        h.stim.turn(TRICKLE_TURN)
+        turned = time.monotonic()
+        time.sleep(TRICKLE_WATCH)
+        emcies = relay.device.frames(EMCY, since=device_mark)
+    finally:
+        board.control("trickle off")
+    credits = [(t - turned, int(v) - start) for t, v in h.hal.history("axis.x.jog-counts", turned)]
+    problems = []
+    if not any(e.data[:2] == EMCY_TRANSMIT_BLOCKED.to_bytes(2, "little") for e in emcies):
+        problems.append(f"no EMCY 0x8100 while the bus trickled (EMCYs: {emcies})")
+    late = [(round(dt, 3), n) for dt, n in credits if dt > LATE]
+    if late:
+        problems.append(f"credited late (s after the turn, detents so far): {late}")
+    credited = h.counts("x") - start
+    if credited > 3:
+        problems.append(f"{credited} of {TRICKLE_TURN} detents credited through a trickling bus")
+    assert not problems, "; ".join(problems)

@@ -35,6 +35,7 @@ rewrote it, then a power-on), `reset` (NRST), `buserr <tx> <rx>`
 (transmit / receive errors seen by the node: TEC += 8 each, REC += 1 each), `busoff <ms>`
 (TEC past 255, and the bus stays faulty for ms before the automatic recovery can run),
 `hold <ms|off|on>` (the bus is taken by other traffic: the node's mailboxes wait),
+`trickle <ms|off>` (other traffic leaves the node one frame per ms, the first after ms),
 `dominant <ms|off|on>` (the bus is stuck dominant: no frame passes either way, frames from
 the host are lost, and a controller leaving initialization or sleep mode cannot synchronise),
 `storm <ms>` (an interrupt storm on TIM2's vector starves the CAN task), `stall <ms>` (the
@@ -394,6 +395,14 @@ class Server:
                 m.can.bus_hold_until = until
             else:
                 m.can.bus_dominant_until = until
+            ok()
+        elif name == "trickle":
+            if args == ["off"]:
+                m.can.bus_trickle = 0
+                m.can.bus_hold_until = 0
+            else:
+                m.can.bus_trickle = one(1, 60_000) * cortex.CORE_HZ // 1000
+                m.can.bus_hold_until = m.now + m.can.bus_trickle
             ok()
         elif name in ("storm", "stall"):
             # TIM2's vector (`feed_due`, priority 3) kept pending: `canopen` (priority 2)

@@ -77,6 +77,17 @@ def test_hold_and_dominant_take_ms_on_or_off(board):
     assert s.status()["mode"] == "sleep", "the CPU has not run: bxCAN as out of reset"
 
 
+def test_trickle_takes_ms_or_off(board):
+    m, s = board
+    client = Client()
+    command(s, client, "trickle 95")
+    assert m.can.bus_trickle == 95 * 72_000 and m.can.bus_hold_until == m.now + 95 * 72_000
+    command(s, client, "trickle off")
+    assert m.can.bus_trickle == 0 and m.can.bus_hold_until == 0
+    command(s, client, "trickle 0")
+    assert client.sent == b"ok\nok\nerr out of range\n"
+
+
 SAVE = (0x65766173).to_bytes(4, "little")
 
 

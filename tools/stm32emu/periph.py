@@ -555,6 +555,9 @@ class Bxcan:
         self.on_request = lambda box: None  # called when TXRQ makes a mailbox pending
         self.bus_bitrate: int | None = None  # None: whatever BTR says
         self.bus_hold_until: int | None = 0  # frames wait while now < this (None: for ever)
+        # Other traffic leaves the node one frame per this many cycles (0: the bus is free):
+        # each frame it sends holds the bus this long after it.
+        self.bus_trickle = 0
         # The bus is stuck dominant while now < this (None: for ever): nothing synchronises.
         self.bus_dominant_until: int | None = 0
         self.bus_faulty_until = 0  # bus-off recovery waits at least until then
@@ -893,6 +896,8 @@ class Bxcan:
             self._finish(box, ok=True)
             if self.tec > 0:
                 self.tec -= 1
+            if self.bus_trickle and self.bus_hold_until is not None:
+                self.bus_hold_until = max(self.bus_hold_until, now + self.bus_trickle)
             self.on_transmit(frame)
         if self.on_bus is None and self.online():
             if self.bus_hold_until is None or now < self.bus_hold_until or self.dominant(now):

@@ -297,6 +297,27 @@ def test_can_normal_mode_waits_for_a_free_bus_to_synchronise():  # 24.4.2, figur
     assert can.read(0x04) & 0b11 == 0b00
 
 
+def test_a_trickling_bus_takes_one_frame_per_interval():  # server `trickle <ms>`
+    sent = []
+    can = normal_can(sent)
+    can.bus_trickle = 5000
+    can.bus_hold_until = 5000
+    for box, ident in enumerate((0x185, 0x186, 0x187)):
+        load(can, box, ident)
+    now = 0
+    starts, ends = [], []
+    while len(sent) < 3:
+        now = can.next_event(now)
+        was_idle = can.on_bus is None
+        can.advance(now)
+        if was_idle and can.on_bus is not None:
+            starts.append(now)
+            ends.append(can.on_bus_until)
+    assert [f.can_id for f in sent] == [0x185, 0x186, 0x187]
+    assert starts[0] == 5000
+    assert starts[1:] == [end + 5000 for end in ends[:-1]], "each frame's end + the interval"
+
+
 def test_can_timed_hold_and_dominant_bus_hold_the_mailboxes_then_end():  # server `hold <ms>`
     sent = []
     can = normal_can(sent)

@@ -25,6 +25,7 @@ fn main() -> ExitCode {
                 feed_check::vectors::write(b, 400, 30, 0x5EED_0000 + n as u64, &mut out);
             }
         }
+        feed_check::boundaries::write(&mut out);
         if let Err(e) = std::fs::write(&path, out) {
             eprintln!("feed-check: cannot write {path}: {e}");
             return ExitCode::FAILURE;

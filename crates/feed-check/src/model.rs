@@ -227,7 +227,6 @@ pub struct World {
     axis: usize,
     /// Frames the device handed out that the bus has not taken.
     transmit: VecDeque<Wire>,
-    transmit_completed: u32,
     /// Feed records the host received and when (ms), newest last, for copies.
     delivered: VecDeque<(Wire, u64)>,
     host: HostRule<Tag>,
@@ -303,7 +302,6 @@ struct Port<'a> {
     queue: &'a mut VecDeque<Wire>,
     capacity: usize,
     tag: Tag,
-    completed: u32,
 }
 
 impl CanIo for Port<'_> {
@@ -322,7 +320,6 @@ impl CanIo for Port<'_> {
     fn transmit_state(&mut self) -> TransmitState {
         TransmitState {
             waiting: !self.queue.is_empty(),
-            completed: self.completed,
         }
     }
 
@@ -414,7 +411,6 @@ impl FeedModel {
             era: 0,
             axis: 0,
             transmit: VecDeque::new(),
-            transmit_completed: 0,
             delivered: VecDeque::new(),
             host: HostRule::new(self.bounds.rule),
             host_stalled: false,
@@ -511,7 +507,6 @@ impl FeedModel {
                 era: w.era,
                 made_ms: w.now_ms,
             },
-            completed: w.transmit_completed,
         };
         // The model's time stays far below the tick count's wrap.
         let ticks = w.now_ms as u32;
@@ -593,7 +588,6 @@ impl FeedModel {
             return;
         };
         w.now_ms += 1;
-        w.transmit_completed = w.transmit_completed.wrapping_add(1);
         if frame.id == TPDO1 {
             w.delivered.push_back((frame.clone(), w.now_ms));
             while w.delivered.len() > usize::from(self.bounds.copy_depth)
@@ -830,7 +824,6 @@ impl Model for FeedModel {
             Action::Lose => {
                 w.transmit.pop_front();
                 w.now_ms += 1;
-                w.transmit_completed = w.transmit_completed.wrapping_add(1);
                 self.step(&mut w, None);
             }
             Action::Copy(back) => {

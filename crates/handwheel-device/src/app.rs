@@ -147,6 +147,9 @@ pub struct FeedApp {
     /// A consumed heartbeat is in timeout: feed may not be enabled until the engine reports
     /// every monitored node back.
     pub(crate) master_lost: bool,
+    /// The transmit path was found blocked and has not run empty since: feed may not be
+    /// enabled (its records would reach the host late).
+    pub(crate) transmit_blocked: bool,
     /// The feed record TPDO1 is being built from: one snapshot, taken when the engine asks
     /// whether TPDO1 is ready, so that every mapped object reads the same record however the
     /// edge task moves the wheel meanwhile.
@@ -162,6 +165,7 @@ impl FeedApp {
             step_in_flight: None,
             step_byte: 0,
             master_lost: false,
+            transmit_blocked: false,
             record: None,
         }
     }
@@ -203,7 +207,12 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             // position move unseen and jump at the next start.
             // Nor while a master we monitor is silent: a wheel enabled by a write that
             // arrives while the master is lost would move an axis nobody supervises.
-            if value == 1 && (self.app.nmt != NmtState::Operational || self.app.master_lost) {
+            // Nor while the transmit path has not drained since it was found blocked: the
+            // records would queue behind it and move the axis late.
+            let allowed = self.app.nmt == NmtState::Operational
+                && !self.app.master_lost
+                && !self.app.transmit_blocked;
+            if value == 1 && !allowed {
                 return Err(SdoAbort::DeviceState);
             }
             self.wheel
@@ -255,10 +264,13 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
 
     fn on_reset_application(&mut self) {
         let (nmt, master_lost) = (self.app.nmt, self.app.master_lost);
+        let transmit_blocked = self.app.transmit_blocked;
         *self.app = FeedApp::new();
-        // Engine state, not application state: the engine ends the loss itself.
+        // Engine and port state, not application state: the engine ends the loss itself, the
+        // stall watch the block.
         self.app.nmt = nmt;
         self.app.master_lost = master_lost;
+        self.app.transmit_blocked = transmit_blocked;
         self.wheel.lock(|w| {
             w.reset_decoder(WheelParameters::DEFAULT.decoder);
             w.feed.reset();

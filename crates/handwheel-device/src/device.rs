@@ -26,52 +26,49 @@ pub const TRANSMIT_BLOCKED_INFO: u8 = 0x01;
 /// Error register bit 4: communication error.
 const ERROR_REGISTER_COMMUNICATION: u8 = 0x10;
 
-/// How long frames may wait for the bus, none of them getting out, before the device counts
-/// its transmit path as blocked: it then stops the feed, discards what waits and breaks the
+/// How long the transmit path may hold waiting frames without once running empty before the
+/// device counts it as blocked: it then stops the feed, discards what waits and breaks the
 /// record sequence, so that no motion reaches the host later than this after it was reported.
+/// Counted from the last time the path was empty, not from the last frame that got out: a bus
+/// that takes a frame now and then lets a queue grow whose records arrive ever later.
 pub const TRANSMIT_STALL_MS: u64 = 100;
 
-/// What the firmware's transmit path reports each round: whether frames wait (in the queue
-/// or the controller), and a count of frames that left it (wrapping).
+/// What the firmware's transmit path reports each round.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct TransmitState {
-    /// Frames wait for the bus.
+    /// Frames wait for the bus (in the queue or the controller).
     pub waiting: bool,
-    /// Frames that left the transmit path (sent or aborted), wrapping.
-    pub completed: u32,
 }
 
-/// Notices a transmit path that takes nothing for [`TRANSMIT_STALL_MS`].
+/// Notices a transmit path that has not run empty for [`TRANSMIT_STALL_MS`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 struct StallWatch {
-    /// Since when frames wait with none completing.
+    /// Since when frames wait, the path not empty once.
     since: Option<Instant>,
-    completed: u32,
-    /// This stall was handled already.
-    handled: bool,
+    /// The path was found blocked and has not run empty since: the feed may not start again
+    /// (what it sends would queue behind a path that does not drain).
+    blocked: bool,
 }
 
 impl StallWatch {
-    /// Whether the path counts as blocked now (once per stall).
+    /// Whether the path counts as blocked now (once, until it runs empty).
     fn observe(&mut self, now: Instant, state: TransmitState) -> bool {
-        if !state.waiting || state.completed != self.completed {
-            self.completed = state.completed;
-            self.since = state.waiting.then_some(now);
-            self.handled = false;
+        if !state.waiting {
+            *self = Self::default();
             return false;
         }
         let since = *self.since.get_or_insert(now);
-        if self.handled || now.as_micros() < since.as_micros() + TRANSMIT_STALL_MS * 1000 {
+        if self.blocked || now.as_micros() < since.as_micros() + TRANSMIT_STALL_MS * 1000 {
             return false;
         }
-        self.handled = true;
+        self.blocked = true;
         true
     }
 
-    /// When the path counts as blocked if nothing gets out.
+    /// When the path counts as blocked if it does not run empty.
     fn deadline(&self) -> Option<Instant> {
         self.since
-            .filter(|_| !self.handled)
+            .filter(|_| !self.blocked)
             .map(|since| since.add_millis(TRANSMIT_STALL_MS))
     }
 }
@@ -191,12 +188,14 @@ impl<S: Storage> HandwheelDevice<S> {
         wheel: &mut impl Mutex<T = Handwheel>,
         tx: &mut dyn FrameSink,
     ) -> bool {
-        if !self.stall.observe(now, state) {
+        let tripped = self.stall.observe(now, state);
+        self.app.transmit_blocked = self.stall.blocked;
+        if !tripped {
             return false;
         }
         #[cfg(feature = "defmt")]
         defmt::warn!(
-            "CAN: nothing sent for {=u64} ms: feed stopped",
+            "CAN: frames waited {=u64} ms for the bus: feed stopped",
             TRANSMIT_STALL_MS
         );
         let operational = self.engine.nmt_state() == NmtState::Operational;

@@ -55,7 +55,6 @@ impl CanIo for Port {
     fn transmit_state(&mut self) -> TransmitState {
         TransmitState {
             waiting: self.blocked,
-            completed: 0,
         }
     }
 
@@ -367,6 +366,56 @@ fn a_transmit_path_stalled_for_100_ms_stops_the_feed_and_discards() {
         emcys.get(blocked + 1).map(|e| e[..3].to_vec()),
         Some(vec![0, 0, 0])
     );
+}
+
+#[test]
+fn a_path_that_never_runs_empty_counts_as_blocked_however_much_gets_out() {
+    // A bus that takes a frame now and then: frames leave, but what waits is never drained.
+    // What it carries arrives ever later, so the watch counts from the last empty path.
+    let mut r = Rig::new(true);
+    r.poll(0);
+    r.receive(1, 0x000, &[0x01, NODE]);
+    r.receive(2, 0x605, &[0x2F, 0x00, 0x20, 0, 1, 0, 0, 0]);
+    r.port.blocked = true;
+    for ms in (5..105).step_by(5) {
+        r.poll(ms);
+        assert_eq!(r.port.discards, 0, "{ms}");
+    }
+    r.poll(105);
+    assert_eq!(r.port.discards, 1, "100 ms after the path was last empty");
+    r.poll(300);
+    assert_eq!(r.port.discards, 1, "once until the path runs empty");
+}
+
+#[test]
+fn feed_stays_off_until_a_blocked_path_has_drained() {
+    let mut r = Rig::new(true);
+    r.poll(0);
+    r.receive(1, 0x000, &[0x01, NODE]);
+    r.port.blocked = true;
+    r.poll(2);
+    r.poll(102);
+    assert_eq!(r.port.discards, 1);
+    // The master's enable arrives while the path still holds frames: refused (0x08000022),
+    // since the records would queue behind frames the bus does not take.
+    r.receive(110, 0x605, &[0x2F, 0x00, 0x20, 0, 1, 0, 0, 0]);
+    assert_eq!(
+        r.sent_on(0x585).last().unwrap()[..],
+        [0x80, 0x00, 0x20, 0, 0x22, 0x00, 0x00, 0x08]
+    );
+    r.port.blocked = false;
+    r.poll(120);
+    r.receive(121, 0x605, &[0x2F, 0x00, 0x20, 0, 1, 0, 0, 0]);
+    assert_eq!(
+        r.sent_on(0x585).last().unwrap()[0],
+        0x60,
+        "enabled once drained"
+    );
+    // A new block is a new stop.
+    r.port.blocked = true;
+    r.poll(130);
+    r.poll(230);
+    assert_eq!(r.port.discards, 2);
 }
 
 #[test]
