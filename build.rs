@@ -6,15 +6,6 @@
 //! put on the search path as well, for flip-link, which relinks in a directory of its own
 //! with a modified copy of this map.
 //!
-//! The QEMU variant (`--features qemu`, the emulated STM32F100 with 8 KiB RAM) cannot bring
-//! a `memory.x` of its own: the root's is found first whatever the search path says, and a
-//! second MEMORY command would define the regions twice. So it keeps the board's regions,
-//! which fit the emulated part but for the end of RAM, and adds `qemu/ram.x` after `link.x`:
-//! it moves the stack's top to the end of the emulated 8 KiB and checks that static RAM and
-//! a minimum stack fit below it. That variant is linked by plain rust-lld (`cargo xtask`
-//! sets the linker for it): flip-link would move static RAM to the top of the board's
-//! 20 KiB, which the emulated part does not have, and `qemu/ram.x` fails such a link.
-//!
 //! The link arguments live here (not in `.cargo/config.toml` rustflags) so that they apply to
 //! this package's binary and its on-target tests only, exactly once each.
 use std::{env, path::PathBuf};
@@ -23,7 +14,6 @@ fn main() {
     let root = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets it"));
     println!("cargo:rustc-link-search={}", root.display());
     println!("cargo:rerun-if-changed=memory.x");
-    println!("cargo:rerun-if-changed=qemu/ram.x");
     println!("cargo:rerun-if-changed=build.rs");
 
     // Only the MCU build links; a host `cargo check` of this package must not get these.
@@ -31,12 +21,6 @@ fn main() {
         // cortex-m-rt's script (it INCLUDEs memory.x), then defmt's symbol table.
         println!("cargo:rustc-link-arg=-Tlink.x");
         println!("cargo:rustc-link-arg=-Tdefmt.x");
-        if env::var_os("CARGO_FEATURE_QEMU").is_some() {
-            println!(
-                "cargo:rustc-link-arg=-T{}",
-                root.join("qemu/ram.x").display()
-            );
-        }
         // No page alignment of the output sections: the image is placed by memory.x alone.
         println!("cargo:rustc-link-arg=--nmagic");
     }

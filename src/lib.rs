@@ -1,5 +1,4 @@
-//! Board glue of the CANopen CNC handwheel for the STM32F103C8 (Blue Pill class), and of
-//! its QEMU variant (`--features qemu`, module [`qemu`]).
+//! Board glue of the CANopen CNC handwheel for the STM32F103C8 (Blue Pill class).
 //!
 //! The RTIC application (`src/main.rs`) binds interrupts and moves data between these
 //! modules and the host-tested crates; every decision about decoding, feed and CANopen
@@ -15,20 +14,11 @@
 //! - [`round_log`]: the log lines of a `canopen` round (bus errors, lost frames, encoder
 //!   errors, selections, bit-rate switches).
 //! - [`edge`]: the CAN side's access to the wheel state it shares with the edge task.
-//! - [`parts`]: the one `Board` both variants' `init` return, over their part types.
 //! - [`priority`]: the interrupt priorities the firmware programs itself.
 //!
 //! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
 //! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' 1 KiB
 //! word-wise one to keep the image inside its flash budget).
-//!
-//! Board variants (Cargo features, exactly one): `board` (default) builds the application
-//! for the STM32F103C8 over [`board`]; `qemu` builds the same application for
-//! `qemu-system-arm -M stm32vldiscovery` over [`qemu::board`], where the CAN port runs SLCAN
-//! on USART1, the parameters stay in RAM, and a stimulus line on USART2 drives the simulated
-//! inputs. Both layers always build; the application (`src/main.rs`) picks one, and binds
-//! the QEMU layer's two USART interrupts to tasks of its own, which is the only other place
-//! the feature is named.
 #![no_std]
 #![warn(missing_docs)]
 
@@ -41,9 +31,7 @@ pub use handwheel_device::node_config;
 #[cfg(feature = "stack-overflow-test")]
 pub mod overflow;
 mod panic;
-pub mod parts;
 pub mod priority;
-pub mod qemu;
 pub mod round_log;
 pub mod storage;
 

@@ -11,9 +11,6 @@
 //! | `canopen` | software (TIM3 dispatcher) | 2 | `can`, `wheel` |
 //! | `idle` | thread mode | 0 | - |
 //!
-//! The QEMU variant adds `qemu_usart1` (USART1, 3), `qemu_usart2` (USART2, 3), `qemu_boot`
-//! and `qemu_stall` (software, 2).
-//!
 //! The wheel's edges preempt every task: an edge is only known by the levels read after it,
 //! so a late read merges two edges into an illegal jump. `wheel_edge` runs at the highest
 //! priority the part has (16, NVIC priority 0), owns the pins (a local resource) and shares
@@ -36,20 +33,9 @@
 //! so it never delays an edge. A tick is a counter increment and a queue check; it waits at
 //! most for one CAN interrupt, the edge or a critical section, far less than its 1 ms
 //! period, so no tick is missed.
-//!
-//! The QEMU variant (`--features qemu`) is this same application, task for task, over the
-//! QEMU board layer (`handwheel_firmware::qemu::board`, picked in `qemu::chosen`), plus tasks
-//! of its own, the only place here the feature is named: `can_rx0` is pended by `qemu_usart1`,
-//! which queues the SLCAN bytes from the host, and `wheel_edge` by `qemu_usart2`, which
-//! carries out stimulus commands; both at priority 3, sharing nothing with the rest but
-//! lock-free queues and atomics. `qemu_boot` starts `canopen` after the QEMU board's
-//! boot-up delay. The stimulus `stall` spawns `qemu_stall`, which holds the
-//! CAN side's priority busy (as a CAN side that falls behind would), so that a test can
-//! overrun the receive queue.
 #![no_std]
 #![no_main]
 
-#[cfg(feature = "board")]
 use defmt_rtt as _;
 
 use handwheel_firmware::events::Events;
@@ -71,8 +57,8 @@ mod app {
     use defmt::info;
     use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
     use handwheel_device::{HandwheelDevice, Node};
-    use handwheel_firmware::qemu::chosen::board;
     use handwheel_firmware::{
+        board,
         can::{CanSide, Mode, RxConsumer, RxProducer, RxQueue},
         edge,
         events::EventSet,
@@ -111,10 +97,6 @@ mod app {
         selectors: Selectors,
         leds: Leds,
         watchdog: board::watchdog::Watchdog,
-        #[cfg(feature = "qemu")]
-        slcan: handwheel_firmware::qemu::slcan_port::SlcanReceiver,
-        #[cfg(feature = "qemu")]
-        stimulus: handwheel_firmware::qemu::stimulus::StimulusLink,
     }
 
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]
@@ -162,10 +144,7 @@ mod app {
         board.watchdog.start(WATCHDOG_MS);
         // The first spawn of a task cannot fail. Were it ever to, nothing would feed the
         // watchdog started above, and the MCU would reset.
-        #[cfg(not(feature = "qemu"))]
         let _ = canopen::spawn();
-        #[cfg(feature = "qemu")]
-        let _ = qemu_boot::spawn();
 
         (
             Shared {
@@ -180,10 +159,6 @@ mod app {
                 selectors: board.selectors,
                 leds: board.leds,
                 watchdog: board.watchdog,
-                #[cfg(feature = "qemu")]
-                slcan: board.own.slcan,
-                #[cfg(feature = "qemu")]
-                stimulus: board.own.stimulus,
             },
         )
     }
@@ -296,49 +271,6 @@ mod app {
             if Mono::timeout_at(wake_at, EVENTS.wait()).await.is_err() {
                 EVENTS.take();
             }
-        }
-    }
-
-    /// QEMU: starts `canopen` after the board's boot-up delay: its boot-up must not reach the
-    /// master's socket before pyserial's flush on connecting (see `BOOT_UP_DELAY_MS`).
-    /// Shorter than the watchdog timeout, though QEMU's watchdog is only a stand-in.
-    #[cfg(feature = "qemu")]
-    #[task(priority = 2)]
-    async fn qemu_boot(_: qemu_boot::Context) {
-        Mono::delay(board::BOOT_UP_DELAY_MS.millis()).await;
-        let _ = canopen::spawn();
-    }
-
-    /// QEMU: USART1 received SLCAN bytes from the host; `can_rx0` parses them.
-    #[cfg(feature = "qemu")]
-    #[task(binds = USART1, priority = 3, local = [slcan])]
-    fn qemu_usart1(cx: qemu_usart1::Context) {
-        cx.local.slcan.on_interrupt();
-    }
-
-    /// QEMU: USART2 received stimulus bytes: turn the simulated wheel (pending `wheel_edge`
-    /// per edge), set the switch lines, or stall the CAN side.
-    #[cfg(feature = "qemu")]
-    #[task(binds = USART2, priority = 3, local = [stimulus])]
-    fn qemu_usart2(cx: qemu_usart2::Context) {
-        cx.local.stimulus.on_interrupt(|ms| {
-            // `stall 0` asks for nothing. A stall under way makes the spawn fail: the
-            // request is dropped, as one arriving while the CAN side is busy anyway.
-            if ms > 0 {
-                let _ = qemu_stall::spawn(ms);
-            }
-        });
-    }
-
-    /// QEMU: busy for `ms` at the CAN side's priority, what a CAN side that falls behind
-    /// looks like: `canopen` waits (the CAN interrupts keep receiving above it).
-    #[cfg(feature = "qemu")]
-    #[task(priority = 2)]
-    async fn qemu_stall(_: qemu_stall::Context, ms: u16) {
-        defmt::info!("stalling the CAN side for {=u16} ms (stimulus)", ms);
-        let until = Mono::now() + u32::from(ms).millis();
-        while Mono::now() < until {
-            core::hint::spin_loop();
         }
     }
 }

@@ -11,7 +11,7 @@ use crate::pac::NVIC_PRIO_BITS;
 /// shared wheel state is the critical section itself (PRIMASK) instead of a BASEPRI raise
 /// with its barriers: 12 cycles less on every edge (docs/PERFORMANCE.md).
 pub const WHEEL: u8 = 16;
-/// The CAN interrupts, the `feed_due` relay, SysTick and the QEMU variant's USART tasks.
+/// The CAN interrupts, the `feed_due` relay and SysTick.
 pub const CAN: u8 = 3;
 
 /// The NVIC's priority byte for an RTIC logical priority (higher logical = more urgent =

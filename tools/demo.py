@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
-"""The handwheel without hardware: the firmware's QEMU variant and a python-canopen master.
+"""The handwheel without hardware: the release image on the emulated board and a
+python-canopen master.
 
-Started by `cargo xtask demo [--script]`, which builds the QEMU image and the Python venv
-(target/interop-venv) first. This script starts `cargo xtask qemu` itself (in its own process
-group, its decoded defmt log in a file), connects python-can's `slcan` interface to the
-emulated USART1, boots the node, puts it in Operational and enables the feed (0x2000 = 1),
-then shows what a CNC would receive from TPDO1 (axis, multiplier, position, frames/s) while
-the wheel is turned through the stimulus line on USART2:
+Started by `cargo xtask demo [--script]`, which builds the image and the Python venvs
+(target/interop-venv, target/emu-venv) first. This script starts `cargo xtask board` itself
+(in its own process group, its decoded defmt log in a file), connects python-can's `slcan`
+interface to the board's CAN port, boots the node, puts it in Operational and enables the
+feed (0x2000 = 1), then shows what a CNC would receive from TPDO1 (axis, multiplier,
+position, frames/s) while the wheel is turned through the board's control line:
 
 - interactive (default, needs a terminal): arrow keys turn the wheel one detent (right/up
   forward, left/down back), PgUp/PgDn ten; x y z w v select the axis, 0 none; 1 2 3 the
@@ -52,7 +53,7 @@ from rig import (  # noqa: E402
     STOPPED,
     TPDO1,
     TPDO2,
-    Qemu,
+    Board,
     Stimulus,
     connect_bus,
 )
@@ -146,8 +147,8 @@ def describe_status(rec: Record) -> str:
 class Demo:
     """The booted node, its master and the wheel."""
 
-    def __init__(self, log_path: Path, task: str = "qemu") -> None:
-        self.emulator = Qemu(log_path, task)
+    def __init__(self, log_path: Path) -> None:
+        self.emulator = Board(log_path)
         self.cnc = Cnc()
         self.bus: Optional[can.BusABC] = None
         self.network: Optional[canopen.Network] = None
@@ -156,14 +157,14 @@ class Demo:
         self.last_action = "-"
 
     def boot(self) -> None:
-        # QEMU listens once it is up, and starts the CPU when we connect.
+        # The board listens once it is up, and starts the CPU when we connect.
         self.bus = connect_bus(self.emulator)
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(self.cnc)
         self.node = self.network.add_node(NODE_ID, str(EDS))
         self.network.connect()
-        # The firmware sends the boot-up at boot, whether or not python-can's `O` got
-        # through (QEMU drops what reaches USART1 before the firmware enables it).
+        # The boot-up is the first frame the master reads, whether or not python-can's `O`
+        # got through.
         if not self.cnc.wait(lambda: self.cnc.booted, STEP_TIMEOUT):
             self.emulator.check_alive()
             raise RuntimeError("no boot-up frame from the node")
@@ -383,11 +384,6 @@ def main() -> int:
     parser.add_argument(
         "--pace", type=float, default=0.5, help="seconds between the tour's steps (default 0.5)"
     )
-    parser.add_argument(
-        "--board",
-        action="store_true",
-        help="run the release image on the emulated board instead of QEMU",
-    )
     args = parser.parse_args()
     if not args.script and not sys.stdin.isatty():
         print(
@@ -396,15 +392,14 @@ def main() -> int:
         return 2
 
     log_path = Path(
-        os.environ.get("HANDWHEEL_QEMU_LOG") or Path(tempfile.gettempdir()) / "handwheel-demo.log"
+        os.environ.get("HANDWHEEL_DEMO_LOG") or Path(tempfile.gettempdir()) / "handwheel-demo.log"
     )
     log_path.parent.mkdir(parents=True, exist_ok=True)
     signal.signal(signal.SIGTERM, interrupt)
-    demo = Demo(log_path, "board" if args.board else "qemu")
+    demo = Demo(log_path)
     status = 0
     try:
-        where = "on the emulated board" if args.board else "in QEMU"
-        print(f"demo: starting the handwheel firmware {where} (log: {log_path})")
+        print(f"demo: starting the handwheel firmware on the emulated board (log: {log_path})")
         demo.boot()
         demo.select("x", 1)
         demo.start_feed()

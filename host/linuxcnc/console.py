@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
-"""`cargo xtask linuxcnc`: LinuxCNC's sim XYZ mill driven by the QEMU handwheel, in the
-terminal.
+"""`cargo xtask linuxcnc`: LinuxCNC's sim XYZ mill driven by the handwheel on the emulated
+board, in the terminal.
 
-Starts the firmware's QEMU variant (`cargo xtask qemu`), then LinuxCNC with the sim machine
-of `sim/` (as HANDWHEEL_LINUXCNC_USER when set) whose HAL loads the component
-(HANDWHEEL_COMPONENT) on QEMU's SLCAN port, exactly as a machine would on `can0`. Its
+Starts the release image on the emulated board (`cargo xtask board`), then LinuxCNC with the
+sim machine of `sim/` (as HANDWHEEL_LINUXCNC_USER when set) whose HAL loads the component
+(HANDWHEEL_COMPONENT) on the board's SLCAN port, exactly as a machine would on `can0`. Its
 headless display switches the machine on and homes it; this console shows LinuxCNC's DRO,
 the machine state and the handwheel as the component sees it, and turns the wheel from the
-keyboard through QEMU's stimulus port:
+keyboard through the board's control line:
 
     right/up, left/down   one detent forward / back      PgUp / PgDn   ten
     x y z, w v, 0         axis, feed / spindle override, none    1 2 3  x1 x10 x100
@@ -32,7 +32,7 @@ ROOT = HERE.parents[1]
 sys.path[:0] = [str(HERE), str(ROOT / "tools"), str(ROOT / "host" / "src")]
 
 from demo import screen, wheel_command  # noqa: E402  (the demo's keys and screen)
-from rig import Qemu, Stimulus  # noqa: E402
+from rig import Board, Stimulus  # noqa: E402
 from sim_machine import SimMachine  # noqa: E402
 
 STATES = {1: "E-stop", 2: "off", 3: "off", 4: "ON"}
@@ -171,19 +171,19 @@ def main() -> int:
     user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
     logs = Path(os.environ.get("HANDWHEEL_LOG_DIR") or tempfile.mkdtemp(prefix="handwheel-"))
     logs.mkdir(parents=True, exist_ok=True)
-    qemu = Qemu(logs / "qemu.log")
+    board = Board(logs / "board.log", logs / "flash.bin")
     cnc = stim = None
     try:
-        print(f"starting QEMU and LinuxCNC (logs in {logs}) ...", flush=True)
+        print(f"starting the emulated board and LinuxCNC (logs in {logs}) ...", flush=True)
         cnc = SimMachine(
             component,
-            f"socket://127.0.0.1:{qemu.can_port}",
+            f"socket://127.0.0.1:{board.can_port}",
             logs / "linuxcnc.log",
             user=user,
             auto_on=True,
         )
         cnc.connect()
-        stim = Stimulus(qemu.stim_port, qemu)
+        stim = Stimulus(board.stim_port, board)
         if args.script:
             return 0 if script(cnc, stim) else 1
         interactive(cnc, stim)
@@ -200,7 +200,7 @@ def main() -> int:
             stim.close()
         if cnc is not None:
             cnc.stop()
-        qemu.stop()
+        board.stop()
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
-"""A CAN bus for several SLCAN clients on the QEMU handwheel's single SLCAN port.
+"""A CAN bus for several SLCAN clients on the emulated board's single SLCAN port.
 
-QEMU's SLCAN line takes one client. The hub is that client and listens on a port of its own
+The board's SLCAN line takes one client. The hub is that client and listens on a port of its own
 where any number of python-can `slcan` clients (`socket://127.0.0.1:<port>`) connect: every
 frame from the device goes to all of them, every frame from a client to the device and to
 the other clients, as on a bus. Channel commands from clients (`O`, `C`, `S8`, ...) are
@@ -85,7 +85,7 @@ class SlcanHub:
         return f"socket://127.0.0.1:{self.port}"
 
     def _connect_upstream(self) -> socket.socket:
-        # Never probe QEMU's port with a throw-away connection: it would be its client.
+        # Never probe the board's port with a throw-away connection: it would be its client.
         deadline = time.monotonic() + self.connect_timeout
         while not self._stop.is_set():
             try:

@@ -2,9 +2,7 @@
 //! stm32f1xx-hal.
 //!
 //! Everything specific to the Blue Pill class STM32F103C8 board sits behind this module and
-//! its siblings `can` and `storage`: a board variant (`crate::qemu::board`, the QEMU build
-//! with HSI clock, USART SLCAN and simulated pins) has the same names, and the RTIC
-//! application picks one of the two and stays as it is.
+//! its siblings `can` and `storage`; the RTIC application gets its parts from [`init`].
 //!
 //! The HAL does the clock tree (`rcc`), the pin modes, the AFIO remap of bxCAN to PB8/PB9,
 //! the wheel's EXTI lines (`ExtiPin`), the bxCAN clock and pins (`can::Can`), the flash
@@ -64,18 +62,30 @@ unsafe impl bxcan::FilterOwner for CanInstance {
     const NUM_FILTER_BANKS: u8 = 14;
 }
 
-/// The STM32F103 board's parts.
-pub enum Parts {}
-
-crate::parts::board_parts!(
-    Parts: WheelInputs, Selectors, Leds, CanInstance, FlashStorage, Watchdog, ResetCause, ()
-);
-
 pub use crate::can::{start as start_can, CanPort};
 pub use crate::storage::DeviceStorage;
 
-/// Everything `init` sets up for the application.
-pub type Board = crate::parts::Board<Parts>;
+/// Everything [`init`] sets up for the application.
+pub struct Board {
+    /// Wheel A/B inputs, handed to the edge interrupt.
+    pub wheel: WheelInputs,
+    /// Axis and multiplier switch lines.
+    pub selectors: Selectors,
+    /// DIP switch, read once at start-up: bit `i` set = switch `i + 1` on.
+    pub dip: u8,
+    /// RUN and ERR LEDs.
+    pub leds: Leds,
+    /// The CAN controller, not yet started.
+    pub can: CanInstance,
+    /// Where 0x1010 stores parameters.
+    pub storage: FlashStorage,
+    /// The independent watchdog, not started yet.
+    pub watchdog: Watchdog,
+    /// Why the MCU last reset.
+    pub reset_cause: ResetCause,
+    /// The MCU's 96-bit unique ID.
+    pub unique_id: [u32; 3],
+}
 
 /// Brings up clocks and pins. Takes the device peripherals that RTIC's `init` hands over.
 pub fn init(dp: pac::Peripherals) -> Board {
@@ -173,7 +183,6 @@ pub fn init(dp: pac::Peripherals) -> Board {
         watchdog,
         reset_cause,
         unique_id: unique_id(),
-        own: (),
     }
 }
 

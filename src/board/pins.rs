@@ -15,7 +15,7 @@
 //! | ERR LED (red) | PB5 | push-pull 2 MHz, active high (external, to GND via a resistor) |
 //!
 //! SWD (PA13/PA14) stays free for the probe; PA9/PA10 (USART1) stay free for a serial
-//! console or the SLCAN variant; PB3/PB4/PA15 are avoided because they start up as JTAG.
+//! console; PB3/PB4/PA15 are avoided because they start up as JTAG.
 
 /// Bit of wheel channel A in the GPIOB input data register (PB6, EXTI line 6).
 pub const WHEEL_A_BIT: u32 = 6;

@@ -1,8 +1,7 @@
 //! bxCAN error state: reading what the controller reports. What a change means (event,
 //! EMCY, ERR LED) is decided by `canopen_slave::bus`.
 //!
-//! Each link reads its own (`CanLink::status`): bxCAN's `CAN_ESR` on the board
-//! (`bxcan_port`), always error-active over the QEMU variant's SLCAN.
+//! The link reads it (`CanLink::status`): bxCAN's `CAN_ESR` (`bxcan_port`).
 //!
 //! bxCAN interrupts when a flag is set (warning limit, error passive, bus-off), never when
 //! it clears. The SCE interrupt wakes the CAN-side task at once on the way down; the way back

@@ -1,11 +1,11 @@
 //! CAN glue: the transmit queue, receive draining and the controller's error state, over
-//! bxCAN on the board and over SLCAN on USART1 in the QEMU variant.
+//! bxCAN.
 //!
 //! [`CanPort`] is the one RTIC resource around the controller. The RX0, TX and SCE interrupt
 //! tasks and the CAN-side software task share it; each use is a few register accesses. It
-//! is one type for both boards ([`port::CanPort`]) over the board's [`port::CanLink`]:
-//! bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in `bxcan_port` ([`CanPort`]),
-//! SLCAN on USART1 in the QEMU variant (`crate::qemu::slcan_port`, its board's `CanPort`).
+//! is the queue and statistics ([`port::CanPort`]) over the controller's few operations
+//! ([`port::CanLink`]): bxCAN (bit timing, acceptance filters, mailboxes, FIFO 0) in
+//! `bxcan_port` ([`CanPort`]).
 
 pub mod bus;
 mod bxcan_port;

@@ -1,6 +1,5 @@
-//! The CAN port both boards share: the transmit queue, the statistics and the interrupt
-//! entry points, over a [`CanLink`] that is the controller (bxCAN on the board, SLCAN on
-//! USART1 in the QEMU variant).
+//! The CAN port: the transmit queue, the statistics and the interrupt entry points, over a
+//! [`CanLink`] that is the controller (bxCAN, `bxcan_port`).
 
 use canopen_slave::RxFilter;
 use handwheel_core::BitRate;
@@ -23,7 +22,8 @@ pub enum Received {
     Overrun,
 }
 
-/// What differs between the boards' controllers.
+/// What the port needs of the controller: bxcan's `Can` (`bxcan_port::Bxcan`) gets these
+/// methods through this trait, a foreign type having no inherent methods of this crate.
 pub trait CanLink {
     /// Offers `frame` for transmission. `Ok(None)`: taken; `Ok(Some(displaced))`: taken, and
     /// a less urgent pending frame came back out of the controller (it goes back to the head

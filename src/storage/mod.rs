@@ -12,9 +12,6 @@
 //! is erased or programmed, the CPU stalls on every instruction fetch from flash, interrupts
 //! included: an erase (20-40 ms) would hold off the wheel's EXTI too, so the device refuses
 //! every store while the feed is enabled (0x08000022, `HandwheelDevice`'s application).
-//!
-//! The QEMU variant keeps the pages in RAM (`crate::qemu::storage`): they survive NMT resets,
-//! not a restart of the emulator.
 
 mod flash;
 pub use handwheel_device::page::{Flash, FlashError, ParameterPage, PAGE_SIZE};
@@ -23,6 +20,5 @@ pub use handwheel_device::record;
 pub use flash::{FlashStorage, PAGE_ADDRESS, PAGE_OFFSET};
 pub use record::{NodeSettings, BLOB_MAX, RECORD_MAX};
 
-/// The CANopen engine's storage on the board: the parameter page over the last two flash
-/// pages (the QEMU variant's board has its own, in RAM).
+/// The CANopen engine's storage: the parameter page over the last two flash pages.
 pub type DeviceStorage = ParameterPage<FlashStorage>;

@@ -1,8 +1,8 @@
-"""Board-only tests: the release image on the emulated board (`cargo xtask board`), where
-the DIP switch, the flash page, the watchdog, the bxCAN error states and the LEDs exist.
+"""The board itself: the DIP switch, the flash page, the watchdog, the bxCAN error states and
+the LEDs of the release image on the emulated board (`cargo xtask board`).
 
-The board's control line (`BoardProcess.control`) sets the DIP switch, power-cycles,
-injects bus errors, holds the bus and reads the LED history; see tools/board-emu/server.py.
+The board's control line (`Board.control`) sets the DIP switch, power-cycles, injects bus
+errors, holds the bus and reads the LED history; see tools/board-emu/server.py.
 """
 
 from __future__ import annotations
@@ -10,10 +10,9 @@ from __future__ import annotations
 import time
 
 import can
-import pytest
 from canopen.lss import LssMaster
 
-from conftest import BoardProcess, raw_bus, stopped_after
+from conftest import raw_bus, stopped_after
 from emulated_clock import frame_times, gaps
 from rig import (
     BOOTUP,
@@ -25,25 +24,13 @@ from rig import (
     SDO_TX,
     STOPPED,
     TPDO1,
+    Board,
     feed_record,
-    open_rig,
 )
 
 SAVE = 0x65766173  # "save", little-endian (CiA 301 0x1010)
 # README "Node-ID and bit rate": code -> kbit/s.
 RATES = [1000, 800, 500, 250, 125, 50, 20, 10]
-
-
-@pytest.fixture
-def board(request, tmp_path):
-    with stopped_after(request, BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")) as b:
-        yield b
-
-
-@pytest.fixture
-def brig(board):
-    with open_rig(board) as r:
-        yield r
 
 
 def send(bus, cob_id: int, data: bytes) -> None:
@@ -91,8 +78,8 @@ def test_every_dip_code_gives_the_tables_node_id_and_bit_rate(board):
         assert board.status()["online"] == "0"
 
 
-def test_stored_settings_survive_a_power_cycle(brig):
-    rig, board = brig, brig.qemu
+def test_stored_settings_survive_a_power_cycle(rig):
+    board = rig.board
     rig.write(0x1017, 0, 250, 2)  # heartbeat 250 ms
     rig.write(0x1800, 5, 40, 2)  # TPDO1 event timer 40 ms
     rig.write(0x1010, 1, SAVE, 4)
@@ -120,8 +107,8 @@ def test_stored_settings_survive_a_power_cycle(brig):
     assert all(0.15 < g < 0.35 for g in beats), beats
 
 
-def test_a_corrupt_parameter_page_means_defaults(brig):
-    rig, board = brig, brig.qemu
+def test_a_corrupt_parameter_page_means_defaults(rig):
+    board = rig.board
     rig.write(0x1017, 0, 300, 2)
     rig.write(0x1010, 1, SAVE, 4)
     board.control("corrupt")  # one bit of the stored record flips: its CRC fails
@@ -132,8 +119,8 @@ def test_a_corrupt_parameter_page_means_defaults(brig):
     board.wait_for_log(r"node-ID 16, 1000 kbit/s \(Default")
 
 
-def test_a_stalled_canopen_loop_is_reset_by_the_watchdog(brig):
-    rig, board = brig, brig.qemu
+def test_a_stalled_canopen_loop_is_reset_by_the_watchdog(rig):
+    board = rig.board
     feeds = int(board.status()["feeds"])
     assert feeds > 0, "the loop feeds the watchdog"
     mark = rig.frames.mark()
@@ -170,10 +157,10 @@ def near(value, want, tolerance=0.10):
     return abs(value - want) <= tolerance * want
 
 
-def test_run_led_follows_the_nmt_state(brig):
+def test_run_led_follows_the_nmt_state(rig):
     """CiA 303-3: Pre-operational blinking (200 ms on / 200 ms off), Operational on,
     Stopped single flash (200 ms on, 1 s off), within 10 %."""
-    rig, board = brig, brig.qemu
+    board = rig.board
     time.sleep(1.5)
     pre = flashes(board.leds(), "run", 0)[1:]
     assert len(pre) >= 4, pre
@@ -198,8 +185,8 @@ def test_run_led_follows_the_nmt_state(brig):
     assert all(near(d, 1000) for d in offs), f"single flash off: {spans}"
 
 
-def test_bus_errors_give_emcys_err_led_codes_and_bus_off_recovers(brig):
-    rig, board = brig, brig.qemu
+def test_bus_errors_give_emcys_err_led_codes_and_bus_off_recovers(rig):
+    board = rig.board
     # Pre-operational: only the heartbeat is sent, each success lowers TEC by one.
     t0 = float(board.status()["ms"])
     mark = rig.frames.mark()
@@ -237,12 +224,12 @@ def test_bus_errors_give_emcys_err_led_codes_and_bus_off_recovers(brig):
     assert rig.read(0x1017) == 1000
 
 
-def test_burst_during_a_flash_erase_overruns_and_the_node_recovers(brig):
+def test_burst_during_a_flash_erase_overruns_and_the_node_recovers(rig):
     """A store that finds the parameter page full erases it: the CPU stalls about 20 ms,
     during which a burst of frames fills FIFO 0 (three frames) and overruns: EMCY 0x8110, no
     crash. The burst (400 frames, about 20 ms of bus time) spans the erase whatever the
     store does first (it reads the page's records)."""
-    rig, board = brig, brig.qemu
+    board = rig.board
     # Six changed stores fill the page (six 154-byte records); the seventh must erase.
     for i in range(6):
         rig.write(0x1017, 0, 1001 + i, 2)
@@ -281,7 +268,7 @@ def wait_pending(board, ids: set[str], timeout: float = 3.0) -> None:
 TRANSMIT_STALL_MS = 100
 
 
-def test_a_full_transmit_side_never_loses_a_frame(brig):
+def test_a_full_transmit_side_never_loses_a_frame(rig):
     """The bus is taken by other traffic, so the node's frames wait. The heartbeat (0x710),
     an SDO reply (0x590) and a feed record (0x190) fill the three mailboxes, each more urgent
     than the last; then the EMCY of error passive (0x090) finds no free mailbox and
@@ -290,7 +277,7 @@ def test_a_full_transmit_side_never_loses_a_frame(brig):
     within the transmit stall limit of the heartbeat's entering its mailbox (the test checks
     it in emulated time; the wheel is turned by single edges, quicker than `turn`): frames
     that wait longer are discarded, by design (test_outage.py's long hold)."""
-    rig, board = brig, brig.qemu
+    board = rig.board
     rig.write(0x1800, 5, 0, 2)  # no event timer: feed records only on motion
     rig.feed_on("x")
     board.control("hold on")
@@ -319,12 +306,12 @@ def test_a_full_transmit_side_never_loses_a_frame(brig):
     assert feed_record(rig.frames.frames(TPDO1, since=held)[0]).position == 1
 
 
-def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(brig):
+def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(rig):
     """`hold <ms>` ends by itself: what waited in the mailboxes goes out then, and the board
     runs on at its pace (a `turn` after the hold gets its `ok`, its feed record goes out).
     The hold (90 ms) is shorter than the transmit stall limit: a reply that waits longer is
     discarded, by design (this test held 400 ms before the limit)."""
-    rig, board = brig, brig.qemu
+    board = rig.board
     rig.write(0x1800, 5, 0, 2)  # no event timer: feed records only on motion
     rig.feed_on("x")
     start = float(board.status()["ms"])
@@ -351,12 +338,12 @@ def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(brig):
     assert record
 
 
-def test_a_bit_rate_switch_on_a_dominant_bus_recovers_without_a_reset(brig):
+def test_a_bit_rate_switch_on_a_dominant_bus_recovers_without_a_reset(rig):
     """LSS activate bit timing while the bus is stuck dominant: the controller cannot
     synchronise at the new rate. The node stays off the bus and keeps running (no watchdog
     reset), with the ERR LED on, and joins at the new rate by itself once the bus is free,
     with EMCY 0x8140."""
-    rig, board = brig, brig.qemu
+    board = rig.board
     lss = rig.network.lss
     lss.RESPONSE_TIMEOUT = 0.5
     lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
@@ -433,7 +420,7 @@ def test_a_stack_overflow_faults_and_resets_instead_of_overwriting_statics(reque
     (HardFault), nothing comes back from the dig, and the watchdog resets the MCU, which
     then does the same again. (Linked the classic way, the same dig stays inside RAM and
     overwrites the statics instead: no fault, and the log says it came back.)"""
-    board = BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin", image="stack-overflow")
+    board = Board(tmp_path / "board.log", tmp_path / "flash.bin", image="stack-overflow")
     with stopped_after(request, board), raw_bus(board):
         board.wait_for_log(r"stack overflow test: digging 19456 bytes")
         deadline = time.monotonic() + 10

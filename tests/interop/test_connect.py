@@ -1,11 +1,10 @@
-"""Connecting the way docs/QEMU.md shows it: one `can.Bus`, a `canopen.Network`,
+"""Connecting the way docs/EMULATED-BOARD.md shows it: one `can.Bus`, a `canopen.Network`,
 `network.connect()`, and the boot-up arrives, without the master ever sending `O` again.
 
 python-can writes its `O` (or `C`, `Sn`, `O` with `bitrate=`) right after connecting, while
-QEMU is still starting the CPU, and QEMU's USART drops bytes that arrive before the firmware
-enables it. So the device must not depend on hearing that `O`. These tests use a bare
-emulator (the `qemu` fixture), not the `rig`, because the rig's own connection is what is
-under test.
+the board starts its CPU; the boot-up must be the first frame the master reads whether or
+not that `O` made it. These tests use a bare board (the `board` fixture), not the `rig`,
+because the rig's own connection is what is under test.
 """
 
 import time
@@ -26,10 +25,11 @@ from rig import (
 )
 
 
-def _connect_and_check_bootup(qemu, **bus_kwargs):
-    # The snippet of docs/QEMU.md. `connect_bus` retries only the TCP connection while QEMU is
-    # not listening yet (the page has the user start the emulator first); it never re-sends `O`.
-    bus = connect_bus(qemu, **bus_kwargs)
+def _connect_and_check_bootup(board, **bus_kwargs):
+    # The snippet of docs/EMULATED-BOARD.md. `connect_bus` retries only the TCP connection
+    # while the board is not listening yet (the page has the user start it first); it never
+    # re-sends `O`.
+    bus = connect_bus(board, **bus_kwargs)
     connected = time.monotonic()
     frames = FrameRecorder()
     network = canopen.Network(bus)
@@ -59,15 +59,13 @@ def _connect_and_check_bootup(qemu, **bus_kwargs):
         pytest.param({"bitrate": 1_000_000}, id="bitrate"),
     ],
 )
-def test_readme_snippet_sees_the_bootup_on_the_first_try(qemu, bus_kwargs):
-    # Whether QEMU drops the `O` depends on timing, so on a device that waits for it this
-    # fails only in some runs (about half of them per case on a 2-core machine).
-    _connect_and_check_bootup(qemu, **bus_kwargs)
+def test_readme_snippet_sees_the_bootup_on_the_first_try(board, bus_kwargs):
+    _connect_and_check_bootup(board, **bus_kwargs)
 
 
-def test_bootup_arrives_even_when_the_opening_o_is_lost(qemu, monkeypatch):
-    # The worst case of the race above, made certain: python-can's `open()` (the `O` it
-    # writes at the end of its constructor) does nothing, as if QEMU had dropped the `O`.
-    # `close()` still sends `C` on disconnect.
+def test_bootup_arrives_even_when_the_opening_o_is_lost(board, monkeypatch):
+    # python-can's `open()` (the `O` it writes at the end of its constructor) does nothing,
+    # as if the `O` had been lost: the channel is open from the start. `close()` still sends
+    # `C` on disconnect.
     monkeypatch.setattr(slcanBus, "open", lambda self: None)
-    _connect_and_check_bootup(qemu)
+    _connect_and_check_bootup(board)

@@ -28,10 +28,10 @@ Names the fix introduces (the `feed-stops` and `stop-reason` pins, the log line,
 are those of the issue's design. The records are read with the component's own decoder
 (`canopen_handwheel.core.Record`), whatever their layout; the relay decodes none.
 
-Board only (the fixture starts a `BoardProcess`): `power` and `hold` are the board's; the
-board's stimulus turns a detent in 2.4 ms (four edges 600 us apart), so at the default 2 ms
-inhibit time every detent of a `turn` is a feed record of its own, about 400 a second of the
-board's time (which runs slower than the host's on a busy machine).
+`power` and `hold` are commands of the board's control line; its `turn` turns a detent in
+2.4 ms (four edges 600 us apart), so at the default 2 ms inhibit time every detent of a
+`turn` is a feed record of its own, about 400 a second of the board's time (which runs
+slower than the host's on a busy machine).
 """
 
 from __future__ import annotations
@@ -49,7 +49,6 @@ from typing import Callable, Iterator, List, Optional
 import pytest
 
 from canopen_handwheel.core import Record
-from conftest import BoardProcess, stopped_after
 from rig import (
     AXES,
     BOOTUP,
@@ -63,6 +62,7 @@ from rig import (
     SDO_RX,
     START_TIMEOUT,
     TPDO1,
+    Board,
     Frame,
     Stimulus,
 )
@@ -84,7 +84,7 @@ class Host:
     """The emulated board, the relay on its CAN port, the stimulus line and the component
     on the relay's channel (`enable` true)."""
 
-    def __init__(self, board: BoardProcess, tmp: Path) -> None:
+    def __init__(self, board: Board, tmp: Path) -> None:
         self.board = board
         self.relay = Relay(board)
         self.relay.device.wait_id(HEARTBEAT, bytes([BOOTUP]), timeout=START_TIMEOUT)
@@ -176,14 +176,8 @@ class Host:
         self.relay.close()
 
 
-@pytest.fixture(params=["board"])  # `-k board` selects these with the suite's board runs
-def board(request, tmp_path):
-    with stopped_after(request, BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")) as b:
-        yield b
-
-
 @contextmanager
-def started(board: BoardProcess, tmp: Path, mult: int = 1) -> Iterator[Host]:
+def started(board: Board, tmp: Path, mult: int = 1) -> Iterator[Host]:
     """The component on X at `mult`, the feed enabled; closed (with the relay) on exit."""
     host = Host(board, tmp)
     try:
@@ -397,7 +391,7 @@ FROZEN_DETENTS = 6  # one every 50 ms while frozen
 STOP_SLACK = 0.3  # s beyond the consumer timeout: reading the board's clock
 
 
-def board_ms(board: BoardProcess) -> float:
+def board_ms(board: Board) -> float:
     """The board's emulated time, ms since its power-on."""
     return float(board.status()["ms"])
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from canopen_handwheel.core import Record
-from rig import NODE_ID, ROOT, START_TIMEOUT, Qemu, Stimulus
+from rig import NODE_ID, ROOT, START_TIMEOUT, Board, Stimulus
 from rig.component import HalLog, end_component
 
 TPDO1_LINE = f"t{0x180 + NODE_ID:03X}8".encode()
@@ -44,8 +44,8 @@ class Relay:
     sends the client EMCY lines at `rate` per second (0: stop), in the same thread as the
     relayed lines, so that no line is cut."""
 
-    def __init__(self, qemu: Qemu) -> None:
-        self.up = self._connect(qemu)
+    def __init__(self, board: Board) -> None:
+        self.up = self._connect(board)
         self.server = socket.socket()
         self.server.bind(("127.0.0.1", 0))
         self.server.listen(1)
@@ -62,13 +62,13 @@ class Relay:
         self.thread.start()
 
     @staticmethod
-    def _connect(qemu: Qemu) -> socket.socket:
+    def _connect(board: Board) -> socket.socket:
         # As `connect_bus`: retry only while refused, never a throw-away probe.
         deadline = time.monotonic() + START_TIMEOUT
         while True:
-            qemu.check_alive()
+            board.check_alive()
             try:
-                s = socket.create_connection(("127.0.0.1", qemu.can_port), timeout=5)
+                s = socket.create_connection(("127.0.0.1", board.can_port), timeout=5)
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 return s
             except ConnectionRefusedError:
@@ -139,13 +139,13 @@ class Relay:
 
 
 class Component:
-    """The emulator, the relay, the stimulus and the component process (`enable` true)."""
+    """The board, the relay, the stimulus and the component process (`enable` true)."""
 
-    def __init__(self, qemu: Qemu, tmp: Path) -> None:
-        self.relay = Relay(qemu)
+    def __init__(self, board: Board, tmp: Path) -> None:
+        self.relay = Relay(board)
         # As `open_rig`: the stimulus port once the firmware has booted.
         assert self.relay.booted.wait(START_TIMEOUT), "no boot-up"
-        self.stim = Stimulus(qemu.stim_port, qemu)
+        self.stim = Stimulus(board.stim_port, board)
         self.hal = HalLog(tmp / "hal.log")
         self.hal.path.write_text("")
         self.err = open(tmp / "component.log", "w")
@@ -188,8 +188,8 @@ class Component:
 
 
 @pytest.fixture
-def host(qemu: Qemu, tmp_path):
-    c = Component(qemu, tmp_path)
+def host(board: Board, tmp_path):
+    c = Component(board, tmp_path)
     try:
         c.stim.axis("x")
         c.stim.mult(1)

@@ -1,5 +1,5 @@
-"""The decoded defmt log (QEMU semihosting -> defmt-print -> stderr of `cargo xtask qemu`)
-shows the engine's NMT transitions (`NMT {} -> {}` in crates/canopen-slave)."""
+"""The decoded defmt log (the board's RTT buffer -> defmt-print -> stderr of `cargo xtask
+board`) shows the engine's NMT transitions (`NMT {} -> {}` in crates/canopen-slave)."""
 
 from rig import (
     BOOTUP,
@@ -15,7 +15,7 @@ from rig import (
 
 
 def test_log_shows_the_nmt_transitions_in_order(rig):
-    log = rig.qemu
+    log = rig.board
     # Power-on: the boot-up frame went out with the entry to Pre-operational.
     at = log.wait_for_log(r"NMT Initialising -> PreOperational").end()
     rig.nmt_and_heartbeat(NMT_START, OPERATIONAL)
@@ -32,5 +32,5 @@ def test_log_shows_the_nmt_transitions_in_order(rig):
 
 def test_log_lines_are_decoded_with_their_level(rig):
     """defmt-print decoded the stream: a readable line with the INFO level marker."""
-    line = rig.qemu.wait_for_log(r"^.*NMT Initialising -> PreOperational.*$").group(0)
+    line = rig.board.wait_for_log(r"^.*NMT Initialising -> PreOperational.*$").group(0)
     assert " INFO " in f" {line} ", line

@@ -1,9 +1,10 @@
-"""LSS (CiA 305) with python-canopen's `LssMaster` against the QEMU handwheel.
+"""LSS (CiA 305) with python-canopen's `LssMaster` against the handwheel on the emulated
+board.
 
-The emulator's parameter memory is RAM: a "store configuration" survives NMT resets (the
-QEMU board's boots), not a restart of the emulator. The QEMU variant has no bit rate, so a
-stored bit timing is only reported, by the log line every initialisation prints for stored
-node settings.
+A "store configuration" goes to the parameter pages in flash and is what the next power-on
+starts with (`power` on the control line); a configured node-ID is taken at the next NMT
+reset, a bit timing when it is activated. The host's side of the bus follows the node's
+rate (no `rate` set), so the master keeps talking to it after a switch.
 """
 
 import pytest
@@ -20,7 +21,7 @@ from rig import (
 
 LSS_RESPONSE = 0x7E4
 # LssMaster waits this long for an answer; fastscan costs one timeout per 1-bit of the
-# address, so keep it short (QEMU answers within a few ms).
+# address, so keep it short (the node answers within a few ms).
 LSS_TIMEOUT = 0.3
 
 
@@ -103,7 +104,6 @@ def test_configure_node_id_store_and_reset(rig, lss):
 
     mark = rig.nmt(NMT_RESET_NODE)
     bootup = rig.frames.wait_id(heartbeat_of(5), bytes([BOOTUP]), since=mark)
-    rig.qemu.wait_for_log(r"stored node settings: node-ID 5 at 1000 kbit/s")
     assert sdo_answers(rig, 5)
     assert not sdo_answers(rig, NODE_ID)
     hb = rig.frames.wait_id(heartbeat_of(5), since=bootup.seq + 1, timeout=3)
@@ -117,6 +117,11 @@ def test_configure_node_id_store_and_reset(rig, lss):
     lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
     assert lss.inquire_node_id() == 5
     lss.send_switch_state_global(LssMaster.WAITING_STATE)
+    # Stored: the next power-on starts as node 5.
+    mark = rig.frames.mark()
+    rig.board.control("power")
+    rig.frames.wait_id(heartbeat_of(5), bytes([BOOTUP]), since=mark)
+    rig.board.wait_for_log(r"node-ID 5, 1000 kbit/s \(Stored")
 
 
 def test_configure_bit_timing_and_store(rig, lss):
@@ -125,19 +130,25 @@ def test_configure_bit_timing_and_store(rig, lss):
         lss.configure_bit_timing(5)  # 100 kbit/s: not in the device's table
     lss.configure_bit_timing(3)  # 250 kbit/s
     lss.store_configuration()
-    rig.qemu.wait_for_log(r"LSS stored node-ID 16 at 250 kbit/s")
-    lss.send_switch_state_global(LssMaster.WAITING_STATE)
-    # The next boot reports it (the QEMU board's boot is an NMT reset).
-    start = len(rig.qemu.log())
+    rig.board.wait_for_log(r"LSS stored node-ID 16 at 250 kbit/s")
+    # Stored, not active: an NMT reset keeps the running rate.
     mark = rig.nmt(NMT_RESET_NODE)
     rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
-    rig.qemu.wait_for_log(r"stored node settings: node-ID 16 at 250 kbit/s", start=start)
-    # Activate bit timing: the serial line has no bit rate; the switch is logged.
+    assert rig.board.status()["bitrate"] == "1000000"
+    # Activate bit timing: the controller switches, the switch is logged.
+    start = len(rig.board.log())
     lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
     lss.activate_bit_timing(50)
-    rig.qemu.wait_for_log(r"LSS: bit rate now 250 kbit/s", start=start)
+    rig.board.wait_for_log(r"LSS: bit rate now 250 kbit/s", start=start)
     lss.send_switch_state_global(LssMaster.WAITING_STATE)
+    assert rig.board.status()["bitrate"] == "250000"
     assert sdo_answers(rig, NODE_ID)
+    # The next power-on starts at the stored rate.
+    mark = rig.frames.mark()
+    rig.board.control("power")
+    rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
+    rig.board.wait_for_log(r"node-ID 16, 250 kbit/s \(Stored", start=start)
+    assert rig.board.status()["bitrate"] == "250000"
 
 
 def test_unconfigured_node_answers_fastscan_and_is_configured_by_it(rig, lss):

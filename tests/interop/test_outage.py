@@ -1,11 +1,9 @@
 """Bus outages against the feed contract (issue 26): what the master receives after the
 node's frames could not reach it, read with the host component's own rule.
 
-On the emulated board (`hold`) the bus is taken by other traffic: the node's frames wait in
-its transmit queue and mailboxes while the master's frames still reach it. In QEMU the master
-closes the SLCAN channel (`C`): the node's frames wait in the same queue, but the master's
-frames do not get through either, so the scenarios with NMT commands or SDO writes inside the
-outage run on the board only (`BOARD_ONLY` in conftest.py).
+The board's `hold` takes the bus with other traffic: the node's frames wait in its transmit
+queue and mailboxes while the master's frames still reach it, so NMT commands and SDO writes
+work inside the outage.
 
 Every scenario turns the wheel forward only, so the safety property is: per axis, the motion
 the host credits never decreases (no delta below zero) and never exceeds the motion turned on
@@ -22,7 +20,6 @@ from dataclasses import dataclass, field, replace
 import pytest
 
 from canopen_handwheel.core import Record, continuity, record_fault
-from conftest import BoardProcess
 from rig import (
     AXES,
     BOOTUP,
@@ -52,67 +49,51 @@ UPLOAD_REPLY = bytes([0x43, 0x00, 0x10, 0x00])
 ENABLE_REQUEST = bytes([0x2F, 0x00, 0x20, 0x00, 0x01, 0, 0, 0])
 
 
-def on_board(rig) -> bool:
-    return isinstance(rig.qemu, BoardProcess)
-
-
 def hold_bus(rig, held: bool) -> None:
-    """The node's frames stop reaching the master (`held`) or flow again. On the emulated
-    board other traffic holds the bus, so the mailboxes wait (`hold on` / `hold off`); in
-    QEMU the master closes and reopens the SLCAN channel (`C` / `O`)."""
-    if on_board(rig):
-        rig.qemu.control("hold on" if held else "hold off")
-    elif held:
-        rig.bus.close()
-    else:
-        rig.bus.open()
+    """The node's frames stop reaching the master (`held`) or flow again: other traffic
+    holds the bus, so the mailboxes wait (`hold on` / `hold off`)."""
+    rig.board.control("hold on" if held else "hold off")
 
 
 def emulated_ms(rig) -> float:
     """The board's emulated time (ms since its power-on)."""
-    return float(rig.qemu.status()["ms"])
+    return float(rig.board.status()["ms"])
 
 
 def let_pass(rig, ms: float) -> None:
-    """Lets `ms` of the node's time pass. On the board that is emulated time, read on its
-    control line (it runs no faster than the wall clock, slower when the host is busy); QEMU's
-    clock is the host's, so there the wall clock is waited out. Used where the node shows
+    """Lets `ms` of the node's time pass: emulated time, read on the control line (it runs no
+    faster than the wall clock, slower when the host is busy). Used where the node shows
     nothing to wait for: its frames are held."""
-    if on_board(rig):
-        until = emulated_ms(rig) + ms
-        while emulated_ms(rig) < until:
-            time.sleep(0.002)
-    else:
-        time.sleep(ms / 1000)
+    until = emulated_ms(rig) + ms
+    while emulated_ms(rig) < until:
+        time.sleep(0.002)
 
 
 def select_unseen(rig, axis: str) -> None:
     """Moves the axis switch and waits until the firmware's debouncing took the change: its
     log line `selection: axis N`, since `rig.select` cannot confirm over SDO while the
     node's frames are held."""
-    start = len(rig.qemu.log())
+    start = len(rig.board.log())
     rig.stim.axis(axis)
     wait_log(rig, rf"selection: axis {AXES[axis]}, ", start)
 
 
 def wait_log(rig, pattern: str, start: int) -> None:
     """Waits for the firmware's log line `pattern` after character `start` of its log
-    (decoded from RTT on the board, from semihosting in QEMU): what the node did while its
+    (decoded from RTT): what the node did while its
     frames are held. Polled every millisecond: some waits must fit in a short hold."""
     line = re.compile(pattern)
     deadline = time.monotonic() + SELECT_TIMEOUT
-    while not line.search(rig.qemu.log(), start):
+    while not line.search(rig.board.log(), start):
         assert time.monotonic() < deadline, f"no log line /{pattern}/"
         time.sleep(0.001)
 
 
 def turn_one_by_one(rig, detents: int) -> None:
-    """One detent at a time. On the board each `turn` answers 25 ms after its last edge, so
-    every detent is a record of its own (2 ms inhibit time); in QEMU it answers at once."""
+    """One detent at a time. Each `turn` answers 25 ms after its last edge, so every detent
+    is a record of its own (2 ms inhibit time)."""
     for _ in range(detents):
         rig.stim.turn(1)
-        if not on_board(rig):
-            time.sleep(0.005)
 
 
 def enabled_at_rest(rig, axis: str) -> int:
@@ -269,31 +250,21 @@ FORWARD = [1, 3, 2, 0]
 
 
 def quick_detents(rig, detents: int) -> None:
-    """Whole detents, quick enough for a hold shorter than the stall limit. On the board as
-    single edges (`ab`, about 2.5 ms of its time each), where `turn` answers only 25 ms after
-    its last edge; the wheel rests at 00 before and after. In QEMU `turn` answers at once."""
+    """Whole detents, quick enough for a hold shorter than the stall limit: as single edges
+    (`ab`, about 2.5 ms of the board's time each), since `turn` answers only 25 ms after its
+    last edge; the wheel rests at 00 before and after."""
     for _ in range(detents):
-        if on_board(rig):
-            for levels in FORWARD:
-                rig.stim.ab(levels)
-        else:
-            rig.stim.turn(1)
+        for levels in FORWARD:
+            rig.stim.ab(levels)
 
 
 def fill_transmit_side(rig) -> int:
-    """Fills the node's transmit side during a hold; returns how many SDO requests it sent.
-    On the board: 18 SDO requests, which get through the held bus, each answered with a
-    reply that must wait (one mailbox and the 16-frame queue). In QEMU the master's frames
-    do not get through a closed channel, so feed records fill it: the caller set the event
-    timer to 1 ms and the inhibit time to 0 before the hold, and the queue's 16 records take
-    16 ms, some 25 ms in a busy QEMU: 35 ms are waited out (nothing shows while the channel is
-    closed; the test checks afterwards that the queue was full)."""
-    if on_board(rig):
-        for _ in range(18):
-            rig.network.send_message(SDO_RX, UPLOAD_DEVICE_TYPE)
-        return 18
-    time.sleep(0.035)
-    return 0
+    """Fills the node's transmit side during a hold; returns how many SDO requests it sent:
+    18, which get through the held bus, each answered with a reply that must wait (one
+    mailbox and the 16-frame queue)."""
+    for _ in range(18):
+        rig.network.send_message(SDO_RX, UPLOAD_DEVICE_TYPE)
+    return 18
 
 
 # A hold shorter than the stall limit: the frames wait for less than that.
@@ -375,9 +346,9 @@ def test_reset_node_within_the_stall_limit_boots_up_first_and_breaks_the_sequenc
     assert feed_record(rig.frames.frames(TPDO1)[-1]).sequence % 256 == 255
     held = rig.frames.mark()
     start = emulated_ms(rig)
-    rig.qemu.control(f"hold {SHORT_HOLD_MS}")
+    rig.board.control(f"hold {SHORT_HOLD_MS}")
     fill_transmit_side(rig)
-    log = len(rig.qemu.log())
+    log = len(rig.board.log())
     rig.nmt(NMT_RESET_NODE)
     rig.nmt(NMT_START)
     rig.network.send_message(SDO_RX, ENABLE_REQUEST)
@@ -405,42 +376,22 @@ def test_a_turn_on_another_axis_in_a_short_hold_reaches_that_axis(rig):
     before X's records, so that the host's rule credits each axis exactly its own turns, and
     the feed stays on. (This test held the bus for seconds before the stall limit, turning X
     30, Y 7 and X 2 in it; a hold that long now stops the feed: see `test_a_long_hold_stops_
-    the_feed_and_credits_nothing_late`.) On the board, whose hold is timed in its emulated
-    time (`hold 95`; the test checks that the last detent came before it ended), 18 SDO
-    requests fill the transmit side (a reply refused shows it was full). In QEMU the master
-    closes the channel for less than the limit of wall-clock time, which QEMU's clock follows;
-    the master's frames do not get through then, so the node's own records fill the queue (a
-    1 ms event timer). The selector change is awaited in the firmware's log. QEMU runs on
-    the host's clock, so a starved host can break the preconditions (the channel closed for
-    too long, the queue not yet full): the test then fails on them, naming which."""
-    if not on_board(rig):
-        # A record every millisecond, to fill the queue while the channel is closed.
-        rig.write(0x1800, 1, 0x8000_0000 | TPDO1, 4)
-        rig.write(0x1800, 3, 0, 2)
-        rig.write(0x1800, 5, 1, 2)
-        rig.write(0x1800, 1, TPDO1, 4)
+    the_feed_and_credits_nothing_late`.) The hold is timed in the board's emulated
+    time (`hold 95`; the test checks that the last detent came before it ended); 18 SDO
+    requests fill the transmit side (a reply refused shows it was full). The selector change
+    is awaited in the firmware's log."""
     rig.feed_on("x")
     rig.stim.turn(2)
     base = rig.wait_position(2, since=0)
     rig.select("y")
-    if on_board(rig):
-        start = emulated_ms(rig)
-        rig.qemu.control(f"hold {SHORT_HOLD_MS}")
-    else:
-        start = time.monotonic()
-        hold_bus(rig, True)
-    held = rig.frames.mark()
+    start = emulated_ms(rig)
+    rig.board.control(f"hold {SHORT_HOLD_MS}")
     replies = fill_transmit_side(rig)
     quick_detents(rig, 1)
     select_unseen(rig, "x")
     quick_detents(rig, 1)
-    if on_board(rig):
-        done = emulated_ms(rig) - start
-        assert done < SHORT_HOLD_MS, f"the last detent came {done:.1f} ms into the hold"
-    else:
-        done = (time.monotonic() - start) * 1000
-        hold_bus(rig, False)
-        assert done < SHORT_HOLD_MS, f"the channel was closed for {done:.1f} ms"
+    done = emulated_ms(rig) - start
+    assert done < SHORT_HOLD_MS, f"the last detent came {done:.1f} ms into the hold"
     settle(rig, base.seq)
     seen = rig.frames.frames(since=base.seq)
     credit = Credit.of(seen)
@@ -450,20 +401,10 @@ def test_a_turn_on_another_axis_in_a_short_hold_reaches_that_axis(rig):
         feed_record(f).position for f in seen if f.id == TPDO1 and feed_record(f).axis == AXES["y"]
     ]
     assert on_y and on_y[-1] == 3, f"Y's final position reached the master: {on_y}"
-    if on_board(rig):
-        answered = [f for f in seen if f.id == SDO_TX and f.data[:4] == UPLOAD_REPLY]
-        # The settle's reply among them; a full queue refuses a reply (the master would
-        # ask again), and one refused shows the transmit side was full.
-        assert 16 <= len(answered) - 1 < replies, f"{len(answered) - 1} of {replies} replies"
-    else:
-        # The queue's 16 frames came before Y's final record: it was full.
-        final_y = next(
-            f
-            for f in seen
-            if f.id == TPDO1 and (feed_record(f).position, feed_record(f).axis) == (3, AXES["y"])
-        )
-        before = rig.frames.frames(since=held)[: final_y.seq - held]
-        assert len(before) >= 16, f"the queue was not full: {before}"
+    answered = [f for f in seen if f.id == SDO_TX and f.data[:4] == UPLOAD_REPLY]
+    # The settle's reply among them; a full queue refuses a reply (the master would ask
+    # again), and one refused shows the transmit side was full.
+    assert 16 <= len(answered) - 1 < replies, f"{len(answered) - 1} of {replies} replies"
     assert rig.read(0x2000) == 1, "the feed is still on: no stall"
 
 

@@ -1,4 +1,4 @@
-"""Board-only: power cuts during parameter stores, and stored values the device must not
+"""Power cuts during parameter stores, and stored values the device must not
 trust, on the release image over the emulated chip's flash controller.
 
 The control line arms a cut at the n-th flash operation (a half-word program or a page
@@ -18,23 +18,18 @@ import time
 import can
 import pytest
 
-from conftest import BoardProcess, raw_bus, stopped_after
+from conftest import raw_bus
+from rig import Board
 
 SAVE = b"save"
 LOAD = b"load"
 LSS_MASTER, LSS_SLAVE = 0x7E5, 0x7E4
 
 
-@pytest.fixture
-def board(request, tmp_path):
-    with stopped_after(request, BoardProcess(tmp_path / "board.log", tmp_path / "flash.bin")) as b:
-        yield b
-
-
 class Node:
     """The booted node as seen from the bus: its node-ID follows each boot-up."""
 
-    def __init__(self, board: BoardProcess, bus, frames) -> None:
+    def __init__(self, board: Board, bus, frames) -> None:
         self.board, self.bus, self.frames = board, bus, frames
         self.node_id = 16
 
@@ -88,7 +83,7 @@ class Node:
         assert self.write(0x1010, 1, SAVE)[0] == 0x60
 
 
-def flash_ops(board: BoardProcess) -> int:
+def flash_ops(board: Board) -> int:
     return int(board.status()["flashops"])
 
 
@@ -103,7 +98,7 @@ def store(node: Node, kind: str) -> None:
         node.send(0x600 + node.node_id, bytes([0x23, 0x11, 0x10, 1]) + LOAD)
 
 
-def cut_tries(board: BoardProcess, node: Node, kind: str, points, expected_ops: int) -> int:
+def cut_tries(board: Board, node: Node, kind: str, points, expected_ops: int) -> int:
     """Runs the store of `kind` from the snapshot once uncut (old and new states; it takes
     `expected_ops` flash operations), then cut at each (operation, where) of `points(ops)`;
     returns the cut points tried."""

@@ -82,7 +82,7 @@ def test_encode_round_trips_and_ends_in_cr(frame):
     assert parse_line(line[:-1]) == frame
 
 
-def test_encode_is_what_the_emulators_send():
+def test_encode_is_what_the_board_sends():
     assert encode(SlcanFrame(0x190, bytes.fromhex("0a0b0c0d0e0f1011"))) == b"t1908" + (
         b"0A0B0C0D0E0F1011\r"
     )

@@ -2,9 +2,9 @@
 stop at the wear budget with a defined answer, and no store is made while the feed is
 enabled, so a store never costs a detent.
 
-The parameter page is the same code on both variants (`handwheel_device::page`, over the
-board's flash page or the QEMU board's RAM page); on the emulated board the FPEC model counts
-erases and programmed half-words (`status`), and a page erase stalls the CPU 20 ms.
+The parameter page (`handwheel_device::page`) is over the board's flash: the emulated board's
+FPEC model counts erases and programmed half-words (`status`), and a page erase stalls the
+CPU 20 ms.
 """
 
 import itertools
@@ -26,11 +26,6 @@ LSS_RESPONSE = 0x7E4
 # eight erases at once.
 RECORDS_PER_PAGE = 6
 ERASE_BURST = 8
-
-
-def board_of(rig):
-    """The emulated board (FPEC counters), or None on the QEMU variant."""
-    return rig.qemu if getattr(rig.qemu, "kind", None) == "board" else None
 
 
 def flash_counts(board) -> tuple[int, int]:
@@ -55,21 +50,18 @@ def lss_store(rig) -> bytes:
 
 
 def test_unchanged_stores_write_nothing_and_changed_ones_stop_at_the_wear_budget(rig):
-    board = board_of(rig)
+    board = rig.board
     # Nothing stored yet: "restore defaults" has nothing to write, however often.
     for _ in range(30):
         rig.node.sdo.download(0x1011, 1, LOAD)
-    if board:
-        assert flash_counts(board) == (0, 0)
+    assert flash_counts(board) == (0, 0)
     # One store writes one record; the same parameters again write nothing.
     rig.node.sdo.download(0x1010, 1, SAVE)
-    if board:
-        erases, programs = flash_counts(board)
-        assert (erases, programs) == (0, 77), "one 154-byte record, no erase"
+    erases, programs = flash_counts(board)
+    assert (erases, programs) == (0, 77), "one 154-byte record, no erase"
     for _ in range(50):
         rig.node.sdo.download(0x1010, 1, SAVE)
-    if board:
-        assert flash_counts(board) == (0, 77)
+    assert flash_counts(board) == (0, 77)
 
     # A master that changes a parameter before every store: six records per erase, eight
     # erases, then 0x08000020 (the page already holds the first record).
@@ -84,8 +76,7 @@ def test_unchanged_stores_write_nothing_and_changed_ones_stop_at_the_wear_budget
         accepted.append(value)
     assert code == CANNOT_STORE, f"after {len(accepted)} stores: {code}"
     assert len(accepted) == RECORDS_PER_PAGE * (ERASE_BURST + 1) - 1
-    if board:
-        assert flash_counts(board)[0] == ERASE_BURST
+    assert flash_counts(board)[0] == ERASE_BURST
     # What is stored can be stored again (nothing to write); a change cannot.
     rig.write(0x1017, 0, accepted[-1], 2)
     rig.node.sdo.download(0x1010, 1, SAVE)
@@ -102,37 +93,35 @@ def test_unchanged_stores_write_nothing_and_changed_ones_stop_at_the_wear_budget
     assert answer == bytes([0x17, 255, 1, 0, 0, 0, 0, 0]), answer.hex(" ")
     lss.configure_node_id(16)
     lss.send_switch_state_global(LssMaster.WAITING_STATE)
-    if board:
-        assert flash_counts(board)[0] == ERASE_BURST
+    assert flash_counts(board)[0] == ERASE_BURST
 
     # The last accepted store is what the device loads.
     mark = rig.nmt(NMT_RESET_NODE)
     rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
     assert rig.read(0x1017) == accepted[-1]
 
-    if board:
-        # The budget is kept with the records: a power cycle does not refill it.
-        mark = rig.frames.mark()
-        board.control("power")
-        rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
-        assert rig.read(0x1017) == accepted[-1]
-        rig.write(0x1017, 0, 1500, 2)
-        assert rig.write_abort(0x1010, 1, SAVE) == CANNOT_STORE
-        assert flash_counts(board)[0] == ERASE_BURST
+    # The budget is kept with the records: a power cycle does not refill it.
+    mark = rig.frames.mark()
+    board.control("power")
+    rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
+    assert rig.read(0x1017) == accepted[-1]
+    rig.write(0x1017, 0, 1500, 2)
+    assert rig.write_abort(0x1010, 1, SAVE) == CANNOT_STORE
+    assert flash_counts(board)[0] == ERASE_BURST
 
 
 def test_nothing_is_stored_while_the_feed_is_enabled_and_no_detent_is_lost(rig):
     """A store erases flash, which stalls the CPU and the wheel's edges with it: while the
     feed is enabled, 0x1010, 0x1011 and LSS store are refused (0x08000022, LSS 255 / 2).
     The wheel turns briskly all the while; every detent arrives."""
-    board = board_of(rig)
-    # Give the stores something to write: a changed parameter, and a full page on the
-    # board, so that a store would have to erase.
+    board = rig.board
+    # Give the stores something to write: a changed parameter, and a full page, so that a
+    # store would have to erase.
     rig.write(0x1017, 0, 900, 2)
-    for i in range(RECORDS_PER_PAGE if board else 1):
+    for i in range(RECORDS_PER_PAGE):
         rig.write(0x1800, 5, 101 + i, 2)
         rig.node.sdo.download(0x1010, 1, SAVE)
-    before = flash_counts(board) if board else None
+    before = flash_counts(board)
     rig.write(0x1017, 0, 800, 2)
 
     mark = rig.feed_on("x", 10)
@@ -181,14 +170,12 @@ def test_nothing_is_stored_while_the_feed_is_enabled_and_no_detent_is_lost(rig):
     assert rig.read(0x2020, 2) == 0, "no illegal transition: no edge missed"
     assert set(codes) == {DEVICE_STATE}, codes
     assert set(lss_answers) == {bytes([0x17, 255, 2, 0, 0, 0, 0, 0])}, lss_answers
-    if board:
-        assert flash_counts(board) == before, "nothing written while the feed was on"
+    assert flash_counts(board) == before, "nothing written while the feed was on"
 
-    # Feed off: the store goes through (on the board it erases the full page).
+    # Feed off: the store goes through (it erases the full page).
     rig.write(0x2000, 0, 0, 1)
     rig.node.sdo.download(0x1010, 1, SAVE)
-    if board:
-        assert flash_counts(board)[0] == before[0] + 1
+    assert flash_counts(board)[0] == before[0] + 1
     mark = rig.nmt(NMT_RESET_NODE)
     rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
     assert rig.read(0x1017) == 800

@@ -1,12 +1,11 @@
-"""Fixtures of the LinuxCNC suite: the QEMU handwheel, a hub that gives its single SLCAN
-port a bus (the component and a test listener on it), and LinuxCNC 2.9 running the sim
-machine of host/linuxcnc/sim with the component, driven through its headless display.
+"""Fixtures of the LinuxCNC suite: the handwheel on the emulated board, a hub that gives its
+single SLCAN port a bus (the component and a test listener on it), and LinuxCNC 2.9 running
+the sim machine of host/linuxcnc/sim with the component, driven through its headless
+display.
 
 Environment (set by `cargo xtask test`):
 - HANDWHEEL_COMPONENT: the installed console script (target/linuxcnc-venv/bin/canopen-handwheel);
-- HANDWHEEL_LINUXCNC_USER: the unprivileged user LinuxCNC runs as (empty: this user);
-- HANDWHEEL_EMULATOR: `qemu` (default) or `board`, the release image on the emulated board
-  (`cargo xtask linuxcnc-test --board`).
+- HANDWHEEL_LINUXCNC_USER: the unprivileged user LinuxCNC runs as (empty: this user).
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ import can
 import canopen
 import pytest
 
-from rig import AXES, NMT, NODE_ID, ROOT, SDO_RX, FrameRecorder, Qemu, Stimulus
+from rig import AXES, NMT, NODE_ID, SDO_RX, Board, FrameRecorder, Stimulus
 from sim_machine import SimMachine
 from slcan_hub import SlcanHub
 
@@ -33,14 +32,9 @@ SERVO_PERIOD = 0.001
 EVENT_TIMER = 0.1
 
 
-def start_emulator(tmp: Path, run: int) -> Qemu:
-    """The emulator of this run (`HANDWHEEL_EMULATOR`); the board keeps its flash file."""
-    if os.environ.get("HANDWHEEL_EMULATOR") == "board":
-        sys.path.insert(0, str(ROOT / "tools" / "board-emu"))
-        from launcher import BoardProcess
-
-        return BoardProcess(tmp / f"board-{run}.log", tmp / "flash.bin")
-    return Qemu(tmp / f"qemu-{run}.log")
+def start_emulator(tmp: Path, run: int) -> Board:
+    """The board of this run; every run keeps the one flash file."""
+    return Board(tmp / f"board-{run}.log", tmp / "flash.bin")
 
 
 # A slow axis for the run-on tests, as in the field report: 2 mm/s, and 10 mm/s^2, so that
@@ -67,9 +61,9 @@ def moved(pos, axis, distance):
 
 def spin(machine, detents: int, pause: float, step: int = 1) -> float:
     """Turns `detents` detents (forward; backward if negative) as `turn` commands of `step`
-    detents, `pause` apart; returns the time after the last one's reply, which comes after
-    its last edge. (The QEMU stimulus makes a command's edges at once and replies; the
-    emulated board makes them 600 us apart and replies 25 ms after the last.)"""
+    detents, `pause` apart; returns the time after the last one's reply. The board makes a
+    command's edges 600 us apart and replies 25 ms (of its time) after the last, so the last
+    edge came at least 25 ms before that time."""
     sign = 1 if detents > 0 else -1
     left = abs(detents)
     while left:
@@ -100,15 +94,15 @@ class Machine:
         user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
         self.tmp = tmp
         self.runs = 1
-        self.qemu = start_emulator(tmp, self.runs)
-        self.hub = SlcanHub(self.qemu.can_port)
+        self.board = start_emulator(tmp, self.runs)
+        self.hub = SlcanHub(self.board.can_port)
         self.bus = can.Bus(interface="slcan", channel=self.hub.channel, sleep_after_open=0)
         self.frames = FrameRecorder()
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(self.frames)
         self.network.connect()
         self.hub.protect_current()  # the listener survives `break_clients`
-        self.stim = Stimulus(self.qemu.stim_port, self.qemu)
+        self.stim = Stimulus(self.board.stim_port, self.board)
         self.cnc = SimMachine(component, self.hub.channel, tmp / "linuxcnc.log", user=user)
         self.cnc.connect()
 
@@ -231,16 +225,16 @@ class Machine:
     # The device's emulator ----------------------------------------------------------------
 
     def restart_emulator(self) -> None:
-        """Stops the emulator (the device is gone from the bus), starts a new one (the same
-        flash file for the board) and puts it on the hub, as a node replaced on a running
+        """Stops the board (the device is gone from the bus), starts a new one (the same
+        flash file) and puts it on the hub, as a node replaced on a running
         bus."""
         self.stim.close()
-        self.qemu.stop()
+        self.board.stop()
         assert self.hub.upstream_lost.wait(10), "the hub did not see the device go"
         self.runs += 1
-        self.qemu = start_emulator(self.tmp, self.runs)
-        self.hub.attach(self.qemu.can_port)
-        self.stim = Stimulus(self.qemu.stim_port, self.qemu)
+        self.board = start_emulator(self.tmp, self.runs)
+        self.hub.attach(self.board.can_port)
+        self.stim = Stimulus(self.board.stim_port, self.board)
 
     def close(self) -> None:
         for step in (
@@ -248,7 +242,7 @@ class Machine:
             self.stim.close,
             self.network.disconnect,
             self.hub.close,
-            self.qemu.stop,
+            self.board.stop,
         ):
             try:
                 step()
@@ -270,7 +264,7 @@ def machine(tmp_path_factory):
         yield m
     except BaseException:
         print("--- LinuxCNC log ---\n" + m.cnc.tail(80))
-        print("--- QEMU log ---\n" + "\n".join(m.qemu.log().splitlines()[-40:]))
+        print("--- board log ---\n" + "\n".join(m.board.log().splitlines()[-40:]))
         raise
     finally:
         m.close()

@@ -1,5 +1,6 @@
-"""The handwheel drives LinuxCNC 2.9's axes: the QEMU handwheel, the component loaded by
-LinuxCNC (`loadusr -Wn handwheel ...`), positions read from `linuxcnc.stat()`.
+"""The handwheel drives LinuxCNC 2.9's axes: the handwheel on the emulated board, the
+component loaded by LinuxCNC (`loadusr -Wn handwheel ...`), positions read from
+`linuxcnc.stat()`.
 
 The tests share one machine (LinuxCNC takes seconds to start) and run in file order; each
 starts from wherever the previous one left the axes and checks relative moves. The last one

@@ -96,11 +96,14 @@ def test_ten_quick_detents_move_as_far_as_the_budget_allows(machine, slow_y):
 def test_a_fast_spin_runs_on_at_most_the_budget(machine, slow_y):
     """60 detents at x100 (6 units) in 0.3 s on the slow Y: the axis runs at its speed while
     the wheel turns, then stops within the budget of the last count; a change of mode
-    afterwards releases nothing."""
+    afterwards releases nothing. The spin is six `turn 10` back to back: 24 ms of edges
+    each, its reply 25 ms after the last (the board's time, longer in host time when its
+    clock slips), about 0.3 s in all; 50 ms pauses between them made it twice as long, and
+    the axis's travel while the wheel turns with it."""
     start = machine.pos()
     counts = machine.pins()["axis.y.jog-counts"]
     machine.watch(5, COUNTS_Y, POS_Y, TARGET_Y)
-    last_edge = spin(machine, 60, pause=0.05, step=10)
+    last_edge = spin(machine, 60, pause=0.0, step=10)
     samples = machine.watched(quiet=0.4)
     stopped = last_change(samples, 2)
     at_last_count = last_change(samples, 1)

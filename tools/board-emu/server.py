@@ -7,8 +7,8 @@ every power cut, so that a log frame the cut broke never reaches the next boot's
     python server.py --elf ELF --can-port P --stim-port Q [--flash FILE] [--dip N]
         [--defmt-print PATH] [--cut-seed N]
 
-Like `cargo xtask qemu`, the CPU starts only once a client is on the CAN port, so the
-boot-up frame is the first thing the master reads. The control port listens at once.
+The CPU starts only once a client is on the CAN port, so the boot-up frame is the first
+thing the master reads. The control port listens at once.
 
 Pacing: emulated time never runs ahead of the wall clock (the loop waits on the sockets
 instead); when the emulation falls behind by more than `MAX_LAG` (a busy stretch: boot,
@@ -20,8 +20,11 @@ SLCAN (Lawicel, as python-can's `slcan` interface speaks it): `O`, `L`, `C` answ
 runs at whatever the node's BTR gives), `V`/`N`/`F` report; `t`/`r` frames are put on the bus
 (`z\\r`), `T`/`R` too (`Z\\r`); the node's frames come as `tIIIL<data>\\r`.
 
-Control line: the QEMU variant's stimulus commands with the same replies (`turn <n>`,
-`ab <0..3>`, `axis <off|x|y|z|w|v>`, `mult <1|10|100>`; `ok` or `err <reason>`), plus:
+Control line, one command a line, each answered `ok` once applied (some with lines before
+it) or `err <reason>`: `turn <n>` (n signed detents, edge by edge as valid quadrature from
+the current A/B levels; the reply comes 25 ms after the last edge), `ab <0..3>` (A = bit 0,
+B = bit 1 directly: chatter, illegal jumps), `axis <off|x|y|z|w|v>`, `mult <1|10|100>` (the
+switch lines; the firmware's debouncing decides when the selection changes),
 `dip <0..255>` (switch n on = bit n-1, read by the firmware at its next reset), `power`
 (power cut and power-on: SRAM lost, the parameter pages kept, a flash operation running at
 that instant left half done as `Fpec.cut` says), `cut <n> <before|inside>` (cut the power at
@@ -35,7 +38,9 @@ rewrote it, then a power-on), `reset` (NRST), `buserr <tx> <rx>`
 `trickle <ms|off>` (other traffic leaves the node one frame per ms, the first after ms),
 `dominant <ms|off|on>` (the bus is stuck dominant: no frame passes either way, frames from
 the host are lost, and a controller leaving initialization or sleep mode cannot synchronise),
-`storm <ms>` (an interrupt storm on TIM2's vector starves the CAN task), `corrupt` (flips
+`storm <ms>` (an interrupt storm on TIM2's vector starves the CAN task), `stall <ms>` (the
+same for 1..400 ms, shorter than the watchdog: the CAN task falls behind while the CAN
+interrupts keep receiving, and catches up), `corrupt` (flips
 a bit of the parameter page), `leds` (the LED history: `led <ms> <run|err> <0|1>` lines,
 then `ok`), `status` (one `status key=value ...` line, then `ok`), `rate <kbit|auto>`.
 """
@@ -399,8 +404,13 @@ class Server:
                 m.can.bus_trickle = one(1, 60_000) * cortex.CORE_HZ // 1000
                 m.can.bus_hold_until = m.now + m.can.bus_trickle
             ok()
-        elif name == "storm":
-            m.storm_until = m.now + one(1, 60_000) * cortex.CORE_HZ // 1000
+        elif name in ("storm", "stall"):
+            # TIM2's vector (`feed_due`, priority 3) kept pending: `canopen` (priority 2)
+            # does not run, while the CAN interrupts, at the same priority but on lower
+            # vector numbers, keep receiving. A stall is a CAN side that falls behind and
+            # catches up: shorter than the watchdog's 500 ms.
+            longest = 60_000 if name == "storm" else 400
+            m.storm_until = m.now + one(1, longest) * cortex.CORE_HZ // 1000
             m.storm_started_ms = m.ms()
             ok()
         elif name == "corrupt":

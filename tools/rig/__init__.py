@@ -1,4 +1,5 @@
-"""The test rig: the firmware's QEMU variant and a python-canopen master, as a library.
+"""The test rig: the release image on the emulated board and a python-canopen master, as a
+library.
 
 The interop suite (`tests/interop`, whose conftest.py holds only the pytest fixtures), the
 LinuxCNC suite, `cargo xtask demo` (tools/demo.py) and the LinuxCNC console import it from
@@ -9,8 +10,9 @@ host component's `canopen_handwheel.core.Record` (standard library only).
 - `constants`: the repository root, the EDS, COB-IDs, NMT states and commands, timeouts;
 - `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record` (a
   TPDO1 as a `Record`);
-- `emulator`: `free_ports`, `Qemu` (`cargo xtask qemu` in its own process group),
-  `Stimulus` (the stimulus port), `connect_bus` (python-can's slcan bus on the CAN port);
+- `emulator`: `free_ports`, `Board` (`cargo xtask board` in its own process group, with its
+  control line), `Stimulus` (the rig's client of that line: wheel and switches),
+  `connect_bus` (python-can's slcan bus on the CAN port);
 - `master`: `Rig` (the master's view of one node), `open_rig`, `MasterHeartbeat`;
 - `relay` (imported as `rig.relay`, not re-exported): `Relay`, an SLCAN relay between one
   client (the host component) and the emulator that drops, copies and adds frames;
@@ -45,13 +47,14 @@ from .constants import (
     TPDO1,
     TPDO2,
 )
-from .emulator import Qemu, Stimulus, connect_bus, free_ports
+from .emulator import Board, Stimulus, connect_bus, free_ports
 from .frames import STATUS_FLAGS, Frame, FrameRecorder, feed_record
 from .master import MasterHeartbeat, Rig, open_rig
 
 __all__ = [
     "AXES",
     "BOOTUP",
+    "Board",
     "EDS",
     "EMCY",
     "FRAME_TIMEOUT",
@@ -79,7 +82,6 @@ __all__ = [
     "STATUS_FLAGS",
     "FrameRecorder",
     "MasterHeartbeat",
-    "Qemu",
     "Rig",
     "Stimulus",
     "connect_bus",

@@ -40,8 +40,8 @@ def _env_seconds(name: str, default: float) -> float:
 
 
 # The first start also builds the firmware (and may install defmt-print): be patient.
-START_TIMEOUT = _env_seconds("HANDWHEEL_QEMU_START_TIMEOUT", 900)
-# Waiting for a frame, a reply or a log line. QEMU's time is emulated: generous.
+START_TIMEOUT = _env_seconds("HANDWHEEL_START_TIMEOUT", 900)
+# Waiting for a frame, a reply or a log line. The board's time is emulated: generous.
 FRAME_TIMEOUT = _env_seconds("HANDWHEEL_FRAME_TIMEOUT", 5)
 SDO_TIMEOUT = _env_seconds("HANDWHEEL_SDO_TIMEOUT", 2)
 STIM_TIMEOUT = _env_seconds("HANDWHEEL_STIM_TIMEOUT", 30)

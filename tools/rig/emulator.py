@@ -1,5 +1,11 @@
-"""The emulated handwheel: `cargo xtask qemu` as a child process, its stimulus port, and
-python-can's slcan bus on its CAN port."""
+"""The emulated handwheel: `cargo xtask board` (the release image on the emulated board) as
+a child process, its control line (`Stimulus`, `Board.control`), and python-can's slcan bus
+on its CAN port.
+
+`HANDWHEEL_BOARD_COMMAND` overrides the runner, e.g. to skip cargo:
+"python tools/board-emu/server.py --elf ELF --can-port {can_port} --stim-port {stim_port}
+--flash {flash}" (the defmt stream then is not decoded).
+"""
 
 from __future__ import annotations
 
@@ -32,27 +38,33 @@ def free_ports(count: int) -> List[int]:
             s.close()
 
 
-class Qemu:
-    """`cargo xtask qemu --can-port P --stim-port Q`, its stderr (QEMU's messages and the
-    decoded defmt log) in `log_path`. With `task` "board", `cargo xtask board` instead: the
-    release image on the emulated board, with the same ports, log and stimulus commands."""
+class Board:
+    """`cargo xtask board --can-port P --stim-port Q --flash FILE`, its stderr (the server's
+    messages and the decoded defmt log) in `log_path`. `flash` is its parameter page file
+    (kept across `power`), `dip` its DIP switch, `image` the firmware (default: the release
+    image). Besides the stimulus client of the rig, `control()` sends the board's own
+    commands on a connection of its own."""
 
     def __init__(
         self,
         log_path: Path,
-        task: str = "qemu",
-        extra: dict[str, str] | None = None,
-        override: str = "HANDWHEEL_QEMU_COMMAND",
+        flash: Path | None = None,
+        dip: int | str | None = None,
+        image: str | None = None,
     ) -> None:
-        self.task = task
         self.can_port, self.stim_port = free_ports(2)
         self.log_path = log_path
+        self.flash = flash if flash is not None else log_path.with_name("flash.bin")
         self._log_file = open(log_path, "wb")
-        # `extra`: further options of the task (`--name value`), also offered to the override.
-        extra = extra or {}
-        # The override (HANDWHEEL_QEMU_COMMAND, or the board's) replaces the runner, e.g. to
-        # use a prebuilt image: "some-runner --can-port {can_port} --stim-port {stim_port}".
-        template = os.environ.get(override)
+        self._control: socket.socket | None = None
+        self._reader = None
+        # Further options of the task (`--name value`), also offered to the override.
+        extra = {"flash": str(self.flash)}
+        if dip is not None:
+            extra["dip"] = str(dip)
+        if image is not None:
+            extra["image"] = image  # `cargo xtask board --image`: release, stack-overflow
+        template = os.environ.get("HANDWHEEL_BOARD_COMMAND")
         if template:
             command = shlex.split(
                 template.format(can_port=self.can_port, stim_port=self.stim_port, **extra)
@@ -61,7 +73,7 @@ class Qemu:
             command = [
                 os.environ.get("CARGO", "cargo"),
                 "xtask",
-                task,
+                "board",
                 "--can-port",
                 str(self.can_port),
                 "--stim-port",
@@ -75,7 +87,7 @@ class Qemu:
             stdin=subprocess.DEVNULL,
             stdout=self._log_file,
             stderr=subprocess.STDOUT,
-            start_new_session=True,  # its own process group: cargo, xtask, QEMU, defmt-print
+            start_new_session=True,  # its own process group: cargo, xtask, the server, defmt-print
         )
 
     def log(self) -> str:
@@ -85,7 +97,7 @@ class Qemu:
         code = self.proc.poll()
         if code is not None:
             tail = "\n".join(self.log().splitlines()[-40:])
-            raise RuntimeError(f"`cargo xtask {self.task}` exited with {code}:\n{tail}")
+            raise RuntimeError(f"`cargo xtask board` exited with {code}:\n{tail}")
 
     def wait_for_log(
         self, pattern: str, timeout: float = FRAME_TIMEOUT, start: int = 0
@@ -102,7 +114,53 @@ class Qemu:
                 raise AssertionError(f"log line /{pattern}/ not seen in {timeout} s:\n{tail}")
             time.sleep(0.05)
 
+    # -- the control line (a second connection beside the stimulus client) ---------------------
+
+    def control(self, command: str, timeout: float = 30.0) -> list[str]:
+        """Sends one control command; returns the lines before its `ok` (fails on `err`)."""
+        if self._control is None:
+            deadline = time.monotonic() + timeout
+            while True:
+                self.check_alive()
+                try:
+                    self._control = socket.create_connection(
+                        ("127.0.0.1", self.stim_port), timeout=timeout
+                    )
+                    break
+                except OSError:
+                    if time.monotonic() > deadline:
+                        raise
+                    time.sleep(0.05)
+            self._reader = self._control.makefile("rb")
+        self._control.sendall(command.encode() + b"\n")
+        lines = []
+        while True:
+            line = self._reader.readline().decode(errors="replace").rstrip("\r\n")
+            if line == "ok":
+                return lines
+            if line.startswith("err") or not line:
+                raise AssertionError(f"control {command!r} answered {line!r}")
+            lines.append(line)
+
+    def status(self) -> dict[str, str]:
+        (line,) = self.control("status")
+        return dict(word.split("=", 1) for word in line.split()[1:])
+
+    def leds(self) -> list[tuple[float, str, bool]]:
+        """The LED history: (ms of emulated time, "run" or "err", on)."""
+        out = []
+        for line in self.control("leds"):
+            _, ms, led, on = line.split()
+            out.append((float(ms), led, on == "1"))
+        return out
+
     def stop(self) -> None:
+        if self._control is not None:
+            try:
+                self._reader.close()
+                self._control.close()
+            except OSError:
+                pass
         if self.proc.poll() is None:
             try:
                 os.killpg(self.proc.pid, signal.SIGTERM)
@@ -117,12 +175,13 @@ class Qemu:
 
 
 class Stimulus:
-    """The stimulus port: one command line out, one reply line back."""
+    """The control line as the rig's stimulus client (wheel and switches): one command line
+    out, one reply line back."""
 
-    def __init__(self, port: int, qemu: Qemu) -> None:
+    def __init__(self, port: int, board: Board) -> None:
         deadline = time.monotonic() + FRAME_TIMEOUT
         while True:
-            qemu.check_alive()
+            board.check_alive()
             try:
                 self._sock = socket.create_connection(("127.0.0.1", port), timeout=STIM_TIMEOUT)
                 break
@@ -175,18 +234,19 @@ def _refused(error: BaseException) -> bool:
     return False
 
 
-def connect_bus(qemu: Qemu, **bus_kwargs) -> can.BusABC:
-    """python-can's slcan bus on the CAN port, as docs/QEMU.md connects (extra
-    `bus_kwargs` such as `bitrate` go to `can.Bus`). QEMU listens (and waits for this
-    client) only once it is up: retry while the connection is refused, and only then. Never
-    probe the port with a throw-away connection: QEMU would take it as its client."""
+def connect_bus(board: Board, **bus_kwargs) -> can.BusABC:
+    """python-can's slcan bus on the CAN port, as docs/EMULATED-BOARD.md connects (extra
+    `bus_kwargs` such as `bitrate` go to `can.Bus`). The board listens (and starts its CPU
+    with this client) only once it is built and up: retry while the connection is refused,
+    and only then. Never probe the port with a throw-away connection: the board would take
+    it as its client."""
     deadline = time.monotonic() + START_TIMEOUT
     while True:
-        qemu.check_alive()
+        board.check_alive()
         try:
             return can.Bus(
                 interface="slcan",
-                channel=f"socket://127.0.0.1:{qemu.can_port}",
+                channel=f"socket://127.0.0.1:{board.can_port}",
                 sleep_after_open=0,
                 **bus_kwargs,
             )

@@ -27,7 +27,7 @@ from .constants import (
     SELECT_TIMEOUT,
     TPDO1,
 )
-from .emulator import Qemu, Stimulus, connect_bus
+from .emulator import Board, Stimulus, connect_bus
 from .frames import Frame, FrameRecorder, feed_record
 
 
@@ -36,13 +36,13 @@ class Rig:
 
     def __init__(
         self,
-        qemu: Qemu,
+        board: Board,
         bus: can.BusABC,
         network: canopen.Network,
         frames: FrameRecorder,
         stim: Stimulus,
     ) -> None:
-        self.qemu = qemu
+        self.board = board
         self.bus = bus
         self.network = network
         self.frames = frames
@@ -172,10 +172,10 @@ class MasterHeartbeat:
 
 
 @contextmanager
-def open_rig(qemu: Qemu) -> Iterator[Rig]:
-    """The master's side of a booted handwheel on `qemu`: bus, network with the node,
+def open_rig(board: Board) -> Iterator[Rig]:
+    """The master's side of a booted handwheel on `board`: bus, network with the node,
     recorder, stimulus client; the boot-up frame is the first recorded. Closed on exit."""
-    bus = connect_bus(qemu)
+    bus = connect_bus(board)
     frames = FrameRecorder()
     network = canopen.Network(bus)
     network.listeners.append(frames)  # before connect(): the notifier sees every frame
@@ -183,12 +183,12 @@ def open_rig(qemu: Qemu) -> Iterator[Rig]:
     network.connect()
     stim = None
     try:
-        # The firmware sends the boot-up at boot whether or not QEMU passed on python-can's
-        # `O`, so one wait, no re-sent `O` (tests/interop/test_connect.py checks exactly that).
+        # The CPU starts with this client, so the boot-up is the first frame the master reads:
+        # one wait, no re-sent `O` (tests/interop/test_connect.py checks exactly that).
         frames.wait_id(HEARTBEAT, bytes([BOOTUP]))
         network[NODE_ID].sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT
-        stim = Stimulus(qemu.stim_port, qemu)
-        yield Rig(qemu, bus, network, frames, stim)
+        stim = Stimulus(board.stim_port, board)
+        yield Rig(board, bus, network, frames, stim)
     finally:
         if stim is not None:
             stim.close()

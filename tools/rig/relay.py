@@ -91,7 +91,7 @@ def parse_line(line: bytes) -> Optional[SlcanFrame]:
 
 
 def encode(frame: SlcanFrame) -> bytes:
-    """The SLCAN line of `frame`, with its `\\r` (upper-case hex, as the emulators send)."""
+    """The SLCAN line of `frame`, with its `\\r` (upper-case hex, as the board sends)."""
     if frame.extended:
         head = f"{'R' if frame.remote else 'T'}{frame.id:08X}{frame.length}"
     else:
@@ -186,9 +186,9 @@ def is_bootup(node_id: int = NODE_ID) -> Callable[[SlcanFrame], bool]:
 
 
 class Relay:
-    """The relay on `emulator`'s CAN port (a `Qemu` or the board's `BoardProcess`), for one
-    client on `channel`. Connecting it starts the emulator's CPU (both wait for their CAN
-    client), so the device's boot-up reaches `device` first. `close` ends it."""
+    """The relay on `emulator`'s CAN port (a `Board`), for one client on `channel`.
+    Connecting it starts the emulator's CPU (it waits for its CAN client), so the device's
+    boot-up reaches `device` first. `close` ends it."""
 
     def __init__(self, emulator, node_id: int = NODE_ID) -> None:
         self.node_id = node_id

@@ -14,18 +14,18 @@ KIND says how `cargo xtask test` checks the block:
   against the alias in `.cargo/config.toml` (xtask runs it after its own build and fails if
   it compiles anything), and every path of the repository a line names must exist (not those below
   `target/`, which the tools make).
-- `emulator`: one `cargo xtask qemu|board --can-port 5000 --stim-port 5001 ...` line. The run
+- `emulator`: one `cargo xtask board --can-port 5000 --stim-port 5001 ...` line. The run
   check starts it (on free ports in place of 5000 and 5001) for the `python` and `control`
   blocks after it in the same file (`test_run.py` names the documents that continue another's
-  session, such as LSS.md after QEMU.md).
+  session, such as LSS.md after EMULATED-BOARD.md).
 - `python`: run, in order with the file's other `python` blocks in one namespace (as typed
   into one interpreter), against the last `emulator` block's emulator, with the interop
   suite's pinned python-can and canopen, a second apart (as a reader pastes them).
   `socket://127.0.0.1:5000` becomes the emulator's SLCAN port. ARGUMENT `can0`: the block
   opens SocketCAN `can0` (a real adapter) and runs with the emulator's SLCAN channel in its
   place. A `print(...)` line ending in a comment `# TEXT` must print TEXT.
-- `control`: `nc 127.0.0.1 5001`, then lines typed on the emulator's control (stimulus)
-  port: each is sent, and each must be answered `ok`.
+- `control`: `nc 127.0.0.1 5001`, then lines typed on the board's control port: each is
+  sent, and each must be answered `ok`.
 - `pip`: `pip install` lines whose pinned packages must be pinned so in ARGUMENT, a
   requirements file (`name==version` lines).
 - `mirrors`: HAL lines that must agree with ARGUMENT, a HAL file that LinuxCNC runs in the

@@ -1,6 +1,6 @@
 """Every code block of the README and docs/ is marked with how it is checked, and the blocks
 that are checked against files agree with them (run by `cargo xtask docs --check` and
-`cargo xtask test`; standard library and pytest only). What runs against the emulators:
+`cargo xtask test`; standard library and pytest only). What runs against the emulated board:
 `test_run.py`."""
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def test_commands_match_the_files_they_name(snippet):
 
 
 def test_the_command_check_finds_wrong_tasks_flags_and_paths():
-    assert snippets.command_problems("cargo xtask demo --board") == []
+    assert snippets.command_problems("cargo xtask demo --script") == []
     assert snippets.command_problems("cargo xtask dmeo") == [
         "`cargo xtask dmeo`: no such task in xtask's usage"
     ]
@@ -68,7 +68,7 @@ def test_the_command_check_finds_wrong_tasks_flags_and_paths():
 def test_emulator_blocks_are_one_xtask_line_on_the_documents_ports(snippet):
     (line,) = snippets.command_lines(snippet.text)
     assert re.fullmatch(
-        rf"cargo xtask (qemu|board) --can-port {snippets.DOC_CAN_PORT} "
+        rf"cargo xtask board --can-port {snippets.DOC_CAN_PORT} "
         rf"--stim-port {snippets.DOC_STIM_PORT}( .*)?",
         line,
     ), f"{snippet.where}: {line}"

@@ -1,4 +1,4 @@
-"""The README's and docs/' blocks that run without hardware, run against the emulators
+"""The README's and docs/' blocks that run without hardware, run against the emulated board
 (`cargo xtask test`, with the interop suite's venv: python-can, canopen; `tools/` on the
 path): per document, its `emulator` block is started on free ports, then its `python` blocks
 run in order in one namespace and its `control` lines are typed on the control port. How the
@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 
 import snippets
-from rig import Qemu, Stimulus
+from rig import Board, Stimulus
 from rig.constants import START_TIMEOUT
 
 # Documents whose blocks continue another's session (`network` and `node` from it).
-CONTINUES = {"LSS.md": "QEMU.md"}
+CONTINUES = {"LSS.md": "EMULATED-BOARD.md"}
 RUNNABLE = {"emulator", "python", "control"}
 # Seconds between two `python` blocks of a session.
 PAUSE = 1.0
@@ -44,33 +44,27 @@ SESSIONS = sessions()
 
 
 def test_the_runnable_documents():
-    assert {"FIRST-POWER-ON.md", "QEMU.md", "LSS.md"} <= set(SESSIONS)
+    assert {"FIRST-POWER-ON.md", "EMULATED-BOARD.md", "LSS.md"} <= set(SESSIONS)
     for name, blocks in SESSIONS.items():
         assert blocks[0].kind == "emulator", f"{name}: its first runnable block starts nothing"
 
 
-# The engine's log line once the boot-up has gone out (both emulators print it).
+# The engine's log line once the boot-up has gone out.
 BOOTED = r"NMT Initialising -> PreOperational"
 
 
-def start(snippet: snippets.Snippet, log_dir: Path) -> Qemu:
-    """The emulator of an `emulator` block, on free ports (the board's parameter page in a
-    fresh file, not the default one)."""
+def start(snippet: snippets.Snippet, log_dir: Path) -> Board:
+    """The board of an `emulator` block, on free ports, its parameter page in a fresh file
+    (not the default one) unless the block names one."""
     words = snippets.command_lines(snippet.text)[0].split()
-    task = words[2]
     extra = dict(zip(words[7::2], words[8::2], strict=True))
     extra = {k.removeprefix("--"): v for k, v in extra.items()}
-    if task == "board":
-        extra.setdefault("flash", str(log_dir / "flash.bin"))
-    emulator = Qemu(log_dir / f"{task}.log", task=task, extra=extra)
-    # As the documents say: connect once it listens (QEMU's line, or the board's).
-    port = emulator.can_port
-    emulator.wait_for_log(
-        rf"QEMU waiting for connection on: .*tcp:127\.0\.0\.1:{port}\b"
-        rf"|board-emu: SLCAN on 127\.0\.0\.1:{port}\b",
-        timeout=START_TIMEOUT,
-    )
-    return emulator
+    flash = Path(extra.get("flash", log_dir / "flash.bin"))
+    board = Board(log_dir / "board.log", flash, dip=extra.get("dip"), image=extra.get("image"))
+    # As the documents say: connect once it listens.
+    port = board.can_port
+    board.wait_for_log(rf"board-emu: SLCAN on 127\.0\.0\.1:{port}\b", timeout=START_TIMEOUT)
+    return board
 
 
 @pytest.mark.parametrize("document", sorted(SESSIONS))
@@ -102,9 +96,7 @@ def test_blocks_run_as_written(document, tmp_path):
                     assert lines[-len(expected) :] == expected, f"{block.where}: printed {lines}"
             elif block.kind == "control":
                 if stimulus is None:
-                    # As a reader would: type once the node is up (its boot-up went out). The
-                    # QEMU variant has been seen to stop answering, now and then, when the
-                    # first line arrived within its boot-up delay.
+                    # As a reader would: type once the node is up (its boot-up went out).
                     emulator.wait_for_log(BOOTED, timeout=START_TIMEOUT)
                     stimulus = Stimulus(emulator.stim_port, emulator)
                 for line in snippets.control_lines(block):

@@ -25,8 +25,7 @@ from elftools.elf.elffile import ELFFile
 SHF_ALLOC = SH_FLAGS.SHF_ALLOC
 
 ROOT = Path(__file__).resolve().parents[2]
-# The board's linker memory map (the QEMU variant adds qemu/ram.x to it; the board emulator
-# and the benchmark run the board image).
+# The board's linker memory map (the board emulator and the benchmark run the board image).
 MEMORY_X = ROOT / "memory.x"
 
 # Exceptions 2..6 are NMI and the faults: never taken by the firmware's own doing.

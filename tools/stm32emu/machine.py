@@ -136,8 +136,8 @@ class Machine:
 
         # The world around the MCU.
         self.dip = 0  # switch n on = bit n-1
-        # The wheel rests with A and B low (a detent at 00, as the QEMU variant's stimulus
-        # starts), so the interop suite's `ab` sequences mean the same on both.
+        # The wheel rests with A and B low (a detent at 00), where the interop suite's `ab`
+        # sequences start.
         self.ab = 0
         self.axis = 0  # 0 off, 1..5
         self.mult = 0  # 0 none, 1, 10, 100
@@ -342,8 +342,7 @@ class Machine:
             if left == 0:
                 if done:
                     # Done once the last edge has been handled and its feed frame is out
-                    # (the TPDO's 2 ms inhibit time included), as the QEMU variant's reply
-                    # comes after its last edge's task has run.
+                    # (the TPDO's 2 ms inhibit time included).
                     self.schedule(SETTLE_CYCLES, done)
                 return
             self.set_ab(table[self.ab])

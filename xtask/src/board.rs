@@ -1,7 +1,7 @@
 //! The emulated board (`tools/board-emu`): the release ELF, the exact image a builder
 //! flashes, on the Python model of the STM32F103 in `tools/stm32emu` (unicorn for the core;
 //! NVIC, bxCAN, FPEC, IWDG, GPIO/EXTI modelled), paced in real time, with SLCAN and a
-//! control line on TCP like `cargo xtask qemu`.
+//! control line on TCP.
 //!
 //! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N] [--image NAME]`
 //! runs it in the foreground: SLCAN on P (the CPU starts when the first client connects),
@@ -17,12 +17,59 @@ use std::path::{Path, PathBuf};
 
 use xshell::{cmd, Cmd, Shell};
 
-use crate::{pyenv, qemu};
+use crate::pyenv;
 
 /// The server and launcher, relative to the workspace root.
 pub const PACKAGE: &str = "tools/board-emu";
 /// The chip model it runs (its unit tests run with the board's).
 pub const CHIP: &str = "tools/stm32emu";
+
+/// The usage line of `cargo xtask board`.
+const USAGE: &str = "usage: cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] \
+                     [--dip N] [--image release|stack-overflow]";
+
+/// The board's two TCP ports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ports {
+    /// SLCAN: the board starts its CPU once this client is in.
+    pub can: u16,
+    /// The control line (wheel, switches, power, bus faults): listening at once.
+    pub stim: u16,
+}
+
+impl Ports {
+    /// From `--can-port <P> --stim-port <Q>` (either order; `--x=P` accepted too).
+    pub fn from_args(args: &[String]) -> Result<Self, String> {
+        let mut can = None;
+        let mut stim = None;
+        let mut it = args.iter();
+        while let Some(arg) = it.next() {
+            let (flag, inline) = match arg.split_once('=') {
+                Some((f, v)) => (f, Some(v.to_string())),
+                None => (arg.as_str(), None),
+            };
+            let slot = match flag {
+                "--can-port" => &mut can,
+                "--stim-port" => &mut stim,
+                other => return Err(format!("unknown argument `{other}`")),
+            };
+            let value = inline
+                .or_else(|| it.next().cloned())
+                .ok_or_else(|| format!("{flag} needs a port number"))?;
+            let port: u16 = value
+                .parse()
+                .ok()
+                .filter(|&p| p != 0)
+                .ok_or_else(|| format!("{flag}: `{value}` is not a TCP port"))?;
+            *slot = Some(port);
+        }
+        match (can, stim) {
+            (Some(can), Some(stim)) if can != stim => Ok(Self { can, stim }),
+            (Some(_), Some(_)) => Err("--can-port and --stim-port must differ".into()),
+            _ => Err(USAGE.into()),
+        }
+    }
+}
 
 /// Which firmware image the board runs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -50,7 +97,7 @@ impl Image {
 /// `cargo xtask board` arguments: the two ports, and the board's own options.
 #[derive(Debug, PartialEq, Eq)]
 pub struct Args {
-    pub ports: qemu::Ports,
+    pub ports: Ports,
     pub flash: Option<PathBuf>,
     pub dip: Option<u8>,
     pub image: Image,
@@ -84,13 +131,7 @@ impl Args {
                 _ => rest.push(arg.clone()),
             }
         }
-        let ports = qemu::Ports::from_args(&rest).map_err(|e| {
-            e.replace(
-                "cargo xtask qemu --can-port <P> --stim-port <Q>",
-                "cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] [--dip N] \
-                 [--image release|stack-overflow]",
-            )
-        })?;
+        let ports = Ports::from_args(&rest)?;
         Ok(Self {
             ports,
             flash,
@@ -172,7 +213,7 @@ mod tests {
             "f.bin",
         ]))
         .unwrap();
-        assert_eq!(args.ports, qemu::Ports { can: 1, stim: 2 });
+        assert_eq!(args.ports, Ports { can: 1, stim: 2 });
         assert_eq!(args.flash, Some(PathBuf::from("f.bin")));
         assert_eq!(args.dip, Some(33));
         assert_eq!(args.image, Image::Release);
@@ -221,5 +262,29 @@ mod tests {
         }
         let usage = Args::from_args(&strings(&["--can-port", "1"])).unwrap_err();
         assert!(usage.contains("cargo xtask board"), "{usage}");
+    }
+
+    #[test]
+    fn ports_from_args() {
+        let want = Ports { can: 1, stim: 2 };
+        assert_eq!(
+            Ports::from_args(&strings(&["--can-port", "1", "--stim-port", "2"])),
+            Ok(want)
+        );
+        assert_eq!(
+            Ports::from_args(&strings(&["--stim-port=2", "--can-port=1"])),
+            Ok(want)
+        );
+        for bad in [
+            &["--can-port", "1"][..],
+            &["--can-port", "1", "--stim-port", "1"],
+            &["--can-port", "x", "--stim-port", "2"],
+            &["--can-port", "0", "--stim-port", "2"],
+            &["--can-port", "70000", "--stim-port", "2"],
+            &["--can-port", "1", "--stim-port"],
+            &["--can-port", "1", "--stim-port", "2", "--bogus"],
+        ] {
+            assert!(Ports::from_args(&strings(bad)).is_err(), "{bad:?}");
+        }
     }
 }

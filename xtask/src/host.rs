@@ -1,13 +1,15 @@
-//! The machine xtask runs on: programs on `PATH`, whether we are root, Debian packages.
+//! The machine xtask runs on: programs on `PATH`, whether we are root, Debian packages, and
+//! the tools xtask installs with `cargo install` (`defmt-print`, flip-link).
 //!
-//! Shared by [`crate::qemu`] and [`crate::pyenv`], which install what they need on a fresh
-//! Debian machine when running as root and explain what to install otherwise.
+//! Used by the tasks that install what they need on a fresh Debian machine when running as
+//! root and explain what to install otherwise ([`crate::pyenv`], [`crate::linuxcnc`],
+//! [`crate::wiring`]).
 
 use std::env;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use xshell::cmd;
+use xshell::{cmd, Shell};
 
 use crate::shell;
 
@@ -81,6 +83,72 @@ pub fn require(program: &str, packages: &[&str]) -> Result<PathBuf, String> {
     apt_install(packages)?;
     find_in_path(program)
         .ok_or_else(|| format!("`{program}` still not on PATH after installing `{list}`"))
+}
+
+/// The `defmt-print` release this project uses (supports defmt wire formats 3 and 4, i.e.
+/// defmt 0.3 and 1.x).
+pub const DEFMT_PRINT_VERSION: &str = "1.2.0";
+
+/// Where project tools are installed (`cargo install --root`), below the target directory.
+pub fn tools_root(target_dir: &Path) -> PathBuf {
+    target_dir.join("tools")
+}
+
+/// `defmt-print` [`DEFMT_PRINT_VERSION`] in `<tools_root>/bin`, installed with
+/// `cargo install --locked` on first use and reused afterwards.
+pub fn defmt_print(tools_root: &Path) -> Result<PathBuf, String> {
+    let bin = tools_root.join("bin").join("defmt-print");
+    let wanted = format!("defmt-print {DEFMT_PRINT_VERSION}");
+    let installed = Command::new(&bin)
+        .arg("--version")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).lines().next() == Some(wanted.as_str()))
+        .unwrap_or(false);
+    if installed {
+        return Ok(bin);
+    }
+    cargo_install(Some(tools_root), "defmt-print", DEFMT_PRINT_VERSION)
+}
+
+/// `cargo install <name> --locked --version =<version>`, with `--root <root>` if given (else
+/// into cargo's own `bin` folder, [`crate::linker::cargo_bin_dir`]); returns the installed
+/// binary, which must exist afterwards. The one way xtask installs a tool. The install runs
+/// with that `bin` folder on its `PATH`: xtask calls the tool by its path (or puts the folder
+/// on its builds' `PATH`), so cargo's advice to add the folder to `PATH` would mislead.
+pub fn cargo_install(root: Option<&Path>, name: &str, version: &str) -> Result<PathBuf, String> {
+    let bin_dir = match root {
+        Some(root) => root.join("bin"),
+        None => crate::linker::cargo_bin_dir()
+            .ok_or("cannot tell cargo's bin folder: neither CARGO_HOME nor HOME is set")?,
+    };
+    let bin = bin_dir.join(name);
+    let version = format!("={version}");
+    let sh = &Shell::new().map_err(|e| format!("cannot start a shell: {e}"))?;
+    let root_option = root.map(|root| [Path::new("--root"), root]);
+    let root_option = root_option.iter().flatten();
+    let command = cmd!(
+        sh,
+        "cargo install {name} --locked --version {version} {root_option...}"
+    )
+    .env("PATH", crate::linker::path_with(&bin_dir));
+    eprintln!(
+        "xtask: cargo install {name} --locked --version {version}{} (once; it builds from \
+         source, a few minutes)",
+        root.map(|r| format!(" --root {}", r.display()))
+            .unwrap_or_default()
+    );
+    command
+        .quiet()
+        .run()
+        .map_err(|e| format!("installing {name} failed: {e}"))?;
+    if bin.is_file() {
+        Ok(bin)
+    } else {
+        Err(format!(
+            "{name} not found at {} after install",
+            bin.display()
+        ))
+    }
 }
 
 #[cfg(test)]

@@ -1,13 +1,10 @@
-//! The firmware's linker: flip-link for the board (`.cargo/config.toml` names it), and plain
-//! rust-lld for the QEMU variant.
+//! The firmware's linker: flip-link (`.cargo/config.toml` names it).
 //!
 //! flip-link links twice with rust-lld, the second time with static RAM moved to the top of
 //! RAM and the stack below it, so that a stack overflow runs off the start of RAM and faults
-//! instead of overwriting statics (`memory.x`). The QEMU variant keeps the classic layout in
-//! the emulated part's 8 KiB (`qemu/ram.x`, `build.rs`) and gets rust-lld through cargo's
-//! `CARGO_TARGET_<TRIPLE>_LINKER`, in its own target directory.
+//! instead of overwriting statics (`memory.x`).
 //!
-//! The board's images keep the configuration's `linker = "flip-link"`, found on `PATH`,
+//! The images keep the configuration's `linker = "flip-link"`, found on `PATH`,
 //! exactly as the README's `cargo fw` and `cargo embed` link: the linker is part of cargo's
 //! fingerprint, so any other value (such as a path) would make `cargo xtask fw` and `cargo
 //! fw` rebuild every crate after each other. There is one flip-link: the one on `PATH`, or,
@@ -22,36 +19,14 @@ use crate::host;
 
 /// The flip-link release xtask installs when none is on `PATH`.
 pub const FLIP_LINK_VERSION: &str = "0.1.12";
-/// Cargo's per-target linker override for the firmware target.
-pub const LINKER_ENV: &str = "CARGO_TARGET_THUMBV7M_NONE_EABI_LINKER";
 /// The program `.cargo/config.toml` names as the firmware target's linker.
 pub const FLIP_LINK: &str = "flip-link";
 
-/// Which linker a firmware build gets.
+/// The configuration's flip-link, found on [`FlipLink::path`].
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub enum Linker {
-    /// The configuration's flip-link, found on this `PATH`: the board's images.
-    FlipLink { path: OsString },
-    /// rust-lld from the toolchain: the QEMU variant.
-    RustLld,
-}
-
-impl Linker {
-    /// The value for [`LINKER_ENV`], or `None` to keep the configuration's linker.
-    pub fn override_program(&self) -> Option<&std::ffi::OsStr> {
-        match self {
-            Self::FlipLink { .. } => None,
-            Self::RustLld => Some("rust-lld".as_ref()),
-        }
-    }
-
-    /// The `PATH` the build runs with, if it differs from this process's.
-    pub fn path(&self) -> Option<&std::ffi::OsStr> {
-        match self {
-            Self::FlipLink { path } => Some(path),
-            Self::RustLld => None,
-        }
-    }
+pub struct FlipLink {
+    /// The `PATH` the firmware builds run with.
+    pub path: OsString,
 }
 
 /// cargo's `bin` folder for `cargo install` without `--root`: `$CARGO_INSTALL_ROOT/bin`,
@@ -78,17 +53,17 @@ pub fn path_with(dir: &Path) -> OsString {
 /// flip-link for the board's builds: the one on `PATH`, else the one in cargo's `bin`
 /// folder, installed there with `cargo install flip-link --locked` on first use. Returns
 /// the `PATH` the builds need to find it.
-pub fn flip_link() -> Result<Linker, String> {
+pub fn flip_link() -> Result<FlipLink, String> {
     let current = std::env::var_os("PATH").unwrap_or_default();
     if host::find_in_path(FLIP_LINK).is_some() {
-        return Ok(Linker::FlipLink { path: current });
+        return Ok(FlipLink { path: current });
     }
     let bin =
         cargo_bin_dir().ok_or("flip-link is not on PATH and neither CARGO_HOME nor HOME is set")?;
     if !bin.join(FLIP_LINK).is_file() {
-        crate::qemu::cargo_install(None, FLIP_LINK, FLIP_LINK_VERSION)?;
+        host::cargo_install(None, FLIP_LINK, FLIP_LINK_VERSION)?;
     }
-    Ok(Linker::FlipLink {
+    Ok(FlipLink {
         path: path_with(&bin),
     })
 }
@@ -96,20 +71,6 @@ pub fn flip_link() -> Result<Linker, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_board_keeps_the_configured_linker_and_qemu_overrides_it() {
-        let board = Linker::FlipLink {
-            path: "/a:/b".into(),
-        };
-        assert_eq!(board.override_program(), None);
-        assert_eq!(board.path(), Some("/a:/b".as_ref()));
-        assert_eq!(
-            Linker::RustLld.override_program(),
-            Some("rust-lld".as_ref())
-        );
-        assert_eq!(Linker::RustLld.path(), None);
-    }
 
     #[test]
     fn path_with_puts_a_folder_first_once() {

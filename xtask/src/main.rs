@@ -1,8 +1,8 @@
 //! Project tasks, run as `cargo xtask <task>` (an alias in `.cargo/config.toml`).
 //!
 //! `cargo xtask test` is the one test command of `docs/TESTING.md` and of `.ci/run`: everything a
-//! change must pass, in the order that fails fastest, ending with the interop suite
-//! (python-canopen against the firmware's QEMU variant).
+//! change must pass, in the order that fails fastest, ending with the interop and LinuxCNC
+//! suites (python-canopen and LinuxCNC against the release image on the emulated board).
 
 mod board;
 mod eds;
@@ -12,7 +12,6 @@ mod linker;
 mod linuxcnc;
 mod machine_bench;
 mod pyenv;
-mod qemu;
 mod shell;
 mod wiring;
 
@@ -26,20 +25,12 @@ use xshell::{cmd, Cmd, Shell};
 
 const FIRMWARE_TARGET: &str = "thumbv7m-none-eabi";
 /// Crates that must also build without `std` for the MCU.
-const NO_STD_CRATES: &[&str] = &[
-    "handwheel-core",
-    "canopen-slave",
-    "handwheel-device",
-    "sim-io",
-];
-/// Cargo arguments that select the QEMU board variant of the firmware. It gets its own
-/// target directory, so that building it never invalidates the board build.
-const QEMU_FEATURES: [&str; 3] = ["--no-default-features", "--features", "qemu"];
+const NO_STD_CRATES: &[&str] = &["handwheel-core", "canopen-slave", "handwheel-device"];
 /// The cargo-fuzz package (its own workspace: `cargo fuzz run` needs nightly).
 const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
 /// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
 const RANDOM_SEQUENCES: &str = "1000000";
-/// The check that runs the README's and docs/' code blocks against the emulators (their
+/// The check that runs the README's and docs/' code blocks against the emulated board (their
 /// marks, and the blocks checked against files: `tools/snippets/test_marks.py`, with the
 /// documents' checks).
 const SNIPPETS_RUN: &str = "tools/snippets/test_run.py";
@@ -51,9 +42,6 @@ const USAGE: &str = "usage: cargo xtask <task>
 tasks:
   test                                  everything CI checks, the interop suite last
   fw                                    release firmware for the board, with its footprint check
-  qemu --can-port <P> --stim-port <Q>   build the QEMU variant if needed and run it: SLCAN on
-                                        tcp:127.0.0.1:P (waits for the client), stimulus on
-                                        tcp:127.0.0.1:Q, decoded defmt log on stderr
   board --can-port <P> --stim-port <Q>  the release image on the emulated board (tools/board-emu):
         [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
         [--image release|stack-overflow] control line on tcp:127.0.0.1:Q, decoded defmt log on
@@ -63,19 +51,19 @@ tasks:
                                         and 101 too); stack-overflow: the test build that
                                         overflows its stack right after boot
   snippets                              run the README's and docs/' code blocks that need no
-                                        hardware against the emulators (tools/snippets)
+                                        hardware against the emulated board (tools/snippets)
   lint                                  ruff check and ruff format --check over all Python
-  interop [pytest args]                 only the interop suite (venv, QEMU variant, board, pytest)
+  interop [pytest args]                 only the interop suite (venv, emulated board, pytest)
   host [pytest args]                    only the LinuxCNC component's unit and property tests
   feed-check [setting names]            the feed contract's exhaustive check (crates/feed-check):
                                         the real device code against the host's rule; writes
                                         the vectors `host` replays through core.py
-  linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the QEMU handwheel in the
-                                        terminal: DRO, machine state, wheel from the keyboard
-  linuxcnc-test [--board] [pytest args] only the LinuxCNC suite (component in LinuxCNC 2.9), on
-                                        the QEMU variant or (--board) the emulated board
-  demo [--script] [--board]             the handwheel in QEMU (or on the emulated board) with a
-                                        live python-canopen master
+  linuxcnc [--script]                   LinuxCNC's sim XYZ mill with the emulated handwheel in
+                                        the terminal: DRO, machine state, wheel from the keyboard
+  linuxcnc-test [pytest args]           only the LinuxCNC suite (component in LinuxCNC 2.9, the
+                                        emulated board)
+  demo [--script]                       the handwheel on the emulated board with a live
+                                        python-canopen master
   docs [--check]                        re-render docs/wiring/handwheel.svg from handwheel.yml
                                         (WireViz, Graphviz), then check it against the pin
                                         map, every relative link in the Markdown files and
@@ -88,7 +76,7 @@ tasks:
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
                                         worst-case stack, with their headroom, 4. detent to
-                                        motion in LinuxCNC 2.9 (QEMU handwheel) and the run-on
+                                        motion in LinuxCNC 2.9 (emulated board) and the run-on
                                         after a fast spin (`linuxcnc`: only that)";
 
 fn main() -> ExitCode {
@@ -97,7 +85,6 @@ fn main() -> ExitCode {
     let result = match args.first().map(String::as_str) {
         Some("test") => test(),
         Some("fw") => firmware_build(),
-        Some("qemu") => qemu::Ports::from_args(rest).and_then(run_qemu),
         Some("board") => board::Args::from_args(rest).and_then(run_board),
         Some("lint") => python_lint(),
         Some("snippets") => snippets_run(),
@@ -159,13 +146,6 @@ fn test() -> Result<(), String> {
         "cargo clippy --locked -p handwheel-firmware --target {FIRMWARE_TARGET} --all-targets
          -- -D warnings"
     ))?;
-    // The QEMU variant's board layer (the on-target suites are board-only).
-    let qemu_dir = qemu_target_dir();
-    cargo(cmd!(
-        sh,
-        "cargo clippy --locked -p handwheel-firmware --target {FIRMWARE_TARGET} --all-targets
-         --target-dir {qemu_dir} {QEMU_FEATURES...} -- -D warnings"
-    ))?;
     firmware_build()?;
     one_build_check()?;
     // The release machine code in the emulator: CPU figures in one line, the stack and the
@@ -198,7 +178,6 @@ fn test() -> Result<(), String> {
     snippets_run()?;
     interop(&[])?;
     linuxcnc_suite(&[])?;
-    linuxcnc_suite(&["--board".to_string()])?;
     eprintln!(
         "xtask: all checks passed in {:.0} s",
         started.elapsed().as_secs_f64()
@@ -244,15 +223,15 @@ fn bench() -> Result<(), String> {
     linuxcnc_bench()
 }
 
-/// `tests/linuxcnc/bench_motion.py` (not part of the suite) with the QEMU handwheel, its
+/// `tests/linuxcnc/bench_motion.py` (not part of the suite) with the emulated board, its
 /// figures on stdout.
 fn linuxcnc_bench() -> Result<(), String> {
-    Emulator::prepare()?;
+    Board::prepare()?;
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
     let sh = &shell::at(&root)?;
     let (python, bench) = (&setup.python, linuxcnc::BENCH);
-    let pytest = cmd!(sh, "{python} -m pytest -q -s {bench}").env("HANDWHEEL_EMULATOR", "qemu");
+    let pytest = cmd!(sh, "{python} -m pytest -q -s {bench}");
     shell::run(setup.apply(pytest)).map_err(|e| format!("the LinuxCNC benchmark failed: {e}"))
 }
 
@@ -280,20 +259,13 @@ fn stack_check(report: &machine_bench::MachineReport) -> Result<(), String> {
 /// mode plus every preemption level's deepest handler and exception frame; the measured
 /// figures are in docs/PERFORMANCE.md). The room left covers paths the benchmark's scenarios
 /// do not take. With the 4 KiB static RAM budget it keeps the
-/// image within 8 KiB of the 20 KiB part, which is also all the RAM the QEMU variant's has.
+/// image within 8 KiB of the 20 KiB part.
 const STACK_BUDGET: u32 = 4 * 1024;
 
 /// Release footprint budget: 32 KiB flash (what the services need, the image's history in
 /// docs/PERFORMANCE.md), 4 KiB static RAM (RTT included). CI fails above it.
 const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
     flash: 32 * 1024,
-    ram: 4 * 1024,
-};
-
-/// The QEMU variant's limits: the emulated part has 8 KiB of RAM, of which the stack needs
-/// what static RAM leaves (flash is not tight: 128 KiB).
-const QEMU_BUDGET: footprint::Budget = footprint::Budget {
-    flash: 60 * 1024,
     ram: 4 * 1024,
 };
 
@@ -308,10 +280,9 @@ fn firmware_build() -> Result<(), String> {
 fn one_build_check() -> Result<(), String> {
     eprintln!("xtask: cargo fw (the README's build: must compile nothing now)");
     let sh = &root_shell()?;
-    let mut command = cmd!(sh, "cargo fw").ignore_status();
-    if let Some(path) = linker::flip_link()?.path() {
-        command = command.env("PATH", path);
-    }
+    let command = cmd!(sh, "cargo fw")
+        .ignore_status()
+        .env("PATH", linker::flip_link()?.path);
     let output = command
         .output()
         .map_err(|e| format!("cannot run cargo fw: {e}"))?;
@@ -350,60 +321,6 @@ fn footprint_check() -> Result<(), String> {
     Ok(())
 }
 
-/// Builds the QEMU variant (release profile, in its own target directory) if anything
-/// changed; returns its ELF.
-fn qemu_firmware_build() -> Result<PathBuf, String> {
-    let dir = qemu_target_dir();
-    let sh = &root_shell()?;
-    cargo_linked(
-        cmd!(
-            sh,
-            "cargo build --locked --release -p handwheel-firmware --target {FIRMWARE_TARGET}
-             --target-dir {dir} {QEMU_FEATURES...}"
-        ),
-        &linker::Linker::RustLld,
-    )?;
-    let elf = dir
-        .join(FIRMWARE_TARGET)
-        .join("release")
-        .join("handwheel-firmware");
-    footprint::check(&elf, "QEMU firmware", QEMU_BUDGET)?;
-    Ok(elf)
-}
-
-/// Everything the emulated handwheel needs: the QEMU image, `qemu-system-arm` (installed
-/// with apt-get as root), `defmt-print`.
-struct Emulator {
-    qemu: PathBuf,
-    defmt_print: PathBuf,
-    elf: PathBuf,
-}
-
-impl Emulator {
-    fn prepare() -> Result<Self, String> {
-        let qemu = qemu::find_or_install()?;
-        let elf = qemu_firmware_build()?;
-        let defmt_print = qemu::defmt_print(&qemu::tools_root(&target_dir()))?;
-        Ok(Self {
-            qemu,
-            defmt_print,
-            elf,
-        })
-    }
-}
-
-/// `cargo xtask qemu --can-port P --stim-port Q`: the QEMU variant in the foreground, its
-/// decoded defmt log on stderr. This process becomes QEMU, so it runs until QEMU ends or is
-/// killed; it returns only with an error.
-fn run_qemu(ports: qemu::Ports) -> Result<(), String> {
-    let emulator = Emulator::prepare()?;
-    Err(qemu::exec_with_log(
-        qemu::command(&emulator.qemu, &emulator.elf, ports),
-        &emulator.defmt_print,
-        &emulator.elf,
-    ))
-}
-
 /// Everything the emulated board needs: the image, its venv, `defmt-print`.
 struct Board {
     python: PathBuf,
@@ -426,7 +343,7 @@ impl Board {
             board::Image::StackOverflow => overflow_build()?,
         };
         let python = board::python(&workspace_root(), &target_dir())?;
-        let defmt_print = qemu::defmt_print(&qemu::tools_root(&target_dir()))?;
+        let defmt_print = host::defmt_print(&host::tools_root(&target_dir()))?;
         Ok(Self {
             python,
             defmt_print,
@@ -488,14 +405,13 @@ fn board_unit_tests() -> Result<(), String> {
         .map_err(|e| format!("the emulated board's unit tests failed: {e}"))
 }
 
-/// The interop suite: QEMU, the QEMU firmware, the emulated board and defmt-print first (so
-/// that the first test does not spend its start-up time building), the venv, then pytest
-/// with `pytest_args`.
+/// The interop suite: the release image, the emulated board and defmt-print first (so that
+/// the first test does not spend its start-up time building), the venv, then pytest with
+/// `pytest_args`.
 fn interop(pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
-    Emulator::prepare()?;
     Board::prepare()?;
-    // The board-only suite's stack-overflow test runs this image.
+    // The stack-overflow test runs this image.
     overflow_build()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
@@ -508,11 +424,10 @@ fn interop(pytest_args: &[String]) -> Result<(), String> {
     result.map_err(|e| format!("the interop suite failed: {e}"))
 }
 
-/// The README's and docs/' code blocks that need no hardware, run against the QEMU variant
-/// and the emulated board ([`SNIPPETS_RUN`], pytest in the interop venv).
+/// The README's and docs/' code blocks that need no hardware, run against the emulated board
+/// ([`SNIPPETS_RUN`], pytest in the interop venv).
 fn snippets_run() -> Result<(), String> {
     let started = Instant::now();
-    Emulator::prepare()?;
     Board::prepare()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
@@ -620,37 +535,28 @@ fn wiring_check() -> Result<(), String> {
     })
 }
 
-/// The LinuxCNC suite (`tests/linuxcnc`): the QEMU handwheel and the component in the real
+/// The LinuxCNC suite (`tests/linuxcnc`): the emulated board and the component in the real
 /// LinuxCNC 2.9, set up by [`linuxcnc::prepare`].
-fn linuxcnc_suite(args: &[String]) -> Result<(), String> {
+fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
-    // `--board`: the release image on the emulated board instead of the QEMU variant.
-    let board = args.first().is_some_and(|a| a == "--board");
-    let pytest_args = if board { &args[1..] } else { args };
-    if board {
-        Board::prepare()?;
-    } else {
-        Emulator::prepare()?;
-    }
+    Board::prepare()?;
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
     let sh = &shell::at(&root)?;
     let (python, suite) = (&setup.python, linuxcnc::SUITE);
-    let pytest = cmd!(sh, "{python} -m pytest {suite} {pytest_args...}")
-        .env("HANDWHEEL_EMULATOR", if board { "board" } else { "qemu" });
+    let pytest = cmd!(sh, "{python} -m pytest {suite} {pytest_args...}");
     let result = shell::run(setup.apply(pytest));
     eprintln!(
-        "xtask: LinuxCNC suite ({}) took {:.0} s",
-        if board { "emulated board" } else { "QEMU" },
+        "xtask: LinuxCNC suite took {:.0} s",
         started.elapsed().as_secs_f64()
     );
     result.map_err(|e| format!("the LinuxCNC suite failed: {e}"))
 }
 
 /// `cargo xtask linuxcnc [--script]`: prepares, then becomes the console
-/// (`host/linuxcnc/console.py`), which starts QEMU and LinuxCNC itself.
+/// (`host/linuxcnc/console.py`), which starts the emulated board and LinuxCNC itself.
 fn linuxcnc_console(args: &[String]) -> Result<(), String> {
-    Emulator::prepare()?;
+    Board::prepare()?;
     let root = workspace_root();
     let setup = linuxcnc::prepare(&root, &target_dir())?;
     let sh = &shell::at(&root)?;
@@ -665,25 +571,19 @@ fn linuxcnc_console(args: &[String]) -> Result<(), String> {
     Err(format!("cannot run {}: {error}", setup.python.display()))
 }
 
-/// `cargo xtask demo [--script] [--board]`: prepares everything, then becomes the demo's
-/// master (`tools/demo.py` with the interop venv's Python), which starts `cargo xtask qemu`
-/// (or `cargo xtask board`) itself.
+/// `cargo xtask demo [--script]`: prepares everything, then becomes the demo's master
+/// (`tools/demo.py` with the interop venv's Python), which starts `cargo xtask board` itself.
 fn demo(args: &[String]) -> Result<(), String> {
-    // The log goes beside the emulator's other files: target/qemu or target/board-emu.
-    let log_dir = if args.iter().any(|a| a == "--board") {
-        Board::prepare()?;
-        target_dir().join("board-emu")
-    } else {
-        Emulator::prepare()?;
-        qemu_target_dir()
-    };
+    Board::prepare()?;
+    // The log goes beside the board's other files.
+    let log_dir = target_dir().join("board-emu");
     std::fs::create_dir_all(&log_dir).map_err(|e| format!("{}: {e}", log_dir.display()))?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let sh = &shell::at(&root)?;
     let script = root.join(DEMO_SCRIPT);
     let demo =
-        cmd!(sh, "{python} {script} {args...}").env("HANDWHEEL_QEMU_LOG", log_dir.join("demo.log"));
+        cmd!(sh, "{python} {script} {args...}").env("HANDWHEEL_DEMO_LOG", log_dir.join("demo.log"));
     eprintln!("xtask: {demo}");
     // Replaces this process, so that Ctrl-C reaches the demo alone and it cleans up.
     let error = Command::from(demo).exec();
@@ -695,11 +595,6 @@ fn target_dir() -> PathBuf {
     env::var_os("CARGO_TARGET_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| workspace_root().join("target"))
-}
-
-/// The QEMU variant's own target directory.
-fn qemu_target_dir() -> PathBuf {
-    target_dir().join("qemu")
 }
 
 /// The firmware ELF of a profile directory (`release` or `debug`).
@@ -717,30 +612,13 @@ fn root_shell() -> Result<Shell, String> {
 
 /// Runs a cargo command (from [`root_shell`]), echoing it.
 fn cargo(command: Cmd<'_>) -> Result<(), String> {
-    cargo_with(command, None)
+    shell::run(command)
 }
 
-/// Runs cargo for a board image: linked by the configuration's flip-link, as `cargo fw`
+/// Runs cargo for a firmware image: linked by the configuration's flip-link, as `cargo fw`
 /// links (installed on first use; see `linker.rs`).
 fn board_cargo(command: Cmd<'_>) -> Result<(), String> {
-    cargo_linked(command, &linker::flip_link()?)
-}
-
-/// Runs cargo with the firmware target's linker set to `linker`.
-fn cargo_linked(command: Cmd<'_>, linker: &linker::Linker) -> Result<(), String> {
-    cargo_with(command, Some(linker))
-}
-
-fn cargo_with(mut command: Cmd<'_>, linker: Option<&linker::Linker>) -> Result<(), String> {
-    if let Some(linker) = linker {
-        if let Some(program) = linker.override_program() {
-            command = command.env(linker::LINKER_ENV, program);
-        }
-        if let Some(path) = linker.path() {
-            command = command.env("PATH", path);
-        }
-    }
-    shell::run(command)
+    shell::run(command.env("PATH", linker::flip_link()?.path))
 }
 
 fn workspace_root() -> PathBuf {

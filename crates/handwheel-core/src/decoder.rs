@@ -39,8 +39,8 @@
 //! An untouched wheel rests on a detent, so the levels read at start-up are the rest;
 //! [`QuadratureDecoder::configure`] takes the present levels as the rest. A wheel that comes
 //! to rest anywhere else (the levels were read mid-detent at start-up, or the wheel was
-//! nudged by half a detent and its detent spring did not take it back, as the QEMU stimulus
-//! line can do) teaches the decoder its true rest through [`QuadratureDecoder::settle`]: the
+//! nudged by half a detent and its detent spring did not take it back, as the emulated
+//! board's control line can do) teaches the decoder its true rest through [`QuadratureDecoder::settle`]: the
 //! CAN side calls it through [`Standstill`](crate::Standstill) once the levels have not
 //! changed for [`STANDSTILL_MS`](crate::STANDSTILL_MS). Settling never reports a detent, so
 //! it never moves an axis.

@@ -2,7 +2,7 @@
 //!
 //! The decoder reports detents at the wheel's rest levels (see [`decoder`](crate::decoder)).
 //! Those are the levels at start-up; when the wheel comes to rest elsewhere for good (read
-//! mid-detent at start-up, or moved by half a detent, as the QEMU stimulus line can do), the
+//! mid-detent at start-up, or moved by half a detent, as the emulated board's `ab` can do), the
 //! decoder must be told, with [`QuadratureDecoder::settle`]. A wheel at rest makes no edges,
 //! so the edge interrupt cannot notice standstill, and it has no cycles to spare for a clock
 //! anyway: the CAN side samples the wheel on its 5 ms selector period instead, under one

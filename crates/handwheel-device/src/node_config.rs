@@ -87,10 +87,10 @@ mod tests {
 
     #[test]
     fn serial_number_is_the_crc32_of_the_unique_id_bytes() {
-        // Values from zlib's crc32 of the same 12 bytes: the QEMU board's stand-in ID and
-        // the machine benchmark's (bytes 0x31..=0x3C).
-        let qemu = [u32::from_le_bytes(*b"QEMU"), 0, 0];
-        assert_eq!(serial_number(qemu), 0x2895_ED88);
+        // Values from zlib's crc32 of the same 12 bytes: the emulated board's ID
+        // (tools/stm32emu) and the machine benchmark's (bytes 0x31..=0x3C).
+        let board = [0x0035_003A, 0x3431_570D, 0x3C35_3239];
+        assert_eq!(serial_number(board), 0xCA73_6134);
         let bench = [0x3433_3231, 0x3837_3635, 0x3C3B_3A39];
         assert_eq!(serial_number(bench), 0x4DF4_ABCD);
     }

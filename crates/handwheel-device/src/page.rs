@@ -1,5 +1,5 @@
 //! The parameter pages: the engine's [`Storage`] over [`PAGES`] erasable flash pages (the
-//! last two 1 KiB pages on the board, RAM in the QEMU variant), written so that no master
+//! last two 1 KiB flash pages), written so that no master
 //! can wear them out and no power cut loses what was stored.
 //!
 //! - **Unchanged means no write.** A store whose record (node-ID, bit rate, blob) equals the

@@ -2,7 +2,7 @@
 
 The cases follow the CiA conformance test tool's list as logged in CANopenNode/CANopenDemo
 (test/test_report_CCT.md); docs/CONFORMANCE.md has the table. Each test starts from a reset
-node (defaults, Pre-operational), so cases are independent while sharing one QEMU.
+node (defaults, Pre-operational), so cases are independent while sharing one board.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from rig import (
     SDO_RX,
     SDO_TIMEOUT,
     SDO_TX,
-    Qemu,
+    Board,
     Rig,
     open_rig,
 )
@@ -39,19 +39,19 @@ def abort_of(reply: bytes) -> int:
 
 @pytest.fixture(scope="module")
 def shared_rig(tmp_path_factory):
-    qemu = Qemu(tmp_path_factory.mktemp("cct") / "qemu.log")
+    board = Board(tmp_path_factory.mktemp("cct") / "board.log")
     try:
-        with open_rig(qemu) as rig:
+        with open_rig(board) as rig:
             yield rig
     finally:
-        qemu.stop()
+        board.stop()
 
 
 @pytest.fixture
 def dut(shared_rig: Rig) -> Rig:
     """The shared node after a reset node: defaults, Pre-operational, boot-up seen."""
     rig = shared_rig
-    rig.qemu.check_alive()
+    rig.board.check_alive()
     rig.node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT
     mark = rig.nmt(NMT_RESET_NODE)
     rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
