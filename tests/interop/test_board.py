@@ -264,7 +264,7 @@ def wait_pending(board, ids: set[str], timeout: float = 3.0) -> None:
 
 
 # The device's transmit stall limit (handwheel_device::TRANSMIT_STALL_MS): frames that wait
-# this long with none getting out are discarded and the feed is stopped.
+# this long without the path once running empty are discarded and the feed is stopped.
 TRANSMIT_STALL_MS = 100
 
 

@@ -8,7 +8,8 @@ work inside the outage.
 Every scenario turns the wheel forward only, so the safety property is: per axis, the motion
 the host credits never decreases (no delta below zero) and never exceeds the motion turned on
 that axis. The device stops the feed when its frames wait for the bus for more than
-`TRANSMIT_STALL_MS` with none getting out (a record that late carries stale motion).
+`TRANSMIT_STALL_MS` without its transmit path once running empty (a record that late carries
+stale motion).
 """
 
 from __future__ import annotations
@@ -38,8 +39,8 @@ from rig import (
 ENABLED = 0x01
 MASTER_LOST = 0x08
 
-# The device's limit (handwheel_device::TRANSMIT_STALL_MS): frames that wait this long with
-# none getting out stop the feed.
+# The device's limit (handwheel_device::TRANSMIT_STALL_MS): frames that wait this long
+# without the path once running empty stop the feed.
 TRANSMIT_STALL_MS = 100
 
 # SDO upload of 0x1000:0 (device type).

@@ -176,7 +176,7 @@ pub struct Bounds {
     /// board).
     pub transmit_capacity: usize,
     /// How many of them are mailboxes (3 on bxCAN), which the bus empties lowest identifier
-    /// first; 0: one FIFO whose head is on the bus (the QEMU variant's serial link).
+    /// first; 0: one FIFO whose head is on the bus (a controller that sends in queue order).
     pub mailboxes: usize,
     /// Detents turned between rounds at most.
     pub turns: u8,

@@ -238,7 +238,7 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// The transmit path's state, after every round: frames that wait for the bus for
-    /// [`TRANSMIT_STALL_MS`] with none getting out would carry stale motion. The feed stops
+    /// [`TRANSMIT_STALL_MS`] without the path once running empty would carry stale motion. The feed stops
     /// (as on master loss: disabled, status bit 3), what waits is discarded and the record
     /// sequence breaks, so the host never credits motion that left the device that late.
     /// Returns `true` when that happened.
