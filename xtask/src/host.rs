@@ -89,9 +89,14 @@ pub fn require(program: &str, packages: &[&str]) -> Result<PathBuf, String> {
 /// defmt 0.3 and 1.x).
 pub const DEFMT_PRINT_VERSION: &str = "1.2.0";
 
-/// Where project tools are installed (`cargo install --root`), below the target directory.
+/// Where project tools are installed (`cargo install --root`): beside cargo's own `bin`
+/// folder, in a folder of the project's, so that a fresh clone (every CI run) finds them
+/// built and a pinned version never replaces one the user installed. Below the target
+/// directory when cargo's home is unknown.
 pub fn tools_root(target_dir: &Path) -> PathBuf {
-    target_dir.join("tools")
+    crate::linker::cargo_bin_dir()
+        .and_then(|bin| bin.parent().map(|home| home.join("handwheel-tools")))
+        .unwrap_or_else(|| target_dir.join("tools"))
 }
 
 /// `defmt-print` [`DEFMT_PRINT_VERSION`] in `<tools_root>/bin`, installed with
