@@ -1,7 +1,7 @@
 //! A checker that cannot find a hole proves nothing: with a host rule weakened where the
 //! contract depends on it, the same settings must lead to a breach. (The device's own holes
 //! are in `mutants.rs`; what issue 34 found on the code before feed record v2, in
-//! `issue34.rs`.)
+//! `bounds::ISSUE34`, which the checker's run passes.)
 
 mod common;
 
