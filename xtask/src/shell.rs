@@ -20,9 +20,12 @@ pub fn at(dir: &Path) -> Result<Shell, String> {
 pub fn run(cmd: Cmd<'_>) -> Result<(), String> {
     eprintln!("xtask: {cmd}");
     let shown = cmd.to_string();
+    let started = std::time::Instant::now();
     let status = Command::from(cmd)
         .status()
         .map_err(|e| format!("cannot run `{shown}`: {e}"))?;
+    // Each step's time, so that a CI log shows where the run's minutes go.
+    eprintln!("xtask: ({:.0} s)", started.elapsed().as_secs_f64());
     if status.success() {
         Ok(())
     } else {
