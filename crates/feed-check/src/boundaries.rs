@@ -5,6 +5,8 @@
 
 use std::fmt::Write as _;
 
+use handwheel_core::{Axis, FeedRecord, FeedState, FeedStatus, Multiplier};
+
 use crate::host::{HostRule, RuleConfig};
 use crate::model::NODE;
 
@@ -27,11 +29,17 @@ enum Event {
     Record(i32, u16, u8, u8, u64),
 }
 
+/// The record's bytes as the device encodes them (one layout: `handwheel_core`'s).
 fn record_bytes(position: i32, sequence: u16, epoch: u8, session: u8) -> [u8; 8] {
-    let [p0, p1, p2, p3] = position.to_le_bytes();
-    let [s0, s1] = sequence.to_le_bytes();
-    // Axis X (1), multiplier x1 (code 0); status bit 0: feed enabled.
-    [p0, p1, p2, p3, 1 | epoch << 5, 0x01 | session << 5, s0, s1]
+    let state = FeedState {
+        position,
+        axis: Some(Axis::X),
+        multiplier: Multiplier::X1,
+        status: FeedStatus::ENABLED,
+        epoch,
+        session,
+    };
+    FeedRecord { state, sequence }.to_bytes()
 }
 
 /// The session the first configuration writes (the lowest free token).
