@@ -1,0 +1,110 @@
+//! `cargo xtask test`: the one test command of `docs/TESTING.md` and of `.ci/run`, everything
+//! a change must pass in the order that fails fastest.
+
+use std::time::Instant;
+
+use xshell::cmd;
+
+use crate::bench::{machine_bench, stack_check};
+use crate::docs::wiring_check;
+use crate::fw::{board_cargo, firmware_build, firmware_elf, one_build_check, FIRMWARE_TARGET};
+use crate::lint::python_lint;
+use crate::suites::{
+    board_unit_tests, feed_check, host_tests, interop, linuxcnc_suite, snippets_run,
+};
+use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
+use crate::{eds, footprint};
+
+/// Crates that must also build without `std` for the MCU.
+const NO_STD_CRATES: &[&str] = &["handwheel-core", "canopen-slave", "handwheel-device"];
+/// The cargo-fuzz package (its own workspace: `cargo fuzz run` needs nightly).
+const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
+/// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
+const RANDOM_SEQUENCES: &str = "1000000";
+
+pub fn test() -> Result<(), String> {
+    let started = Instant::now();
+    let sh = &root_shell()?;
+    cargo(cmd!(sh, "cargo fmt --all -- --check"))?;
+    cargo(cmd!(
+        sh,
+        "cargo fmt --manifest-path {FUZZ_MANIFEST} -- --check"
+    ))?;
+    python_lint()?;
+    cargo(cmd!(sh, "cargo test --locked"))?;
+    feed_check(&[])?;
+    random_frames()?;
+    host_tests(&[])?;
+    wiring_check()?;
+    eds::run(&workspace_root(), &target_dir(), &["--check".into()])?;
+    cargo(cmd!(
+        sh,
+        "cargo clippy --locked --all-targets -- -D warnings"
+    ))?;
+    for krate in NO_STD_CRATES {
+        cargo(cmd!(
+            sh,
+            "cargo build --locked --release -p {krate} --target {FIRMWARE_TARGET}"
+        ))?;
+    }
+    // The firmware, its library and its on-target tests, for the MCU.
+    cargo(cmd!(
+        sh,
+        "cargo clippy --locked -p handwheel-firmware --target {FIRMWARE_TARGET} --all-targets
+         -- -D warnings"
+    ))?;
+    firmware_build()?;
+    one_build_check()?;
+    // The release machine code in the emulator: CPU figures in one line, the stack and the
+    // wheel edge's cycles and latency checked.
+    stack_check(&machine_bench(true)?)?;
+    board_unit_tests()?;
+    // The on-target suites (defmt-test) cannot run here, but they must build.
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked --release --tests -p handwheel-firmware --target {FIRMWARE_TARGET}"
+    ))?;
+    // The dev profile must fit the part too (the linker checks memory.x; this prints it).
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked -p handwheel-firmware --target {FIRMWARE_TARGET}"
+    ))?;
+    footprint::check(
+        &firmware_elf("debug"),
+        "dev firmware",
+        footprint::Budget {
+            flash: 62 * 1024,
+            ram: 20 * 1024,
+        },
+    )?;
+    eprintln!(
+        "xtask: build checks passed in {:.0} s; now the documents' snippets and the interop \
+         suite",
+        started.elapsed().as_secs_f64()
+    );
+    snippets_run()?;
+    interop(&[])?;
+    linuxcnc_suite(&[])?;
+    eprintln!(
+        "xtask: all checks passed in {:.0} s",
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// The engine's fuzz target on the pinned stable toolchain: the target must build (without
+/// coverage instrumentation, which needs nightly), and its body, `canopen_harness::frames`,
+/// runs a million seeded random frame sequences (the `harness` profile: optimised, with
+/// debug assertions and overflow checks).
+fn random_frames() -> Result<(), String> {
+    let sh = &root_shell()?;
+    let fuzz_dir = target_dir().join("fuzz");
+    cargo(cmd!(
+        sh,
+        "cargo build --locked --manifest-path {FUZZ_MANIFEST} --target-dir {fuzz_dir}"
+    ))?;
+    cargo(cmd!(
+        sh,
+        "cargo run --locked --profile harness -p canopen-harness -- --sequences {RANDOM_SEQUENCES}"
+    ))
+}
