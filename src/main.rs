@@ -52,14 +52,14 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
-    use board::{CanPort, DeviceStorage, Leds, Selectors, WheelInputs, SYSCLK_HZ};
+    use board::{DeviceStorage, Leds, Selectors, WheelInputs, SYSCLK_HZ};
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::info;
     use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
     use handwheel_device::{HandwheelDevice, Node};
     use handwheel_firmware::{
         board,
-        can::{CanSide, Mode, RxConsumer, RxProducer, RxQueue},
+        can::{self, CanPort, CanSide, Mode, RxConsumer, RxProducer, RxQueue},
         edge,
         events::EventSet,
         node_config, priority, round_log,
@@ -136,7 +136,7 @@ mod app {
         // parameters (a stored 0x1005) and whenever a master moves an identifier. Asks the
         // controller to join and returns at once: on a dominant bus it never would (the node
         // waits for it, the loop feeding the watchdog started below).
-        let can = board::start_can(board.can, settings.bit_rate, node.rx_filter(), Mode::Normal);
+        let can = can::start(board.can, settings.bit_rate, node.rx_filter(), Mode::Normal);
         let (rx_producer, rx_consumer) = cx.local.rx_queue.split();
         // The decoder at rest on the levels read now, with the settings 0x2020 starts with.
         let wheel = EdgeState::new(DecoderConfig::default(), board.wheel.levels());

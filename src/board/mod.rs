@@ -62,7 +62,6 @@ unsafe impl bxcan::FilterOwner for CanInstance {
     const NUM_FILTER_BANKS: u8 = 14;
 }
 
-pub use crate::can::{start as start_can, CanPort};
 pub use crate::storage::DeviceStorage;
 
 /// Everything [`init`] sets up for the application.
