@@ -41,7 +41,8 @@ const USAGE: &str = "usage: cargo xtask <task>
 
 tasks:
   test                                  everything CI checks, the interop suite last
-  fw                                    release firmware for the board, with its footprint check
+  fw                                    release firmware for the board, with its footprint checked
+                                        against the budget and the README's statement of it
   board --can-port <P> --stim-port <Q>  the release image on the emulated board (tools/board-emu):
         [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
         [--image release|stack-overflow] control line on tcp:127.0.0.1:Q, decoded defmt log on
@@ -263,16 +264,20 @@ fn stack_check(report: &machine_bench::MachineReport) -> Result<(), String> {
 const STACK_BUDGET: u32 = 4 * 1024;
 
 /// Release footprint budget: 32 KiB flash (what the services need, the image's history in
-/// docs/PERFORMANCE.md), 4 KiB static RAM (RTT included). CI fails above it.
+/// docs/CHANGELOG.md), 4 KiB static RAM (RTT included). CI fails above it.
 const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
     flash: 32 * 1024,
     ram: 4 * 1024,
 };
 
-/// Builds the release firmware and fails if it is over its footprint budget.
+/// Builds the release firmware and fails if it is over its footprint budget or the README's
+/// statement of its footprint is not the image's.
 fn firmware_build() -> Result<(), String> {
     release_build()?;
-    footprint_check()
+    let footprint = footprint_check()?;
+    let readme = std::fs::read_to_string(workspace_root().join("README.md"))
+        .map_err(|e| format!("cannot read README.md: {e}"))?;
+    footprint::check_readme(&readme, &footprint)
 }
 
 /// `cargo fw`, the README's build, right after xtask's: it must compile nothing, since both
@@ -315,10 +320,9 @@ fn release_build() -> Result<(), String> {
     ))
 }
 
-/// Prints the release firmware's footprint and fails if it is over its budget.
-fn footprint_check() -> Result<(), String> {
-    footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)?;
-    Ok(())
+/// Prints the release firmware's footprint and fails if it is over its budget; returns it.
+fn footprint_check() -> Result<footprint::Footprint, String> {
+    footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)
 }
 
 /// Everything the emulated board needs: the image, its venv, `defmt-print`.
