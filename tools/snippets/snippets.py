@@ -1,7 +1,7 @@
 """The code blocks of the README, docs/ and host/README.md, and how each is checked.
 
-Every fenced code block of `README.md`, `docs/*.md` and `host/README.md` carries a mark, an HTML comment on the
-line right before its opening fence (GitHub does not show it):
+Every fenced code block of `README.md`, `docs/*.md` and `host/README.md` carries a mark, an
+HTML comment on the line right before its opening fence (GitHub does not show it):
 
     <!-- snippet: KIND [ARGUMENT] -->
 
@@ -32,8 +32,9 @@ KIND says how `cargo xtask test` checks the block:
   LinuxCNC suite: every other line of the block is a line of that file (spaces aside), and
   a `loadusr` line's options are options of the file's `loadusr` line.
 - `hal`: HAL lines of LinuxCNC's own components around the handwheel's pins: every
-  `handwheel.` pin is a pin of the component's pin table (host/README.md, "Pins"), and every `loadrt ... names=X` instance
-  gets its `addf` and only pins its component has (`test_marks.py` lists those).
+  `handwheel.` pin is a pin of the component's pin table (host/README.md, "Pins"), and every
+  `loadrt ... names=X` instance gets its `addf` and only pins its component has
+  (`test_marks.py` lists those).
 - `file`: the contents of a configuration file for another program (systemd-networkd, udev);
   checked for the names it must contain, listed in `test_marks.py`.
 

@@ -1,5 +1,5 @@
-"""Every code block of the README, docs/ and host/README.md is marked with how it is checked, and the blocks
-that are checked against files agree with them (run by `cargo xtask docs --check` and
+"""Every code block of the README, docs/ and host/README.md is marked with how it is checked,
+and the blocks that are checked against files agree with them (run by `cargo xtask docs --check` and
 `cargo xtask test`; standard library and pytest only). What runs against the emulated board:
 `test_run.py`."""
 

@@ -1,8 +1,8 @@
-"""The blocks of the README, docs/ and host/README.md that run without hardware, run against the emulated board
-(`cargo xtask test`, with the interop suite's venv: python-can, canopen; `tools/` on the
-path): per document, its `emulator` block is started on free ports, then its `python` blocks
-run in order in one namespace and its `control` lines are typed on the control port. How the
-blocks are marked: `snippets.py`."""
+"""The blocks of the README, docs/ and host/README.md that run without hardware, run against
+the emulated board (`cargo xtask test`, with the interop suite's venv: python-can, canopen;
+`tools/` on the path): per document, its `emulator` block is started on free ports, then its
+`python` blocks run in order in one namespace and its `control` lines are typed on the
+control port. How the blocks are marked: `snippets.py`."""
 
 from __future__ import annotations
 
