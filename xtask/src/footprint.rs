@@ -104,12 +104,12 @@ fn stated(readme: &str) -> Result<(String, String), String> {
     let mut found = text.match_indices(README_STATEMENT);
     let Some((at, _)) = found.next() else {
         return Err(format!(
-            "README.md does not state the footprint (`{README_STATEMENT}`)"
+            "README.md does not state the footprint (\"{README_STATEMENT}\")"
         ));
     };
     if found.next().is_some() {
         return Err(format!(
-            "README.md states the footprint twice (`{README_STATEMENT}`)"
+            "README.md states the footprint twice (\"{README_STATEMENT}\")"
         ));
     }
     let rest = &text[at + README_STATEMENT.len()..];
@@ -131,7 +131,7 @@ fn stated(readme: &str) -> Result<(String, String), String> {
             Ok((flash.to_owned(), ram.to_owned()))
         }
         _ => Err(format!(
-            "README.md's footprint after `{README_STATEMENT}` is not \"F KiB of flash and R KiB \
+            "README.md's footprint after \"{README_STATEMENT}\" is not \"F KiB of flash and R KiB \
              of static RAM\" (one decimal each): `{}`",
             words.join(" ")
         )),
