@@ -6,7 +6,7 @@
 //!
 //! - [`board`]: clocks, the pin map, wheel and switch inputs, LEDs, reset cause, unique ID.
 //! - [`can`]: bxCAN bit timing, filters, transmit queue, receive draining, error state.
-//! - [`storage`]: the parameter page's erase and program in flash (0x1010/0x1011, LSS store).
+//! - [`storage`]: the parameter pages' erase and program in flash (0x1010/0x1011, LSS store).
 //! - [`node_config`]: node-ID and bit rate from the DIP switch or the stored parameters
 //!   (re-exported from the host-tested `handwheel-device`, like the record layout in
 //!   `storage::record`).
@@ -17,7 +17,7 @@
 //! - [`priority`]: the interrupt priorities the firmware programs itself.
 //!
 //! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
-//! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' 1 KiB
+//! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' larger
 //! word-wise one to keep the image inside its flash budget).
 #![no_std]
 #![warn(missing_docs)]

@@ -3,7 +3,7 @@
 //! The compiler calls `memcpy` (and the AEABI entry points below) for struct moves and slice
 //! copies. compiler-builtins' implementation handles every alignment case with word copies
 //! and shifts, and with its AEABI wrappers it costs more flash than the image's budget can
-//! spare (docs/PERFORMANCE.md, part 3, has the measured figure). This image copies little:
+//! spare (docs/CHANGELOG.md has the measured figure). This image copies little:
 //! CAN frames (16 bytes), defmt log frames, and a few hundred bytes once at start-up, none
 //! of it on the wheel's interrupt path; a byte loop does that in a handful of microseconds at
 //! most. compiler-builtins defines these symbols weak, so the definitions here replace them.

@@ -3,7 +3,7 @@
 //!
 //! The release build logs only that a panic happened. Reading anything from the
 //! `PanicInfo` keeps every panic site's file path, message and `core::fmt` number formatting
-//! in the image (docs/PERFORMANCE.md, part 3, has the measured figure); the backtrace probe-rs prints at
+//! in the image (docs/CHANGELOG.md has the measured figure); the backtrace probe-rs prints at
 //! the UDF names the place from the debug information instead. The dev build logs the
 //! location as well. Panics raised through defmt (`defmt::panic!`, `defmt::unwrap!`,
 //! `defmt::assert!`) log their message themselves before they get here.

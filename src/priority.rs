@@ -9,7 +9,8 @@ use crate::pac::NVIC_PRIO_BITS;
 /// The wheel's edge task: the highest priority the part has (NVIC priority byte 0), so
 /// nothing but a critical section delays its port read. At this ceiling RTIC's lock of the
 /// shared wheel state is the critical section itself (PRIMASK) instead of a BASEPRI raise
-/// with its barriers: 12 cycles less on every edge (docs/PERFORMANCE.md).
+/// with its barriers, which would cost every edge cycles it has no room for
+/// (docs/PERFORMANCE.md, part 2).
 pub const WHEEL: u8 = 16;
 /// The CAN interrupts, the `feed_due` relay and SysTick.
 pub const CAN: u8 = 3;

@@ -48,7 +48,7 @@ pub const fn btr(rate: BitRate) -> u32 {
 /// on a dominant one (no transceiver, a short). Until then frames wait in the mailboxes. The
 /// firmware looks with [`CanPort::switch_bit_rate`](super::CanPort::switch_bit_rate) at the
 /// same rate, which is done once the controller is on the bus, and holds the device back
-/// meanwhile (`src/main.rs`, "joining").
+/// meanwhile (`handwheel_device::Node::poll`, joining the bus at power-on).
 pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: Mode) -> Bxcan {
     let loopback = mode == Mode::SilentLoopback;
     let mut can = bxcan::Can::builder(instance)

@@ -8,8 +8,7 @@ use handwheel_device::TransmitState;
 use super::bus::{BusState, ErrorCounters};
 use super::{CanStats, Frame, TxQueue, RX_QUEUE_LEN, TX_QUEUE_LEN};
 
-/// The controller takes no frame now; its transmit interrupt (or the host reopening the
-/// channel) resumes the queue.
+/// The controller takes no frame now; its transmit interrupt resumes the queue.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Busy;
 
@@ -126,9 +125,9 @@ impl<L: CanLink> CanPort<L> {
         }
     }
 
-    /// The receive interrupt: moves every received frame to `rx`, then writes out what the
-    /// controller takes (the SLCAN host may just have opened the channel). Returns `true`
-    /// when frames were lost (the controller overran, or `rx` was full).
+    /// The receive interrupt: moves every received frame to `rx`, then hands the controller
+    /// the queued frames it has room for. Returns `true` when frames were lost (the
+    /// controller overran, or `rx` was full).
     pub fn on_receive(
         &mut self,
         rx: &mut heapless::spsc::Producer<'_, Frame, RX_QUEUE_LEN>,

@@ -63,8 +63,9 @@ GPIOB_IDR = periph.GPIOB_BASE + 0x08
 # wheel's worst moments.
 BUSY_MS = 40
 LATENCY_MS = 20
-# An SDO request's frame (8000 cycles on the bus at 1 Mbit/s) and its path to the reply
-# (about 5000) should not meet the next SysTick: it is waited out when closer than this.
+# An SDO request's frame (8000 cycles on the bus at 1 Mbit/s) and its path to the reply (a
+# few thousand cycles: docs/PERFORMANCE.md) should not meet the next SysTick: it is waited
+# out when closer than this.
 SDO_QUIET_CYCLES = 25_000
 # Emulated time a scenario step may take before it counts as hung.
 STEP_LIMIT_MS = 200

@@ -1,7 +1,7 @@
-"""The code blocks of the README and docs/, and how each is checked.
+"""The code blocks of the README, docs/ and host/README.md, and how each is checked.
 
-Every fenced code block of `README.md` and `docs/*.md` carries a mark, an HTML comment on the
-line right before its opening fence (GitHub does not show it):
+Every fenced code block of `README.md`, `docs/*.md` and `host/README.md` carries a mark, an
+HTML comment on the line right before its opening fence (GitHub does not show it):
 
     <!-- snippet: KIND [ARGUMENT] -->
 
@@ -32,8 +32,9 @@ KIND says how `cargo xtask test` checks the block:
   LinuxCNC suite: every other line of the block is a line of that file (spaces aside), and
   a `loadusr` line's options are options of the file's `loadusr` line.
 - `hal`: HAL lines of LinuxCNC's own components around the handwheel's pins: every
-  `handwheel.` pin is a pin of the README's pin table, and every `loadrt ... names=X` instance
-  gets its `addf` and only pins its component has (`test_marks.py` lists those).
+  `handwheel.` pin is a pin of the component's pin table (host/README.md, "Pins"), and every
+  `loadrt ... names=X` instance gets its `addf` and only pins its component has
+  (`test_marks.py` lists those).
 - `file`: the contents of a configuration file for another program (systemd-networkd, udev);
   checked for the names it must contain, listed in `test_marks.py`.
 
@@ -83,8 +84,8 @@ class Snippet:
 
 
 def documents(root: Path = ROOT) -> list[Path]:
-    """The README and docs/*.md."""
-    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    """The README, docs/*.md and the LinuxCNC component's README."""
+    return [root / "README.md", *sorted((root / "docs").glob("*.md")), root / "host" / "README.md"]
 
 
 def snippets(path: Path) -> list[Snippet]:
@@ -216,9 +217,9 @@ def hal_problems(snippet_text: str, hal_file: str) -> list[str]:
     return problems
 
 
-def readme_pins(root: Path = ROOT) -> set[str]:
-    """The component's pins in the README's pin table, without the `N.` prefix."""
-    text = (root / "README.md").read_text(encoding="utf-8")
+def table_pins(root: Path = ROOT) -> set[str]:
+    """The component's pins in its pin table (host/README.md), without the `N.` prefix."""
+    text = (root / "host" / "README.md").read_text(encoding="utf-8")
     names = set()
     for m in re.finditer(r"^\| `N\.([a-z0-9.L-]+)` \|", text, re.M):
         name = m[1]
@@ -229,7 +230,7 @@ def readme_pins(root: Path = ROOT) -> set[str]:
 def hal_pin_problems(
     text: str, component_pins: dict[str, set[str]], root: Path = ROOT
 ) -> list[str]:
-    """Pins of a `hal` block that do not exist: the handwheel's against the README's pin
+    """Pins of a `hal` block that do not exist: the handwheel's against the component's pin
     table, a `loadrt` instance's against its component's pins (`component_pins`)."""
     problems = []
     lines = hal_lines(text)
@@ -244,7 +245,7 @@ def hal_pin_problems(
             line.startswith(f"addf {name} ") for line in lines
         ):
             problems.append(f"{name}: no addf")
-    known = readme_pins(root)
+    known = table_pins(root)
     for line in lines:
         if not line.startswith("net "):
             continue
@@ -253,7 +254,7 @@ def hal_pin_problems(
                 continue
             owner, _, rest = pin.partition(".")
             if owner == "handwheel" and rest not in known:
-                problems.append(f"{pin}: not a pin of the README's table")
+                problems.append(f"{pin}: not a pin of the component's table")
             if owner in instances and rest not in component_pins.get(instances[owner], set()):
                 problems.append(f"{pin}: {instances[owner]} has no such pin")
     return problems

@@ -1,5 +1,5 @@
-"""Every code block of the README and docs/ is marked with how it is checked, and the blocks
-that are checked against files agree with them (run by `cargo xtask docs --check` and
+"""Every code block of the README, docs/ and host/README.md is marked with how it is checked,
+and the blocks that are checked against files agree with them (run by `cargo xtask docs --check` and
 `cargo xtask test`; standard library and pytest only). What runs against the emulated board:
 `test_run.py`."""
 
@@ -113,11 +113,11 @@ def test_hal_blocks_name_pins_that_exist(snippet):
 
 
 def test_the_hal_pin_check_finds_wrong_pins():
-    assert {"enable", "axis.z.jog-counts", "halui.axis.v.select"} <= snippets.readme_pins()
+    assert {"enable", "axis.z.jog-counts", "halui.axis.v.select"} <= snippets.table_pins()
     text = "loadrt and2 names=a\nnet s a.out => handwheel.enabled\nnet t a.in2 => x.y\n"
     assert snippets.hal_pin_problems(text, COMPONENT_PINS) == [
         "a: no addf",
-        "handwheel.enabled: not a pin of the README's table",
+        "handwheel.enabled: not a pin of the component's table",
         "a.in2: and2 has no such pin",
     ]
 

@@ -1,8 +1,8 @@
-"""The README's and docs/' blocks that run without hardware, run against the emulated board
-(`cargo xtask test`, with the interop suite's venv: python-can, canopen; `tools/` on the
-path): per document, its `emulator` block is started on free ports, then its `python` blocks
-run in order in one namespace and its `control` lines are typed on the control port. How the
-blocks are marked: `snippets.py`."""
+"""The blocks of the README, docs/ and host/README.md that run without hardware, run against
+the emulated board (`cargo xtask test`, with the interop suite's venv: python-can, canopen;
+`tools/` on the path): per document, its `emulator` block is started on free ports, then its
+`python` blocks run in order in one namespace and its `control` lines are typed on the
+control port. How the blocks are marked: `snippets.py`."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ import snippets
 from rig import Board, Stimulus
 from rig.constants import START_TIMEOUT
 
-# Documents whose blocks continue another's session (`network` and `node` from it).
-CONTINUES = {"LSS.md": "EMULATED-BOARD.md"}
+# Documents (by their path in the repository) whose blocks continue another's session
+# (`network` and `node` from it).
+CONTINUES = {"docs/LSS.md": "docs/EMULATED-BOARD.md"}
 RUNNABLE = {"emulator", "python", "control"}
 # Seconds between two `python` blocks of a session.
 PAUSE = 1.0
@@ -28,7 +29,9 @@ def sessions() -> dict[str, list[snippets.Snippet]]:
     """The runnable blocks of each document that has an emulator, a continued document's
     blocks first."""
     by_doc = {
-        path.name: [s for s in snippets.snippets(path) if s.kind in RUNNABLE]
+        path.relative_to(snippets.ROOT).as_posix(): [
+            s for s in snippets.snippets(path) if s.kind in RUNNABLE
+        ]
         for path in snippets.documents()
     }
     result = {}
@@ -44,7 +47,7 @@ SESSIONS = sessions()
 
 
 def test_the_runnable_documents():
-    assert {"FIRST-POWER-ON.md", "EMULATED-BOARD.md", "LSS.md"} <= set(SESSIONS)
+    assert {"docs/FIRST-POWER-ON.md", "docs/EMULATED-BOARD.md", "docs/LSS.md"} <= set(SESSIONS)
     for name, blocks in SESSIONS.items():
         assert blocks[0].kind == "emulator", f"{name}: its first runnable block starts nothing"
 

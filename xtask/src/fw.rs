@@ -5,23 +5,27 @@ use std::path::PathBuf;
 
 use xshell::{cmd, Cmd};
 
-use crate::workspace::{root_shell, target_dir};
+use crate::workspace::{root_shell, target_dir, workspace_root};
 use crate::{footprint, linker, shell};
 
 /// The MCU's target (STM32F103: Cortex-M3).
 pub const FIRMWARE_TARGET: &str = "thumbv7m-none-eabi";
 
 /// Release footprint budget: 32 KiB flash (what the services need, the image's history in
-/// docs/PERFORMANCE.md), 4 KiB static RAM (RTT included). CI fails above it.
+/// docs/CHANGELOG.md), 4 KiB static RAM (RTT included). CI fails above it.
 const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
     flash: 32 * 1024,
     ram: 4 * 1024,
 };
 
-/// Builds the release firmware and fails if it is over its footprint budget.
+/// Builds the release firmware and fails if it is over its footprint budget or the README's
+/// statement of its footprint is not the image's.
 pub fn firmware_build() -> Result<(), String> {
     release_build()?;
-    footprint_check()
+    let footprint = footprint_check()?;
+    let readme = std::fs::read_to_string(workspace_root().join("README.md"))
+        .map_err(|e| format!("cannot read README.md: {e}"))?;
+    footprint::check_readme(&readme, &footprint)
 }
 
 /// `cargo fw`, the README's build, right after xtask's: it must compile nothing, since both
@@ -64,10 +68,9 @@ pub fn release_build() -> Result<(), String> {
     ))
 }
 
-/// Prints the release firmware's footprint and fails if it is over its budget.
-pub fn footprint_check() -> Result<(), String> {
-    footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)?;
-    Ok(())
+/// Prints the release firmware's footprint and fails if it is over its budget; returns it.
+pub fn footprint_check() -> Result<footprint::Footprint, String> {
+    footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)
 }
 
 /// Builds the stack-overflow test image (release profile, feature `stack-overflow-test`, its

@@ -44,7 +44,8 @@ const USAGE: &str = "usage: cargo xtask <task>
 
 tasks:
   test                                  everything CI checks, the interop suite last
-  fw                                    release firmware for the board, with its footprint check
+  fw                                    release firmware for the board, with its footprint checked
+                                        against the budget and the README's statement of it
   board --can-port <P> --stim-port <Q>  the release image on the emulated board (tools/board-emu):
         [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
         [--image release|stack-overflow] control line on tcp:127.0.0.1:Q, decoded defmt log on

@@ -1424,7 +1424,7 @@ class Core:
 
 
 # The HAL interface: (name without the prefix, type, direction, meaning). The shell creates
-# exactly these pins; the README's pin table lists them.
+# exactly these pins; host/README.md's pin table lists them.
 AXIS_PINS = [
     (
         "axis.{L}.jog-counts",
