@@ -308,3 +308,31 @@ def test_the_decode_command_reports_a_missing_file(tmp_path, capsys):
     assert cli.main(["decode", str(tmp_path / "none.log")]) == 1
     assert "none.log" in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "none.log.host")
+
+
+def test_a_restarted_component_keeps_the_last_capture(tmp_path):
+    """A second start with the same `--capture` moves the first one's file to NAME.1.EXT
+    instead of overwriting it; replayed together, the second start begins a new core (its
+    records are not judged against the first one's)."""
+    path = tmp_path / "wheel.log"
+    clock = [0.0]
+
+    def now() -> float:
+        return clock[0]
+
+    for start, positions in enumerate(((1, 2, 3), (50, 51))):
+        clock[0] = 10.0 * start
+        cap = capture.Capture(str(path), core.Config(), clock=now)
+        for seq, position in enumerate(positions, start=1):
+            clock[0] += 0.01
+            data = records.rec(position, seq=seq, epoch=1, session=2)
+            msg = can.Message(arbitration_id=TPDO1, data=data, is_extended_id=False)
+            cap.received(msg, now, clock[0], judged=True)
+        cap.close()
+    files = [capture.read(p) for p in capture.files_of(path)]
+    assert [f.path.name for f in files] == ["wheel.1.log", "wheel.log"]
+    assert files[0].run != files[1].run
+    r = decode.replay(files)
+    assert any("started again" in e for _, e in r.events)
+    positions = [Record.decode(line.frame.data).position for line in r.lines]
+    assert positions == [1, 2, 3, 50, 51]

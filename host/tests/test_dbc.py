@@ -24,32 +24,12 @@ def dbc_agrees(db, data: bytes) -> list:
     """Where cantools' decoding of the 8 bytes of a TPDO1 differs from `core.Record`'s (an
     empty list: nowhere)."""
     signals = db.get_message_by_frame_id(0x180 + NODE).decode(data, decode_choices=False)
-    r = Record.decode(data)
-    code = signals["Multiplier"]
-    flags = sum(
-        bit * signals[name]
-        for bit, name in (
-            (core.STATUS_ENABLED, "FeedEnabled"),
-            (core.STATUS_ENCODER_ERROR, "EncoderError"),
-            (core.STATUS_STEPS_DROPPED, "StepsDropped"),
-            (core.STATUS_MASTER_LOST, "MasterLost"),
-            (core.STATUS_IGNORED_MOTION, "IgnoredMotion"),
-        )
-    )
-    seen = {
-        "position": signals["PositionValue"],
-        "axis": signals["Axis"],
-        "multiplier": core.MULTIPLIERS[code] if code < len(core.MULTIPLIERS) else 0,
-        "epoch": signals["SelectionEpoch"],
-        "flags": flags,
-        "session": signals["FeedSession"],
-        "sequence": signals["FeedSequence"],
-    }
+    host = decode.record_signals(Record.decode(data))
     return [
-        f"{k}: {v} by the DBC, {getattr(r, k)} by Record"
-        for k, v in seen.items()
-        if getattr(r, k) != v
-    ]
+        f"{k}: {signals.get(k)} by the DBC, {v} by Record"
+        for k, v in host.items()
+        if signals.get(k) != v
+    ] + sorted(set(signals) - set(host))
 
 
 def test_the_dbc_names_the_tpdos_of_the_default_node():

@@ -121,6 +121,10 @@ class Capture:
         self.offset = time.time() - clock()
         self._lock = threading.Lock()
         self._can = can
+        # A component started again keeps what the last one captured: its files move on.
+        self.run = f"{time.time():.6f}-{os.getpid()}"
+        if self.path.exists() and self.path.stat().st_size:
+            self._shift()
         self._logger = can.SizedRotatingLogger(str(self.path), max_bytes=max_bytes)
         self._logger.rotator = self._rotate_files
         self._notes = None
@@ -141,6 +145,7 @@ class Capture:
             "canopen-handwheel": "host notes",
             "version": NOTES_VERSION,
             "capture": self.path.name,
+            "run": self.run,
             "config": _config_fields(self.cfg),
         }
         self._notes.write(json.dumps(header) + "\n")
@@ -151,6 +156,15 @@ class Capture:
         notes."""
         del dest  # python-can's name (a time stamp): ours are numbered
         self._close_notes()
+        self._shift()
+        self._open_notes()
+        self._frames = 0
+        self._last_time = None
+        self._early = []
+
+    def _shift(self) -> None:
+        """NAME.k.EXT to NAME.k+1.EXT with their notes, the oldest kept one removed, NAME.EXT
+        to NAME.1.EXT."""
         last = self.files - 1
         for path in (rotated(self.path, last), notes_path(rotated(self.path, last))):
             if path.exists():
@@ -162,10 +176,6 @@ class Capture:
             ):
                 if old.exists():
                     os.replace(old, new)
-        self._open_notes()
-        self._frames = 0
-        self._last_time = None
-        self._early = []
 
     def _close_notes(self) -> None:
         if self._notes is not None:
@@ -365,6 +375,7 @@ class CaptureFile:
     frames: List[Frame]
     notes: Optional[List[Note]]
     config: Optional[dict] = None
+    run: Optional[str] = None  # which start of the component wrote it
 
 
 def read_frames(path) -> List[Frame]:
@@ -389,8 +400,8 @@ def read_frames(path) -> List[Frame]:
     return frames
 
 
-def read_notes(path, frames: List[Frame]) -> Tuple[dict, List[Note]]:
-    """(settings, notes) of a notes file, the notes' times in the frames' time base."""
+def read_notes(path, frames: List[Frame]) -> Tuple[dict, List[Note], Optional[str]]:
+    """(settings, notes, run) of a notes file, the notes' times in the frames' time base."""
     lines = Path(path).read_text(encoding="utf-8").splitlines()
     if not lines:
         raise ValueError(f"{path}: empty")
@@ -410,7 +421,7 @@ def read_notes(path, frames: List[Frame]) -> Tuple[dict, List[Note]]:
         else:
             base = 0.0
         notes.append(Note(at=at, t=base + dt, fields=fields))
-    return header.get("config") or {}, notes
+    return header.get("config") or {}, notes, header.get("run")
 
 
 def read(path, notes: Optional[str] = "auto") -> CaptureFile:
@@ -422,8 +433,8 @@ def read(path, notes: Optional[str] = "auto") -> CaptureFile:
         notes = str(candidate) if candidate.exists() else None
     if notes is None:
         return CaptureFile(Path(path), frames, None)
-    config, note_list = read_notes(notes, frames)
-    return CaptureFile(Path(path), frames, note_list, config)
+    config, note_list, run = read_notes(notes, frames)
+    return CaptureFile(Path(path), frames, note_list, config, run)
 
 
 def files_of(path) -> List[Path]:

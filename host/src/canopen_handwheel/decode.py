@@ -315,6 +315,27 @@ def record_fields(r: Record) -> str:
     )
 
 
+def record_signals(r: Record) -> Dict[str, int]:
+    """The raw values the DBC's TPDO1 signals (eds/handwheel.dbc, `cargo xtask dbc`) carry
+    for record `r`: what a CAN tool reading a capture with the DBC must show."""
+    code = core.MULTIPLIERS.index(r.multiplier) if r.multiplier in core.MULTIPLIERS else 3
+    out = {
+        "PositionValue": r.position,
+        "Axis": r.axis,
+        "Multiplier": code,
+        "SelectionEpoch": r.epoch,
+        "FeedSession": r.session,
+        "FeedSequence": r.sequence,
+    }
+    for (bit, _), name in zip(FLAG_NAMES, DBC_FLAGS):
+        out[name] = int(bool(r.flags & bit))
+    return out
+
+
+# The DBC's names of the status flags, bit 0 first.
+DBC_FLAGS = ("FeedEnabled", "EncoderError", "StepsDropped", "MasterLost", "IgnoredMotion")
+
+
 # What the rule made of a record ---------------------------------------------------------------
 
 # Verdict kinds, for the summary.
@@ -369,24 +390,27 @@ def _explain(c: core.Core, data: bytes, now: float) -> Tuple[str, str, int]:
     stale = c.record_time is None or now - c.record_time > c.stale_after
     delta = core.continuity(prev, rec)
     motion = delta or 0
+    moved = core.wrap_s32(rec.position - prev.position)
+
+    def baseline(why: str):
+        if moved:
+            why += f"; position {moved:+d} since the last record taken, not credited"
+        return BASELINE, "baseline: " + why, 0
+
     if stale:
-        return BASELINE, f"baseline: nothing of the session for {now - prev_time(c):.3f} s", 0
+        return baseline(f"nothing of the session for {now - prev_time(c):.3f} s")
     if c.baseline:
-        return BASELINE, "baseline (after an impossible record, staleness or a check)", 0
+        return baseline("the record before it was impossible")
     if c.drained_at is None or now - c.drained_at > core.BACKLOG_LIMIT:
         waited = "ever" if c.drained_at is None else f"{now - c.drained_at:.3f} s"
-        return BASELINE, f"baseline: from a backlog (receive path not found empty for {waited})", 0
+        return baseline(f"from a backlog (receive path not found empty for {waited})")
     pair = core.pair_fault(prev, rec)
     if pair is not None:
         return IMPOSSIBLE, f"cannot follow the previous record: {pair}", 0
     if delta is None:
         gap = core.sequence_gap(prev, rec)
         epochs = (rec.epoch - prev.epoch) % core.EPOCH_MODULO
-        return (
-            BASELINE,
-            f"baseline: epoch {prev.epoch} -> {rec.epoch} ({epochs} on) across a gap of {gap}",
-            0,
-        )
+        return baseline(f"epoch {prev.epoch} -> {rec.epoch} ({epochs} on) across a gap of {gap}")
     if delta == 0:
         return AT_REST, "no motion", 0
     letter = letter_of(c.cfg, rec.axis)
@@ -629,6 +653,31 @@ class _Inference:
         self.events.append((t, f"configuration: session {token} ({why}), {taken}"))
 
 
+class _Run:
+    """One start of the component: its core, its pins (written by the component's own
+    `HalPins` into a recorder) and the host's side (notes, or inferred from the bus)."""
+
+    def __init__(self, cfg: core.Config, with_notes: bool, events) -> None:
+        from .component import HalPins
+
+        self.c = core.Core(cfg)
+        self.hal = _HalRecorder()
+        self.pins = HalPins(self.hal, "handwheel", cfg)
+        self.infer = None if with_notes else _Inference(self.c, cfg, events)
+        self.stopped: Optional[Tuple[Dict[str, object], int]] = None
+        self.drained_noted = False
+
+    def publish(self, t: float) -> None:
+        from .component import write_steps
+
+        if self.stopped is None:
+            self.hal.now = t
+            write_steps(self.pins, self.c.publish(t), sleep=lambda s: None)
+
+    def final(self) -> Tuple[Dict[str, object], int]:
+        return self.stopped or (dict(self.hal.values), len(self.hal.changes))
+
+
 def replay(
     files: Sequence[captures.CaptureFile],
     cfg: Optional[core.Config] = None,
@@ -637,69 +686,40 @@ def replay(
     """The capture's files (oldest first) through a `core.Core` of `cfg` (default: the notes'
     settings, else `core.Config()`), publishing the pins after every frame and note as the
     component's main loop does after each round; a note `stop` fixes the pins (the main loop
-    ended there; the shutdown's frames are still decoded and judged)."""
-    from .component import HalPins, write_steps
-
+    ended there; the shutdown's frames are still decoded and judged). A file of another
+    start of the component (its notes say) begins a new core; the pins are the last one's."""
     with_notes = any(f.notes is not None for f in files)
     if cfg is None:
         fields = next((f.config for f in files if f.config), None)
         cfg = captures.config_from_fields(fields) if fields else core.Config()
-    c = core.Core(cfg)
-    hal = _HalRecorder()
-    pins = HalPins(hal, "handwheel", cfg)
     events: List[Tuple[float, str]] = []
     mismatches: List[str] = []
     lines: List[Line] = []
     describer = Describer(cfg, names)
-    infer = None if with_notes else _Inference(c, cfg, events)
-    stopped: Optional[Tuple[Dict[str, object], int]] = None
     device = {0x180 + cfg.node, 0x080 + cfg.node, 0x700 + cfg.node}
-    drained_noted = False
-
-    def publish(t: float) -> None:
-        if stopped is None:
-            hal.now = t
-            write_steps(pins, c.publish(t), sleep=lambda s: None)
-
+    run = _Run(cfg, with_notes, events)
+    run_id = None
     for f in files:
+        if f.run is not None and run_id is not None and f.run != run_id:
+            t = f.frames[0].t if f.frames else 0.0
+            events.append((t, "the component started again: a new core"))
+            run = _Run(cfg, with_notes, events)
+        run_id = f.run or run_id
+        c = run.c
         for kind, item in captures.merged(f):
             if kind == "note":
-                note = item
-                t = note.t
-                n = note.fields
-                if "drained" in n:
-                    drained_noted = True
-                    if n["drained"] is not None:
-                        c.drained(t)
-                elif "input" in n:
-                    _inputs(c, n["input"])
-                    events.append((t, "inputs: " + _kv(n["input"])))
-                elif "action" in n:
-                    action = c.next_action(t)
-                    got = captures.action_name(action) if action is not None else "nothing"
-                    events.append((t, f"the host asks: {n['action']}"))
-                    if got != n["action"]:
-                        mismatches.append(
-                            f"{t:.6f}: the component asked {n['action']}, the replay {got}"
-                        )
-                elif "done" in n:
-                    _done(c, n["done"], t, events, mismatches)
-                elif "stop" in n:
-                    publish(t)
-                    events.append((t, "the component's main loop ended (pins final); shutdown"))
-                    c.shutdown_action()
-                    stopped = (dict(hal.values), len(hal.changes))
+                _note(run, item, events, mismatches)
                 continue
             frame: captures.Frame = item
             t = frame.t
             line = Line(frame, describer.describe(frame))
             judged = not (frame.error or frame.extended or frame.remote) and frame.id in device
-            if infer is not None:
-                infer.frame(frame)
+            if run.infer is not None:
+                run.infer.frame(frame)
             if judged:
-                if not drained_noted:
+                if not run.drained_noted:
                     c.drained(t - (captures.DRAIN_SLACK if with_notes else 0.0))
-                drained_noted = False
+                run.drained_noted = False
                 if frame.id == 0x180 + cfg.node:
                     line.verdict = judge(c, frame.id, frame.data, t)
                 else:
@@ -707,15 +727,45 @@ def replay(
             else:
                 c.tick(t)
             line.log = c.take_log()
-            publish(t)
+            run.publish(t)
             lines.append(line)
-    if stopped is None:
-        final, count = dict(hal.values), len(hal.changes)
-    else:
-        final, count = stopped
+    final, count = run.final()
     return Replay(
-        cfg, lines, final, hal.changes[:count], c, with_notes, events, mismatches, hal.initial
+        cfg,
+        lines,
+        final,
+        run.hal.changes[:count],
+        run.c,
+        with_notes,
+        events,
+        mismatches,
+        run.hal.initial,
     )
+
+
+def _note(run: _Run, note: captures.Note, events, mismatches) -> None:
+    """A host note handed to the run's core as the component's main loop did."""
+    c, t, n = run.c, note.t, note.fields
+    if "drained" in n:
+        run.drained_noted = True
+        if n["drained"] is not None:
+            c.drained(t)
+    elif "input" in n:
+        _inputs(c, n["input"])
+        events.append((t, "inputs: " + _kv(n["input"])))
+    elif "action" in n:
+        action = c.next_action(t)
+        got = captures.action_name(action) if action is not None else "nothing"
+        events.append((t, f"the host asks: {n['action']}"))
+        if got != n["action"]:
+            mismatches.append(f"{t:.6f}: the component asked {n['action']}, the replay {got}")
+    elif "done" in n:
+        _done(c, n["done"], t, events, mismatches)
+    elif "stop" in n:
+        run.publish(t)
+        events.append((t, "the component's main loop ended (pins final); shutdown"))
+        c.shutdown_action()
+        run.stopped = (dict(run.hal.values), len(run.hal.changes))
 
 
 def _kv(d: dict) -> str:
