@@ -357,7 +357,7 @@ class Verdict:
     credited: Dict[str, int] = field(default_factory=dict)  # letter -> counts
     lost: int = 0
     bad: int = 0
-    motion: int = 0  # the record's position delta after the previous, when it has one
+    motion: int = 0  # how far the position moved since the last record taken (not credited)
 
 
 def _explain(c: core.Core, data: bytes, now: float) -> Tuple[str, str, int]:
@@ -395,7 +395,7 @@ def _explain(c: core.Core, data: bytes, now: float) -> Tuple[str, str, int]:
     def baseline(why: str):
         if moved:
             why += f"; position {moved:+d} since the last record taken, not credited"
-        return BASELINE, "baseline: " + why, 0
+        return BASELINE, "baseline: " + why, moved
 
     if stale:
         return baseline(f"nothing of the session for {now - prev_time(c):.3f} s")
@@ -834,7 +834,7 @@ def summary(r: Replay) -> List[str]:
         for L, n in v.credited.items():
             axes[L].credited += n
             axes[L].records += 1
-        if v.kind == NOT_CREDITED and len(line.frame.data) == 8:
+        if v.kind in (NOT_CREDITED, BASELINE) and v.motion and len(line.frame.data) == 8:
             letter = letter_of(cfg, Record.decode(line.frame.data).axis)
             if letter is not None:
                 axes[letter].not_credited += 1
@@ -845,7 +845,8 @@ def summary(r: Replay) -> List[str]:
         pin = f"{core.OVERRIDES[L]}.counts" if L in core.OVERRIDES else f"axis.{L}.jog-counts"
         out.append(
             f"  {i} {name}: credited {s.credited:+d} in {s.records} record(s); "
-            f"{s.not_credited} record(s) with motion not credited ({s.motion_not_credited:+d}); "
+            f"{s.not_credited} record(s) whose motion was not credited "
+            f"({s.motion_not_credited:+d}); "
             f"{pin} = {r.pins.get(pin)}"
         )
     total = sum(kinds.values())
