@@ -336,3 +336,9 @@ def test_a_restarted_component_keeps_the_last_capture(tmp_path):
     assert any("started again" in e for _, e in r.events)
     positions = [Record.decode(line.frame.data).position for line in r.lines]
     assert positions == [1, 2, 3, 50, 51]
+
+
+def test_a_capture_that_cannot_be_written_stops_the_component(tmp_path, capfd):
+    args = component.parse_args(["--capture", str(tmp_path / "no-such-folder" / "c.log")])
+    assert component.run(args, hal_module=object()) == 1
+    assert "cannot write the capture" in capfd.readouterr().err

@@ -30,6 +30,9 @@ is opened once more for it if it was down), the bus closed, the HAL component re
 LinuxCNC's `hal` module sets SIGTERM to raise KeyboardInterrupt when a component is created,
 so the handlers are installed again right after that.
 
+With `--capture FILE` every frame the loop reads and every frame sent goes to a capture
+(`capture.py`), with the host notes a replay needs; `canopen-handwheel decode` reads it.
+
 `hal` is imported lazily (`run(..., hal_module=...)` takes a stand-in), so that this module
 loads without LinuxCNC.
 """
@@ -734,14 +737,18 @@ def run(
     stop = stop or threading.Event()
     capture = None
     if args.capture is not None:
-        capture = captures.Capture(
-            args.capture,
-            cfg,
-            channel=args.channel,
-            max_bytes=args.capture_max_mb * 1024 * 1024,
-            files=args.capture_files,
-            clock=clock,
-        )
+        try:
+            capture = captures.Capture(
+                args.capture,
+                cfg,
+                channel=args.channel,
+                max_bytes=args.capture_max_mb * 1024 * 1024,
+                files=args.capture_files,
+                clock=clock,
+            )
+        except OSError as e:
+            log(f"cannot write the capture {args.capture}: {e}")
+            return 1
     pins = HalPins(hal_module, args.name, cfg, on_hal_component)
     axes = AxisReader(hal_module)
     c = core.Core(cfg)
