@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -171,6 +172,15 @@ def main() -> int:
     user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
     logs = Path(os.environ.get("HANDWHEEL_LOG_DIR") or tempfile.mkdtemp(prefix="handwheel-"))
     logs.mkdir(parents=True, exist_ok=True)
+    # The component captures the session (`--capture`) in a folder of its own, which the
+    # user LinuxCNC runs as may write; a session's capture replaces the last one's.
+    captures = logs / "capture"
+    captures.mkdir(exist_ok=True)
+    for old in captures.glob("handwheel*.log*"):
+        old.unlink()
+    if user:
+        shutil.chown(captures, user)
+    capture = captures / "handwheel.log"
     board = Board(logs / "board.log", logs / "flash.bin")
     cnc = stim = None
     try:
@@ -181,6 +191,7 @@ def main() -> int:
             logs / "linuxcnc.log",
             user=user,
             auto_on=True,
+            extra_args=f"--capture {capture}",
         )
         cnc.connect()
         stim = Stimulus(board.stim_port, board)
@@ -201,6 +212,10 @@ def main() -> int:
         if cnc is not None:
             cnc.stop()
         board.stop()
+        if capture.exists():
+            print(
+                f"the session's capture: {capture}; decode it with\n  {component} decode {capture}"
+            )
 
 
 if __name__ == "__main__":

@@ -739,12 +739,12 @@ class SlcanFeed:
     X (epoch 1, enabled, in the device's session) with consecutive sequence numbers: `record`
     for a turn, and one every 50 ms from a thread of its own (the event timer)."""
 
-    def __init__(self, tmp_path: Path) -> None:
+    def __init__(self, tmp_path: Path, *options: str) -> None:
         self.log = tmp_path / "hal.log"
         self.log.write_text("")
         self.dev = SlcanDevice()
         self.proc = start_component(
-            "--interface", "slcan", "--channel", self.dev.channel, hal_log=self.log
+            "--interface", "slcan", "--channel", self.dev.channel, *options, hal_log=self.log
         )
         self.pos = 0
         self.seq = 0

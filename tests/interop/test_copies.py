@@ -66,7 +66,7 @@ from rig import (
     Frame,
     Stimulus,
 )
-from rig.component import HalLog, end_component
+from rig.component import HalLog, capture_problems, end_component
 from rig.relay import Relay, is_bootup
 from test_host_component import COMPONENT_RUN
 
@@ -96,9 +96,10 @@ class Host:
             tests=str(ROOT / "host" / "tests"), src=str(ROOT / "host" / "src")
         )
         env = dict(os.environ, FAKE_HAL_LOG=str(self.hal.path), FAKE_HAL_SET="enable=1")
+        self.capture = tmp / "capture.log"
         self.proc = subprocess.Popen(
             [sys.executable, "-c", script, "--interface", "slcan", "--channel"]
-            + [self.relay.channel, "--axes", "xyz"],
+            + [self.relay.channel, "--axes", "xyz", "--capture", str(self.capture)],
             env=env,
             stderr=self.err,
         )
@@ -190,6 +191,8 @@ def started(board: Board, tmp: Path, mult: int = 1) -> Iterator[Host]:
         # Shown with a failure (pytest prints a failed test's output).
         tail = "\n".join(host.log().splitlines()[-40:])
         print(f"--- last lines of {host.log_path} ---\n{tail}")
+    # The session's capture replays to the pins the component wrote (issue 37).
+    assert capture_problems(host.capture, host.hal) == []
 
 
 @pytest.fixture

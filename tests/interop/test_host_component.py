@@ -20,7 +20,7 @@ import pytest
 
 from canopen_handwheel.core import Record
 from rig import NODE_ID, ROOT, START_TIMEOUT, Board, Stimulus
-from rig.component import HalLog, end_component
+from rig.component import HalLog, capture_problems, end_component
 
 TPDO1_LINE = f"t{0x180 + NODE_ID:03X}8".encode()
 BOOTUP_LINE = f"t{0x700 + NODE_ID:03X}100".encode()
@@ -153,9 +153,10 @@ class Component:
             tests=str(ROOT / "host" / "tests"), src=str(ROOT / "host" / "src")
         )
         env = dict(os.environ, FAKE_HAL_LOG=str(self.hal.path), FAKE_HAL_SET="enable=1")
+        self.capture = tmp / "capture.log"
         self.proc = subprocess.Popen(
             [sys.executable, "-c", script, "--interface", "slcan", "--channel"]
-            + [self.relay.channel, "--axes", "xyz"],
+            + [self.relay.channel, "--axes", "xyz", "--capture", str(self.capture)],
             env=env,
             stderr=self.err,
         )
@@ -197,6 +198,8 @@ def host(board: Board, tmp_path):
         yield c
     finally:
         c.close()
+    # The session's capture replays to the pins the component wrote (issue 37).
+    assert capture_problems(c.capture, c.hal) == []
 
 
 def test_a_frozen_component_moves_nothing_from_its_backlog(host):

@@ -1,5 +1,5 @@
-"""The host component as a process of the interop suite: its pins as fake_hal logs them, and
-its end. Shared by `test_host_component.py` and `test_copies.py`."""
+"""The host component as a process of the interop suite: its pins as fake_hal logs them, its
+end, and the check of its capture. Shared by `test_host_component.py` and `test_copies.py`."""
 
 from __future__ import annotations
 
@@ -7,6 +7,11 @@ import signal
 import subprocess
 from pathlib import Path
 from typing import List, Optional
+
+from .constants import ROOT, TPDO1
+
+# The DBC `cargo xtask dbc` writes for the default node-ID.
+DBC = ROOT / "eds" / "handwheel.dbc"
 
 
 class HalLog:
@@ -67,3 +72,37 @@ def end_component(proc: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5)
+
+
+def capture_problems(capture: Path, hal: HalLog) -> List[str]:
+    """Where the component's capture (`--capture`, with its host notes) disagrees with its
+    run: replayed through the core (`canopen_handwheel.decode.replay`) it must end on the pins
+    fake_hal logged, every feed record must get the rule's verdict, and cantools, reading the
+    capture's records with the DBC, must decode each to the values the host decodes. Empty:
+    it agrees."""
+    import cantools
+
+    from canopen_handwheel import capture as captures
+    from canopen_handwheel import decode
+    from canopen_handwheel.core import Record
+
+    hal.poll()
+    files = [captures.read(p) for p in captures.files_of(capture)]
+    replay = decode.replay(files)
+    problems = replay.differences(hal.changes)
+    problems += [f"the replay differs from the notes: {m}" for m in replay.mismatches]
+    tpdo1 = cantools.database.load_file(str(DBC)).get_message_by_frame_id(TPDO1)
+    records = 0
+    for line in replay.lines:
+        f = line.frame
+        if f.id != TPDO1 or f.remote or len(f.data) != 8:
+            continue
+        records += 1
+        if line.verdict is None:
+            problems.append(f"no verdict for the record at {f.t:.6f}")
+        signals = tpdo1.decode(f.data, decode_choices=False)
+        if signals != decode.record_signals(Record.decode(f.data)):
+            problems.append(f"the DBC reads {f.data.hex()} as {signals}")
+    if not records:
+        problems.append("no feed record in the capture")
+    return problems

@@ -6,11 +6,12 @@
 //!
 //! This file is the dispatch and the usage; each task lives in the file named after what it
 //! runs: `test.rs` (the whole sequence), `fw.rs` (firmware images), `suites.rs` (interop,
-//! snippets, LinuxCNC, host, feed check), `bench.rs`, `docs.rs`, `lint.rs`, `eds.rs`, and
+//! snippets, LinuxCNC, host, feed check), `bench.rs`, `docs.rs`, `lint.rs`, `eds.rs`, `dbc.rs`, and
 //! `interactive.rs` (board, linuxcnc, demo: they take the terminal).
 
 mod bench;
 mod board;
+mod dbc;
 mod docs;
 mod eds;
 mod footprint;
@@ -76,6 +77,10 @@ tasks:
   eds [--check]                         write eds/handwheel.eds from the object table, then check
                                         it with dcfchk (CiA 306); --check: fail if the committed
                                         file differs, and check it
+  dbc [--check] | --node N              write eds/handwheel.dbc (the TPDOs as a CAN database for
+                                        cantools, SavvyCAN, Wireshark) from the object table for
+                                        the default node-ID; --check: fail if the committed file
+                                        differs; --node N: print node N's to stdout
   bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
@@ -105,6 +110,7 @@ fn main() -> ExitCode {
         },
         Some("docs") => docs(rest),
         Some("eds") => eds::run(&workspace_root(), &target_dir(), rest),
+        Some("dbc") => dbc::run(&workspace_root(), rest),
         _ => {
             eprintln!("{USAGE}");
             return ExitCode::from(2);

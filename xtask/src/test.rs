@@ -13,7 +13,7 @@ use crate::suites::{
     board_unit_tests, feed_check, host_tests, interop, linuxcnc_suite, snippets_run,
 };
 use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
-use crate::{eds, footprint};
+use crate::{dbc, eds, footprint};
 
 /// Crates that must also build without `std` for the MCU.
 const NO_STD_CRATES: &[&str] = &["handwheel-core", "canopen-slave", "handwheel-device"];
@@ -37,6 +37,7 @@ pub fn test() -> Result<(), String> {
     host_tests(&[])?;
     wiring_check()?;
     eds::run(&workspace_root(), &target_dir(), &["--check".into()])?;
+    dbc::run(&workspace_root(), &["--check".into()])?;
     cargo(cmd!(
         sh,
         "cargo clippy --locked --all-targets -- -D warnings"

@@ -30,6 +30,9 @@ is opened once more for it if it was down), the bus closed, the HAL component re
 LinuxCNC's `hal` module sets SIGTERM to raise KeyboardInterrupt when a component is created,
 so the handlers are installed again right after that.
 
+With `--capture FILE` every frame the loop reads and every frame sent goes to a capture
+(`capture.py`), with the host notes a replay needs; `canopen-handwheel decode` reads it.
+
 `hal` is imported lazily (`run(..., hal_module=...)` takes a stand-in), so that this module
 loads without LinuxCNC.
 """
@@ -48,6 +51,7 @@ import time
 from importlib import resources
 from typing import Callable, Optional
 
+from . import capture as captures
 from . import core
 
 # The component logs from its loop, its heartbeat thread and its signal handling: one line is
@@ -154,8 +158,36 @@ def parse_args(argv=None) -> argparse.Namespace:
         help=f"fastest plausible turning ({core.DEFAULT_MAX_DETENTS_PER_S}, twice a hard flick "
         "of a 100-detent wheel); motion beyond it is counted in frames-bad and not applied",
     )
+    p.add_argument(
+        "--capture",
+        default=None,
+        metavar="FILE",
+        help="write every frame read and sent, time-stamped, to FILE (.log candump, .asc, "
+        ".blf) and the host notes to FILE.host; `canopen-handwheel decode FILE` reads them",
+    )
+    p.add_argument(
+        "--capture-max-mb",
+        type=int,
+        default=captures.DEFAULT_MAX_MB,
+        help=f"size of one capture file before a new one is begun ({captures.DEFAULT_MAX_MB})",
+    )
+    p.add_argument(
+        "--capture-files",
+        type=int,
+        default=captures.DEFAULT_FILES,
+        help=f"capture files kept, the current one included ({captures.DEFAULT_FILES}): at "
+        "most about this times --capture-max-mb on disk",
+    )
     args = p.parse_args(argv)
     try:
+        if args.capture is not None:
+            captures.check_path(args.capture)
+        low, high = captures.MAX_MB_RANGE
+        if not low <= args.capture_max_mb <= high:
+            raise ValueError(f"--capture-max-mb must be {low}..{high}")
+        low, high = captures.FILES_RANGE
+        if not low <= args.capture_files <= high:
+            raise ValueError(f"--capture-files must be {low}..{high}")
         args.config = core.make_config(
             args.node,
             args.master_node,
@@ -396,11 +428,17 @@ class Link:
     """python-can bus + python-canopen network with the device's node and the master's
     heartbeat. No notifier: `receive` (the main loop) reads the bus."""
 
-    def __init__(self, args: argparse.Namespace, cfg: core.Config) -> None:
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        cfg: core.Config,
+        capture: Optional[captures.Capture] = None,
+    ) -> None:
         import can
         import canopen
 
         self.failed = threading.Event()
+        self.capture = capture
         kwargs = {}
         if args.bitrate is not None:
             kwargs["bitrate"] = args.bitrate
@@ -410,6 +448,8 @@ class Link:
             self.bus = slcan_bus(args.channel, **kwargs)
         else:
             self.bus = can.Bus(interface=args.interface, channel=args.channel, **kwargs)
+        if capture is not None:
+            captures.wrap_send(self.bus, capture)
         try:
             self.network = canopen.Network(self.bus)
             self.device_ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
@@ -451,13 +491,18 @@ class Link:
                 self.heartbeat.alive()
                 return
             timeout = 0.0
-            if not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame):
-                cob_id = msg.arbitration_id
-                if cob_id in self.device_ids:
-                    c.frame(cob_id, bytes(msg.data), clock())
-                elif cob_id == self.sdo_response:
-                    self.sdo_reply_at = clock()
-                    self.network.notify(cob_id, msg.data, msg.timestamp)
+            data_frame = not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame)
+            cob_id = msg.arbitration_id
+            judged = data_frame and cob_id in self.device_ids
+            if self.capture is not None:
+                now = self.capture.received(msg, clock, c.drained_at, judged)
+            else:
+                now = clock()
+            if judged:
+                c.frame(cob_id, bytes(msg.data), now)
+            elif data_frame and cob_id == self.sdo_response:
+                self.sdo_reply_at = now
+                self.network.notify(cob_id, msg.data, msg.timestamp)
             if clock() >= end:
                 return
 
@@ -690,6 +735,20 @@ def run(
         import hal as hal_module  # LinuxCNC's; only present on a LinuxCNC machine
     cfg = config_from(args)
     stop = stop or threading.Event()
+    capture = None
+    if args.capture is not None:
+        try:
+            capture = captures.Capture(
+                args.capture,
+                cfg,
+                channel=args.channel,
+                max_bytes=args.capture_max_mb * 1024 * 1024,
+                files=args.capture_files,
+                clock=clock,
+            )
+        except OSError as e:
+            log(f"cannot write the capture {args.capture}: {e}")
+            return 1
     pins = HalPins(hal_module, args.name, cfg, on_hal_component)
     axes = AxisReader(hal_module)
     c = core.Core(cfg)
@@ -706,7 +765,7 @@ def run(
         while not stop.is_set():
             now = clock()
             if link is None and now >= next_connect:
-                link = open_link(args, cfg, "retrying")
+                link = open_link(args, cfg, "retrying", capture)
                 if link is None:
                     next_connect = now + 1.0
                 else:
@@ -716,6 +775,8 @@ def run(
                 log("bus failed; reconnecting")
                 drop(link, worker)
                 link, worker = None, None
+                if capture is not None and c.pending is not None:
+                    capture.done(now, c.pending, False)
                 c.done(c.pending, False, None, now)
                 next_connect = now + 1.0
             if link is not None:
@@ -727,38 +788,63 @@ def run(
                     _, action, ok, abort, result = events.get_nowait()
                 except queue.Empty:
                     break
-                c.done(action, ok, abort, clock(), result)
+                done_at = clock()
+                if capture is not None and action is c.pending:
+                    capture.done(done_at, action, ok, abort, result)
+                c.done(action, ok, abort, done_at, result)
             now = clock()
             c.set_enable(pins.enable())
             c.set_position_mode(pins.position_mode())
             c.set_velocity_mode(pins.velocity_mode())
             c.set_run_on_budget(pins.run_on_budget())
             c.set_motion_known(c.mode == core.RUN_ON and axes.teleop())
+            if capture is not None:
+                capture.inputs(
+                    now,
+                    enable=c.enable,
+                    position_mode=c.position_mode,
+                    velocity_mode=c.velocity_mode,
+                    run_on_budget=c.run_on_budget,
+                    motion_known=c.motion_known,
+                )
             c.tick(now)
             if link is not None:
                 action = c.next_action(now)
+                if action is not None and capture is not None:
+                    capture.action(now, action)
                 if action is not None and worker is not None:
                     worker.submit(action)
             write_steps(pins, c.publish(clock(), axes.motion))
             for line in c.take_log():
                 log(line)
+            if capture is not None:
+                capture.flush()
         log(f"{getattr(stop, 'reason', 'asked to stop')}: stopping")
     finally:
-        shut_down(args, cfg, c, link, worker)
+        if capture is not None:
+            capture.stopped(clock())
+        shut_down(args, cfg, c, link, worker, capture)
         pins.exit()
+        if capture is not None:
+            capture.close()
         log("stopped")
     return 0
 
 
-def open_link(args: argparse.Namespace, cfg: core.Config, then: str) -> Optional[Link]:
+def open_link(
+    args: argparse.Namespace,
+    cfg: core.Config,
+    then: str,
+    capture: Optional[captures.Capture] = None,
+) -> Optional[Link]:
     try:
-        return Link(args, cfg)
+        return Link(args, cfg, capture)
     except Exception as e:
         log(f"cannot open the bus ({e!r}); {then}")
         return None
 
 
-def shut_down(args, cfg: core.Config, c: core.Core, link, worker) -> None:
+def shut_down(args, cfg: core.Config, c: core.Core, link, worker, capture=None) -> None:
     """The end: the worker's current transfer finishes (a configuration stops between its
     transfers), then `Core.shutdown_action` (0x2000 = 0) from here, on the bus as it is or,
     if it was down, opened once more for it; then the bus is closed. The bus is read here
@@ -777,7 +863,7 @@ def shut_down(args, cfg: core.Config, c: core.Core, link, worker) -> None:
         link.close()
         link = None
     if link is None:
-        link = open_link(args, cfg, "0x2000 not written")
+        link = open_link(args, cfg, "0x2000 not written", capture)
         if link is None:
             return
     action = c.shutdown_action()
