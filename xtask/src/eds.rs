@@ -200,7 +200,7 @@ fn described(index: u16) -> Result<Described, String> {
         .iter()
         .map(|o| SubDescribed {
             sub: o.sub,
-            name: if o.header {
+            name: if o.is_header() {
                 "Highest sub-index supported".into()
             } else {
                 o.name.into()
@@ -211,7 +211,7 @@ fn described(index: u16) -> Result<Described, String> {
         .collect();
     Ok(Described {
         name: first.name.into(),
-        code: if first.header {
+        code: if first.is_header() {
             ObjectCode::Record
         } else {
             ObjectCode::Var
@@ -351,7 +351,7 @@ mod tests {
             .skip(2)
             .map(|line| line.split('|').map(str::trim).collect())
             .collect();
-        let rows: Vec<_> = APP_OBJECTS.iter().filter(|o| !o.header).collect();
+        let rows: Vec<_> = APP_OBJECTS.iter().filter(|o| !o.is_header()).collect();
         assert_eq!(lines.len(), rows.len(), "one README line per object");
         for (cells, o) in lines.iter().zip(rows) {
             let key = if o.sub == 0 {
