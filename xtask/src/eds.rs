@@ -182,7 +182,7 @@ fn described(index: u16) -> Result<Described, String> {
                     sub: e.sub(),
                     name: row.name().into(),
                     hex: row.is_hex(),
-                    limits: row.limits_of_write(),
+                    limits: row.write_limits(),
                 })
             })
             .collect::<Result<_, String>>()?;

@@ -5,7 +5,7 @@
 //! write limits, PDO mapping, and how it is read and written ([`Behaviour`]): a parameter
 //! 0x1010 stores, a value of the wheel with the functions that read and write it, the
 //! unit-step byte in flight. The run-time table ([`OD`]), the stored record ([`STORED`]),
-//! the read and write paths' lookups ([`WHEEL_READS`], [`WHEEL_WRITES`]; `app.rs` carries
+//! the read and write paths' lookups (`WHEEL_READS`, `WHEEL_WRITES`; `app.rs` carries
 //! them out) and `eds/handwheel.eds` (`cargo xtask eds`) are derived from the rows. The rows
 //! are constants: only what is derived from them reaches the firmware image, not the names.
 //! A new stored parameter is a row, and a line in `WheelParameters::apply` if it drives the
@@ -422,7 +422,8 @@ state the value describes (in TPDO1: the record's own).",
 ];
 
 /// The run-time entries of [`APP_OBJECTS`]; a record whose header does not name its last
-/// sub-index, and a row writable without a write, fail the build.
+/// sub-index, a row writable without a write and a refused value nothing checks fail the
+/// build.
 const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
     let mut entries = [OdEntry::highest_sub(0, 0); APP_OBJECTS.len()];
     let mut i = 0;
@@ -448,21 +449,35 @@ const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
             written == o.access.writable(),
             "a row is writable exactly when something writes it"
         );
+        assert!(
+            o.refused == 0 || o.is_stored(),
+            "only a stored parameter refuses values (WheelParameters::set checks them)"
+        );
         i += 1;
     }
     entries
 };
 
-/// How many rows are stored parameters, wheel values with a write (`Some(true)`), wheel
-/// values (`Some(false)`).
-const fn count(wheel: Option<bool>) -> usize {
+/// The rows the run-time lookups hold.
+#[derive(Clone, Copy)]
+enum Rows {
+    /// Stored parameters.
+    Stored,
+    /// Values of the wheel.
+    Read,
+    /// Values of the wheel with a write.
+    Written,
+}
+
+/// How many rows are of `kind`.
+const fn count(kind: Rows) -> usize {
     let mut n = 0;
     let mut i = 0;
     while i < APP_OBJECTS.len() {
-        n += match (APP_OBJECTS[i].behaviour, wheel) {
-            (Behaviour::Stored, None) => 1,
-            (Behaviour::Wheel { .. }, Some(false)) => 1,
-            (Behaviour::Wheel { write: Some(_), .. }, Some(true)) => 1,
+        n += match (APP_OBJECTS[i].behaviour, kind) {
+            (Behaviour::Stored, Rows::Stored) => 1,
+            (Behaviour::Wheel { .. }, Rows::Read) => 1,
+            (Behaviour::Wheel { write: Some(_), .. }, Rows::Written) => 1,
             _ => 0,
         };
         i += 1;
@@ -495,7 +510,7 @@ pub struct StoredParameter {
 }
 
 /// How many parameters 0x1010 stores in the application's section.
-pub const STORED_LEN: usize = count(None);
+pub const STORED_LEN: usize = count(Rows::Stored);
 
 /// The stored parameters in the order of the application's section, from the rows marked
 /// stored.
@@ -540,7 +555,7 @@ pub const STORED_BYTES: usize = match STORED.last() {
 
 /// Where parameter `index:sub` sits in [`STORED`]; an object that is not one fails the build
 /// where the answer is a constant.
-pub const fn stored_slot(index: u16, sub: u8) -> usize {
+pub(crate) const fn stored_slot(index: u16, sub: u8) -> usize {
     let mut k = 0;
     while k < STORED.len() {
         if STORED[k].index == index && STORED[k].sub == sub {
@@ -553,7 +568,7 @@ pub const fn stored_slot(index: u16, sub: u8) -> usize {
 
 /// A value of the wheel as the device's read path looks it up at run time.
 #[derive(Clone, Copy, Debug)]
-pub struct WheelRead {
+pub(crate) struct WheelRead {
     /// Object index.
     pub index: u16,
     /// Sub-index.
@@ -565,13 +580,13 @@ pub struct WheelRead {
 }
 
 /// The rows read from the wheel, without what only the compiler and the EDS need.
-pub static WHEEL_READS: [WheelRead; count(Some(false))] = {
+pub(crate) static WHEEL_READS: [WheelRead; count(Rows::Read)] = {
     let mut routes = [WheelRead {
         index: 0,
         sub: 0,
         size: 0,
         read: |_, _| 0,
-    }; count(Some(false))];
+    }; count(Rows::Read)];
     let mut k = 0;
     let mut i = 0;
     while i < APP_OBJECTS.len() {
@@ -592,7 +607,7 @@ pub static WHEEL_READS: [WheelRead; count(Some(false))] = {
 
 /// A value of the wheel as the device's write path looks it up at run time.
 #[derive(Clone, Copy, Debug)]
-pub struct WheelWrite {
+pub(crate) struct WheelWrite {
     /// Object index.
     pub index: u16,
     /// Sub-index.
@@ -604,13 +619,13 @@ pub struct WheelWrite {
 }
 
 /// The rows of the wheel that are written.
-pub static WHEEL_WRITES: [WheelWrite; count(Some(true))] = {
+pub(crate) static WHEEL_WRITES: [WheelWrite; count(Rows::Written)] = {
     let mut routes = [WheelWrite {
         index: 0,
         sub: 0,
         enables_feed: false,
         write: |_, _| {},
-    }; count(Some(true))];
+    }; count(Rows::Written)];
     let mut k = 0;
     let mut i = 0;
     while i < APP_OBJECTS.len() {
@@ -635,7 +650,7 @@ pub static WHEEL_WRITES: [WheelWrite; count(Some(true))] = {
 };
 
 /// The object of the unit-step byte in flight: the one row of [`Behaviour::UnitStep`].
-pub const STEP_BYTE: (u16, u8) = {
+pub(crate) const STEP_BYTE: (u16, u8) = {
     let mut found = None;
     let mut i = 0;
     while i < APP_OBJECTS.len() {

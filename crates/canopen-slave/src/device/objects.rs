@@ -80,7 +80,7 @@ type Restore = fn(&mut Comm, u16, u8, u32, Instant);
 /// One communication object, or one per PDO for the PDO parameter ranges: what CiA 301 calls
 /// it, its sub-indices and its behaviour. Its name and object code are for configuration
 /// tools (`cargo xtask eds` prints them); only its behaviour reaches the firmware image,
-/// through [`ROUTES`].
+/// through `ROUTES`.
 pub struct CommObject {
     first: u16,
     last: u16,
@@ -140,7 +140,7 @@ impl core::fmt::Display for ObjectName {
 }
 
 /// The communication object of `index` (the PDO ranges' row for any of their indices), for
-/// configuration tools: the engine finds its objects through [`ROUTES`].
+/// configuration tools: the engine finds its objects through `ROUTES`.
 pub fn comm_object(index: u16) -> Option<&'static CommObject> {
     OBJECTS.iter().find(|o| (o.first..=o.last).contains(&index))
 }
@@ -274,7 +274,7 @@ impl CommEntry {
     /// The values a write may set when the object's own check is narrower than its type
     /// (the table's range covers application objects only): a configuration tool's
     /// LowLimit/HighLimit.
-    pub const fn limits_of_write(&self) -> Option<(i64, i64)> {
+    pub const fn write_limits(&self) -> Option<(i64, i64)> {
         self.limits
     }
 
