@@ -167,7 +167,7 @@ pub struct AppObject {
     pub limits: Option<(i16, i16)>,
     /// Values within the limits that a write refuses all the same (0x06090030): bit `n` for
     /// value `n`.
-    pub refused: u32,
+    pub refused: u16,
     /// PDO-mappable.
     pub mappable: bool,
     /// How it is read and written.
@@ -234,7 +234,7 @@ impl AppObject {
         self
     }
 
-    /// A write of `value` (below 32, within the limits) is refused all the same.
+    /// A write of `value` (below 16, within the limits) is refused all the same.
     const fn refusing(mut self, value: u8) -> Self {
         self.refused |= 1 << value;
         self
@@ -505,7 +505,7 @@ pub struct StoredParameter {
     pub offset: u8,
     /// Its bytes there (little-endian), the size of its type.
     pub size: u8,
-    /// [`AppObject::refused`], for values below 16.
+    /// [`AppObject::refused`].
     pub refused: u16,
 }
 
@@ -528,16 +528,12 @@ pub const STORED: [StoredParameter; STORED_LEN] = {
     while i < APP_OBJECTS.len() {
         let o = &APP_OBJECTS[i];
         if o.is_stored() {
-            assert!(
-                o.refused >> 16 == 0,
-                "a stored parameter refuses values below 16"
-            );
             list[k] = StoredParameter {
                 index: o.index,
                 sub: o.sub,
                 offset,
                 size: size(o),
-                refused: o.refused as u16,
+                refused: o.refused,
             };
             offset += size(o);
             k += 1;
