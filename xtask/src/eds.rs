@@ -2,19 +2,18 @@
 //! table, or (`--check`) fails when the committed file differs from what the table gives.
 //!
 //! The table is `handwheel_device::od`, built for the host: the run-time dictionary ([`OD`]:
-//! type, access, limits, PDO mapping, where each value lives) and the application objects'
-//! rows ([`APP_OBJECTS`]: names and defaults). What the run-time table does not carry for the
-//! communication objects, their CiA 301 names and object types and the values the engine
-//! reports for them, is in [`comm_name`] and [`comm_default`]: the engine's knowledge,
-//! which `crates/handwheel-device/tests/eds.rs` checks against a running device (every
+//! type, access, limits, PDO mapping, defaults) and the rows it is made from, which name
+//! each object and say what it is: the engine's rows of the communication objects
+//! ([`comm_object`]: CiA 301 names, object codes, which values are identifiers, the limits
+//! of their own write checks) and the application's ([`APP_OBJECTS`]: names and defaults).
+//! `crates/handwheel-device/tests/eds.rs` checks the result against a running device (every
 //! default an SDO upload answers, every limit enforced).
 
 use std::fmt::Write as _;
 use std::path::Path;
 use xshell::cmd;
 
-use canopen_slave::tpdo::{MAX_MAPPED, NO_RTR};
-use canopen_slave::{Access, DataType, OdEntry, Value};
+use canopen_slave::{comm_object, Access, DataType, ObjectCode, OdEntry, Value};
 use handwheel_core::BitRate;
 use handwheel_device::od::{APP_OBJECTS, COMM_DEFAULTS, EDS_NOTES, IDENTITY, OD};
 
@@ -153,50 +152,111 @@ fn indices() -> Vec<u16> {
     indices
 }
 
+/// What the rows say of one object beyond its entries: its name and object code, and each
+/// sub-index's name, notation and the limits of its write check.
+struct Described {
+    name: String,
+    code: ObjectCode,
+    subs: Vec<SubDescribed>,
+}
+
+struct SubDescribed {
+    sub: u8,
+    name: String,
+    hex: bool,
+    limits: Option<(i64, i64)>,
+}
+
+/// Object `index` as its row describes it: the engine's row for a communication object, the
+/// application's rows (a record's header row, then one per sub-index) for the others.
+fn described(index: u16) -> Result<Described, String> {
+    if let Some(o) = comm_object(index) {
+        let subs = OD
+            .entries()
+            .filter(|e| e.index() == index)
+            .map(|e| {
+                let row = o
+                    .entry(e.sub())
+                    .ok_or_else(|| format!("{index:04X}sub{:X}: no entry in its row", e.sub()))?;
+                Ok(SubDescribed {
+                    sub: e.sub(),
+                    name: row.name().into(),
+                    hex: row.is_hex(),
+                    limits: row.write_limits(),
+                })
+            })
+            .collect::<Result<_, String>>()?;
+        return Ok(Described {
+            name: o.name(index).to_string(),
+            code: o.code(),
+            subs,
+        });
+    }
+    let rows: Vec<_> = APP_OBJECTS.iter().filter(|o| o.index == index).collect();
+    let first = rows
+        .first()
+        .ok_or_else(|| format!("{index:04X}: no row in the engine's objects or APP_OBJECTS"))?;
+    let subs = rows
+        .iter()
+        .map(|o| SubDescribed {
+            sub: o.sub,
+            name: if o.is_header() {
+                "Highest sub-index supported".into()
+            } else {
+                o.name.into()
+            },
+            hex: false,
+            limits: None,
+        })
+        .collect();
+    Ok(Described {
+        name: first.name.into(),
+        code: if first.is_header() {
+            ObjectCode::Record
+        } else {
+            ObjectCode::Var
+        },
+        subs,
+    })
+}
+
 /// The section(s) of one object: a VAR, or an ARRAY / RECORD header and its sub-indices.
 fn object(out: &mut String, index: u16) -> Result<(), String> {
-    let entries: Vec<&OdEntry> = OD.entries().filter(|e| e.index() == index).collect();
     out.push('\n');
     if let Some((_, note)) = EDS_NOTES.iter().find(|(i, _)| *i == index) {
         for line in note.lines() {
             let _ = writeln!(out, "; {line}");
         }
     }
-    let name = name_of(index, None)?;
-    if let [single] = entries[..] {
-        if single.sub() == 0 && !is_header(single) {
-            return variable(out, &format!("{index:04X}"), &name, single);
-        }
+    let object = described(index)?;
+    if object.code == ObjectCode::Var {
+        return match &object.subs[..] {
+            [only] if only.sub == 0 => variable(out, &format!("{index:04X}"), index, only),
+            _ => Err(format!("{index:04X}: a VAR is one sub-index 0")),
+        };
     }
-    // CiA 301 defines these four as arrays (one type for sub-indices 1 and up); every other
-    // object with sub-indices here is a record.
-    let object_type = if matches!(index, 0x1003 | 0x1010 | 0x1011 | 0x1016) {
-        8
-    } else {
-        9
-    };
     let _ = write!(
         out,
-        "[{index:04X}]\nParameterName={name}\nObjectType=0x{object_type:X}\nSubNumber={}\n",
-        entries.len()
+        "[{index:04X}]\nParameterName={}\nObjectType=0x{:X}\nSubNumber={}\n",
+        object.name,
+        object.code as u8,
+        object.subs.len()
     );
-    for e in entries {
+    for sub in &object.subs {
         out.push('\n');
-        let sub_name = name_of(index, Some(e.sub()))?;
-        variable(out, &format!("{index:04X}sub{:X}", e.sub()), &sub_name, e)?;
+        variable(out, &format!("{index:04X}sub{:X}", sub.sub), index, sub)?;
     }
     Ok(())
 }
 
-/// Sub-index 0 of a record or array that says its highest sub-index.
-fn is_header(e: &OdEntry) -> bool {
-    e.sub() == 0 && e.access() == Access::Const && e.data_type() == DataType::U8
-}
-
-fn variable(out: &mut String, section: &str, name: &str, e: &OdEntry) -> Result<(), String> {
+fn variable(out: &mut String, section: &str, index: u16, d: &SubDescribed) -> Result<(), String> {
+    let e = OD
+        .find(index, d.sub)
+        .map_err(|_| format!("{section}: not in the dictionary"))?;
     let _ = write!(
         out,
-        "[{section}]\nParameterName={name}\nObjectType=0x7\nDataType=0x{:04X}\nAccessType={}\n",
+        "[{section}]\nParameterName={}\nObjectType=0x7\nDataType=0x{:04X}\nAccessType={}\n",
+        d.name,
         eds_type(e.data_type()),
         match e.access() {
             Access::Ro => "ro",
@@ -205,19 +265,13 @@ fn variable(out: &mut String, section: &str, name: &str, e: &OdEntry) -> Result<
             Access::Const => "const",
         }
     );
-    let limits = match (e.index(), e.sub(), e.limits()) {
-        (_, _, Some(limits)) => Some(limits),
-        // The engine refuses a mapping count above what a PDO holds.
-        (0x1A00..=0x1BFF, 0, None) => Some((0, MAX_MAPPED as i64)),
-        _ => None,
-    };
-    if let Some((low, high)) = limits {
+    if let Some((low, high)) = e.limits().or(d.limits) {
         let _ = write!(out, "LowLimit={low}\nHighLimit={high}\n");
     }
     let _ = write!(
         out,
         "DefaultValue={}\nPDOMapping={}\n",
-        default(e)?,
+        default(e, d.hex)?,
         u8::from(e.is_mappable())
     );
     Ok(())
@@ -236,20 +290,15 @@ fn eds_type(t: DataType) -> u16 {
     }
 }
 
-/// The value a fresh device reports, as the EDS writes it: identifiers and 32-bit constants
-/// in hex, counts and times in decimal, COB-IDs with the node-ID as `$NODEID+`.
-fn default(e: &OdEntry) -> Result<String, String> {
+/// The value a fresh device reports (the table's default), as the EDS writes it: in hex
+/// where the row says so, COB-IDs relative to the node-ID as `$NODEID+`, the rest in decimal.
+fn default(e: &OdEntry, hex: bool) -> Result<String, String> {
     let (index, sub) = (e.index(), e.sub());
-    let hex = |v: u32| format!("0x{v:08X}");
     Ok(match e.value() {
         Value::Str(s) => s.to_string(),
-        Value::Const(v) if e.data_type() == DataType::U32 => hex(v),
-        Value::Const(v) => v.to_string(),
-        Value::Comm(v) => match comm_default(index, sub, v) {
-            v if index == 0x1005 || (matches!(index, 0x1A00..=0x1BFF) && sub > 0) => hex(v),
-            v => v.to_string(),
-        },
-        Value::CommPlusNodeId(v) => format!("$NODEID+0x{:X}", comm_default(index, sub, v)),
+        Value::Const(v) | Value::Comm(v) if hex => format!("0x{v:08X}"),
+        Value::Const(v) | Value::Comm(v) => v.to_string(),
+        Value::CommPlusNodeId(v) => format!("$NODEID+0x{v:X}"),
         Value::App => {
             let row = APP_OBJECTS
                 .iter()
@@ -261,81 +310,6 @@ fn default(e: &OdEntry) -> Result<String, String> {
             }
         }
     })
-}
-
-/// What the engine reports for a communication parameter whose table default is `table`.
-fn comm_default(index: u16, sub: u8, table: u32) -> u32 {
-    match (index, sub) {
-        // 0x1010 / 0x1011 read their capability: bit 0, on command.
-        (0x1010 | 0x1011, 1..) => 1,
-        // A TPDO's COB-ID reads with bit 30 set: no RTR on this PDO.
-        (0x1800..=0x19FF, 1) => table | NO_RTR,
-        _ => table,
-    }
-}
-
-/// The name of object `index` (`sub` `None`) or of one of its sub-indices.
-fn name_of(index: u16, sub: Option<u8>) -> Result<String, String> {
-    if index >= 0x2000 {
-        let row = APP_OBJECTS
-            .iter()
-            .find(|o| o.index == index && (Some(o.sub) == sub || (sub.is_none() && o.sub == 0)));
-        return match (row, sub) {
-            (Some(o), Some(0)) if o.header => Ok("Highest sub-index supported".into()),
-            (Some(o), _) => Ok(o.name.into()),
-            (None, _) => Err(format!("{index:04X}: no row in APP_OBJECTS")),
-        };
-    }
-    comm_name(index, sub).ok_or_else(|| {
-        format!("{index:04X}sub{sub:?}: no CiA 301 name in xtask/src/eds.rs (comm_name)")
-    })
-}
-
-/// CiA 301's names of the communication objects the engine implements.
-fn comm_name(index: u16, sub: Option<u8>) -> Option<String> {
-    let pdo = index & 0x1FF;
-    let name = match (index, sub) {
-        (0x1010 | 0x1011 | 0x1016 | 0x1018 | 0x1800..=0x19FF, Some(0)) => {
-            "Highest sub-index supported".into()
-        }
-        (0x1003, Some(0)) => "Number of errors".into(),
-        (0x1A00..=0x1BFF, Some(0)) => "Number of mapped objects".into(),
-        (0x1000, _) => "Device type".into(),
-        (0x1001, _) => "Error register".into(),
-        (0x1003, None) => "Pre-defined error field".into(),
-        (0x1003, Some(n)) => format!("Standard error field {n}"),
-        (0x1005, _) => "COB-ID SYNC".into(),
-        (0x1008, _) => "Manufacturer device name".into(),
-        (0x1009, _) => "Manufacturer hardware version".into(),
-        (0x100A, _) => "Manufacturer software version".into(),
-        (0x1010, None) => "Store parameters".into(),
-        (0x1010, Some(1)) => "Save all parameters".into(),
-        (0x1010, Some(2)) => "Save communication parameters".into(),
-        (0x1010, Some(3)) => "Save application parameters".into(),
-        (0x1011, None) => "Restore default parameters".into(),
-        (0x1011, Some(1)) => "Restore all default parameters".into(),
-        (0x1011, Some(2)) => "Restore communication default parameters".into(),
-        (0x1011, Some(3)) => "Restore application default parameters".into(),
-        (0x1014, _) => "COB-ID EMCY".into(),
-        (0x1015, _) => "Inhibit time EMCY".into(),
-        (0x1016, None) => "Consumer heartbeat time".into(),
-        (0x1016, Some(n)) => format!("Consumer heartbeat time {n}"),
-        (0x1017, _) => "Producer heartbeat time".into(),
-        (0x1018, None) => "Identity object".into(),
-        (0x1018, Some(1)) => "Vendor-ID".into(),
-        (0x1018, Some(2)) => "Product code".into(),
-        (0x1018, Some(3)) => "Revision number".into(),
-        (0x1018, Some(4)) => "Serial number".into(),
-        (0x1800..=0x19FF, None) => format!("TPDO{} communication parameter", pdo + 1),
-        (0x1800..=0x19FF, Some(1)) => "COB-ID used by TPDO".into(),
-        (0x1800..=0x19FF, Some(2)) => "Transmission type".into(),
-        (0x1800..=0x19FF, Some(3)) => "Inhibit time".into(),
-        (0x1800..=0x19FF, Some(5)) => "Event timer".into(),
-        (0x1A00..=0x1BFF, None) => format!("TPDO{} mapping parameter", pdo + 1),
-        (0x1A00..=0x1BFF, Some(n)) => format!("Mapped object {n}"),
-        _ => return None,
-    };
-    Some(name)
 }
 
 #[cfg(test)]
@@ -377,7 +351,7 @@ mod tests {
             .skip(2)
             .map(|line| line.split('|').map(str::trim).collect())
             .collect();
-        let rows: Vec<_> = APP_OBJECTS.iter().filter(|o| !o.header).collect();
+        let rows: Vec<_> = APP_OBJECTS.iter().filter(|o| !o.is_header()).collect();
         assert_eq!(lines.len(), rows.len(), "one README line per object");
         for (cells, o) in lines.iter().zip(rows) {
             let key = if o.sub == 0 {

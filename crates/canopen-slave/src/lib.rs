@@ -97,7 +97,9 @@ pub mod tpdo;
 pub use abort::SdoAbort;
 pub use bus::{BusEvent, BusState};
 pub use device::objects::params::blob::{APP_MAX, BLOB_MAX};
-pub use device::objects::{standard_objects, STANDARD_OBJECTS};
+pub use device::objects::{
+    comm_object, standard_objects, CommEntry, CommObject, ObjectName, STANDARD_OBJECTS,
+};
 pub use device::{Application, Config, Device, NoSuchPdo, Stats};
 pub use emcy::EmcyError;
 pub use filter::RxFilter;
@@ -106,6 +108,6 @@ pub use identity::{CommDefaults, Identity, TpdoDefaults};
 pub use indicators::{indicators, ErrorIndication, Pattern};
 pub use lss::{LssAddress, LssSlave, LssState};
 pub use nmt::{NmtCommand, NmtState};
-pub use od::{Access, DataType, Od, OdEntry, OdError, Value};
+pub use od::{Access, DataType, ObjectCode, Od, OdEntry, OdError, Value};
 pub use storage::{MemoryStorage, Storage, StorageError};
 pub use time::{sleep_ms, Instant, Periodic, WideClock};

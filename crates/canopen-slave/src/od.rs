@@ -127,6 +127,19 @@ impl Access {
     }
 }
 
+/// What an object is (CiA 301 object code; CiA 306 writes it as `ObjectType`): one value, or
+/// sub-indices after a sub-index 0 that counts them, all of one type (an array) or each of
+/// its own (a record).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ObjectCode {
+    /// VAR: one value, at sub-index 0.
+    Var = 7,
+    /// ARRAY: sub-indices 1 and up of one type.
+    Array = 8,
+    /// RECORD: sub-indices 1 and up, each of its own type.
+    Record = 9,
+}
+
 /// Where an entry's value lives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Value {

@@ -2,27 +2,22 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel, Mutex,
-    StopReason, UnitStep, UnitStepEncoder,
+    CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, Handwheel, Mutex, StopReason,
+    UnitStep, UnitStepEncoder,
 };
 
 use crate::od::{
-    APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT, FEED_SELECTION,
-    FEED_SEQUENCE, FEED_SESSION, FEED_STATUS, OD, POSITION_VALUE, SELECTION, STORED, UNIT_STEP,
+    stored_slot, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT,
+    FEED_SESSION, OD, STEP_BYTE, STORED, STORED_BYTES, STORED_LEN, WHEEL_READS, WHEEL_WRITES,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
 /// the wheel, never the feed enable (a handwheel must not power up live). Which objects they
-/// are, their defaults and limits are the rows of [`APP_OBJECTS`] marked stored;
-/// `WheelParameters::get` and `WheelParameters::set` are their accessors.
+/// are, their defaults, limits and refused values are the rows of [`APP_OBJECTS`] marked
+/// stored; they are kept as the stored section lays them out ([`STORED`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WheelParameters {
-    /// 0x2001: unit-step (paper) format instead of the feed record.
-    pub unit_steps: bool,
-    /// 0x2020:3 and :4.
-    pub decoder: DecoderConfig,
-    /// 0x2040:3.
-    pub backlog_bound: u16,
+    bytes: [u8; STORED_BYTES],
 }
 
 /// The application section's first byte: a new [`STORED`] layout needs a new version, so
@@ -33,17 +28,12 @@ impl WheelParameters {
     /// Factory settings: the stored rows' defaults.
     pub const DEFAULT: Self = {
         let mut p = Self {
-            unit_steps: false,
-            decoder: DecoderConfig {
-                counts_per_detent: CountsPerDetent::One,
-                invert: false,
-            },
-            backlog_bound: 0,
+            bytes: [0; STORED_BYTES],
         };
         let mut i = 0;
         while i < APP_OBJECTS.len() {
             let o = &APP_OBJECTS[i];
-            if o.stored && p.set(o.index, o.sub, o.default).is_err() {
+            if o.is_stored() && p.set(o.index, o.sub, o.default).is_err() {
                 panic!("a stored row's default is not a value of its parameter");
             }
             i += 1;
@@ -51,53 +41,85 @@ impl WheelParameters {
         p
     };
 
-    /// Parameter `index:sub` as a raw number; `None` for other objects.
-    const fn get(&self, index: u16, sub: u8) -> Option<u32> {
-        Some(match (index, sub) {
-            (FEED_FORMAT, 0) => self.unit_steps as u32,
-            (ENCODER, 3) => self.decoder.counts_per_detent.get() as u32,
-            (ENCODER, 4) => self.decoder.invert as u32,
-            (FEED_DIAGNOSTICS, 3) => self.backlog_bound as u32,
-            _ => return None,
-        })
+    /// Parameter `k` of [`STORED`].
+    #[inline(always)]
+    const fn value(&self, k: usize) -> u32 {
+        let p = &STORED[k];
+        let at = p.offset as usize;
+        let b = &self.bytes;
+        // One load per size (a loop over the bytes stays a loop at opt-level "z").
+        match p.size {
+            1 => b[at] as u32,
+            2 => u16::from_le_bytes([b[at], b[at + 1]]) as u32,
+            _ => u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]),
+        }
     }
 
-    /// Sets parameter `index:sub` to `value`, which the table's limits have checked (the
-    /// types are unsigned, so the truncations are lossless); 0x06010002 for an object that
-    /// is not a parameter. Changes nothing on failure.
-    const fn set(&mut self, index: u16, sub: u8, value: u32) -> Result<(), SdoAbort> {
-        match (index, sub) {
-            (FEED_FORMAT, 0) => self.unit_steps = value == 1,
-            (ENCODER, 3) => match CountsPerDetent::from_u8(value as u8) {
-                Some(cpd) => self.decoder.counts_per_detent = cpd,
-                None => return Err(SdoAbort::InvalidValue),
+    /// Parameter `INDEX:SUB`; an object that is no stored row fails the build.
+    const fn param<const INDEX: u16, const SUB: u8>(&self) -> u32 {
+        self.value(const { stored_slot(INDEX, SUB) })
+    }
+
+    /// 0x2001 = 1: the paper's unit-step stream instead of the feed record.
+    pub(crate) const fn unit_steps(&self) -> bool {
+        self.param::<FEED_FORMAT, 0>() == 1
+    }
+
+    /// The decoder settings of 0x2020:3 and :4.
+    pub(crate) const fn decoder(&self) -> DecoderConfig {
+        let counts = self.param::<ENCODER, 3>() as u8;
+        DecoderConfig {
+            // The row refuses every other value on the way in.
+            counts_per_detent: match CountsPerDetent::from_u8(counts) {
+                Some(cpd) => cpd,
+                None => CountsPerDetent::Four,
             },
-            (ENCODER, 4) => self.decoder.invert = value == 1,
-            (FEED_DIAGNOSTICS, 3) => self.backlog_bound = value as u16,
-            _ => return Err(SdoAbort::ReadOnly),
+            invert: self.param::<ENCODER, 4>() == 1,
         }
-        Ok(())
+    }
+
+    /// Parameter `index:sub` and its size in bytes; `None` for other objects.
+    fn get(&self, index: u16, sub: u8) -> Option<(u32, u8)> {
+        let k = STORED
+            .iter()
+            .position(|p| (p.index, p.sub) == (index, sub))?;
+        Some((self.value(k), STORED[k].size))
+    }
+
+    /// Sets parameter `index:sub` to `value`, which the table's limits have checked;
+    /// 0x06090030 for a value its row refuses, 0x06010002 for an object that is not a
+    /// parameter. Changes nothing on failure.
+    #[inline(never)]
+    const fn set(&mut self, index: u16, sub: u8, value: u32) -> Result<(), SdoAbort> {
+        let mut k = 0;
+        while k < STORED_LEN {
+            let p = &STORED[k];
+            if p.index == index && p.sub == sub {
+                if value < 16 && p.refused >> value & 1 == 1 {
+                    return Err(SdoAbort::InvalidValue);
+                }
+                let mut i = 0;
+                while i < p.size as usize {
+                    self.bytes[p.offset as usize + i] = (value >> (8 * i)) as u8;
+                    i += 1;
+                }
+                return Ok(());
+            }
+            k += 1;
+        }
+        Err(SdoAbort::ReadOnly)
     }
 
     /// The application section: the version, then each stored parameter in [`STORED`]'s
     /// order, little-endian in its type's size. Returns its length, 0 if `buf` is too short.
     fn save(&self, buf: &mut [u8]) -> usize {
-        let Some((version, mut rest)) = buf.split_first_mut() else {
+        let section = buf.get_mut(..1 + STORED_BYTES);
+        let Some((version, bytes)) = section.and_then(|s| s.split_first_mut()) else {
             return 0;
         };
         *version = BLOB_VERSION;
-        let mut len = 1;
-        for &(index, sub, size) in &STORED {
-            let size = usize::from(size);
-            let value = self.get(index, sub).unwrap_or(0).to_le_bytes();
-            let Some((dst, tail)) = rest.split_at_mut_checked(size) else {
-                return 0;
-            };
-            dst.copy_from_slice(&value[..size]);
-            rest = tail;
-            len += size;
-        }
-        len
+        bytes.copy_from_slice(&self.bytes);
+        1 + STORED_BYTES
     }
 
     /// The parameters of a stored section, each checked as its SDO write is, or the first
@@ -109,7 +131,10 @@ impl WheelParameters {
             return Err(whole);
         };
         let mut p = Self::DEFAULT;
-        for &(index, sub, size) in &STORED {
+        for &StoredParameter {
+            index, sub, size, ..
+        } in &STORED
+        {
             let (bytes, tail) = rest.split_at_checked(usize::from(size)).ok_or(whole)?;
             let value = OD
                 .find(index, sub)
@@ -127,10 +152,12 @@ impl WheelParameters {
 
     /// Pushes the parameters into the wheel.
     pub(crate) fn apply(self, wheel: &mut Handwheel) {
-        wheel.configure_decoder(self.decoder);
+        wheel.configure_decoder(self.decoder());
         // The bound was validated on its way in; a rejected bound keeps the previous one.
-        let _ = wheel.feed.set_backlog_bound(self.backlog_bound);
-        let _ = wheel.feed.set_unit_step_mode(self.unit_steps);
+        let _ = wheel
+            .feed
+            .set_backlog_bound(self.param::<FEED_DIAGNOSTICS, 3>() as u16);
+        let _ = wheel.feed.set_unit_step_mode(self.unit_steps());
     }
 }
 
@@ -202,26 +229,15 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             *dst = src;
         }
         let value = u32::from_le_bytes(bytes);
-        if (index, sub) == (FEED_SESSION, 0) {
-            self.wheel
-                .lock(|w| w.record_due |= w.feed.set_session(value as u8));
-            return Ok(());
-        }
-        if (index, sub) == (FEED_ENABLE, 0) {
-            // Feed only runs while PDOs flow: enabling in Pre-operational would let the
-            // position move unseen and jump at the next start.
-            // Nor while a master we monitor is silent: a wheel enabled by a write that
-            // arrives while the master is lost would move an axis nobody supervises.
-            // Nor while the transmit path has not drained since it was found blocked: the
-            // records would queue behind it and move the axis late.
-            let allowed = self.app.nmt == NmtState::Operational
-                && !self.app.master_lost
-                && !self.app.transmit_blocked;
-            if value == 1 && !allowed {
+        if let Some(route) = WHEEL_WRITES
+            .iter()
+            .find(|r| (r.index, r.sub) == (index, sub))
+        {
+            if route.enables_feed && value == 1 && !self.feed_may_run() {
                 return Err(SdoAbort::DeviceState);
             }
-            self.wheel
-                .lock(|w| w.record_due |= w.feed.set_enabled(value == 1));
+            let write = route.write;
+            self.wheel.lock(|w| write(w, value));
             return Ok(());
         }
         let mut parameters = self.app.parameters;
@@ -289,7 +305,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             self.app.mutant = mutant;
         }
         self.wheel.lock(|w| {
-            w.reset_decoder(WheelParameters::DEFAULT.decoder);
+            w.reset_decoder(const { WheelParameters::DEFAULT.decoder() });
             w.feed.reset();
         });
     }
@@ -366,7 +382,7 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
         record: bool,
     ) -> Result<usize, SdoAbort> {
         // Every application object is an integer of 1, 2 or 4 bytes: pick the value and its
-        // size, then copy once (one copy instead of one per object keeps the image small).
+        // size as its row says, then copy once.
         let app = &*self.app;
         // TPDO1's objects are slices of one encoded snapshot (`handwheel-core` lays it out).
         if let Some((bytes, range)) = app
@@ -376,41 +392,42 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
         {
             return put(buf, bytes.get(range).unwrap_or_default());
         }
-        let parameter = STORED
-            .iter()
-            .find(|&&(i, s, _)| (i, s) == (index, sub))
-            .and_then(|&(_, _, size)| Some((app.parameters.get(index, sub)?, size.into())));
-        let (value, size): (u32, usize) = match (index, sub) {
-            _ if parameter.is_some() => parameter.unwrap_or_default(),
-            (UNIT_STEP, 0) => (app.step_byte.into(), 1),
-            _ => self.wheel.lock(|w| {
-                let feed = &w.feed;
-                let state = match app.record.filter(|_| record) {
-                    Some(r) => r.state,
-                    None if record => feed.record_to_send(),
-                    None => feed.state(),
-                };
-                Ok(match (index, sub) {
-                    (FEED_ENABLE, 0) => (state.status.contains(FeedStatus::ENABLED).into(), 1),
-                    (SELECTION, 1) => (Axis::option_value(state.axis).into(), 1),
-                    (SELECTION, 2) => (state.multiplier.factor().into(), 1),
-                    (SELECTION, 3) => (state.epoch.into(), 1),
-                    (FEED_SELECTION, 0) => (state.selection_byte().into(), 1),
-                    (FEED_SESSION, 0) => (feed.session().into(), 1),
-                    // Two's complement bytes of the signed objects, as CiA 301 sends them.
-                    (ENCODER, 1) => (w.count() as u32, 4),
-                    (ENCODER, 2) => (w.illegal_transitions(), 4),
-                    (FEED_STATUS, 0) => (state.status_byte().into(), 1),
-                    (FEED_SEQUENCE, 0) => (feed.record_sequence().into(), 2),
-                    (FEED_DIAGNOSTICS, 1) => (feed.ignored_detents(), 4),
-                    (FEED_DIAGNOSTICS, 2) => (feed.dropped_steps(), 4),
-                    (POSITION_VALUE, 0) => (state.position as u32, 4),
-                    _ => return Err(SdoAbort::NoObject),
-                })
-            })?,
+        let (value, size) = match app.parameters.get(index, sub) {
+            Some(parameter) => parameter,
+            None if (index, sub) == STEP_BYTE => (app.step_byte.into(), 1),
+            None => {
+                let route = WHEEL_READS
+                    .iter()
+                    .find(|r| (r.index, r.sub) == (index, sub))
+                    .ok_or(SdoAbort::NoObject)?;
+                let value = self.wheel.lock(|w| {
+                    let state = match app.record.filter(|_| record) {
+                        Some(r) => r.state,
+                        None if record => w.feed.record_to_send(),
+                        None => w.feed.state(),
+                    };
+                    (route.read)(&state, w)
+                });
+                (value, route.size)
+            }
         };
-        let bytes = value.to_le_bytes();
-        put(buf, &bytes[..size])
+        put(
+            buf,
+            value
+                .to_le_bytes()
+                .get(..usize::from(size))
+                .unwrap_or_default(),
+        )
+    }
+
+    /// Whether the feed may be enabled now. Feed only runs while PDOs flow: enabling in
+    /// Pre-operational would let the position move unseen and jump at the next start.
+    /// Nor while a master we monitor is silent: a wheel enabled by a write that arrives while
+    /// the master is lost would move an axis nobody supervises. Nor while the transmit path
+    /// has not drained since it was found blocked: the records would queue behind it and
+    /// move the axis late.
+    fn feed_may_run(&self) -> bool {
+        self.app.nmt == NmtState::Operational && !self.app.master_lost && !self.app.transmit_blocked
     }
 
     fn set_parameters(&mut self, parameters: WheelParameters) {
@@ -447,14 +464,21 @@ mod tests {
 
     #[test]
     fn parameter_blob_round_trips() {
-        let p = WheelParameters {
-            unit_steps: true,
-            decoder: DecoderConfig {
-                counts_per_detent: CountsPerDetent::Two,
-                invert: true,
-            },
-            backlog_bound: 300,
+        let mut p = WheelParameters::DEFAULT;
+        for (index, sub, value) in [
+            (0x2001, 0, 1),
+            (0x2020, 3, 2),
+            (0x2020, 4, 1),
+            (0x2040, 3, 300),
+        ] {
+            p.set(index, sub, value).unwrap();
+        }
+        assert!(p.unit_steps());
+        let decoder = DecoderConfig {
+            counts_per_detent: CountsPerDetent::Two,
+            invert: true,
         };
+        assert_eq!(p.decoder(), decoder);
         // The layout of the records already in the field: version 1, 0x2001, 0x2020:3,
         // 0x2020:4, 0x2040:3 (little-endian U16).
         assert_eq!(save(p), [1, 1, 2, 1, 0x2C, 0x01]);
@@ -464,20 +488,32 @@ mod tests {
 
     #[test]
     fn the_defaults_are_the_stored_rows_defaults() {
+        let p = WheelParameters::DEFAULT;
+        assert!(!p.unit_steps());
+        let decoder = DecoderConfig {
+            counts_per_detent: CountsPerDetent::Four,
+            invert: false,
+        };
+        assert_eq!(p.decoder(), decoder);
         assert_eq!(
-            WheelParameters::DEFAULT,
-            WheelParameters {
-                unit_steps: false,
-                decoder: DecoderConfig {
-                    counts_per_detent: CountsPerDetent::Four,
-                    invert: false,
-                },
-                backlog_bound: handwheel_core::DEFAULT_STEP_BACKLOG,
-            }
+            p.get(0x2040, 3),
+            Some((u32::from(handwheel_core::DEFAULT_STEP_BACKLOG), 2))
         );
-        for o in APP_OBJECTS.iter().filter(|o| o.stored) {
-            let value = WheelParameters::DEFAULT.get(o.index, o.sub);
+        for o in APP_OBJECTS.iter().filter(|o| o.is_stored()) {
+            let value = p.get(o.index, o.sub).map(|(value, _)| value);
             assert_eq!(value, Some(o.default), "{:#06x}:{}", o.index, o.sub);
+        }
+    }
+
+    #[test]
+    fn a_refused_value_or_another_object_changes_nothing() {
+        let mut p = WheelParameters::DEFAULT;
+        assert_eq!(p.set(0x2020, 3, 3), Err(SdoAbort::InvalidValue));
+        assert_eq!(p.set(0x2000, 0, 1), Err(SdoAbort::ReadOnly));
+        assert_eq!(p, WheelParameters::DEFAULT);
+        for counts in [1, 2, 4] {
+            assert_eq!(p.set(0x2020, 3, counts), Ok(()));
+            assert_eq!(p.decoder().counts_per_detent.get(), counts as u8);
         }
     }
 

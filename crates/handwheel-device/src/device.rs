@@ -336,7 +336,7 @@ impl<S: Storage> HandwheelDevice<S> {
             // sends TPDO1 with the present values anyway.
             let _ = self.engine.request_tpdo(1);
         }
-        if operational && self.app.parameters.unit_steps {
+        if operational && self.app.parameters.unit_steps() {
             if self.app.step_in_flight.is_none() {
                 if let Some(step) = wheel.lock(|w| w.feed.take_unit_step()) {
                     self.app.step_byte = self.app.encoder.peek(step);

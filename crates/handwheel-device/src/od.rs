@@ -2,17 +2,20 @@
 //! handwheel's own. These indices are the device's public interface.
 //!
 //! Each application object is one row of [`APP_OBJECTS`]: name, type, access, default,
-//! write limits, PDO mapping and whether 0x1010 stores it. The run-time table ([`OD`]), the
-//! stored record ([`STORED`], `app.rs`) and `eds/handwheel.eds` (`cargo xtask eds`) are
-//! derived from the rows; what an object does lives in `app.rs`, one read and one write arm
-//! per object with behaviour. The rows are constants: only the entries derived from them
-//! reach the firmware image.
+//! write limits, PDO mapping, and how it is read and written ([`Behaviour`]): a parameter
+//! 0x1010 stores, a value of the wheel with the functions that read and write it, the
+//! unit-step byte in flight. The run-time table ([`OD`]), the stored record ([`STORED`]),
+//! the read and write paths' lookups (`WHEEL_READS`, `WHEEL_WRITES`; `app.rs` carries
+//! them out) and `eds/handwheel.eds` (`cargo xtask eds`) are derived from the rows. The rows
+//! are constants: only what is derived from them reaches the firmware image, not the names.
+//! A new stored parameter is a row, and a line in `WheelParameters::apply` if it drives the
+//! wheel (a new stored layout needs a new `BLOB_VERSION`).
 
 use canopen_slave::{
     standard_objects, Access, CommDefaults, DataType, Identity, Od, OdEntry, TpdoDefaults,
     STANDARD_OBJECTS,
 };
-use handwheel_core::{FeedRecord, DEFAULT_STEP_BACKLOG};
+use handwheel_core::{Axis, FeedRecord, FeedState, FeedStatus, Handwheel, DEFAULT_STEP_BACKLOG};
 
 /// Feed enable: 1 = handwheel mode on. U8 rw, 0..1, default 0.
 pub const FEED_ENABLE: u16 = 0x2000;
@@ -112,10 +115,41 @@ pub const COMM_DEFAULTS: CommDefaults = CommDefaults {
 
 const STANDARD: [OdEntry; STANDARD_OBJECTS] = standard_objects(&IDENTITY, &COMM_DEFAULTS);
 
-/// One sub-index of an application object, as the dictionary, the stored record and the
-/// EDS see it. A record is a header row (its name, sub-index 0 = the highest sub-index)
-/// followed by its sub-index rows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Reads an object of the wheel under its lock, from the feed state it describes (the
+/// record's own while TPDO1 is built, else the present one) or from the wheel: its value as a
+/// raw number (two's complement for signed types).
+pub type ReadFn = fn(&FeedState, &Handwheel) -> u32;
+/// Writes a value the table's limits have checked into the wheel, under its lock.
+pub type WriteFn = fn(&mut Handwheel, u32);
+
+/// How an application object is read and written: the part of a row that `app.rs` carries
+/// out, as CANopenNode attaches read and write functions to an object (`OD_extension_t`) and
+/// zencan's table entries answer their own reads and writes.
+#[derive(Clone, Copy, Debug)]
+pub enum Behaviour {
+    /// A record's header: its highest sub-index, a constant the table answers.
+    Header,
+    /// A parameter 0x1010 stores (in the application's section, in row order): read from and
+    /// written to the device's [`WheelParameters`](crate::WheelParameters), which pushes a
+    /// written value into the wheel.
+    Stored,
+    /// The unit-step byte in flight, which the device keeps for TPDO2.
+    UnitStep,
+    /// Read from the wheel under its lock and, if writable, written there.
+    Wheel {
+        /// The value.
+        read: ReadFn,
+        /// The write; `None` for a read-only object.
+        write: Option<WriteFn>,
+        /// Writing 1 turns the feed on: refused (0x08000022) unless the device allows it now.
+        enables_feed: bool,
+    },
+}
+
+/// One sub-index of an application object, as the dictionary, the stored record, the EDS
+/// and the device's read and write paths see it. A record is a header row (its name,
+/// sub-index 0 = the highest sub-index) followed by its sub-index rows.
+#[derive(Clone, Copy, Debug)]
 pub struct AppObject {
     /// Object index.
     pub index: u16,
@@ -131,17 +165,24 @@ pub struct AppObject {
     pub default: u32,
     /// The values an SDO write may set, `None` for the type's whole range.
     pub limits: Option<(i16, i16)>,
+    /// Values within the limits that a write refuses all the same (0x06090030): bit `n` for
+    /// value `n`.
+    pub refused: u16,
     /// PDO-mappable.
     pub mappable: bool,
-    /// A parameter 0x1010 stores (in the application's section, in row order).
-    pub stored: bool,
-    /// A record's header row.
-    pub header: bool,
+    /// How it is read and written.
+    pub behaviour: Behaviour,
 }
 
 impl AppObject {
-    /// A variable, read-only, default 0, not mappable, not stored.
-    const fn var(index: u16, sub: u8, name: &'static str, data_type: DataType) -> Self {
+    /// A variable, read-only, default 0, not mappable.
+    const fn new(
+        index: u16,
+        sub: u8,
+        name: &'static str,
+        data_type: DataType,
+        behaviour: Behaviour,
+    ) -> Self {
         Self {
             index,
             sub,
@@ -150,10 +191,31 @@ impl AppObject {
             access: Access::Ro,
             default: 0,
             limits: None,
+            refused: 0,
             mappable: false,
-            stored: false,
-            header: false,
+            behaviour,
         }
+    }
+
+    /// A parameter 0x1010 stores.
+    const fn stored(index: u16, sub: u8, name: &'static str, data_type: DataType) -> Self {
+        Self::new(index, sub, name, data_type, Behaviour::Stored)
+    }
+
+    /// A value of the wheel, `read` under its lock.
+    const fn wheel(
+        index: u16,
+        sub: u8,
+        name: &'static str,
+        data_type: DataType,
+        read: ReadFn,
+    ) -> Self {
+        let behaviour = Behaviour::Wheel {
+            read,
+            write: None,
+            enables_feed: false,
+        };
+        Self::new(index, sub, name, data_type, behaviour)
     }
 
     /// The header row of a record with sub-indices 1..=`highest`.
@@ -161,8 +223,7 @@ impl AppObject {
         Self {
             access: Access::Const,
             default: highest as u32,
-            header: true,
-            ..Self::var(index, 0, name, DataType::U8)
+            ..Self::new(index, 0, name, DataType::U8, Behaviour::Header)
         }
     }
 
@@ -170,6 +231,12 @@ impl AppObject {
     const fn rw(mut self, min: i16, max: i16) -> Self {
         self.access = Access::Rw;
         self.limits = Some((min, max));
+        self
+    }
+
+    /// A write of `value` (below 16, within the limits) is refused all the same.
+    const fn refusing(mut self, value: u8) -> Self {
+        self.refused |= 1 << value;
         self
     }
 
@@ -183,14 +250,37 @@ impl AppObject {
         self
     }
 
-    const fn stored(mut self) -> Self {
-        self.stored = true;
+    /// A value of the wheel that `write` sets.
+    const fn writes(mut self, write: WriteFn) -> Self {
+        match &mut self.behaviour {
+            Behaviour::Wheel { write: w, .. } => *w = Some(write),
+            _ => panic!("only the wheel's values are written through a function"),
+        }
         self
+    }
+
+    /// Writing 1 turns the feed on ([`Behaviour::Wheel`]'s `enables_feed`).
+    const fn enables_feed(mut self) -> Self {
+        match &mut self.behaviour {
+            Behaviour::Wheel { enables_feed, .. } => *enables_feed = true,
+            _ => panic!("only a value of the wheel enables the feed"),
+        }
+        self
+    }
+
+    /// A record's header row.
+    pub const fn is_header(&self) -> bool {
+        matches!(self.behaviour, Behaviour::Header)
+    }
+
+    /// A parameter 0x1010 stores.
+    pub const fn is_stored(&self) -> bool {
+        matches!(self.behaviour, Behaviour::Stored)
     }
 
     /// The run-time table's entry.
     const fn entry(&self) -> OdEntry {
-        if self.header {
+        if self.is_header() {
             return OdEntry::highest_sub(self.index, self.default as u8);
         }
         let mut e = OdEntry::app(self.index, self.sub, self.data_type, self.access);
@@ -209,33 +299,78 @@ pub const APP_OBJECTS: &[AppObject] = {
     use DataType::{I32, U16, U32, U8};
     type O = AppObject;
     &[
-        O::var(FEED_ENABLE, 0, "Feed enable", U8).rw(0, 1),
-        O::var(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1).stored(),
-        O::var(FEED_SESSION, 0, "Feed session", U8).rw(0, 7),
+        O::wheel(FEED_ENABLE, 0, "Feed enable", U8, |state, _| {
+            state.status.contains(FeedStatus::ENABLED).into()
+        })
+        .rw(0, 1)
+        .writes(|w, value| w.record_due |= w.feed.set_enabled(value == 1))
+        .enables_feed(),
+        O::stored(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1),
+        O::wheel(FEED_SESSION, 0, "Feed session", U8, |_, wheel| {
+            wheel.feed.session().into()
+        })
+        .rw(0, 7)
+        .writes(|w, value| w.record_due |= w.feed.set_session(value as u8)),
         O::record(SELECTION, "Selection", 3),
-        O::var(SELECTION, 1, "Axis", U8).mappable(),
-        O::var(SELECTION, 2, "Multiplier", U8).default(1).mappable(),
-        O::var(SELECTION, 3, "Selection epoch", U8).mappable(),
-        O::var(FEED_SELECTION, 0, "Feed selection", U8).mappable(),
+        O::wheel(SELECTION, 1, "Axis", U8, |state, _| {
+            Axis::option_value(state.axis).into()
+        })
+        .mappable(),
+        O::wheel(SELECTION, 2, "Multiplier", U8, |state, _| {
+            state.multiplier.factor().into()
+        })
+        .default(1)
+        .mappable(),
+        O::wheel(SELECTION, 3, "Selection epoch", U8, |state, _| {
+            state.epoch.into()
+        })
+        .mappable(),
+        O::wheel(FEED_SELECTION, 0, "Feed selection", U8, |state, _| {
+            state.selection_byte().into()
+        })
+        .mappable(),
         O::record(ENCODER, "Encoder", 4),
-        O::var(ENCODER, 1, "Raw count", I32).mappable(),
-        O::var(ENCODER, 2, "Illegal transitions", U32).mappable(),
-        O::var(ENCODER, 3, "Counts per detent", U8)
+        // Two's complement bytes of the signed objects, as CiA 301 sends them.
+        O::wheel(ENCODER, 1, "Raw count", I32, |_, wheel| {
+            wheel.count() as u32
+        })
+        .mappable(),
+        O::wheel(ENCODER, 2, "Illegal transitions", U32, |_, wheel| {
+            wheel.illegal_transitions()
+        })
+        .mappable(),
+        O::stored(ENCODER, 3, "Counts per detent", U8)
             .rw(1, 4)
-            .default(4)
-            .stored(),
-        O::var(ENCODER, 4, "Invert direction", U8).rw(0, 1).stored(),
-        O::var(FEED_STATUS, 0, "Feed status", U8).mappable(),
-        O::var(FEED_SEQUENCE, 0, "Feed sequence", U16).mappable(),
-        O::var(UNIT_STEP, 0, "Unit step", U8).mappable(),
+            .refusing(3)
+            .default(4),
+        O::stored(ENCODER, 4, "Invert direction", U8).rw(0, 1),
+        O::wheel(FEED_STATUS, 0, "Feed status", U8, |state, _| {
+            state.status_byte().into()
+        })
+        .mappable(),
+        O::wheel(FEED_SEQUENCE, 0, "Feed sequence", U16, |_, wheel| {
+            wheel.feed.record_sequence().into()
+        })
+        .mappable(),
+        O::new(UNIT_STEP, 0, "Unit step", U8, Behaviour::UnitStep).mappable(),
         O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
-        O::var(FEED_DIAGNOSTICS, 1, "Ignored detents", U32),
-        O::var(FEED_DIAGNOSTICS, 2, "Dropped unit steps", U32),
-        O::var(FEED_DIAGNOSTICS, 3, "Unit-step backlog bound", U16)
+        O::wheel(FEED_DIAGNOSTICS, 1, "Ignored detents", U32, |_, wheel| {
+            wheel.feed.ignored_detents()
+        }),
+        O::wheel(
+            FEED_DIAGNOSTICS,
+            2,
+            "Dropped unit steps",
+            U32,
+            |_, wheel| wheel.feed.dropped_steps(),
+        ),
+        O::stored(FEED_DIAGNOSTICS, 3, "Unit-step backlog bound", U16)
             .rw(1, MAX_BACKLOG_BOUND as i16)
-            .default(DEFAULT_STEP_BACKLOG as u32)
-            .stored(),
-        O::var(POSITION_VALUE, 0, "Position value", I32).mappable(),
+            .default(DEFAULT_STEP_BACKLOG as u32),
+        O::wheel(POSITION_VALUE, 0, "Position value", I32, |state, _| {
+            state.position as u32
+        })
+        .mappable(),
     ]
 };
 
@@ -287,14 +422,15 @@ state the value describes (in TPDO1: the record's own).",
 ];
 
 /// The run-time entries of [`APP_OBJECTS`]; a record whose header does not name its last
-/// sub-index fails the build.
+/// sub-index, a row writable without a write and a refused value nothing checks fail the
+/// build.
 const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
     let mut entries = [OdEntry::highest_sub(0, 0); APP_OBJECTS.len()];
     let mut i = 0;
     while i < entries.len() {
         let o = &APP_OBJECTS[i];
         entries[i] = o.entry();
-        if o.header {
+        if o.is_header() {
             let mut last = i;
             while last + 1 < APP_OBJECTS.len() && APP_OBJECTS[last + 1].index == o.index {
                 last += 1;
@@ -304,41 +440,228 @@ const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
                 "a record's header names its highest sub-index"
             );
         }
+        let written = match o.behaviour {
+            Behaviour::Stored => true,
+            Behaviour::Wheel { write, .. } => write.is_some(),
+            Behaviour::Header | Behaviour::UnitStep => false,
+        };
+        assert!(
+            written == o.access.writable(),
+            "a row is writable exactly when something writes it"
+        );
+        assert!(
+            o.refused == 0 || o.is_stored(),
+            "only a stored parameter refuses values (WheelParameters::set checks them)"
+        );
         i += 1;
     }
     entries
 };
 
-/// How many parameters 0x1010 stores in the application's section.
-pub const STORED_LEN: usize = {
+/// The rows the run-time lookups hold.
+#[derive(Clone, Copy)]
+enum Rows {
+    /// Stored parameters.
+    Stored,
+    /// Values of the wheel.
+    Read,
+    /// Values of the wheel with a write.
+    Written,
+}
+
+/// How many rows are of `kind`.
+const fn count(kind: Rows) -> usize {
     let mut n = 0;
     let mut i = 0;
     while i < APP_OBJECTS.len() {
-        n += APP_OBJECTS[i].stored as usize;
+        n += match (APP_OBJECTS[i].behaviour, kind) {
+            (Behaviour::Stored, Rows::Stored) => 1,
+            (Behaviour::Wheel { .. }, Rows::Read) => 1,
+            (Behaviour::Wheel { write: Some(_), .. }, Rows::Written) => 1,
+            _ => 0,
+        };
         i += 1;
     }
     n
-};
+}
 
-/// The stored parameters in the order of the application's section: (index, sub-index,
-/// size in bytes), from the rows marked stored.
-pub const STORED: [(u16, u8, u8); STORED_LEN] = {
-    let mut list = [(0, 0, 0); STORED_LEN];
+/// The size in bytes of a row's value.
+const fn size(o: &AppObject) -> u8 {
+    match o.data_type.size() {
+        Some(n) => n as u8,
+        None => panic!("an application object is a number"),
+    }
+}
+
+/// One stored parameter: its object, where it sits in the stored section, and the values
+/// within its limits that its write refuses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StoredParameter {
+    /// Object index.
+    pub index: u16,
+    /// Sub-index.
+    pub sub: u8,
+    /// Its first byte in the stored section (after the version byte).
+    pub offset: u8,
+    /// Its bytes there (little-endian), the size of its type.
+    pub size: u8,
+    /// [`AppObject::refused`].
+    pub refused: u16,
+}
+
+/// How many parameters 0x1010 stores in the application's section.
+pub const STORED_LEN: usize = count(Rows::Stored);
+
+/// The stored parameters in the order of the application's section, from the rows marked
+/// stored.
+pub const STORED: [StoredParameter; STORED_LEN] = {
+    let mut list = [StoredParameter {
+        index: 0,
+        sub: 0,
+        offset: 0,
+        size: 0,
+        refused: 0,
+    }; STORED_LEN];
     let mut k = 0;
+    let mut offset = 0;
     let mut i = 0;
     while i < APP_OBJECTS.len() {
         let o = &APP_OBJECTS[i];
-        if o.stored {
-            let size = match o.data_type.size() {
-                Some(n) => n as u8,
-                None => panic!("a stored parameter is a number"),
+        if o.is_stored() {
+            list[k] = StoredParameter {
+                index: o.index,
+                sub: o.sub,
+                offset,
+                size: size(o),
+                refused: o.refused,
             };
-            list[k] = (o.index, o.sub, size);
+            offset += size(o);
             k += 1;
         }
         i += 1;
     }
     list
+};
+
+/// The bytes of the stored parameters, after the version byte of the application's section.
+pub const STORED_BYTES: usize = match STORED.last() {
+    Some(p) => (p.offset + p.size) as usize,
+    None => 0,
+};
+
+/// Where parameter `index:sub` sits in [`STORED`]; an object that is not one fails the build
+/// where the answer is a constant.
+pub(crate) const fn stored_slot(index: u16, sub: u8) -> usize {
+    let mut k = 0;
+    while k < STORED.len() {
+        if STORED[k].index == index && STORED[k].sub == sub {
+            return k;
+        }
+        k += 1;
+    }
+    panic!("not a stored parameter")
+}
+
+/// A value of the wheel as the device's read path looks it up at run time.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct WheelRead {
+    /// Object index.
+    pub index: u16,
+    /// Sub-index.
+    pub sub: u8,
+    /// The size of its type in bytes.
+    pub size: u8,
+    /// [`Behaviour::Wheel`]'s `read`.
+    pub read: ReadFn,
+}
+
+/// The rows read from the wheel, without what only the compiler and the EDS need.
+pub(crate) static WHEEL_READS: [WheelRead; count(Rows::Read)] = {
+    let mut routes = [WheelRead {
+        index: 0,
+        sub: 0,
+        size: 0,
+        read: |_, _| 0,
+    }; count(Rows::Read)];
+    let mut k = 0;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if let Behaviour::Wheel { read, .. } = o.behaviour {
+            routes[k] = WheelRead {
+                index: o.index,
+                sub: o.sub,
+                size: size(o),
+                read,
+            };
+            k += 1;
+        }
+        i += 1;
+    }
+    routes
+};
+
+/// A value of the wheel as the device's write path looks it up at run time.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct WheelWrite {
+    /// Object index.
+    pub index: u16,
+    /// Sub-index.
+    pub sub: u8,
+    /// [`Behaviour::Wheel`]'s `enables_feed`.
+    pub enables_feed: bool,
+    /// [`Behaviour::Wheel`]'s `write`.
+    pub write: WriteFn,
+}
+
+/// The rows of the wheel that are written.
+pub(crate) static WHEEL_WRITES: [WheelWrite; count(Rows::Written)] = {
+    let mut routes = [WheelWrite {
+        index: 0,
+        sub: 0,
+        enables_feed: false,
+        write: |_, _| {},
+    }; count(Rows::Written)];
+    let mut k = 0;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if let Behaviour::Wheel {
+            write: Some(write),
+            enables_feed,
+            ..
+        } = o.behaviour
+        {
+            routes[k] = WheelWrite {
+                index: o.index,
+                sub: o.sub,
+                enables_feed,
+                write,
+            };
+            k += 1;
+        }
+        i += 1;
+    }
+    routes
+};
+
+/// The object of the unit-step byte in flight: the one row of [`Behaviour::UnitStep`].
+pub(crate) const STEP_BYTE: (u16, u8) = {
+    let mut found = None;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if let Behaviour::UnitStep = o.behaviour {
+            assert!(found.is_none(), "one unit-step byte");
+            assert!(size(o) == 1, "the unit-step byte is one byte");
+            found = Some((o.index, o.sub));
+        }
+        i += 1;
+    }
+    match found {
+        Some(key) => key,
+        None => panic!("no unit-step byte"),
+    }
 };
 
 /// The whole dictionary; an unsorted or inconsistent table fails the build.

@@ -18,11 +18,11 @@ use crate::frame::NodeId;
 use crate::heartbeat::Heartbeat;
 use crate::identity::{CommDefaults, Identity};
 use crate::nmt::NmtState;
-use crate::od::{Access, DataType, Od, OdEntry, Value};
+use crate::od::{Access, DataType, ObjectCode, Od, OdEntry, Value};
 use crate::storage::Storage;
 use crate::sync::SyncConsumer;
 use crate::time::Instant;
-use crate::tpdo::{Tpdo, MAX_MAPPED, TPDOS};
+use crate::tpdo::{Tpdo, MAX_MAPPED, NO_RTR, TPDOS};
 
 /// The NMT state and the services behind the communication objects.
 #[derive(Clone, Debug, PartialEq)]
@@ -77,16 +77,72 @@ type Write = fn(&mut Comm, &mut WriteCtx<'_>, u16, u8, u32) -> Result<(), SdoAbo
 /// Sets a table default or a stored value, unchecked.
 type Restore = fn(&mut Comm, u16, u8, u32, Instant);
 
-/// One communication object, or one per PDO for the PDO parameter ranges.
-struct CommObject {
+/// One communication object, or one per PDO for the PDO parameter ranges: what CiA 301 calls
+/// it, its sub-indices and its behaviour. Its name and object code are for configuration
+/// tools (`cargo xtask eds` prints them); only its behaviour reaches the firmware image,
+/// through `ROUTES`.
+pub struct CommObject {
     first: u16,
     last: u16,
+    /// CiA 301's name; a PDO range's carries its PDO's number after the first word
+    /// ([`ObjectName`]).
+    name: &'static str,
+    code: ObjectCode,
     /// Its sub-indices (of each PDO's object, for the PDO ranges), as the dictionary lists
     /// them.
-    entries: &'static [Entry],
+    entries: &'static [CommEntry],
     read: Read,
     write: Write,
     restore: Restore,
+}
+
+impl CommObject {
+    /// The name of object `index`, one of this row's.
+    pub const fn name(&self, index: u16) -> ObjectName {
+        ObjectName {
+            text: self.name,
+            number: if self.first == self.last {
+                None
+            } else {
+                Some(index.wrapping_sub(self.first).wrapping_add(1))
+            },
+        }
+    }
+
+    /// VAR, ARRAY or RECORD.
+    pub const fn code(&self) -> ObjectCode {
+        self.code
+    }
+
+    /// Sub-index `sub`, if the object has it.
+    pub fn entry(&self, sub: u8) -> Option<&'static CommEntry> {
+        self.entries.iter().find(|e| e.sub == sub)
+    }
+}
+
+/// The name of a communication object: CiA 301's, with the PDO's number after the first
+/// word for the objects of one PDO ("TPDO communication parameter" of the first TPDO is
+/// "TPDO1 communication parameter").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ObjectName {
+    text: &'static str,
+    number: Option<u16>,
+}
+
+impl core::fmt::Display for ObjectName {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match (self.number, self.text.split_once(' ')) {
+            (Some(n), Some((first, rest))) => write!(f, "{first}{n} {rest}"),
+            (Some(n), None) => write!(f, "{}{n}", self.text),
+            (None, _) => f.write_str(self.text),
+        }
+    }
+}
+
+/// The communication object of `index` (the PDO ranges' row for any of their indices), for
+/// configuration tools: the engine finds its objects through `ROUTES`.
+pub fn comm_object(index: u16) -> Option<&'static CommObject> {
+    OBJECTS.iter().find(|o| (o.first..=o.last).contains(&index))
 }
 
 /// Where the value of a communication entry comes from: a number CiA 301 or the engine
@@ -126,43 +182,57 @@ enum Kind {
 
 /// One sub-index of a communication object.
 #[derive(Clone, Copy)]
-struct Entry {
+pub struct CommEntry {
     sub: u8,
+    name: &'static str,
     data_type: DataType,
     access: Access,
     kind: Kind,
     source: Source,
     /// A parameter 0x1010 stores.
     stored: bool,
+    hex: bool,
+    limits: Option<(i64, i64)>,
 }
 
-impl Entry {
+impl CommEntry {
     /// A value fixed at build time.
-    const fn constant(sub: u8, data_type: DataType, source: Source) -> Self {
+    const fn constant(sub: u8, name: &'static str, data_type: DataType, source: Source) -> Self {
         Self {
             sub,
+            name,
             data_type,
             access: Access::Const,
             kind: Kind::Constant,
             source,
             stored: false,
+            hex: false,
+            limits: None,
         }
     }
 
     /// Sub-index 0 of a record or array: its highest sub-index.
     const fn highest(highest: u8) -> Self {
-        Self::constant(0, DataType::U8, Source::Fixed(highest as u32))
+        Self::constant(
+            0,
+            "Highest sub-index supported",
+            DataType::U8,
+            Source::Fixed(highest as u32),
+        )
     }
 
     /// A parameter the engine owns, not stored.
-    const fn parameter(sub: u8, data_type: DataType, access: Access, source: Source) -> Self {
+    const fn parameter(
+        sub: u8,
+        name: &'static str,
+        data_type: DataType,
+        access: Access,
+        source: Source,
+    ) -> Self {
         Self {
-            sub,
-            data_type,
             access,
             kind: Kind::Parameter,
-            source,
-            stored: false,
+            ..Self::constant(sub, name, data_type, source)
         }
     }
 
@@ -176,6 +246,36 @@ impl Entry {
     const fn plus_node_id(mut self) -> Self {
         self.kind = Kind::ParameterPlusNodeId;
         self
+    }
+
+    /// Written in hexadecimal by configuration tools: an identifier or a code.
+    const fn hex(mut self) -> Self {
+        self.hex = true;
+        self
+    }
+
+    /// The values the object's own write check lets through, narrower than its type's.
+    const fn limits(mut self, low: i64, high: i64) -> Self {
+        self.limits = Some((low, high));
+        self
+    }
+
+    /// CiA 301's name of the sub-index.
+    pub const fn name(&self) -> &'static str {
+        self.name
+    }
+
+    /// Whether configuration tools write the value in hexadecimal (identifiers, codes,
+    /// mapping entries); a node-ID-relative default is always written so.
+    pub const fn is_hex(&self) -> bool {
+        self.hex
+    }
+
+    /// The values a write may set when the object's own check is narrower than its type
+    /// (the table's range covers application objects only): a configuration tool's
+    /// LowLimit/HighLimit.
+    pub const fn write_limits(&self) -> Option<(i64, i64)> {
+        self.limits
     }
 
     /// The dictionary's entry at `index` (of PDO `pdo`, 0-based, for the PDO ranges).
@@ -199,7 +299,8 @@ impl Entry {
             Source::EmcyInhibit => d.emcy_inhibit_100us as u32,
             Source::Consumer(n) => d.heartbeat_consumers[n],
             Source::Heartbeat => d.heartbeat_ms as u32,
-            Source::TpdoCobId => t.cob_id_base,
+            // Bit 30 reads 1 whatever is written (no RTR): the default says so too.
+            Source::TpdoCobId => t.cob_id_base | NO_RTR,
             Source::TpdoType => t.transmission_type as u32,
             Source::TpdoInhibit => t.inhibit_100us as u32,
             Source::TpdoEventTimer => t.event_timer_ms as u32,
@@ -258,250 +359,335 @@ fn on_command(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
 }
 
 /// The communication objects, by index. The engine looks them up in [`ROUTES`], the rows
-/// with behaviour without what only the compiler needs.
-const OBJECTS: &[CommObject] = &[
-    // Device type.
-    CommObject {
-        first: 0x1000,
-        last: 0x1000,
-        entries: &[Entry::constant(0, DataType::U32, Source::DeviceType)],
-        read: constants_only,
-        write: read_only,
-        restore: not_a_parameter,
-    },
-    // Error register.
-    CommObject {
-        first: 0x1001,
-        last: 0x1001,
-        entries: &[Entry::parameter(
-            0,
-            DataType::U8,
-            Access::Ro,
-            Source::Fixed(0),
-        )],
-        read: |c, _, _| Ok(c.emcy.error_register().into()),
-        write: read_only,
-        restore: not_a_parameter,
-    },
-    // Pre-defined error field (history): writing 0 to sub 0 clears it.
-    CommObject {
-        first: 0x1003,
-        last: 0x1003,
-        entries: &[
-            Entry::parameter(0, DataType::U8, Access::Rw, Source::Fixed(0)),
-            Entry::parameter(1, DataType::U32, Access::Ro, Source::Fixed(0)),
-            Entry::parameter(2, DataType::U32, Access::Ro, Source::Fixed(0)),
-            Entry::parameter(3, DataType::U32, Access::Ro, Source::Fixed(0)),
-            Entry::parameter(4, DataType::U32, Access::Ro, Source::Fixed(0)),
-        ],
-        read: emcy_read,
-        write: emcy_write,
-        restore: not_a_parameter,
-    },
-    // COB-ID SYNC.
-    CommObject {
-        first: 0x1005,
-        last: 0x1005,
-        entries: &[Entry::parameter(0, DataType::U32, Access::Rw, Source::Fixed(0x80)).stored()],
-        read: |c, _, _| Ok(c.sync.cob_id()),
-        write: |c, _, _, _, v| {
-            c.check_cob_id(CobSlot::Sync, v)?;
-            c.sync.set(v);
-            Ok(())
+/// with behaviour without what only the compiler and configuration tools need.
+const OBJECTS: &[CommObject] = {
+    use Access::{Ro, Rw};
+    use CommEntry as E;
+    use DataType::{VisibleString, U16, U32, U8};
+    use ObjectCode::{Array, Record, Var};
+    &[
+        CommObject {
+            first: 0x1000,
+            last: 0x1000,
+            name: "Device type",
+            code: Var,
+            entries: &[E::constant(0, "Device type", U32, Source::DeviceType).hex()],
+            read: constants_only,
+            write: read_only,
+            restore: not_a_parameter,
         },
-        restore: |c, _, _, v, _| c.sync.set(v),
-    },
-    // Manufacturer device name.
-    CommObject {
-        first: 0x1008,
-        last: 0x1008,
-        entries: &[Entry::constant(
-            0,
-            DataType::VisibleString,
-            Source::DeviceName,
-        )],
-        read: constants_only,
-        write: read_only,
-        restore: not_a_parameter,
-    },
-    // Manufacturer hardware version.
-    CommObject {
-        first: 0x1009,
-        last: 0x1009,
-        entries: &[Entry::constant(
-            0,
-            DataType::VisibleString,
-            Source::HardwareVersion,
-        )],
-        read: constants_only,
-        write: read_only,
-        restore: not_a_parameter,
-    },
-    // Manufacturer software version.
-    CommObject {
-        first: 0x100A,
-        last: 0x100A,
-        entries: &[Entry::constant(
-            0,
-            DataType::VisibleString,
-            Source::SoftwareVersion,
-        )],
-        read: constants_only,
-        write: read_only,
-        restore: not_a_parameter,
-    },
-    // Store parameters.
-    CommObject {
-        first: 0x1010,
-        last: 0x1010,
-        entries: &[
-            Entry::highest(3),
-            Entry::parameter(1, DataType::U32, Access::Rw, Source::Fixed(0)),
-            Entry::parameter(2, DataType::U32, Access::Rw, Source::Fixed(0)),
-            Entry::parameter(3, DataType::U32, Access::Rw, Source::Fixed(0)),
-        ],
-        read: on_command,
-        write: |c, ctx, _, sub, v| params::save(c, ctx, sub, v),
-        restore: not_a_parameter,
-    },
-    // Restore default parameters.
-    CommObject {
-        first: 0x1011,
-        last: 0x1011,
-        entries: &[
-            Entry::highest(3),
-            Entry::parameter(1, DataType::U32, Access::Rw, Source::Fixed(0)),
-            Entry::parameter(2, DataType::U32, Access::Rw, Source::Fixed(0)),
-            Entry::parameter(3, DataType::U32, Access::Rw, Source::Fixed(0)),
-        ],
-        read: on_command,
-        write: |_, ctx, _, sub, v| params::forget(ctx, sub, v),
-        restore: not_a_parameter,
-    },
-    // COB-ID EMCY.
-    CommObject {
-        first: 0x1014,
-        last: 0x1014,
-        entries: &[
-            Entry::parameter(0, DataType::U32, Access::Rw, Source::Fixed(0x80))
+        CommObject {
+            first: 0x1001,
+            last: 0x1001,
+            name: "Error register",
+            code: Var,
+            entries: &[E::parameter(0, "Error register", U8, Ro, Source::Fixed(0))],
+            read: |c, _, _| Ok(c.emcy.error_register().into()),
+            write: read_only,
+            restore: not_a_parameter,
+        },
+        // The error history: writing 0 to sub 0 clears it.
+        CommObject {
+            first: 0x1003,
+            last: 0x1003,
+            name: "Pre-defined error field",
+            code: Array,
+            entries: &[
+                E::parameter(0, "Number of errors", U8, Rw, Source::Fixed(0)),
+                E::parameter(1, "Standard error field 1", U32, Ro, Source::Fixed(0)),
+                E::parameter(2, "Standard error field 2", U32, Ro, Source::Fixed(0)),
+                E::parameter(3, "Standard error field 3", U32, Ro, Source::Fixed(0)),
+                E::parameter(4, "Standard error field 4", U32, Ro, Source::Fixed(0)),
+            ],
+            read: emcy_read,
+            write: emcy_write,
+            restore: not_a_parameter,
+        },
+        CommObject {
+            first: 0x1005,
+            last: 0x1005,
+            name: "COB-ID SYNC",
+            code: Var,
+            entries: &[E::parameter(0, "COB-ID SYNC", U32, Rw, Source::Fixed(0x80))
+                .hex()
+                .stored()],
+            read: |c, _, _| Ok(c.sync.cob_id()),
+            write: |c, _, _, _, v| {
+                c.check_cob_id(CobSlot::Sync, v)?;
+                c.sync.set(v);
+                Ok(())
+            },
+            restore: |c, _, _, v, _| c.sync.set(v),
+        },
+        CommObject {
+            first: 0x1008,
+            last: 0x1008,
+            name: "Manufacturer device name",
+            code: Var,
+            entries: &[E::constant(
+                0,
+                "Manufacturer device name",
+                VisibleString,
+                Source::DeviceName,
+            )],
+            read: constants_only,
+            write: read_only,
+            restore: not_a_parameter,
+        },
+        CommObject {
+            first: 0x1009,
+            last: 0x1009,
+            name: "Manufacturer hardware version",
+            code: Var,
+            entries: &[E::constant(
+                0,
+                "Manufacturer hardware version",
+                VisibleString,
+                Source::HardwareVersion,
+            )],
+            read: constants_only,
+            write: read_only,
+            restore: not_a_parameter,
+        },
+        CommObject {
+            first: 0x100A,
+            last: 0x100A,
+            name: "Manufacturer software version",
+            code: Var,
+            entries: &[E::constant(
+                0,
+                "Manufacturer software version",
+                VisibleString,
+                Source::SoftwareVersion,
+            )],
+            read: constants_only,
+            write: read_only,
+            restore: not_a_parameter,
+        },
+        // Each sub-index reads 1: it saves on command (CiA 301).
+        CommObject {
+            first: 0x1010,
+            last: 0x1010,
+            name: "Store parameters",
+            code: Array,
+            entries: &[
+                E::highest(3),
+                E::parameter(1, "Save all parameters", U32, Rw, Source::Fixed(1)),
+                E::parameter(
+                    2,
+                    "Save communication parameters",
+                    U32,
+                    Rw,
+                    Source::Fixed(1),
+                ),
+                E::parameter(3, "Save application parameters", U32, Rw, Source::Fixed(1)),
+            ],
+            read: on_command,
+            write: |c, ctx, _, sub, v| params::save(c, ctx, sub, v),
+            restore: not_a_parameter,
+        },
+        // Each sub-index reads 1: it restores on command (CiA 301).
+        CommObject {
+            first: 0x1011,
+            last: 0x1011,
+            name: "Restore default parameters",
+            code: Array,
+            entries: &[
+                E::highest(3),
+                E::parameter(
+                    1,
+                    "Restore all default parameters",
+                    U32,
+                    Rw,
+                    Source::Fixed(1),
+                ),
+                E::parameter(
+                    2,
+                    "Restore communication default parameters",
+                    U32,
+                    Rw,
+                    Source::Fixed(1),
+                ),
+                E::parameter(
+                    3,
+                    "Restore application default parameters",
+                    U32,
+                    Rw,
+                    Source::Fixed(1),
+                ),
+            ],
+            read: on_command,
+            write: |_, ctx, _, sub, v| params::forget(ctx, sub, v),
+            restore: not_a_parameter,
+        },
+        CommObject {
+            first: 0x1014,
+            last: 0x1014,
+            name: "COB-ID EMCY",
+            code: Var,
+            entries: &[E::parameter(0, "COB-ID EMCY", U32, Rw, Source::Fixed(0x80))
                 .plus_node_id()
-                .stored(),
-        ],
-        read: emcy_read,
-        write: |c, _, index, sub, v| {
-            c.check_cob_id(CobSlot::Emcy, v)?;
-            c.emcy.write(index, sub, v)
+                .stored()],
+            read: emcy_read,
+            write: |c, _, index, sub, v| {
+                c.check_cob_id(CobSlot::Emcy, v)?;
+                c.emcy.write(index, sub, v)
+            },
+            restore: emcy_restore,
         },
-        restore: emcy_restore,
-    },
-    // Inhibit time EMCY.
-    CommObject {
-        first: 0x1015,
-        last: 0x1015,
-        entries: &[Entry::parameter(0, DataType::U16, Access::Rw, Source::EmcyInhibit).stored()],
-        read: emcy_read,
-        write: emcy_write,
-        restore: emcy_restore,
-    },
-    // Consumer heartbeat time.
-    CommObject {
-        first: 0x1016,
-        last: 0x1016,
-        entries: &[
-            Entry::highest(2),
-            Entry::parameter(1, DataType::U32, Access::Rw, Source::Consumer(0)).stored(),
-            Entry::parameter(2, DataType::U32, Access::Rw, Source::Consumer(1)).stored(),
-        ],
-        read: |c, _, sub| c.heartbeat.consumer(sub),
-        write: |c, _, _, sub, v| match c.node {
-            Some(own) => c.heartbeat.write_consumer(sub, v, own),
-            None => Err(SdoAbort::DeviceState),
+        CommObject {
+            first: 0x1015,
+            last: 0x1015,
+            name: "Inhibit time EMCY",
+            code: Var,
+            entries: &[E::parameter(0, "Inhibit time EMCY", U16, Rw, Source::EmcyInhibit).stored()],
+            read: emcy_read,
+            write: emcy_write,
+            restore: emcy_restore,
         },
-        restore: |c, _, sub, v, _| c.heartbeat.set_consumer(sub, v),
-    },
-    // Producer heartbeat time (typed U16 in the table, so the truncation is lossless).
-    CommObject {
-        first: 0x1017,
-        last: 0x1017,
-        entries: &[Entry::parameter(0, DataType::U16, Access::Rw, Source::Heartbeat).stored()],
-        read: |c, _, _| Ok(c.heartbeat.producer_ms().into()),
-        write: |c, ctx, _, _, v| {
-            c.heartbeat.set_producer(v as u16, ctx.now);
-            Ok(())
+        CommObject {
+            first: 0x1016,
+            last: 0x1016,
+            name: "Consumer heartbeat time",
+            code: Array,
+            entries: &[
+                E::highest(2),
+                E::parameter(1, "Consumer heartbeat time 1", U32, Rw, Source::Consumer(0)).stored(),
+                E::parameter(2, "Consumer heartbeat time 2", U32, Rw, Source::Consumer(1)).stored(),
+            ],
+            read: |c, _, sub| c.heartbeat.consumer(sub),
+            write: |c, _, _, sub, v| match c.node {
+                Some(own) => c.heartbeat.write_consumer(sub, v, own),
+                None => Err(SdoAbort::DeviceState),
+            },
+            restore: |c, _, sub, v, _| c.heartbeat.set_consumer(sub, v),
         },
-        restore: |c, _, _, v, now| c.heartbeat.set_producer(v as u16, now),
-    },
-    // Identity: the serial number (the other entries are constants).
-    CommObject {
-        first: 0x1018,
-        last: 0x1018,
-        entries: &[
-            Entry::highest(4),
-            Entry::constant(1, DataType::U32, Source::VendorId),
-            Entry::constant(2, DataType::U32, Source::ProductCode),
-            Entry::constant(3, DataType::U32, Source::Revision),
-            Entry::parameter(4, DataType::U32, Access::Ro, Source::Fixed(0)),
-        ],
-        read: |c, _, _| Ok(c.serial),
-        write: read_only,
-        restore: not_a_parameter,
-    },
-    // TPDO communication parameters.
-    CommObject {
-        first: 0x1800,
-        last: 0x19FF,
-        entries: &[
-            Entry::highest(5),
-            Entry::parameter(1, DataType::U32, Access::Rw, Source::TpdoCobId)
-                .plus_node_id()
-                .stored(),
-            Entry::parameter(2, DataType::U8, Access::Rw, Source::TpdoType).stored(),
-            Entry::parameter(3, DataType::U16, Access::Rw, Source::TpdoInhibit).stored(),
-            Entry::parameter(5, DataType::U16, Access::Rw, Source::TpdoEventTimer).stored(),
-        ],
-        read: |c, index, sub| c.tpdo(index - 0x1800)?.read_comm(sub),
-        write: |c, ctx, index, sub, v| {
-            let n = index - 0x1800;
-            c.tpdo(n)?;
-            if sub == 1 {
-                c.check_cob_id(CobSlot::Tpdo(usize::from(n)), v)?;
-            }
-            let operational = c.state == NmtState::Operational;
-            c.tpdo_mut(n)?.write_comm(sub, v, ctx.now, operational)
+        // Typed U16 in the table, so the truncations are lossless.
+        CommObject {
+            first: 0x1017,
+            last: 0x1017,
+            name: "Producer heartbeat time",
+            code: Var,
+            entries: &[
+                E::parameter(0, "Producer heartbeat time", U16, Rw, Source::Heartbeat).stored(),
+            ],
+            read: |c, _, _| Ok(c.heartbeat.producer_ms().into()),
+            write: |c, ctx, _, _, v| {
+                c.heartbeat.set_producer(v as u16, ctx.now);
+                Ok(())
+            },
+            restore: |c, _, _, v, now| c.heartbeat.set_producer(v as u16, now),
         },
-        restore: |c, index, sub, v, _| {
-            if let Ok(t) = c.tpdo_mut(index - 0x1800) {
-                t.set_comm(sub, v);
-            }
+        // The serial number is read; the other entries are constants.
+        CommObject {
+            first: 0x1018,
+            last: 0x1018,
+            name: "Identity object",
+            code: Record,
+            entries: &[
+                E::highest(4),
+                E::constant(1, "Vendor-ID", U32, Source::VendorId).hex(),
+                E::constant(2, "Product code", U32, Source::ProductCode).hex(),
+                E::constant(3, "Revision number", U32, Source::Revision).hex(),
+                E::parameter(4, "Serial number", U32, Ro, Source::Fixed(0)),
+            ],
+            read: |c, _, _| Ok(c.serial),
+            write: read_only,
+            restore: not_a_parameter,
         },
-    },
-    // TPDO mapping parameters.
-    CommObject {
-        first: 0x1A00,
-        last: 0x1BFF,
-        entries: &[
-            Entry::parameter(0, DataType::U8, Access::Rw, Source::MappedCount).stored(),
-            Entry::parameter(1, DataType::U32, Access::Rw, Source::Mapped(0)).stored(),
-            Entry::parameter(2, DataType::U32, Access::Rw, Source::Mapped(1)).stored(),
-            Entry::parameter(3, DataType::U32, Access::Rw, Source::Mapped(2)).stored(),
-            Entry::parameter(4, DataType::U32, Access::Rw, Source::Mapped(3)).stored(),
-            Entry::parameter(5, DataType::U32, Access::Rw, Source::Mapped(4)).stored(),
-            Entry::parameter(6, DataType::U32, Access::Rw, Source::Mapped(5)).stored(),
-            Entry::parameter(7, DataType::U32, Access::Rw, Source::Mapped(6)).stored(),
-            Entry::parameter(8, DataType::U32, Access::Rw, Source::Mapped(7)).stored(),
-        ],
-        read: |c, index, sub| c.tpdo(index - 0x1A00)?.read_mapping(sub),
-        write: |c, _, index, sub, v| {
-            let od = c.od;
-            c.tpdo_mut(index - 0x1A00)?.write_mapping(sub, v, &od)
+        CommObject {
+            first: 0x1800,
+            last: 0x19FF,
+            name: "TPDO communication parameter",
+            code: Record,
+            entries: &[
+                E::highest(5),
+                E::parameter(1, "COB-ID used by TPDO", U32, Rw, Source::TpdoCobId)
+                    .plus_node_id()
+                    .stored(),
+                E::parameter(2, "Transmission type", U8, Rw, Source::TpdoType).stored(),
+                E::parameter(3, "Inhibit time", U16, Rw, Source::TpdoInhibit).stored(),
+                E::parameter(5, "Event timer", U16, Rw, Source::TpdoEventTimer).stored(),
+            ],
+            read: |c, index, sub| c.tpdo(index - 0x1800)?.read_comm(sub),
+            write: |c, ctx, index, sub, v| {
+                let n = index - 0x1800;
+                c.tpdo(n)?;
+                if sub == 1 {
+                    c.check_cob_id(CobSlot::Tpdo(usize::from(n)), v)?;
+                }
+                let operational = c.state == NmtState::Operational;
+                c.tpdo_mut(n)?.write_comm(sub, v, ctx.now, operational)
+            },
+            restore: |c, index, sub, v, _| {
+                if let Ok(t) = c.tpdo_mut(index - 0x1800) {
+                    t.set_comm(sub, v);
+                }
+            },
         },
-        restore: |c, index, sub, v, _| {
-            if let Ok(t) = c.tpdo_mut(index - 0x1A00) {
-                t.set_mapping(sub, v);
-            }
+        CommObject {
+            first: 0x1A00,
+            last: 0x1BFF,
+            name: "TPDO mapping parameter",
+            code: Record,
+            entries: &[
+                // A count above what a PDO holds is refused.
+                E::parameter(0, "Number of mapped objects", U8, Rw, Source::MappedCount)
+                    .limits(0, MAX_MAPPED as i64)
+                    .stored(),
+                E::parameter(1, "Mapped object 1", U32, Rw, Source::Mapped(0))
+                    .hex()
+                    .stored(),
+                E::parameter(2, "Mapped object 2", U32, Rw, Source::Mapped(1))
+                    .hex()
+                    .stored(),
+                E::parameter(3, "Mapped object 3", U32, Rw, Source::Mapped(2))
+                    .hex()
+                    .stored(),
+                E::parameter(4, "Mapped object 4", U32, Rw, Source::Mapped(3))
+                    .hex()
+                    .stored(),
+                E::parameter(5, "Mapped object 5", U32, Rw, Source::Mapped(4))
+                    .hex()
+                    .stored(),
+                E::parameter(6, "Mapped object 6", U32, Rw, Source::Mapped(5))
+                    .hex()
+                    .stored(),
+                E::parameter(7, "Mapped object 7", U32, Rw, Source::Mapped(6))
+                    .hex()
+                    .stored(),
+                E::parameter(8, "Mapped object 8", U32, Rw, Source::Mapped(7))
+                    .hex()
+                    .stored(),
+            ],
+            read: |c, index, sub| c.tpdo(index - 0x1A00)?.read_mapping(sub),
+            write: |c, _, index, sub, v| {
+                let od = c.od;
+                c.tpdo_mut(index - 0x1A00)?.write_mapping(sub, v, &od)
+            },
+            restore: |c, index, sub, v, _| {
+                if let Ok(t) = c.tpdo_mut(index - 0x1A00) {
+                    t.set_mapping(sub, v);
+                }
+            },
         },
-    },
-];
+    ]
+};
+
+/// A VAR row is its one sub-index 0; an ARRAY or RECORD row starts with the sub-index 0 that
+/// counts the others.
+const _: () = {
+    let mut i = 0;
+    while i < OBJECTS.len() {
+        let o = &OBJECTS[i];
+        let var = matches!(o.code, ObjectCode::Var);
+        assert!(
+            o.entries[0].sub == 0 && (o.entries.len() == 1) == var,
+            "a VAR is one sub-index 0, an ARRAY or RECORD counts its sub-indices in sub-index 0"
+        );
+        i += 1;
+    }
+};
 
 /// How many sub-indices [`standard_objects`] lists: one per entry of a single object, one
 /// per entry and PDO of a PDO range.
@@ -977,5 +1163,29 @@ impl Comm {
             }
             Value::Const(_) | Value::Str(_) => Err(SdoAbort::ReadOnly),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::string::ToString;
+
+    #[test]
+    fn a_pdo_object_is_named_with_its_pdo_number() {
+        let name = |index| comm_object(index).map(|o| o.name(index).to_string());
+        assert_eq!(
+            name(0x1800).as_deref(),
+            Some("TPDO1 communication parameter")
+        );
+        assert_eq!(name(0x1A01).as_deref(), Some("TPDO2 mapping parameter"));
+        assert_eq!(name(0x1017).as_deref(), Some("Producer heartbeat time"));
+        assert_eq!(name(0x1002), None);
+        let mapped = comm_object(0x1A01).and_then(|o| o.entry(3));
+        assert_eq!(
+            mapped.map(|e| (e.name(), e.is_hex())),
+            Some(("Mapped object 3", true))
+        );
     }
 }
