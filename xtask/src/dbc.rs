@@ -203,7 +203,7 @@ fn signals_of(index: u16, sub: u8, offset: u32, bits: u32) -> Result<Vec<Signal>
 fn row(index: u16, sub: u8) -> Result<(&'static str, DataType), String> {
     APP_OBJECTS
         .iter()
-        .find(|o| (o.index, o.sub) == (index, sub) && !o.header)
+        .find(|o| (o.index, o.sub) == (index, sub) && !o.is_header())
         .map(|o| (o.name, o.data_type))
         .ok_or_else(|| format!("0x{index:04X}:{sub}: no row in APP_OBJECTS"))
 }
