@@ -166,7 +166,10 @@ pub fn host_pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a
 /// `python -m pytest tests/interop` on [`INTEROP_WORKERS`] workers (pytest-xdist), then
 /// `<extra>` (`-n 0` there runs in one process), in a shell in the workspace root.
 pub fn pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a> {
-    cmd!(sh, "{python} -m pytest {SUITE} -n {INTEROP_WORKERS} {extra...}")
+    cmd!(
+        sh,
+        "{python} -m pytest {SUITE} -n {INTEROP_WORKERS} {extra...}"
+    )
 }
 
 /// The interop suite's pytest-xdist workers: every test runs its own board on free ports in
