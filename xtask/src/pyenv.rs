@@ -163,10 +163,19 @@ pub fn host_pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a
     cmd!(sh, "{python} -m pytest {extra...}")
 }
 
-/// `python -m pytest tests/interop <extra>`, in a shell in the workspace root.
+/// `python -m pytest tests/interop` on [`INTEROP_WORKERS`] workers (pytest-xdist), then
+/// `<extra>` (`-n 0` there runs in one process), in a shell in the workspace root.
 pub fn pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a> {
-    cmd!(sh, "{python} -m pytest {SUITE} {extra...}")
+    cmd!(
+        sh,
+        "{python} -m pytest {SUITE} -n {INTEROP_WORKERS} {extra...}"
+    )
 }
+
+/// The interop suite's pytest-xdist workers: every test runs its own board on free ports in
+/// its own folder, and a test spends most of its time waiting on the board's clock (one
+/// board and its master use under one core), so two workers keep a 2-core machine busy.
+pub const INTEROP_WORKERS: &str = "2";
 
 #[cfg(test)]
 mod tests {
