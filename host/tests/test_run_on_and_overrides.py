@@ -155,10 +155,10 @@ def test_linuxcncs_planner_rests_a_few_periods_after_the_continuous_profile():
 def test_linuxcnc_rests_within_the_budget_after_metered_counts(
     v, a, period, budget, detent, bursts
 ):
-    """Bursts of detents (`detent` a fraction of what the budget reaches from rest) metered
-    from the state the step model of LinuxCNC's planner is in after the bursts before, some
-    taken a servo period late: after each, the model rests within the budget. Counts that
-    bring the target back towards the axis, which are not metered, are left out."""
+    """Bursts of detents either way (`detent` a fraction of what the budget reaches from
+    rest) metered from the state the step model of LinuxCNC's planner is in after the
+    bursts before, some taken a servo period late: after each, the model rests within the
+    budget."""
     unit = detent * core.run_on_reach(budget, v, a)
     assume(unit > 0)
     pos = vel = target = 0.0
@@ -166,9 +166,6 @@ def test_linuxcnc_rests_within_the_budget_after_metered_counts(
         for _ in range(periods):  # time passes: the planner runs on towards `target`
             pos, vel = linuxcnc_step(pos, vel, target, v, a, period)
         motion = AxisMotion(target - pos, vel, v, a, servo_period=period)
-        direction = 1 if detents > 0 else -1
-        if (target - pos) * direction + abs(detents) * unit <= 0:
-            continue  # turning back: not metered
         out = core.meter_counts(detents, 1, unit, motion, budget)
         if out == 0:
             continue
@@ -201,8 +198,16 @@ def test_meter_the_field_reports_bursts():
     assert (
         core.meter_counts(300, 100, 0.001, replace(continuous, lead=0.2, velocity=V), BUDGET) == 200
     )
-    # Turning back while the target stays ahead always goes: the run-on only shrinks.
+    # Turning back while the target stays ahead: this axis stops from full speed in 0.1 s,
+    # and stopping and coming back over its stopping distance (0.241 s) fits the 0.242 s
+    # the planner is given: all of it goes, even back to the axis itself.
     assert core.meter_counts(-200, 100, 0.001, AxisMotion(0.3, 2.0, V, A), BUDGET) == -200
+    assert core.meter_counts(-280, 10, 0.001, AxisMotion(0.28, 2.0, V, A), BUDGET) == -280
+    # An axis that needs 0.2 s to stop (a = 10), 0.28 ahead at full speed: back to the axis
+    # it would stop 0.2 on and come back, 0.48 s; what goes leaves the target 0.2 ahead,
+    # which it reaches braking (0.2 s), and 0.196 is as close as the budget allows.
+    slow_to_stop = AxisMotion(0.28, 2.0, V, 10.0)
+    assert core.meter_counts(-280, 10, 0.001, slow_to_stop, BUDGET) == -80
     # Past the axis, against its motion at 2: it brakes for 0.1 (0.1 on), and has 0.14 s
     # left of the 0.242 s the planner is given to come back: to 0.0 fits (0.141 s), to -0.1
     # does not.

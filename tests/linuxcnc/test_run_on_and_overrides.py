@@ -159,6 +159,32 @@ def test_a_fast_spin_runs_on_at_most_the_budget(machine, slow_y):
     assert machine.pins()["axis.y.jog-counts"] == samples[-1][1]
 
 
+def test_turning_back_after_a_spin_rests_within_the_budget(machine, slow_y):
+    """Y made to stop slower (10 mm/s^2: 0.2 s and 0.2 mm from full speed), 60 detents spun
+    forward (it leads by 0.15 or so at 1.8 mm/s), then one back at once: the target would
+    still lead, by less than the stopping distance, so the axis would stop past it and come
+    back (0.35 s and more in all). The component lets only what the axis can rest at within
+    the budget go (no detent of the turn back here), and Y rests within the budget of the
+    record of the last detent."""
+    with machine.slow_axis("y", V, 10.0):
+        start = machine.pos()
+        counts = machine.pins()["axis.y.jog-counts"]
+        machine.watch(5, COUNTS_Y, POS_Y, TARGET_Y)
+        mark = machine.frames.mark()
+        spin(machine, 60, pause=0.0, step=10)
+        machine.stim.turn(-1)
+        samples = machine.watched(quiet=0.4)
+        stopped = last_change(samples, 2)[0]
+        _, last_record = detent_records(machine, mark)
+        sent = samples[-1][1] - counts
+        print(
+            f"turning back: moved {samples[-1][2] - start[1]:.3f} ({sent} counts), at rest "
+            f"{stopped - last_record:.3f} s after the record of the last detent"
+        )
+        assert stopped - last_record <= BUDGET + STOP_SLACK
+        assert sent % 100 == 0 and abs(samples[-1][2] - start[1] - sent * SCALE) < TOL
+
+
 @pytest.mark.parametrize("stop", ["off", "estop"])
 def test_a_stop_during_a_run_on_releases_nothing(machine, slow_y, stop):
     """Ten quick detents, then at once the machine off (`off`) or E-stop (`estop`), and the

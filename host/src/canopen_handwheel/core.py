@@ -728,7 +728,11 @@ def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budg
     `budget` seconds in LinuxCNC (`run_on_reach` within the budget less `planner_lag`, from
     its lead and velocity as `motion` shows them): whole detents, the first ones of `pending`;
     the rest is dropped by the caller, never held. Counts that bring the target back towards
-    the axis (turning back) always go: they shorten the run-on."""
+    the axis (turning back) are no exception: where the axis must stop and come back to the
+    new target, that can take longer than going on to the old one. An axis that stops from
+    full speed within (budget less `planner_lag`) / 2.414 (v / a; 1 + sqrt(2): stopping and
+    coming back over its stopping distance) lets every such count go that keeps the target
+    ahead of it."""
     if pending == 0:
         return 0
     step = abs(step) or 1
@@ -736,8 +740,6 @@ def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budg
     unit = abs(step * scale)  # machine units per detent
     direction = 1 if pending * scale > 0 else -1
     ahead = motion.lead * direction  # the target's lead in the direction of the new counts
-    if ahead + detents * unit <= 0:
-        return pending  # the target stays at or behind the axis: the run-on shrinks
     v, a = motion.max_velocity, motion.max_acceleration
     planned = budget - planner_lag(v, a, motion.servo_period)
     reach = run_on_reach(planned, v, a, motion.velocity * direction)
