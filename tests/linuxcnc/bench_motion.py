@@ -69,15 +69,17 @@ def latency(machine, mode: str) -> None:
     time.sleep(0.3)
     commands = []
     # Each `turn 1` takes about 28 ms of the board's time (edges, then its reply 25 ms after
-    # the last), more when the board's clock slips: 40 ms a detent besides the pause.
-    machine.watch(DETENTS * (PAUSE + 0.04) + 1.0, COUNTS_X, POS_X)
+    # the last), more when the board's clock slips (twice that on a busy machine): the
+    # sampling may last four times 40 ms a detent besides the pause, and ends half a second
+    # after the last change.
+    machine.watch(DETENTS * (PAUSE + 0.16) + 1.0, COUNTS_X, POS_X)
     time.sleep(0.1)
     for i in range(DETENTS):
         sent = time.monotonic()
         machine.stim.turn(1 if i % 2 == 0 else -1)
         commands.append((sent, time.monotonic()))
         time.sleep(PAUSE)
-    reply = machine.cnc.must("watched")
+    reply = machine.cnc.must("watched 0.5")
     samples = [tuple(s) for s in reply["samples"]]
     to_counts, to_pos, round_trip = [], [], []
     for sent, answered in commands:
