@@ -131,6 +131,8 @@ def test_override_pins_and_the_axis_reader():
     reader = component.AxisReader(Hal)
     assert reader.teleop()
     assert reader.motion("y") == core.AxisMotion(0.25, -0.5, 2.0, 10.0, target=1.25)
+    assert reader.motion("y").servo_period == core.SERVO_PERIOD
+    assert component.AxisReader(Hal, 0.0005).motion("y").servo_period == 0.0005
     assert reader.motion("q") is None  # no such pins
     values["motion.teleop-mode"] = False
     assert not reader.teleop()
@@ -1079,3 +1081,11 @@ def test_a_blocked_transmit_path_is_reported(capfd):
     assert "feed stopped by the device: transmit path blocked (EMCY 0x8100)" in (
         capfd.readouterr().err
     )
+
+
+def test_servo_period_from_linuxcncs_ini_file(tmp_path):
+    ini = tmp_path / "machine.ini"
+    ini.write_text("[EMCMOT]\nSERVO_PERIOD = 2000000\n")
+    assert component.linuxcnc_servo_period({"INI_FILE_NAME": str(ini)}) == 0.002
+    assert component.linuxcnc_servo_period({}) is None
+    assert component.linuxcnc_servo_period({"INI_FILE_NAME": str(tmp_path / "none.ini")}) is None

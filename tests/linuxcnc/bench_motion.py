@@ -12,7 +12,8 @@ xtask runs this file alone, with the handwheel on the emulated board).
 2. Run-on, on Y made to do 2 mm/s with 20 mm/s^2 (the field report's axis in in/s; the
    figures are the same in any unit), x100 at 0.001 (0.1 a detent): in each of the three
    modes (run-on: budget 0.25 s) bursts of 1, 2, 3 and 10 quick detents (one `turn` command
-   each): how far the axis moves and how long after the last count it rests; then a fast
+   each): how far the axis moves and how long after the last count and after the record of
+   the last detent (as the test's listener reads it through the hub) it rests; then a fast
    spin, 60 detents in about 0.3 s (6 asked; six `turn 10`), in each of the three modes:
    how far it moves in all and after the last edge, when it rests, and the largest lead of
    the planner's target over the commanded position.
@@ -23,7 +24,7 @@ xtask runs this file alone, with the handwheel on the emulated board).
 import statistics
 import time
 
-from conftest import COUNTS_X, POS_X, last_change, spin
+from conftest import COUNTS_X, POS_X, detent_records, last_change, spin
 
 DETENTS = 120
 PAUSE = 0.04
@@ -68,15 +69,17 @@ def latency(machine, mode: str) -> None:
     time.sleep(0.3)
     commands = []
     # Each `turn 1` takes about 28 ms of the board's time (edges, then its reply 25 ms after
-    # the last), more when the board's clock slips: 40 ms a detent besides the pause.
-    machine.watch(DETENTS * (PAUSE + 0.04) + 1.0, COUNTS_X, POS_X)
+    # the last), more when the board's clock slips (twice that on a busy machine): the
+    # sampling may last four times 40 ms a detent besides the pause, and ends half a second
+    # after the last change.
+    machine.watch(DETENTS * (PAUSE + 0.16) + 1.0, COUNTS_X, POS_X)
     time.sleep(0.1)
     for i in range(DETENTS):
         sent = time.monotonic()
         machine.stim.turn(1 if i % 2 == 0 else -1)
         commands.append((sent, time.monotonic()))
         time.sleep(PAUSE)
-    reply = machine.cnc.must("watched")
+    reply = machine.cnc.must("watched 0.5")
     samples = [tuple(s) for s in reply["samples"]]
     to_counts, to_pos, round_trip = [], [], []
     for sent, answered in commands:
@@ -123,13 +126,17 @@ def test_detent_to_motion(machine):
                 start = machine.pos()[1]
                 machine.watch(8.0, COUNTS_Y, POS_Y)
                 time.sleep(0.05)
+                mark = machine.frames.mark()
                 machine.stim.turn(detents)
                 samples = machine.watched(quiet=0.4)
-                rests = last_change(samples, 2)[0] - last_change(samples, 1)[0]
+                stopped = last_change(samples, 2)[0]
+                rests = stopped - last_change(samples, 1)[0]
+                after_record = stopped - detent_records(machine, mark)[1]
                 print(
                     f"  {mode} mode, {detents:2d} quick detents: moved "
                     f"{samples[-1][2] - start:.3f} mm, "
-                    f"rests {rests * 1000:.0f} ms after the last count"
+                    f"rests {rests * 1000:.0f} ms after the last count, "
+                    f"{after_record * 1000:.0f} ms after the record of the last detent"
                 )
         for mode, (position, velocity) in MODES.items():
             machine.setp("handwheel.position-mode", position)
@@ -139,6 +146,7 @@ def test_detent_to_motion(machine):
             )
             start = machine.pos()[1]
             machine.watch(8.0, COUNTS_Y, POS_Y, TARGET_Y)
+            mark = machine.frames.mark()
             # Six `turn 10` (24 ms of edges each, the reply 25 ms later): about 0.3 s. The
             # last edge came 25 ms of the board's time before the last reply, at least as
             # long in host time: the figures after it are lower bounds.
@@ -147,12 +155,15 @@ def test_detent_to_motion(machine):
             at_edge = [s for s in samples if s[0] <= last_edge][-1]
             rests = last_change(samples, 2)[0]
             after_count = rests - last_change(samples, 1)[0]
+            first_record, last_record = detent_records(machine, mark)
             lead = max(target - pos for _, _, pos, target in samples)
             print(
-                f"  {mode} mode, 60 detents in about 0.3 s: moved "
+                f"  {mode} mode, 60 detents in about 0.3 s (records over "
+                f"{(last_record - first_record) * 1000:.0f} ms): moved "
                 f"{samples[-1][2] - start:.3f} mm of 6, "
                 f"after the last edge {samples[-1][2] - at_edge[2]:.3f} mm; rests "
                 f"{(rests - last_edge) * 1000:.0f} ms after the last edge, "
+                f"{(rests - last_record) * 1000:.0f} ms after the record of the last detent, "
                 f"{after_count * 1000:.0f} ms after the last count; largest lead {lead:.3f} mm"
             )
         machine.setp("handwheel.position-mode", 0)

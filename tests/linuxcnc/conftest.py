@@ -21,7 +21,7 @@ import can
 import canopen
 import pytest
 
-from rig import AXES, NMT, NODE_ID, SDO_RX, Board, FrameRecorder, Stimulus
+from rig import AXES, NMT, NODE_ID, SDO_RX, TPDO1, Board, FrameRecorder, Stimulus, feed_record
 from sim_machine import SimMachine
 from slcan_hub import SlcanHub
 
@@ -72,6 +72,20 @@ def spin(machine, detents: int, pause: float, step: int = 1) -> float:
         left -= n
         time.sleep(pause)
     return time.monotonic()
+
+
+def detent_records(machine, since: int):
+    """When the test's listener read the first and the last feed record after the mark
+    `since` whose position changed: the records of the first and the last detent (the
+    component reads them through the same hub)."""
+    records = machine.frames.frames(TPDO1)
+    changes = [
+        b.t
+        for a, b in zip(records, records[1:])
+        if b.seq >= since and feed_record(a).position != feed_record(b).position
+    ]
+    assert changes, records[-3:]
+    return changes[0], changes[-1]
 
 
 def last_change(samples, column: int):

@@ -286,12 +286,14 @@ class HalPins:
 class AxisReader:
     """What LinuxCNC shows of its axes for the run-on mode (`core.AxisMotion`), read by name
     from HAL (`hal.get_value`) when the core asks: nothing to net, and the limits are
-    LinuxCNC's own (its ini file's, as the `ini.L.*` pins hold them now). Without
+    LinuxCNC's own (its ini file's, as the `ini.L.*` pins hold them now), with the servo
+    period LinuxCNC plans in (`linuxcnc_servo_period`, read once at the start). Without
     `get_value` (a stand-in `hal`) or outside teleop mode it reports nothing known, and the
     core leaves the axes in LinuxCNC's velocity mode."""
 
-    def __init__(self, hal) -> None:
+    def __init__(self, hal, servo_period: float = core.SERVO_PERIOD) -> None:
         self.get = getattr(hal, "get_value", None)
+        self.servo_period = servo_period
 
     def teleop(self) -> bool:
         if self.get is None:
@@ -316,9 +318,23 @@ class AxisReader:
                 max_acceleration=float(self.get(f"ini.{letter}.max_acceleration"))
                 * float(self.get(f"axis.{letter}.jog-accel-fraction")),
                 target=target,
+                servo_period=self.servo_period,
             )
         except Exception:
             return None
+
+
+def linuxcnc_servo_period(environ=os.environ) -> Optional[float]:
+    """LinuxCNC's servo period from the INI file it runs (`INI_FILE_NAME`, which LinuxCNC
+    sets for the programs it starts), or None."""
+    path = environ.get("INI_FILE_NAME")
+    if not path:
+        return None
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return core.servo_period_of_ini(f.read())
+    except OSError:
+        return None
 
 
 class Heartbeat:
@@ -750,7 +766,8 @@ def run(
             log(f"cannot write the capture {args.capture}: {e}")
             return 1
     pins = HalPins(hal_module, args.name, cfg, on_hal_component)
-    axes = AxisReader(hal_module)
+    servo_period = linuxcnc_servo_period()
+    axes = AxisReader(hal_module, servo_period or core.SERVO_PERIOD)
     c = core.Core(cfg)
     events: "queue.Queue" = queue.Queue()  # the worker's outcomes
     link: Optional[Link] = None
@@ -759,7 +776,8 @@ def run(
     log(
         f"{args.name}: node {args.node} on {args.interface} {args.channel}, axes "
         f"{cfg.axes}, master heartbeat {cfg.master} every {args.heartbeat_ms} ms, "
-        f"{c.mode} mode"
+        f"{c.mode} mode, LinuxCNC's servo period "
+        + (f"{servo_period * 1000:g} ms" if servo_period else "taken as 1 ms (not in an INI file)")
     )
     try:
         while not stop.is_set():

@@ -626,19 +626,46 @@ class Allowance:
         return ok
 
 
+# LinuxCNC's servo period where its INI file does not say ([EMCMOT]SERVO_PERIOD; its sample
+# configurations' 1 ms), s.
+SERVO_PERIOD = 0.001
+
+
+def servo_period_of_ini(text: str) -> Optional[float]:
+    """LinuxCNC's servo period (s) as its INI file `text` sets it: [EMCMOT]SERVO_PERIOD, in
+    nanoseconds. None when it is not there or not a positive number (`SERVO_PERIOD` then)."""
+    section = None
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line[0] in "#;":
+            continue
+        if line.startswith("[") and "]" in line:
+            section = line[1 : line.index("]")].strip()
+        elif section == "EMCMOT" and "=" in line:
+            key, value = (part.strip() for part in line.split("=", 1))
+            if key == "SERVO_PERIOD":
+                try:
+                    ns = float(value)
+                except ValueError:
+                    return None
+                return ns * 1e-9 if math.isfinite(ns) and ns > 0 else None
+    return None
+
+
 @dataclass(frozen=True)
 class AxisMotion:
     """What LinuxCNC shows of one axis in teleop mode, in machine units: how far the target
     of its jog planner leads its commanded position (`axis.L.teleop-pos-cmd` minus
-    `axis.L.pos-cmd`), the planner's velocity (`axis.L.teleop-vel-cmd`, signed) and the
+    `axis.L.pos-cmd`), the planner's velocity (`axis.L.teleop-vel-cmd`, signed), the
     limits it plans with (`ini.L.max_velocity`, and `ini.L.max_acceleration` times
-    `axis.L.jog-accel-fraction`)."""
+    `axis.L.jog-accel-fraction`) and the servo period it plans in."""
 
     lead: float
     velocity: float
     max_velocity: float
     max_acceleration: float
     target: Optional[float] = None  # `axis.L.teleop-pos-cmd` itself, when known
+    servo_period: float = SERVO_PERIOD  # s: LinuxCNC's planner moves in these steps
 
 
 # How long after the component wrote an axis's counts it takes the target it then expected
@@ -666,6 +693,30 @@ def run_on_reach(budget: float, max_velocity: float, max_acceleration: float, ve
     return (peak * peak - v0 * v0) / (2 * a) + peak * cruise + peak * peak / (2 * a)
 
 
+# `planner_lag`: the servo periods LinuxCNC's jog planner may come to rest later than the
+# continuous profile of `run_on_reach`, besides the half log of its periods of braking.
+PLANNER_LAG_PERIODS = 6.0
+
+
+def planner_lag(max_velocity: float, max_acceleration: float, servo_period: float) -> float:
+    """How much later (s) than the profile `run_on_reach` plans LinuxCNC can bring the axis to
+    rest at its target. Its jog planner moves in servo periods: each period it asks for the
+    speed from which braking by one period's worth of acceleration a period ends on the
+    target, which is below the continuous braking curve by that much and so brakes early
+    and creeps in; that costs half the natural log of m periods, m = v / (a T) (the periods it
+    takes to stop from full speed), plus a few periods at the ends of the braking. Counts
+    also wait for the next servo cycle, and the axis LinuxCNC showed may be a cycle old by
+    then: a cycle on towards the old target. `PLANNER_LAG_PERIODS` covers these; the host
+    tests check the sum against a step-by-step model of the planner (host/README.md, "Jog
+    modes"). 0 for a period that is not positive and finite."""
+    t = servo_period
+    if not (math.isfinite(t) and t > 0):
+        return 0.0
+    periods = max_velocity / (max_acceleration * t)
+    braking = math.log(periods) / 2 if math.isfinite(periods) and periods > 1 else 0.0
+    return t * (braking + PLANNER_LAG_PERIODS)
+
+
 # Rounding room when dividing what the budget allows into detents: a millionth of a detent
 # (LinuxCNC's positions are doubles; 0.3 / 0.1 is 2.9999999999999996).
 METER_EPSILON = 1e-6
@@ -674,10 +725,14 @@ METER_EPSILON = 1e-6
 def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budget: float) -> int:
     """How many of `pending` counts (signed; a multiple of `step`, the counts of one detent)
     may go to the axis now so that, if the wheel stops, it comes to rest at its target within
-    `budget` seconds (`run_on_reach`, from its lead and velocity as `motion` shows them): whole
-    detents, the first ones of `pending`; the rest is dropped by the caller, never held.
-    Counts that bring the target back towards the axis (turning back) always go: they shorten
-    the run-on."""
+    `budget` seconds in LinuxCNC (`run_on_reach` within the budget less `planner_lag`, from
+    its lead and velocity as `motion` shows them): whole detents, the first ones of `pending`;
+    the rest is dropped by the caller, never held. Counts that bring the target back towards
+    the axis (turning back) are no exception: where the axis must stop and come back to the
+    new target, that can take longer than going on to the old one. An axis that stops from
+    full speed within (budget less `planner_lag`) / 2.414 (v / a; 1 + sqrt(2): stopping and
+    coming back over its stopping distance) lets every such count go that keeps the target
+    ahead of it."""
     if pending == 0:
         return 0
     step = abs(step) or 1
@@ -685,11 +740,9 @@ def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budg
     unit = abs(step * scale)  # machine units per detent
     direction = 1 if pending * scale > 0 else -1
     ahead = motion.lead * direction  # the target's lead in the direction of the new counts
-    if ahead + detents * unit <= 0:
-        return pending  # the target stays at or behind the axis: the run-on shrinks
-    reach = run_on_reach(
-        budget, motion.max_velocity, motion.max_acceleration, motion.velocity * direction
-    )
+    v, a = motion.max_velocity, motion.max_acceleration
+    planned = budget - planner_lag(v, a, motion.servo_period)
+    reach = run_on_reach(planned, v, a, motion.velocity * direction)
     allowed = math.floor((reach - ahead) / unit + METER_EPSILON) if unit > 0 else 0
     allowed = max(0, min(detents, allowed))
     return (1 if pending > 0 else -1) * allowed * step
@@ -792,6 +845,7 @@ class Core:
     # Publishing (`publish`): the pins last handed to the shell, and the credits since.
     published: Optional[Pins] = None
     credit_time: Optional[float] = None  # the earliest credit not yet published
+    credit_last: Optional[float] = None  # the latest credit not yet published
     credit_open: Dict[str, bool] = field(default_factory=dict)  # credited with the gate open
     withdrawn: int = 0  # credits withdrawn because they were not published in time
     allowance: Allowance = field(init=False)
@@ -1197,24 +1251,34 @@ class Core:
         return steps
 
     def _meter(self, last: Pins, motion) -> None:
-        """The run-on budget applied to every axis's counts not yet published."""
+        """The run-on budget applied to every axis's counts not yet published. The budget
+        runs from when the component read the record of the last detent: the time the counts
+        waited here since, and the hold before them when a gate opens first (`publish`), is
+        spent."""
         multiplier = self.record.multiplier if self.record else 1
-        for L in self.cfg.axis_letters:
-            pending = wrap_s32(self.counts[L] - last.jog_counts[L])
-            if pending == 0:
+        unpublished = {
+            L: wrap_s32(self.counts[L] - last.jog_counts[L]) for L in self.cfg.axis_letters
+        }
+        waited = self.now - self.credit_last if self.credit_last is not None else 0.0
+        gates = {L: bool(self.credit_open.get(L)) for L, n in unpublished.items() if n}
+        if any(gate != last.jog_enable[L] for L, gate in gates.items()):
+            waited += GATE_HOLD  # `publish` writes the gates first, the counts a hold later
+        budget = self.run_on_budget - max(0.0, waited)
+        for L, counts in unpublished.items():
+            if counts == 0:
                 continue
             state = motion(L) if motion is not None else None
-            step = multiplier if pending % multiplier == 0 else 1
+            step = multiplier if counts % multiplier == 0 else 1
             released = 0
             if state is not None:
                 state = self._with_counts_in_flight(L, state)
-                released = meter_counts(pending, step, self.cfg.scale, state, self.run_on_budget)
+                released = meter_counts(counts, step, self.cfg.scale, state, budget)
                 if released and state.target is not None:
                     target = state.target + released * self.cfg.scale
                     self.sent_target[L] = (target, self.now)
-            if released != pending:
+            if released != counts:
                 self.counts[L] = wrap_s32(last.jog_counts[L] + released)
-                self.counts_dropped = wrap_s32(self.counts_dropped + abs(pending - released))
+                self.counts_dropped = wrap_s32(self.counts_dropped + abs(counts - released))
 
     def _with_counts_in_flight(self, letter: str, state: AxisMotion) -> AxisMotion:
         """`state` with the target the component's own last counts give, if it wrote them
@@ -1229,6 +1293,7 @@ class Core:
     def _published(self, pins: Pins) -> None:
         self.published = pins
         self.credit_time = None
+        self.credit_last = None
         self.credit_open = {}
 
     def pins(self) -> Pins:
@@ -1321,6 +1386,7 @@ class Core:
         if credited and letter is not None:
             if self.credit_time is None:
                 self.credit_time = self.now
+            self.credit_last = self.now
             if self.gate(letter):
                 self.credit_open[letter] = True
 
