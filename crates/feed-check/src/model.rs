@@ -8,7 +8,7 @@
 //!
 //! Every action is one thing the outside world can do: the operator turns (forward or back,
 //! between two rounds of the device or landing inside one, at a chosen access of the CAN side
-//! to the wheel), moves the axis or the multiplier switch; a master sends NMT or writes
+//! to the wheel, a lock or an intake of motion), moves the axis or the multiplier switch; a master sends NMT or writes
 //! 0x2000; the device loses power; time passes; the bus takes a frame (or the channel loses
 //! or doubles it, or delivers a copy of an earlier record); the host configures (when its rule
 //! asks), stalls or resumes; the master's heartbeat comes; or time settles (half a second without faults, so that motion
@@ -30,8 +30,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, BitRate, DecoderConfig, EdgeState, Handwheel, LinkedWheel, Mutex, SelectorInput,
-    SequencePace,
+    AbLevels, BitRate, DecoderConfig, EdgeState, Handwheel, Intake, LinkedWheel, Mutex,
+    SelectorInput, SequencePace, Wheel,
 };
 use handwheel_device::mutant::Mutant;
 use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState, TRANSMIT_STALL_MS};
@@ -55,7 +55,8 @@ const FACTORS: [i32; 3] = [1, 10, 100];
 /// Time steps of [`Action::Settle`], ms: the master's heartbeat comes at least this often.
 const SETTLE_STEP_MS: u64 = 50;
 /// Rounds the model runs back to back while the node asks for no sleep at all (a feed
-/// record made due at the end of a round goes out in the next one, at once).
+/// record made due at the end of a round goes out in the next one, at once) or a detent
+/// waits to be taken in.
 const BACK_TO_BACK: usize = 4;
 
 /// Explore on past breaches (`feed-check --through`): for measuring how large a setting that
@@ -451,6 +452,9 @@ pub struct World {
     /// A detent that lands at this access to the wheel during the next action's rounds
     /// (backward?, access).
     pending: Option<(bool, u8)>,
+    /// Detents in the edge state that no intake of the device took in yet (backward?), in
+    /// turning order; none once an action is over.
+    untaken: Vec<bool>,
     /// Accesses to the wheel so far in this action.
     locks: u8,
     /// The object (index, value) of the SDO write this action makes, until the device
@@ -664,14 +668,16 @@ impl SelectorInput for Lines {
     }
 }
 
-/// The CAN side's wheel for one action's rounds: a detent may land at a chosen access.
+/// The CAN side's wheel for one action's rounds: a detent may land at a chosen access (a lock
+/// or an intake of motion), and counts as taken in by the next intake.
 struct ModelWheel<'a> {
     inner: &'a mut LinkedWheel<EdgeState>,
     levels: &'a mut AbLevels,
     pending: &'a mut Option<(bool, u8)>,
     locks: &'a mut u8,
-    /// The detent landed, backward?, and whether the device's feed was enabled then.
-    landed: Option<(bool, bool)>,
+    untaken: &'a mut Vec<bool>,
+    /// The detents the device took in, backward?, and whether its feed was enabled then.
+    taken: Vec<(bool, bool)>,
 }
 
 /// One detent's four edges.
@@ -686,22 +692,38 @@ fn detent(wheel: &mut LinkedWheel<EdgeState>, levels: &mut AbLevels, back: bool)
     }
 }
 
-impl Mutex for ModelWheel<'_> {
-    type T = Handwheel;
-
-    fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+impl ModelWheel<'_> {
+    /// An access of the CAN side to the wheel: the pending detent lands right before it if
+    /// this is its access.
+    fn access(&mut self) {
         *self.locks = self.locks.saturating_add(1);
         if let Some((back, at)) = *self.pending {
             if at == *self.locks {
                 *self.pending = None;
                 detent(self.inner, self.levels, back);
-                // The edge's detent is taken in by this access: it counts as feed if the
-                // device has the feed enabled now.
-                let enabled = self.inner.feed().enabled();
-                self.landed = Some((back, enabled));
+                self.untaken.push(back);
             }
         }
+    }
+}
+
+impl Mutex for ModelWheel<'_> {
+    type T = Handwheel;
+
+    fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+        self.access();
         self.inner.lock(f)
+    }
+}
+
+impl Wheel for ModelWheel<'_> {
+    fn take_motion(&mut self, at: Intake) {
+        self.access();
+        self.inner.take_motion(at);
+        // The detents waiting are taken in now: feed if the device has the feed enabled.
+        let enabled = self.inner.feed().enabled();
+        self.taken
+            .extend(self.untaken.drain(..).map(|back| (back, enabled)));
     }
 }
 
@@ -771,6 +793,7 @@ impl FeedModel {
             truth: Default::default(),
             spec: Spec::default(),
             pending: None,
+            untaken: Vec::new(),
             locks: 0,
             writing: None,
             used: [0; 13],
@@ -860,19 +883,21 @@ impl FeedModel {
     /// for no sleep.
     ///
     /// The firmware also runs the next round at once when one ends with a feed record due
-    /// (a stall's stop, a detent taken in by the round's last access to the wheel). The model
-    /// does so after a round a detent landed in; otherwise the next action's round, which
-    /// every action that reaches the device begins with, sends it (fewer states, and only
-    /// orders the firmware could also take, a little later).
+    /// (a stall's stop, a detent taken in by the round's last intake), and when a detent
+    /// came after the round's last intake (the edge's wake-up). The model does so after a
+    /// round a detent landed in; otherwise the next action's round, which every action that
+    /// reaches the device begins with, sends it (fewer states, and only orders the firmware
+    /// could also take, a little later).
     fn step(&self, w: &mut World, frame: Option<Frame>) {
         let mut frame = frame;
         for _ in 0..BACK_TO_BACK {
             let landing = w.pending.is_some();
             let out = self.round(w, frame.take());
-            if out.sleep_ms > 0 || !landing || w.pending.is_some() {
+            if w.untaken.is_empty() && (out.sleep_ms > 0 || !landing || w.pending.is_some()) {
                 break;
             }
         }
+        assert!(w.untaken.is_empty(), "a detent the device never took in");
     }
 
     fn round(&self, w: &mut World, frame: Option<Frame>) -> Outputs {
@@ -900,7 +925,8 @@ impl FeedModel {
             levels: &mut w.real.levels,
             pending: &mut w.pending,
             locks: &mut w.locks,
-            landed: None,
+            untaken: &mut w.untaken,
+            taken: Vec::new(),
         };
         // What only the stall-completions mutant reads: frames that left the path so far.
         w.real
@@ -914,11 +940,11 @@ impl FeedModel {
             &mut Lines(w.axis, w.multiplier),
             &mut wheel,
         );
-        let (landed, stalled, wrongly) = (wheel.landed, port.stalled, port.wrongly_enabled);
+        let (taken, stalled, wrongly) = (wheel.taken, port.stalled, port.wrongly_enabled);
         if let Some(why) = wrongly {
             self.breach(w, format!("device: 0x2000 = 1 accepted while {why}"));
         }
-        if let Some((back, enabled)) = landed {
+        for (back, enabled) in taken {
             self.turned(w, back, enabled);
         }
         if stalled {
@@ -1050,10 +1076,10 @@ impl FeedModel {
         self.receive(w, 0x700 + MASTER, &[0x05]);
     }
 
+    /// A detent between two rounds: the next round takes it in first.
     fn turn(&self, w: &mut World, back: bool) {
         detent(&mut w.real.wheel, &mut w.real.levels, back);
-        let enabled = w.real.wheel.feed().enabled();
-        self.turned(w, back, enabled);
+        w.untaken.push(back);
         self.step(w, None);
     }
 

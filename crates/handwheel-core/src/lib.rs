@@ -44,4 +44,4 @@ pub use selector::{
     DEFAULT_DEBOUNCE_SAMPLES,
 };
 pub use standstill::{Settle, Standstill, STANDSTILL_MS};
-pub use wheel::{Handwheel, LinkedWheel};
+pub use wheel::{Handwheel, Intake, LinkedWheel, Wheel};

@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel, Mutex,
-    StopReason, UnitStep, UnitStepEncoder,
+    Axis, CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, FeedStatus, Handwheel, Intake,
+    StopReason, UnitStep, UnitStepEncoder, Wheel,
 };
 
 use crate::od::{
@@ -130,7 +130,7 @@ impl WheelParameters {
         wheel.configure_decoder(self.decoder);
         // The bound was validated on its way in; a rejected bound keeps the previous one.
         let _ = wheel.feed.set_backlog_bound(self.backlog_bound);
-        let _ = wheel.feed.set_unit_step_mode(self.unit_steps);
+        wheel.feed.set_unit_step_mode(self.unit_steps);
     }
 }
 
@@ -178,7 +178,7 @@ impl FeedApp {
 
 /// The application as the engine sees it during one call: the kept state plus access to
 /// the shared wheel.
-pub(crate) struct AppContext<'a, W: Mutex<T = Handwheel>> {
+pub(crate) struct AppContext<'a, W: Wheel> {
     pub app: &'a mut FeedApp,
     pub wheel: &'a mut W,
 }
@@ -189,7 +189,7 @@ fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, SdoAbort> {
     Ok(bytes.len())
 }
 
-impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
+impl<W: Wheel> Application for AppContext<'_, W> {
     fn read(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
         self.read_object(index, sub, buf, false)
     }
@@ -203,8 +203,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
         }
         let value = u32::from_le_bytes(bytes);
         if (index, sub) == (FEED_SESSION, 0) {
-            self.wheel
-                .lock(|w| w.record_due |= w.feed.set_session(value as u8));
+            self.wheel.change(|w| w.feed.set_session(value as u8));
             return Ok(());
         }
         if (index, sub) == (FEED_ENABLE, 0) {
@@ -220,8 +219,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             if value == 1 && !allowed {
                 return Err(SdoAbort::DeviceState);
             }
-            self.wheel
-                .lock(|w| w.record_due |= w.feed.set_enabled(value == 1));
+            self.wheel.change(|w| w.feed.set_enabled(value == 1));
             return Ok(());
         }
         let mut parameters = self.app.parameters;
@@ -288,7 +286,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
         {
             self.app.mutant = mutant;
         }
-        self.wheel.lock(|w| {
+        self.wheel.change(|w| {
             w.reset_decoder(WheelParameters::DEFAULT.decoder);
             w.feed.reset();
         });
@@ -301,6 +299,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             return true;
         }
         if pdo == 1 {
+            self.wheel.take_motion(Intake::RecordSnapshot);
             self.app.record = Some(self.wheel.lock(|w| w.feed.record()));
         }
         // TPDO2 carries unit steps, i.e. motion: it may only go out with a step in flight.
@@ -316,6 +315,10 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
         sub: u8,
         buf: &mut [u8],
     ) -> Result<usize, SdoAbort> {
+        #[cfg(feature = "mutants")]
+        if pdo == 1 && self.mutant(crate::mutant::Mutant::TpdoReadAtSend) {
+            self.wheel.take_motion(Intake::RecordSnapshot);
+        }
         self.read_object(index, sub, buf, pdo == 1)
     }
 
@@ -324,7 +327,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             let record = self.app.record.take();
             self.wheel.lock(|w| {
                 let sent = record.map_or_else(|| w.feed.record_to_send(), |r| r.state);
-                w.record_due |= w.feed.record_sent(sent);
+                w.feed.record_sent(sent);
             });
         } else if pdo == 2 && self.app.step_in_flight.take().is_some() {
             // `tpdo_ready` let TPDO2 go only with a step in flight: that step is on the bus.
@@ -349,7 +352,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
     }
 }
 
-impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
+impl<W: Wheel> AppContext<'_, W> {
     #[cfg(feature = "mutants")]
     fn mutant(&self, m: crate::mutant::Mutant) -> bool {
         self.app.mutant == Some(m)
@@ -416,20 +419,20 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
     fn set_parameters(&mut self, parameters: WheelParameters) {
         self.app.parameters = parameters;
         self.app.step_in_flight = None;
-        self.wheel.lock(|w| {
+        self.wheel.change(|w| {
             parameters.apply(w);
-            w.record_due = true;
+            w.feed.request_record();
         });
     }
 
     fn end_session(&mut self) {
-        self.wheel.lock(|w| w.record_due |= w.feed.set_session(0));
+        self.wheel.change(|w| w.feed.set_session(0));
     }
 
     fn stop(&mut self, reason: StopReason) {
         // A step that has not reached the bus is withdrawn with the rest of the backlog.
         self.app.step_in_flight = None;
-        self.wheel.lock(|w| w.record_due |= w.feed.stop(reason));
+        self.wheel.change(|w| w.feed.stop(reason));
     }
 }
 
