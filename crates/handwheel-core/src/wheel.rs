@@ -131,7 +131,9 @@ pub enum Intake {
 /// round (see the module docs).
 pub trait Wheel: Mutex<T = Handwheel> {
     /// Takes the edge's detents and illegal transitions since the last intake into the
-    /// accumulator, under one short lock of the edge state.
+    /// accumulator, under one short lock of the edge state. `at` names the point: the same
+    /// intake at each, named for the reader and for the wheels of tests and the feed checker,
+    /// which turn the wheel at a chosen one.
     fn take_motion(&mut self, at: Intake);
 
     /// A change of what motion counts for: the motion so far is taken in first
