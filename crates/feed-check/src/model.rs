@@ -21,7 +21,9 @@
 //! blocked, and off once the device left Operational, lost the master's heartbeat for its
 //! consumer time, changed or ended its session, or had frames wait 100 ms without the path
 //! running empty; the session the token written last (0 after a reset, a write of anything it
-//! stands for, or the pace); and nothing made before a reset reaching the bus after it.
+//! stands for, or the pace); nothing made before a reset reaching the bus after it; and every
+//! detent taken in under what it counted for when it came (the feed off, or the axis and
+//! multiplier: motion before a change belongs to the old state).
 
 use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
@@ -30,8 +32,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, BitRate, DecoderConfig, EdgeState, Handwheel, Intake, LinkedWheel, Mutex,
-    SelectorInput, SequencePace, Wheel,
+    AbLevels, Axis, BitRate, DecoderConfig, EdgeState, FeedAccumulator, Handwheel, Intake,
+    LinkedWheel, Multiplier, Mutex, SelectorInput, SequencePace, Wheel,
 };
 use handwheel_device::mutant::Mutant;
 use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState, TRANSMIT_STALL_MS};
@@ -452,9 +454,9 @@ pub struct World {
     /// A detent that lands at this access to the wheel during the next action's rounds
     /// (backward?, access).
     pending: Option<(bool, u8)>,
-    /// Detents in the edge state that no intake of the device took in yet (backward?), in
-    /// turning order; none once an action is over.
-    untaken: Vec<bool>,
+    /// Detents in the edge state that no intake of the device took in yet (backward?, what
+    /// they counted for when they came), in turning order; none once an action is over.
+    untaken: Vec<(bool, CountsFor)>,
     /// Accesses to the wheel so far in this action.
     locks: u8,
     /// The object (index, value) of the SDO write this action makes, until the device
@@ -668,16 +670,36 @@ impl SelectorInput for Lines {
     }
 }
 
+/// What a detent counts for in the device's accumulator: the axis and multiplier while the
+/// feed is enabled, nothing otherwise.
+type CountsFor = Option<(Option<Axis>, Multiplier)>;
+
+fn counts_for(feed: &FeedAccumulator) -> CountsFor {
+    feed.enabled().then(|| {
+        let s = feed.selection();
+        (s.axis, s.multiplier)
+    })
+}
+
 /// The CAN side's wheel for one action's rounds: a detent may land at a chosen access (a lock
 /// or an intake of motion), and counts as taken in by the next intake.
+///
+/// The device must take a detent in under what it counted for when it came: motion before a
+/// change of enable or selection belongs to the old state (`handwheel_core::wheel`). An intake
+/// before a change and the change's lock count as one access: an edge between the two (a
+/// few instructions on the MCU) is the one order the model leaves out.
 struct ModelWheel<'a> {
     inner: &'a mut LinkedWheel<EdgeState>,
     levels: &'a mut AbLevels,
     pending: &'a mut Option<(bool, u8)>,
     locks: &'a mut u8,
-    untaken: &'a mut Vec<bool>,
+    untaken: &'a mut Vec<(bool, CountsFor)>,
+    /// The last access was an intake before a change: the change's lock is the same access.
+    changing: bool,
     /// The detents the device took in, backward?, and whether its feed was enabled then.
     taken: Vec<(bool, bool)>,
+    /// A detent taken in under something else than it counted for when it came.
+    misplaced: Option<(CountsFor, CountsFor)>,
 }
 
 /// One detent's four edges.
@@ -701,7 +723,7 @@ impl ModelWheel<'_> {
             if at == *self.locks {
                 *self.pending = None;
                 detent(self.inner, self.levels, back);
-                self.untaken.push(back);
+                self.untaken.push((back, counts_for(self.inner.feed())));
             }
         }
     }
@@ -711,7 +733,9 @@ impl Mutex for ModelWheel<'_> {
     type T = Handwheel;
 
     fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
-        self.access();
+        if !std::mem::take(&mut self.changing) {
+            self.access();
+        }
         self.inner.lock(f)
     }
 }
@@ -719,11 +743,16 @@ impl Mutex for ModelWheel<'_> {
 impl Wheel for ModelWheel<'_> {
     fn take_motion(&mut self, at: Intake) {
         self.access();
+        self.changing = at == Intake::BeforeChange;
         self.inner.take_motion(at);
         // The detents waiting are taken in now: feed if the device has the feed enabled.
-        let enabled = self.inner.feed().enabled();
-        self.taken
-            .extend(self.untaken.drain(..).map(|back| (back, enabled)));
+        let now = counts_for(self.inner.feed());
+        for (back, then) in self.untaken.drain(..) {
+            if then != now {
+                self.misplaced.get_or_insert((then, now));
+            }
+            self.taken.push((back, now.is_some()));
+        }
     }
 }
 
@@ -926,7 +955,9 @@ impl FeedModel {
             pending: &mut w.pending,
             locks: &mut w.locks,
             untaken: &mut w.untaken,
+            changing: false,
             taken: Vec::new(),
+            misplaced: None,
         };
         // What only the stall-completions mutant reads: frames that left the path so far.
         w.real
@@ -940,9 +971,17 @@ impl FeedModel {
             &mut Lines(w.axis, w.multiplier),
             &mut wheel,
         );
-        let (taken, stalled, wrongly) = (wheel.taken, port.stalled, port.wrongly_enabled);
+        let (taken, misplaced) = (wheel.taken, wheel.misplaced);
+        let (stalled, wrongly) = (port.stalled, port.wrongly_enabled);
         if let Some(why) = wrongly {
             self.breach(w, format!("device: 0x2000 = 1 accepted while {why}"));
+        }
+        if let Some((then, now)) = misplaced {
+            let message = format!(
+                "device: a detent that came while it counted for {then:?} was taken in \
+                 after a change, for {now:?}"
+            );
+            self.breach(w, message);
         }
         for (back, enabled) in taken {
             self.turned(w, back, enabled);
@@ -1079,7 +1118,7 @@ impl FeedModel {
     /// A detent between two rounds: the next round takes it in first.
     fn turn(&self, w: &mut World, back: bool) {
         detent(&mut w.real.wheel, &mut w.real.levels, back);
-        w.untaken.push(back);
+        w.untaken.push((back, counts_for(w.real.wheel.feed())));
         self.step(w, None);
     }
 

@@ -219,6 +219,11 @@ impl<W: Wheel> Application for AppContext<'_, W> {
             if value == 1 && !allowed {
                 return Err(SdoAbort::DeviceState);
             }
+            #[cfg(feature = "mutants")]
+            if self.mutant(crate::mutant::Mutant::EnableWithoutIntake) {
+                self.wheel.lock(|w| w.feed.set_enabled(value == 1));
+                return Ok(());
+            }
             self.wheel.change(|w| w.feed.set_enabled(value == 1));
             return Ok(());
         }

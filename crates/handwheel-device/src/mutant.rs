@@ -19,4 +19,7 @@ pub enum Mutant {
     /// The transmit path's stall watch counts its 100 ms from the last frame that got out
     /// (the rule before the fix): a bus that takes a frame now and then never trips it.
     StallCompletions,
+    /// A write of 0x2000 changes the enable without taking the motion so far in first: a
+    /// detent that came before the change is taken in after it.
+    EnableWithoutIntake,
 }
