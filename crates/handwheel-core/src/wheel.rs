@@ -18,7 +18,8 @@
 //!   before anything in it looks at the wheel (the standstill sample, SDO reads, whether a
 //!   record is due);
 //! - [`Intake::BeforeChange`], right before every change of what motion counts for (feed
-//!   enable, selection, session, unit-step format, a stop, a reset; [`Wheel::change`]):
+//!   enable, selection, session, unit-step format, a stop, a reset, and a sent record's
+//!   number, which may end the session at the pace; [`Wheel::change`]):
 //!   motion that came before the change belongs to the old state, so a detent turned while
 //!   disabled is not made feed by the enable after it, nor one turned on X credited to Y;
 //! - [`Intake::RecordSnapshot`], when TPDO1's record is taken: it carries all motion so far,

@@ -330,7 +330,8 @@ impl<W: Wheel> Application for AppContext<'_, W> {
     fn on_tpdo_sent(&mut self, pdo: u8) {
         if pdo == 1 {
             let record = self.app.record.take();
-            self.wheel.lock(|w| {
+            // The number the record took may be beyond the pace, which ends the session.
+            self.wheel.change(|w| {
                 let sent = record.map_or_else(|| w.feed.record_to_send(), |r| r.state);
                 w.feed.record_sent(sent);
             });

@@ -60,14 +60,14 @@ impl SelectorInput for Lines {
     }
 }
 
-/// The CAN side's wheel, with an edge task that turns one detent forward right after the
-/// next round's start: before whatever the round does next with the wheel.
+/// The CAN side's wheel, with an edge task that turns one detent forward right after an
+/// intake: before whatever the round does next with the wheel.
 #[derive(Clone)]
 struct TurningWheel {
     wheel: LinkedWheel<EdgeState>,
     levels: AbLevels,
-    /// Turn at the first access after the next [`Intake::RoundStart`].
-    after_round_start: bool,
+    /// Turn at the first access after the next intake at this point.
+    after: Option<Intake>,
     /// Turn at the next access.
     now: bool,
 }
@@ -100,7 +100,8 @@ impl Wheel for TurningWheel {
     fn take_motion(&mut self, at: Intake) {
         self.access();
         self.wheel.take_motion(at);
-        if at == Intake::RoundStart && std::mem::take(&mut self.after_round_start) {
+        if self.after == Some(at) {
+            self.after = None;
             self.now = true;
         }
     }
@@ -128,7 +129,7 @@ impl Rig {
             wheel: TurningWheel {
                 wheel: LinkedWheel::local(DecoderConfig::default(), levels),
                 levels,
-                after_round_start: false,
+                after: None,
                 now: false,
             },
             ms: 0,
@@ -150,12 +151,18 @@ impl Rig {
 
     /// A round 5 ms after the last one (a switch sample in each).
     fn round(&mut self) -> Vec<FeedRecord> {
+        let records = self.round_at_once();
+        self.ms += 5;
+        records
+    }
+
+    /// A round at the time of the last one; the feed records it sent.
+    fn round_at_once(&mut self) -> Vec<FeedRecord> {
         let sent = self.port.sent.len();
         let out = self
             .node
             .poll(self.ms, &mut self.port, &mut self.lines, &mut self.wheel);
-        self.ms += 5;
-        assert!(!self.wheel.after_round_start && !self.wheel.now, "{out:?}");
+        assert!(self.wheel.after.is_none() && !self.wheel.now, "{out:?}");
         let records = self.port.sent[sent..].iter().filter(|f| f.id() == TPDO1);
         records
             .map(|f| FeedRecord::from_bytes(f.data().try_into().unwrap()).unwrap())
@@ -170,6 +177,27 @@ impl Rig {
     fn write_feed_enable(&mut self, value: u8) -> Vec<FeedRecord> {
         let request = [0x2F, 0x00, 0x20, 0, value, 0, 0, 0];
         self.receive(&request, 0x600 + u16::from(NODE))
+    }
+
+    fn write_session(&mut self, token: u8) {
+        let request = [0x2F, 0x02, 0x20, 0, token, 0, 0, 0];
+        self.receive(&request, 0x600 + u16::from(NODE));
+    }
+
+    /// TPDO1 without its inhibit time (it may change only while the PDO is invalid).
+    fn no_inhibit_time(&mut self) {
+        let cob_id = |flags: u32| (flags | 0x180 | u32::from(NODE)).to_le_bytes();
+        let [i0, i1, i2, i3] = cob_id(0x8000_0000);
+        let [v0, v1, v2, v3] = cob_id(0);
+        for request in [
+            [0x23, 0x00, 0x18, 1, i0, i1, i2, i3],
+            [0x2B, 0x00, 0x18, 3, 0, 0, 0, 0],
+            [0x23, 0x00, 0x18, 1, v0, v1, v2, v3],
+        ] {
+            self.receive(&request, 0x600 + u16::from(NODE));
+            let answer = self.port.sent.last().map(|f| f.data()[0]);
+            assert_eq!(answer, Some(0x60), "{request:02x?}");
+        }
     }
 
     /// The wheel's position, ignored detents and whether the feed is enabled.
@@ -194,7 +222,7 @@ fn motion_between_rounds_is_taken_in_when_the_next_round_starts() {
 #[test]
 fn motion_before_an_enable_is_not_feed() {
     let mut r = Rig::operational(false);
-    r.wheel.after_round_start = true;
+    r.wheel.after = Some(Intake::RoundStart);
     r.write_feed_enable(1);
     r.round();
     assert_eq!(r.feed(), (0, 1, true), "(position, ignored, enabled)");
@@ -205,7 +233,7 @@ fn motion_before_an_enable_is_not_feed() {
 #[test]
 fn motion_before_a_disable_is_feed_of_the_enabled_epoch() {
     let mut r = Rig::operational(true);
-    r.wheel.after_round_start = true;
+    r.wheel.after = Some(Intake::RoundStart);
     let mut records = r.write_feed_enable(0);
     records.extend(r.round());
     assert_eq!(r.feed(), (1, 0, false), "(position, ignored, enabled)");
@@ -229,7 +257,7 @@ fn motion_before_a_selection_change_goes_to_the_old_axis() {
     for _ in 1..rounds {
         assert!(r.round().is_empty());
     }
-    r.wheel.after_round_start = true;
+    r.wheel.after = Some(Intake::RoundStart);
     let mut records = r.round();
     records.extend(r.round());
     let on = |axis| {
@@ -246,7 +274,43 @@ fn motion_before_a_selection_change_goes_to_the_old_axis() {
 fn a_record_carries_the_motion_up_to_when_it_is_taken() {
     let mut r = Rig::operational(true);
     r.wheel.turn();
-    r.wheel.after_round_start = true;
+    r.wheel.after = Some(Intake::RoundStart);
     let records = r.round();
     assert_eq!(records.first().map(|r| r.state.position), Some(2));
+}
+
+/// [`Intake::BeforeChange`] before a sent record is counted: its number may be beyond the
+/// pace, which ends the session and stops the feed. A detent that came while the record was
+/// built was turned with the feed on: it is feed of the session's last epoch.
+#[test]
+fn motion_before_the_pace_ends_the_session_is_feed_of_the_session() {
+    let mut r = Rig::operational(false);
+    r.no_inhibit_time();
+    r.write_session(3);
+    r.write_feed_enable(1);
+    // A record per round, all at one instant: the bucket runs empty, and the round whose
+    // record overdraws it ends the session (found on a copy of the rig).
+    let mut probe = r.clone();
+    let rounds = (1..200)
+        .find(|_| {
+            probe.wheel.turn();
+            probe.round_at_once();
+            probe.wheel.wheel.feed().session() == 0
+        })
+        .expect("the pace runs out");
+    for _ in 1..rounds {
+        r.wheel.turn();
+        assert_eq!(r.round_at_once().len(), 1);
+    }
+    r.wheel.turn();
+    r.wheel.after = Some(Intake::RecordSnapshot);
+    r.round_at_once();
+    assert_eq!(r.wheel.wheel.feed().session(), 0);
+    r.round_at_once();
+    let position = i32::try_from(rounds).unwrap() + 1;
+    assert_eq!(
+        r.feed(),
+        (position, 0, false),
+        "(position, ignored, enabled)"
+    );
 }
