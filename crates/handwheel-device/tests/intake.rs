@@ -307,7 +307,7 @@ fn motion_before_the_pace_ends_the_session_is_feed_of_the_session() {
     r.round_at_once();
     assert_eq!(r.wheel.wheel.feed().session(), 0);
     r.round_at_once();
-    let position = i32::try_from(rounds).unwrap() + 1;
+    let position = rounds + 1;
     assert_eq!(
         r.feed(),
         (position, 0, false),
