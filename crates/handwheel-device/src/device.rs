@@ -102,8 +102,9 @@ impl FrameSink for KeepPending<'_> {
 
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
 /// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
-/// through its RTIC [`Mutex`](handwheel_core::Mutex) on every call ([`Wheel`]: the device takes the edge's motion in
-/// before each change of what it counts for, and for TPDO1's record).
+/// through its RTIC [`Mutex`](handwheel_core::Mutex) on every call ([`Wheel`]: the device
+/// takes the edge's motion in before each change of what it counts for, and for TPDO1's
+/// record).
 #[derive(Clone, Debug)]
 pub struct HandwheelDevice<S> {
     engine: Device<S>,
