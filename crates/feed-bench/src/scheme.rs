@@ -149,10 +149,10 @@ struct CompatDevice {
 }
 
 impl CompatDevice {
-    /// A round of the device: the wheel's motion taken in, then the steps that may go.
     fn pump(&mut self, until: f64, bus: &mut Bus) {
-        self.wheel.take_motion(Intake::RoundStart);
         while self.next_allowed <= until {
+            // A round in which a step may go: it takes the wheel's motion in first.
+            self.wheel.take_motion(Intake::RoundStart);
             let Some(step) = self.wheel.lock(|w| w.feed.take_unit_step()) else {
                 break;
             };
@@ -248,6 +248,8 @@ fn record(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
     wheel.lock(|w| {
         w.feed.set_selection(selected(trace));
         w.feed.set_enabled(true);
+        // Set up before the trace: only the wheel's motion makes records.
+        let _ = w.feed.take_record_due();
     });
     let mut device = RecordDevice {
         wheel,
