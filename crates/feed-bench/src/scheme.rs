@@ -13,8 +13,8 @@
 //! here.
 
 use handwheel_core::{
-    AbLevels, Axis, CounterStride, DecoderConfig, EdgeState, FeedRecord, Handwheel, LinkedWheel,
-    Mutex, Selection, UnitStep, UnitStepEncoder,
+    AbLevels, Axis, CounterStride, DecoderConfig, EdgeState, FeedRecord, Intake, LinkedWheel,
+    Mutex, Selection, UnitStep, UnitStepEncoder, Wheel,
 };
 
 use crate::bus::Bus;
@@ -151,6 +151,8 @@ struct CompatDevice {
 impl CompatDevice {
     fn pump(&mut self, until: f64, bus: &mut Bus) {
         while self.next_allowed <= until {
+            // A round in which a step may go: it takes the wheel's motion in first.
+            self.wheel.take_motion(Intake::RoundStart);
             let Some(step) = self.wheel.lock(|w| w.feed.take_unit_step()) else {
                 break;
             };
@@ -165,9 +167,9 @@ impl CompatDevice {
 fn compat(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
     let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
     wheel.lock(|w| {
-        let _ = w.feed.set_unit_step_mode(true);
-        let _ = w.feed.set_selection(selected(trace));
-        let _ = w.feed.set_enabled(true);
+        w.feed.set_unit_step_mode(true);
+        w.feed.set_selection(selected(trace));
+        w.feed.set_enabled(true);
     });
     let mut device = CompatDevice {
         wheel,
@@ -230,7 +232,9 @@ impl RecordDevice {
     fn edge(&mut self, t: f64, levels: AbLevels, bus: &mut Bus) {
         self.timers(t, bus);
         let _ = self.wheel.edge().on_edge(levels);
-        if self.wheel.lock(Handwheel::take_record_due) && !self.pending {
+        // The edge wakes a round, which takes its motion in.
+        self.wheel.take_motion(Intake::RoundStart);
+        if self.wheel.lock(|w| w.feed.take_record_due()) && !self.pending {
             self.pending = true;
             // The event is at `t`: an inhibit time that ran out earlier does not date it.
             self.inhibit_end = self.inhibit_end.max(t);
@@ -242,8 +246,10 @@ impl RecordDevice {
 fn record(trace: &Trace, bus: &mut Bus) -> Vec<Sent> {
     let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
     wheel.lock(|w| {
-        let _ = w.feed.set_selection(selected(trace));
-        let _ = w.feed.set_enabled(true);
+        w.feed.set_selection(selected(trace));
+        w.feed.set_enabled(true);
+        // Set up before the trace: only the wheel's motion makes records.
+        let _ = w.feed.take_record_due();
     });
     let mut device = RecordDevice {
         wheel,

@@ -19,7 +19,7 @@ use handwheel_device::mutant::Mutant;
 use stateright::{Checker, HasDiscoveries, Model};
 
 const USAGE: &str =
-    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot|stall-completions] [setting name parts]";
+    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot|stall-completions|enable-intake] [setting name parts]";
 
 fn main() -> ExitCode {
     let mut failed = false;
@@ -130,6 +130,7 @@ fn mutant_named(name: &str) -> Option<Mutant> {
         "reset" => Some(Mutant::ResetKeepsPending),
         "snapshot" => Some(Mutant::TpdoReadAtSend),
         "stall-completions" => Some(Mutant::StallCompletions),
+        "enable-intake" => Some(Mutant::EnableWithoutIntake),
         _ => None,
     }
 }

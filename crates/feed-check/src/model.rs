@@ -8,7 +8,7 @@
 //!
 //! Every action is one thing the outside world can do: the operator turns (forward or back,
 //! between two rounds of the device or landing inside one, at a chosen access of the CAN side
-//! to the wheel), moves the axis or the multiplier switch; a master sends NMT or writes
+//! to the wheel, a lock or an intake of motion), moves the axis or the multiplier switch; a master sends NMT or writes
 //! 0x2000; the device loses power; time passes; the bus takes a frame (or the channel loses
 //! or doubles it, or delivers a copy of an earlier record); the host configures (when its rule
 //! asks), stalls or resumes; the master's heartbeat comes; or time settles (half a second without faults, so that motion
@@ -21,7 +21,9 @@
 //! blocked, and off once the device left Operational, lost the master's heartbeat for its
 //! consumer time, changed or ended its session, or had frames wait 100 ms without the path
 //! running empty; the session the token written last (0 after a reset, a write of anything it
-//! stands for, or the pace); and nothing made before a reset reaching the bus after it.
+//! stands for, or the pace); nothing made before a reset reaching the bus after it; and every
+//! detent taken in under what it counted for when it came (the feed off, or the axis and
+//! multiplier: motion before a change belongs to the old state).
 
 use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
@@ -30,8 +32,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, BitRate, DecoderConfig, EdgeState, Handwheel, LinkedWheel, Mutex, SelectorInput,
-    SequencePace,
+    AbLevels, Axis, BitRate, DecoderConfig, EdgeState, FeedAccumulator, Handwheel, Intake,
+    LinkedWheel, Multiplier, Mutex, SelectorInput, SequencePace, Wheel,
 };
 use handwheel_device::mutant::Mutant;
 use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState, TRANSMIT_STALL_MS};
@@ -55,7 +57,8 @@ const FACTORS: [i32; 3] = [1, 10, 100];
 /// Time steps of [`Action::Settle`], ms: the master's heartbeat comes at least this often.
 const SETTLE_STEP_MS: u64 = 50;
 /// Rounds the model runs back to back while the node asks for no sleep at all (a feed
-/// record made due at the end of a round goes out in the next one, at once).
+/// record made due at the end of a round goes out in the next one, at once) or a detent
+/// waits to be taken in.
 const BACK_TO_BACK: usize = 4;
 
 /// Explore on past breaches (`feed-check --through`): for measuring how large a setting that
@@ -451,6 +454,9 @@ pub struct World {
     /// A detent that lands at this access to the wheel during the next action's rounds
     /// (backward?, access).
     pending: Option<(bool, u8)>,
+    /// Detents in the edge state that no intake of the device took in yet (backward?, what
+    /// they counted for when they came), in turning order; none once an action is over.
+    untaken: Vec<(bool, CountsFor)>,
     /// Accesses to the wheel so far in this action.
     locks: u8,
     /// The object (index, value) of the SDO write this action makes, until the device
@@ -664,14 +670,36 @@ impl SelectorInput for Lines {
     }
 }
 
-/// The CAN side's wheel for one action's rounds: a detent may land at a chosen access.
+/// What a detent counts for in the device's accumulator: the axis and multiplier while the
+/// feed is enabled, nothing otherwise.
+type CountsFor = Option<(Option<Axis>, Multiplier)>;
+
+fn counts_for(feed: &FeedAccumulator) -> CountsFor {
+    feed.enabled().then(|| {
+        let s = feed.selection();
+        (s.axis, s.multiplier)
+    })
+}
+
+/// The CAN side's wheel for one action's rounds: a detent may land at a chosen access (a lock
+/// or an intake of motion), and counts as taken in by the next intake.
+///
+/// The device must take a detent in under what it counted for when it came: motion before a
+/// change of enable or selection belongs to the old state (`handwheel_core::wheel`). An intake
+/// before a change and the change's lock count as one access: an edge between the two (a
+/// few instructions on the MCU) is the one order the model leaves out.
 struct ModelWheel<'a> {
     inner: &'a mut LinkedWheel<EdgeState>,
     levels: &'a mut AbLevels,
     pending: &'a mut Option<(bool, u8)>,
     locks: &'a mut u8,
-    /// The detent landed, backward?, and whether the device's feed was enabled then.
-    landed: Option<(bool, bool)>,
+    untaken: &'a mut Vec<(bool, CountsFor)>,
+    /// The last access was an intake before a change: the change's lock is the same access.
+    changing: bool,
+    /// The detents the device took in, backward?, and whether its feed was enabled then.
+    taken: Vec<(bool, bool)>,
+    /// A detent taken in under something else than it counted for when it came.
+    misplaced: Option<(CountsFor, CountsFor)>,
 }
 
 /// One detent's four edges.
@@ -686,22 +714,45 @@ fn detent(wheel: &mut LinkedWheel<EdgeState>, levels: &mut AbLevels, back: bool)
     }
 }
 
-impl Mutex for ModelWheel<'_> {
-    type T = Handwheel;
-
-    fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+impl ModelWheel<'_> {
+    /// An access of the CAN side to the wheel: the pending detent lands right before it if
+    /// this is its access.
+    fn access(&mut self) {
         *self.locks = self.locks.saturating_add(1);
         if let Some((back, at)) = *self.pending {
             if at == *self.locks {
                 *self.pending = None;
                 detent(self.inner, self.levels, back);
-                // The edge's detent is taken in by this access: it counts as feed if the
-                // device has the feed enabled now.
-                let enabled = self.inner.feed().enabled();
-                self.landed = Some((back, enabled));
+                self.untaken.push((back, counts_for(self.inner.feed())));
             }
         }
+    }
+}
+
+impl Mutex for ModelWheel<'_> {
+    type T = Handwheel;
+
+    fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+        if !std::mem::take(&mut self.changing) {
+            self.access();
+        }
         self.inner.lock(f)
+    }
+}
+
+impl Wheel for ModelWheel<'_> {
+    fn take_motion(&mut self, at: Intake) {
+        self.access();
+        self.changing = at == Intake::BeforeChange;
+        self.inner.take_motion(at);
+        // The detents waiting are taken in now: feed if the device has the feed enabled.
+        let now = counts_for(self.inner.feed());
+        for (back, then) in self.untaken.drain(..) {
+            if then != now {
+                self.misplaced.get_or_insert((then, now));
+            }
+            self.taken.push((back, now.is_some()));
+        }
     }
 }
 
@@ -771,6 +822,7 @@ impl FeedModel {
             truth: Default::default(),
             spec: Spec::default(),
             pending: None,
+            untaken: Vec::new(),
             locks: 0,
             writing: None,
             used: [0; 13],
@@ -860,19 +912,21 @@ impl FeedModel {
     /// for no sleep.
     ///
     /// The firmware also runs the next round at once when one ends with a feed record due
-    /// (a stall's stop, a detent taken in by the round's last access to the wheel). The model
-    /// does so after a round a detent landed in; otherwise the next action's round, which
-    /// every action that reaches the device begins with, sends it (fewer states, and only
-    /// orders the firmware could also take, a little later).
+    /// (a stall's stop, a detent taken in by the round's last intake), and when a detent
+    /// came after the round's last intake (the edge's wake-up). The model does so after a
+    /// round a detent landed in; otherwise the next action's round, which every action that
+    /// reaches the device begins with, sends it (fewer states, and only orders the firmware
+    /// could also take, a little later).
     fn step(&self, w: &mut World, frame: Option<Frame>) {
         let mut frame = frame;
         for _ in 0..BACK_TO_BACK {
             let landing = w.pending.is_some();
             let out = self.round(w, frame.take());
-            if out.sleep_ms > 0 || !landing || w.pending.is_some() {
+            if w.untaken.is_empty() && (out.sleep_ms > 0 || !landing || w.pending.is_some()) {
                 break;
             }
         }
+        assert!(w.untaken.is_empty(), "a detent the device never took in");
     }
 
     fn round(&self, w: &mut World, frame: Option<Frame>) -> Outputs {
@@ -900,7 +954,10 @@ impl FeedModel {
             levels: &mut w.real.levels,
             pending: &mut w.pending,
             locks: &mut w.locks,
-            landed: None,
+            untaken: &mut w.untaken,
+            changing: false,
+            taken: Vec::new(),
+            misplaced: None,
         };
         // What only the stall-completions mutant reads: frames that left the path so far.
         w.real
@@ -914,11 +971,19 @@ impl FeedModel {
             &mut Lines(w.axis, w.multiplier),
             &mut wheel,
         );
-        let (landed, stalled, wrongly) = (wheel.landed, port.stalled, port.wrongly_enabled);
+        let (taken, misplaced) = (wheel.taken, wheel.misplaced);
+        let (stalled, wrongly) = (port.stalled, port.wrongly_enabled);
         if let Some(why) = wrongly {
             self.breach(w, format!("device: 0x2000 = 1 accepted while {why}"));
         }
-        if let Some((back, enabled)) = landed {
+        if let Some((then, now)) = misplaced {
+            let message = format!(
+                "device: a detent that came while it counted for {then:?} was taken in \
+                 after a change, for {now:?}"
+            );
+            self.breach(w, message);
+        }
+        for (back, enabled) in taken {
             self.turned(w, back, enabled);
         }
         if stalled {
@@ -1050,10 +1115,10 @@ impl FeedModel {
         self.receive(w, 0x700 + MASTER, &[0x05]);
     }
 
+    /// A detent between two rounds: the next round takes it in first.
     fn turn(&self, w: &mut World, back: bool) {
         detent(&mut w.real.wheel, &mut w.real.levels, back);
-        let enabled = w.real.wheel.feed().enabled();
-        self.turned(w, back, enabled);
+        w.untaken.push((back, counts_for(w.real.wheel.feed())));
         self.step(w, None);
     }
 

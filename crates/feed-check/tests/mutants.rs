@@ -1,5 +1,6 @@
-//! The checker kills the device bugs that nothing caught before issue 34 (one plausible bug
-//! each, in the real device code, selected at run time: `handwheel_device::mutant`). A
+//! The checker kills the device bugs that nothing caught before issue 34, and a change made
+//! without taking the wheel's motion in first (issue 35's intake points): one plausible bug
+//! each, in the real device code, selected at run time (`handwheel_device::mutant`). A
 //! checker that stops seeing any of them fails here. The same settings pass on the real code
 //! (`cargo xtask test` runs them all).
 
@@ -35,6 +36,12 @@ fn a_reset_that_keeps_pending_frames_sends_them_after_it() {
 fn a_record_read_at_send_time_credits_the_wrong_axis() {
     let found = killed("edges in a round", Mutant::TpdoReadAtSend);
     assert!(found.contains("a detent turned on X"), "{found}");
+}
+
+#[test]
+fn an_enable_written_without_taking_the_motion_in_first_misplaces_a_detent() {
+    let found = killed("edges in a round", Mutant::EnableWithoutIntake);
+    assert!(found.contains("was taken in after a change"), "{found}");
 }
 
 #[test]

@@ -18,6 +18,12 @@
 //!   and disables the feed, so no record of one session carries motion enabled in another;
 //! - the unit-step backlog is bounded: steps beyond the bound are dropped and flagged, so
 //!   run-on after the wheel stops can never exceed `bound x pacing`.
+//!
+//! It also knows when a feed record is due: every change of what a record carries (the
+//! position, a status bit, the selection, the enable, the session, an epoch, more in the
+//! outbox to send) marks one due inside it, as CANopenNode's `OD_requestTPDO` or zencan's
+//! event flag would, and the device takes the mark when it requests TPDO1
+//! ([`FeedAccumulator::take_record_due`]).
 
 use crate::feed::{FeedState, FeedStatus, UnitStep};
 use crate::outbox::FeedOutbox;
@@ -60,6 +66,8 @@ pub struct FeedAccumulator {
     ignored_detents: u32,
     dropped_steps: u32,
     outbox: FeedOutbox,
+    /// What a record carries changed since the device last requested one.
+    record_due: bool,
 }
 
 impl Default for FeedAccumulator {
@@ -87,6 +95,7 @@ impl FeedAccumulator {
             ignored_detents: 0,
             dropped_steps: 0,
             outbox: FeedOutbox::new(),
+            record_due: false,
         }
     }
 
@@ -103,22 +112,23 @@ impl FeedAccumulator {
         true
     }
 
-    /// Adds detents from the decoder. Returns `true` when what a feed record carries changed
-    /// (position or status), i.e. when a frame is due.
+    /// Adds detents from the decoder: the position moves (a record is due), or, disabled or
+    /// without an axis, they are counted as ignored (a record is due the first time).
     ///
     /// A wrapping difference of the edge's detent total: any count, either sign.
     #[inline]
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn add_detents(&mut self, detents: i32) -> bool {
+    pub fn add_detents(&mut self, detents: i32) {
         if detents == 0 {
-            return false;
+            return;
         }
         if !self.enabled || self.selection.axis.is_none() {
             self.ignored_detents = self.ignored_detents.wrapping_add(detents.unsigned_abs());
-            return self.latch(FeedStatus::IGNORED_MOTION);
+            self.latch(FeedStatus::IGNORED_MOTION);
+            return;
         }
         let units = detents.wrapping_mul(i32::from(self.selection.multiplier.factor()));
         self.position = self.position.wrapping_add(units);
+        self.record_due = true;
         if self.unit_steps {
             // `units` is at most |detents| x 100 and the backlog at most 65535: no overflow
             // for any detent count the decoder can deliver between two reads.
@@ -133,21 +143,18 @@ impl FeedAccumulator {
             }
             self.pending_steps = kept;
         }
-        true
     }
 
-    /// Notes an illegal quadrature transition. Returns `true` if the status changed.
-    #[must_use = "a changed status needs a TPDO"]
-    pub fn note_encoder_error(&mut self) -> bool {
-        self.latch(FeedStatus::ENCODER_ERROR)
+    /// Notes an illegal quadrature transition (a status bit, latched for the epoch).
+    pub fn note_encoder_error(&mut self) {
+        self.latch(FeedStatus::ENCODER_ERROR);
     }
 
     /// Feed enable (object 0x2000). Any change starts a new epoch; disabling discards pending
-    /// steps. Returns `true` if anything changed.
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn set_enabled(&mut self, enabled: bool) -> bool {
+    /// steps.
+    pub fn set_enabled(&mut self, enabled: bool) {
         if enabled == self.enabled {
-            return false;
+            return;
         }
         let before = self.state();
         self.enabled = enabled;
@@ -155,23 +162,20 @@ impl FeedAccumulator {
             self.latched.remove(FeedStatus::MASTER_LOST);
         }
         self.new_epoch(before);
-        true
     }
 
     /// Unit-step (paper) mode on or off (object 0x2001). Any change starts a new epoch.
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn set_unit_step_mode(&mut self, on: bool) -> bool {
+    pub fn set_unit_step_mode(&mut self, on: bool) {
         if on == self.unit_steps {
-            return false;
+            return;
         }
         let before = self.state();
         self.unit_steps = on;
         self.new_epoch(before);
-        true
     }
 
-    /// The debounced selector state. A change of axis or multiplier starts a new epoch.
-    #[must_use = "a changed feed needs a TPDO"]
+    /// The debounced selector state. A change of axis or multiplier starts a new epoch;
+    /// returns whether it changed (the unit step prepared for the old one is withdrawn).
     pub fn set_selection(&mut self, selection: Selection) -> bool {
         if selection == self.selection {
             return false;
@@ -183,32 +187,29 @@ impl FeedAccumulator {
     }
 
     /// Stops the feed from outside: disables it and discards pending steps, as a disable
-    /// does. Returns `true` if anything changed.
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn stop(&mut self, reason: StopReason) -> bool {
+    /// does.
+    pub fn stop(&mut self, reason: StopReason) {
         // Disabled means no pending steps (disabling discards them, and nothing is added
         // while disabled), so disabling is all a stop has to do. It comes first: the epoch
         // it closes ended enabled, without the loss (never both in one record).
-        let disabled = self.set_enabled(false);
-        let lost = reason != StopReason::NotOperational && self.latch(FeedStatus::MASTER_LOST);
-        lost || disabled
+        self.set_enabled(false);
+        if reason != StopReason::NotOperational {
+            self.latch(FeedStatus::MASTER_LOST);
+        }
     }
 
     /// The master's session (object 0x2002): 0 ends it, 1..=7 opens one (larger values keep
     /// their low three bits). A change starts a new epoch and disables the feed, so that
-    /// records of the new session never carry motion enabled under the old one. Returns
-    /// `true` if anything changed.
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn set_session(&mut self, session: u8) -> bool {
+    /// records of the new session never carry motion enabled under the old one.
+    pub fn set_session(&mut self, session: u8) {
         let session = session & 0b111;
         if session == self.session {
-            return false;
+            return;
         }
         let before = self.state();
         self.enabled = false;
         self.session = session;
         self.new_epoch(before);
-        true
     }
 
     /// The master's session (object 0x2002).
@@ -222,16 +223,15 @@ impl FeedAccumulator {
     }
 
     /// A number was taken beyond the outbox's pace: the session ends (a new epoch, feed
-    /// off), so that no later record is taken as part of it. Returns whether it did.
-    fn end_session_if_overdrawn(&mut self) -> bool {
+    /// off), so that no later record is taken as part of it.
+    fn end_session_if_overdrawn(&mut self) {
         if !self.outbox.take_overdrawn() || self.session == 0 {
-            return false;
+            return;
         }
         let before = self.state();
         self.enabled = false;
         self.session = 0;
         self.new_epoch(before);
-        true
     }
 
     /// Takes the next unit step of the backlog, moving it one step toward zero.
@@ -246,10 +246,12 @@ impl FeedAccumulator {
         Some(UnitStep { axis, forward })
     }
 
-    /// The one place an epoch ends: `before` is its final state.
+    /// The one place an epoch ends: `before` is its final state. The next record carries
+    /// the new epoch: it is due.
     fn new_epoch(&mut self, before: FeedState) {
         self.outbox.close_epoch(before);
         self.epoch = self.epoch.wrapping_add(1);
+        self.record_due = true;
         self.pending_steps = 0;
         self.latched = self.latched.intersection(FeedStatus::MASTER_LOST);
         // A loss the closing took beyond the pace: the new epoch starts without the session
@@ -260,10 +262,29 @@ impl FeedAccumulator {
         }
     }
 
-    fn latch(&mut self, flag: FeedStatus) -> bool {
-        let changed = !self.latched.contains(flag);
+    /// Latches a status bit; a record is due if it was not latched yet.
+    fn latch(&mut self, flag: FeedStatus) {
+        self.record_due |= !self.latched.contains(flag);
         self.latched.insert(flag);
-        changed
+    }
+
+    /// Whether a feed record is due: what a record carries changed since the device last
+    /// took the mark ([`FeedAccumulator::take_record_due`]).
+    pub const fn record_due(&self) -> bool {
+        self.record_due
+    }
+
+    /// Whether a feed record is due ([`FeedAccumulator::record_due`]); clears the mark. The
+    /// device takes it when it requests TPDO1.
+    #[must_use = "a changed feed needs a TPDO"]
+    pub fn take_record_due(&mut self) -> bool {
+        core::mem::take(&mut self.record_due)
+    }
+
+    /// A record is due although nothing it carries changed: the device's parameters did
+    /// (a record made after the master's write follows it).
+    pub fn request_record(&mut self) {
+        self.record_due = true;
     }
 
     /// Cumulative feed position in multiplied units (object 0x6004), wrapping.
@@ -335,27 +356,26 @@ impl FeedAccumulator {
         }
     }
 
-    /// The feed record `sent` (taken with [`FeedAccumulator::record`]) went out. Returns
-    /// whether another one is due.
-    #[must_use = "a record that is due must be requested"]
-    pub fn record_sent(&mut self, sent: FeedState) -> bool {
+    /// The feed record `sent` (taken with [`FeedAccumulator::record`]) went out. Another
+    /// one is due if the outbox holds more or the present state differs from it.
+    pub fn record_sent(&mut self, sent: FeedState) {
         let live = self.state();
-        let due = self.outbox.sent(sent, live);
-        self.end_session_if_overdrawn() || due
+        self.record_due |= self.outbox.sent(sent, live);
+        self.end_session_if_overdrawn();
     }
 
     /// Feed records may flow (the device entered Operational): epochs that end from now on
     /// are held until their final state is sent.
     pub fn start_records(&mut self) {
         self.outbox.start();
-        let _ = self.end_session_if_overdrawn();
+        self.end_session_if_overdrawn();
     }
 
     /// Feed records stop (the device left Operational): the closed epochs not sent yet are
     /// dropped, their motion reaches no axis, and the sequence number shows the gap.
     pub fn stop_records(&mut self) {
         self.outbox.stop();
-        let _ = self.end_session_if_overdrawn();
+        self.end_session_if_overdrawn();
     }
 
     /// A mutant of [`FeedAccumulator::stop_records`] for the feed checker's mutation tests
@@ -369,7 +389,8 @@ impl FeedAccumulator {
     /// Reset node: back to power-on values, except what lets the host tell that a reset
     /// happened: the selection (hardware state) stays, the epoch steps and the record
     /// sequence goes on with a break ([`FeedOutbox::break_continuity`]), so that the first
-    /// record after the reset never continues one from before it. The session ends.
+    /// record after the reset never continues one from before it. The session ends, and a
+    /// record is due (it would carry all that).
     pub fn reset(&mut self) {
         let selection = self.selection;
         let epoch = self.epoch.wrapping_add(1);
@@ -382,13 +403,14 @@ impl FeedAccumulator {
         self.selection = selection;
         self.epoch = epoch;
         self.outbox = outbox;
+        self.record_due = true;
     }
 
     /// Records that were handed out may not reach the bus (the transmit path discarded them):
     /// nothing after this continues what came before.
     pub fn break_records(&mut self) {
         self.outbox.break_continuity();
-        let _ = self.end_session_if_overdrawn();
+        self.end_session_if_overdrawn();
     }
 
     /// The outbox, for diagnostics.
@@ -434,8 +456,15 @@ mod tests {
             axis: Some(axis),
             multiplier
         }));
-        assert!(acc.set_enabled(true));
+        assert!(marks(&mut acc, |a| a.set_enabled(true)));
         acc
+    }
+
+    /// Runs `f` on `acc` and says whether it marked a record due.
+    fn marks(acc: &mut FeedAccumulator, f: impl FnOnce(&mut FeedAccumulator)) -> bool {
+        let _ = acc.take_record_due();
+        f(acc);
+        acc.take_record_due()
     }
 
     fn drain(acc: &mut FeedAccumulator) -> (usize, i32) {
@@ -451,21 +480,21 @@ mod tests {
     #[test]
     fn position_moves_by_detents_times_multiplier() {
         let mut acc = active(Axis::X, Multiplier::X10);
-        assert!(acc.add_detents(3));
-        assert!(acc.add_detents(-1));
+        assert!(marks(&mut acc, |a| a.add_detents(3)));
+        assert!(marks(&mut acc, |a| a.add_detents(-1)));
         assert_eq!(acc.position(), 20);
         assert!(acc.set_selection(Selection {
             axis: Some(Axis::X),
             multiplier: Multiplier::X100
         }));
-        assert!(acc.add_detents(-2));
+        assert!(marks(&mut acc, |a| a.add_detents(-2)));
         assert_eq!(acc.position(), -180);
     }
 
     #[test]
     fn no_detents_is_no_change() {
         let mut acc = active(Axis::X, Multiplier::X1);
-        assert!(!acc.add_detents(0));
+        assert!(!marks(&mut acc, |a| a.add_detents(0)));
         assert_eq!(acc.position(), 0);
     }
 
@@ -477,10 +506,13 @@ mod tests {
             multiplier: Multiplier::X100
         }));
         assert!(
-            acc.add_detents(5),
+            marks(&mut acc, |a| a.add_detents(5)),
             "first ignored motion latches a status bit"
         );
-        assert!(!acc.add_detents(-2), "already latched: no new frame needed");
+        assert!(
+            !marks(&mut acc, |a| a.add_detents(-2)),
+            "already latched: no new frame needed"
+        );
         assert_eq!(acc.position(), 0);
         assert_eq!(acc.ignored_detents(), 7);
         assert!(acc.status().contains(FeedStatus::IGNORED_MOTION));
@@ -490,8 +522,8 @@ mod tests {
     #[test]
     fn no_axis_turning_is_counted_but_never_feed() {
         let mut acc = FeedAccumulator::new();
-        assert!(acc.set_enabled(true));
-        assert!(acc.add_detents(4));
+        assert!(marks(&mut acc, |a| a.set_enabled(true)));
+        assert!(marks(&mut acc, |a| a.add_detents(4)));
         assert_eq!(acc.position(), 0);
         assert_eq!(acc.ignored_detents(), 4);
     }
@@ -500,9 +532,9 @@ mod tests {
     fn position_wraps_at_i32_limits() {
         let mut acc = active(Axis::Z, Multiplier::X100);
         acc.position = i32::MAX - 50;
-        assert!(acc.add_detents(1));
+        assert!(marks(&mut acc, |a| a.add_detents(1)));
         assert_eq!(acc.position(), i32::MIN + 49);
-        assert!(acc.add_detents(-1));
+        assert!(marks(&mut acc, |a| a.add_detents(-1)));
         assert_eq!(acc.position(), i32::MAX - 50);
         // The host's delta across the wrap is still +100.
         let before = i32::MAX - 50;
@@ -513,9 +545,9 @@ mod tests {
     #[test]
     fn every_selection_change_bumps_epoch_and_discards_steps() {
         let mut acc = active(Axis::X, Multiplier::X1);
-        assert!(acc.set_unit_step_mode(true));
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
         let epoch = acc.epoch();
-        let _ = acc.add_detents(5);
+        acc.add_detents(5);
         assert_eq!(acc.pending_steps(), 5);
         assert!(acc.set_selection(Selection {
             axis: Some(Axis::Y),
@@ -526,7 +558,7 @@ mod tests {
             (0, epoch.wrapping_add(1))
         );
 
-        let _ = acc.add_detents(5);
+        acc.add_detents(5);
         assert!(acc.set_selection(Selection {
             axis: Some(Axis::Y),
             multiplier: Multiplier::X10
@@ -546,37 +578,37 @@ mod tests {
     #[test]
     fn disable_discards_steps_and_stops_feed() {
         let mut acc = active(Axis::X, Multiplier::X10);
-        assert!(acc.set_unit_step_mode(true));
-        let _ = acc.add_detents(2);
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
+        acc.add_detents(2);
         assert_eq!(acc.pending_steps(), 20);
         let epoch = acc.epoch();
-        assert!(acc.set_enabled(false));
+        assert!(marks(&mut acc, |a| a.set_enabled(false)));
         assert_eq!(acc.pending_steps(), 0);
         assert_eq!(acc.epoch(), epoch.wrapping_add(1));
         assert_eq!(acc.take_unit_step(), None);
-        let _ = acc.add_detents(2);
+        acc.add_detents(2);
         assert_eq!(acc.position(), 20);
     }
 
     #[test]
     fn master_lost_stops_disables_and_latches_until_enabled() {
         let mut acc = active(Axis::W, Multiplier::X1);
-        assert!(acc.set_unit_step_mode(true));
-        let _ = acc.add_detents(3);
-        assert!(acc.stop(StopReason::MasterLost));
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
+        acc.add_detents(3);
+        assert!(marks(&mut acc, |a| a.stop(StopReason::MasterLost)));
         assert!(!acc.enabled());
         assert_eq!(acc.pending_steps(), 0);
         assert!(acc.status().contains(FeedStatus::MASTER_LOST));
         assert!(
-            !acc.stop(StopReason::MasterLost),
+            !marks(&mut acc, |a| a.stop(StopReason::MasterLost)),
             "second stop changes nothing"
         );
         // Feed does not resume by itself.
-        let _ = acc.add_detents(3);
+        acc.add_detents(3);
         assert_eq!(acc.position(), 3);
-        assert!(acc.set_enabled(true));
+        assert!(marks(&mut acc, |a| a.set_enabled(true)));
         assert!(!acc.status().contains(FeedStatus::MASTER_LOST));
-        let _ = acc.add_detents(1);
+        acc.add_detents(1);
         assert_eq!(acc.position(), 4);
     }
 
@@ -584,16 +616,16 @@ mod tests {
     fn stop_when_already_disabled_is_no_change() {
         let mut acc = FeedAccumulator::new();
         let epoch = acc.epoch();
-        assert!(!acc.stop(StopReason::NotOperational));
+        assert!(!marks(&mut acc, |a| a.stop(StopReason::NotOperational)));
         assert_eq!(acc.epoch(), epoch);
     }
 
     #[test]
     fn unit_steps_drain_toward_zero_in_order() {
         let mut acc = active(Axis::V, Multiplier::X1);
-        assert!(acc.set_unit_step_mode(true));
-        let _ = acc.add_detents(2);
-        let _ = acc.add_detents(-3);
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
+        acc.add_detents(2);
+        acc.add_detents(-3);
         assert_eq!(acc.pending_steps(), -1);
         assert_eq!(
             acc.take_unit_step(),
@@ -608,7 +640,7 @@ mod tests {
     #[test]
     fn no_unit_steps_outside_unit_step_mode() {
         let mut acc = active(Axis::X, Multiplier::X10);
-        let _ = acc.add_detents(3);
+        acc.add_detents(3);
         assert_eq!(acc.pending_steps(), 0);
         assert_eq!(acc.take_unit_step(), None);
     }
@@ -616,8 +648,8 @@ mod tests {
     #[test]
     fn backlog_is_bounded_and_overflow_is_flagged() {
         let mut acc = active(Axis::X, Multiplier::X100);
-        assert!(acc.set_unit_step_mode(true));
-        let _ = acc.add_detents(1);
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
+        acc.add_detents(1);
         let bound = i32::from(DEFAULT_STEP_BACKLOG);
         assert_eq!(acc.pending_steps(), bound);
         assert_eq!(acc.dropped_steps(), 100 - DEFAULT_STEP_BACKLOG as u32);
@@ -630,9 +662,9 @@ mod tests {
     #[test]
     fn reversal_eats_into_the_backlog_before_anything_is_dropped() {
         let mut acc = active(Axis::X, Multiplier::X10);
-        assert!(acc.set_unit_step_mode(true));
-        let _ = acc.add_detents(3);
-        let _ = acc.add_detents(-4);
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
+        acc.add_detents(3);
+        acc.add_detents(-4);
         assert_eq!(acc.pending_steps(), -10);
         assert_eq!(acc.dropped_steps(), 0);
         assert!(!acc.status().contains(FeedStatus::STEPS_DROPPED));
@@ -641,8 +673,8 @@ mod tests {
     #[test]
     fn custom_bound_and_zero_bound() {
         let mut acc = active(Axis::X, Multiplier::X1);
-        assert!(acc.set_unit_step_mode(true));
-        let _ = acc.add_detents(9);
+        assert!(marks(&mut acc, |a| a.set_unit_step_mode(true)));
+        acc.add_detents(9);
         assert!(acc.set_backlog_bound(4));
         assert_eq!(
             acc.pending_steps(),
@@ -656,9 +688,9 @@ mod tests {
     #[test]
     fn latched_flags_last_for_the_epoch() {
         let mut acc = active(Axis::X, Multiplier::X1);
-        assert!(acc.note_encoder_error());
-        assert!(!acc.note_encoder_error());
-        let _ = acc.add_detents(1);
+        assert!(marks(&mut acc, |a| a.note_encoder_error()));
+        assert!(!marks(&mut acc, |a| a.note_encoder_error()));
+        acc.add_detents(1);
         assert!(acc.status().contains(FeedStatus::ENCODER_ERROR));
         assert!(acc.set_selection(Selection {
             axis: Some(Axis::Y),
@@ -676,9 +708,51 @@ mod tests {
     fn epoch_wraps() {
         let mut acc = FeedAccumulator::new();
         for i in 0..300u32 {
-            assert!(acc.set_enabled(i % 2 == 0));
+            assert!(marks(&mut acc, |a| a.set_enabled(i % 2 == 0)));
         }
         assert_eq!(acc.epoch(), (300 % 256) as u8);
+    }
+
+    #[test]
+    fn a_record_is_due_while_the_outbox_holds_more_or_the_state_moved_on() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        acc.start_records();
+        let first = acc.record();
+        assert!(!marks(&mut acc, |a| a.record_sent(first.state)), "all said");
+        acc.add_detents(2);
+        // The epoch ends before its last detents went out: its final state is held.
+        assert!(acc.set_selection(Selection {
+            axis: Some(Axis::Y),
+            multiplier: Multiplier::X1
+        }));
+        let held = acc.record();
+        assert_eq!((held.state.axis, held.state.position), (Some(Axis::X), 2));
+        assert!(
+            marks(&mut acc, |a| a.record_sent(held.state)),
+            "the present state (Y) is still to be said"
+        );
+        let live = acc.record();
+        assert_eq!(live.state.axis, Some(Axis::Y));
+        assert!(!marks(&mut acc, |a| a.record_sent(live.state)));
+        assert!(marks(&mut acc, |a| a.request_record()), "asked for");
+        assert!(marks(&mut acc, |a| a.reset()), "position 0, a new epoch");
+    }
+
+    #[test]
+    fn a_session_the_pace_ends_is_due_wherever_it_ends() {
+        let mut acc = active(Axis::X, Multiplier::X1);
+        acc.start_records();
+        acc.set_session(3);
+        // Records at one instant until the bucket is empty.
+        while acc.outbox().paced() {
+            let record = acc.record();
+            acc.record_sent(record.state);
+        }
+        assert_eq!(acc.session(), 3);
+        // The stop is a break the empty bucket cannot pay for: the session ends there,
+        // outside any record, and a record is due.
+        assert!(marks(&mut acc, |a| a.stop_records()));
+        assert_eq!((acc.session(), acc.enabled()), (0, false));
     }
 
     #[test]
@@ -686,18 +760,18 @@ mod tests {
         let mut acc = active(Axis::X, Multiplier::X1);
         acc.start_records();
         let epoch = acc.epoch();
-        assert!(acc.set_session(3));
+        assert!(marks(&mut acc, |a| a.set_session(3)));
         assert_eq!((acc.session(), acc.enabled()), (3, false));
         assert_eq!(acc.epoch(), epoch.wrapping_add(1));
         assert_eq!(acc.state().session, 3);
         assert!(
-            !acc.set_session(3),
+            !marks(&mut acc, |a| a.set_session(3)),
             "the same session again changes nothing"
         );
-        assert!(acc.set_enabled(true));
-        assert!(acc.set_session(0));
+        assert!(marks(&mut acc, |a| a.set_enabled(true)));
+        assert!(marks(&mut acc, |a| a.set_session(0)));
         assert!(!acc.enabled(), "ending the session stops the feed");
-        assert!(acc.set_session(9 + 8));
+        assert!(marks(&mut acc, |a| a.set_session(9 + 8)));
         assert_eq!(acc.session(), 1, "only three bits travel");
     }
 
@@ -705,14 +779,14 @@ mod tests {
     fn numbers_beyond_the_pace_end_the_session() {
         let mut acc = active(Axis::X, Multiplier::X1);
         acc.start_records();
-        assert!(acc.set_session(5));
-        assert!(acc.set_enabled(true));
+        assert!(marks(&mut acc, |a| a.set_session(5)));
+        assert!(marks(&mut acc, |a| a.set_enabled(true)));
         acc.tick(10_000);
         // A burst of records at one instant: the pace allows SEQUENCE_BURST of them.
         let mut ended_at = None;
         for n in 0..2 * usize::from(crate::SEQUENCE_BURST) {
             let record = acc.record();
-            let _ = acc.record_sent(record.state);
+            acc.record_sent(record.state);
             if acc.session() == 0 {
                 ended_at = Some(n);
                 break;
@@ -730,13 +804,13 @@ mod tests {
     fn a_record_per_millisecond_keeps_the_session() {
         let mut acc = active(Axis::X, Multiplier::X1);
         acc.start_records();
-        assert!(acc.set_session(2));
-        assert!(acc.set_enabled(true));
+        assert!(marks(&mut acc, |a| a.set_session(2)));
+        assert!(marks(&mut acc, |a| a.set_enabled(true)));
         for t in 0..5_000u64 {
             acc.tick(t * 1000);
-            assert!(acc.add_detents(1));
+            assert!(marks(&mut acc, |a| a.add_detents(1)));
             let record = acc.record();
-            let _ = acc.record_sent(record.state);
+            acc.record_sent(record.state);
         }
         assert_eq!((acc.session(), acc.enabled()), (2, true));
     }
@@ -745,7 +819,7 @@ mod tests {
     fn reset_ends_the_session() {
         let mut acc = active(Axis::X, Multiplier::X1);
         acc.start_records();
-        assert!(acc.set_session(4));
+        assert!(marks(&mut acc, |a| a.set_session(4)));
         acc.reset();
         assert_eq!(acc.session(), 0);
     }

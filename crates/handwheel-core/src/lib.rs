@@ -11,8 +11,9 @@
 //! - [`feed`]: the feed status bits and the unit step, shared by the two below.
 //! - [`accumulator`]: detents to a cumulative feed position (and the paper's bounded
 //!   unit-step backlog), gated by enable, axis and the master's presence.
-//! - [`wheel`]: the CAN side's wheel: the shared decoder as last published, the settings
-//!   asked of it, and the accumulator; reached as an RTIC `Mutex`.
+//! - [`wheel`]: the CAN side's wheel: the shared decoder as last taken in, the settings
+//!   asked of it, and the accumulator; reached as an RTIC `Mutex`, with the edge's motion
+//!   taken in at named points of a round.
 //! - [`outbox`]: holds each selection epoch's final state until the bus takes it, so that
 //!   no epoch ends unseen while the bus is blocked.
 //! - [`pdo`]: the 8-byte feed record and the paper's 1-byte unit-step format.
@@ -44,4 +45,4 @@ pub use selector::{
     DEFAULT_DEBOUNCE_SAMPLES,
 };
 pub use standstill::{Settle, Standstill, STANDSTILL_MS};
-pub use wheel::{Handwheel, LinkedWheel};
+pub use wheel::{Handwheel, Intake, LinkedWheel, Wheel};

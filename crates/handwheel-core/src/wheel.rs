@@ -5,25 +5,42 @@
 //! reaches its [`Handwheel`] through a [`LinkedWheel`], which is itself an RTIC [`Mutex`] of
 //! the handwheel over an RTIC [`Mutex`] of the edge state: on the MCU the proxy of the RTIC
 //! resource, on the host the [`EdgeState`] itself, owned in place. So the device's code is
-//! generic over `impl Mutex<T = Handwheel>`, as RTIC's own generic code is over its
-//! resources, and runs unchanged on both.
+//! generic over [`Wheel`], RTIC's `Mutex<T = Handwheel>` with the intake below, as RTIC's
+//! own generic code is over its resources, and runs unchanged on both.
+//!
+//! # Where motion is taken in
+//!
+//! A lock of the wheel never looks at the edge. The edge's new detents and illegal
+//! transitions reach the accumulator only where the CAN side takes them in
+//! ([`Wheel::take_motion`], one short lock of the edge state), at the named points of a
+//! round ([`Intake`]) that the ordering rule needs:
+//! - [`Intake::RoundStart`], the round's first act: the motion that woke the round is in
+//!   before anything in it looks at the wheel (the standstill sample, SDO reads, whether a
+//!   record is due);
+//! - [`Intake::BeforeChange`], right before every change of what motion counts for (feed
+//!   enable, selection, session, unit-step format, a stop, a reset, and a sent record's
+//!   number, which may end the session at the pace; [`Wheel::change`]):
+//!   motion that came before the change belongs to the old state, so a detent turned while
+//!   disabled is not made feed by the enable after it, nor one turned on X credited to Y;
+//! - [`Intake::RecordSnapshot`], when TPDO1's record is taken: it carries all motion so far,
+//!   and as nothing is taken in while its objects are read, they all read that one snapshot.
+//!
+//! Motion that comes after a round's last intake waits in the edge state for the next round,
+//! which the edge's wake-up starts at once. The accumulator marks a feed record due itself
+//! whenever what a record carries changes, motion taken in among it
+//! ([`FeedAccumulator::take_record_due`]).
 
 use crate::accumulator::FeedAccumulator;
 use crate::decoder::{AbLevels, DecoderConfig};
 use crate::edge::{EdgeSnapshot, EdgeState, Mutex};
 
-/// The CAN side's wheel: the edge's decoder as last published and the settings asked of it
-/// (object 0x2020, with the bases that a reset of the application moves), the feed
-/// accumulator, and whether a feed record is due.
+/// The CAN side's wheel: the edge's decoder as last taken in and the settings asked of it
+/// (object 0x2020, with the bases that a reset of the application moves), and the feed
+/// accumulator.
 #[derive(Clone, Debug)]
 pub struct Handwheel {
     /// Feed accumulator (objects 0x2000, 0x2001, 0x2010, 0x2030, 0x6004).
     pub feed: FeedAccumulator,
-    /// What a feed record carries (position, status, selection) changed, or the outbox holds
-    /// more to send: TPDO1 is due. Set by the edge's motion and errors as they are taken in,
-    /// and by the device for what it changes itself; taken by
-    /// [`Handwheel::take_record_due`].
-    pub record_due: bool,
     snapshot: EdgeSnapshot,
     config: DecoderConfig,
     count_base: i32,
@@ -38,7 +55,6 @@ impl Handwheel {
     const fn new(config: DecoderConfig) -> Self {
         Self {
             feed: FeedAccumulator::new(),
-            record_due: false,
             snapshot: EdgeSnapshot {
                 edges: 0,
                 count: 0,
@@ -52,12 +68,6 @@ impl Handwheel {
             settings_pending: false,
             settle_pending: None,
         }
-    }
-
-    /// Whether a feed record is due ([`Handwheel::record_due`]); clears it.
-    #[must_use = "a changed feed needs a TPDO"]
-    pub fn take_record_due(&mut self) -> bool {
-        core::mem::take(&mut self.record_due)
     }
 
     /// Changes counts-per-detent and direction; the edge takes the present levels as the rest
@@ -92,7 +102,7 @@ impl Handwheel {
         self.rests_learnt
     }
 
-    /// What the edge had published when last looked at.
+    /// What the edge had published when its motion was last taken in.
     pub fn snapshot(&self) -> EdgeSnapshot {
         self.snapshot
     }
@@ -105,14 +115,43 @@ impl Handwheel {
     }
 }
 
+/// A point of the CAN side's round where the edge's motion is taken in (see the module
+/// docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Intake {
+    /// The round's first act.
+    RoundStart,
+    /// Right before a change of what motion counts for ([`Wheel::change`]).
+    BeforeChange,
+    /// When TPDO1's record is taken.
+    RecordSnapshot,
+}
+
+/// The CAN side's wheel as the device's code takes it: RTIC's lock of the [`Handwheel`],
+/// which never looks at the edge, and the edge's motion taken in at the named points of a
+/// round (see the module docs).
+pub trait Wheel: Mutex<T = Handwheel> {
+    /// Takes the edge's detents and illegal transitions since the last intake into the
+    /// accumulator, under one short lock of the edge state. `at` names the point: the same
+    /// intake at each, named for the reader and for the wheels of tests and the feed checker,
+    /// which turn the wheel at a chosen one.
+    fn take_motion(&mut self, at: Intake);
+
+    /// A change of what motion counts for: the motion so far is taken in first
+    /// ([`Intake::BeforeChange`]), so that it belongs to the old state, then `f` runs under
+    /// the lock.
+    fn change<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+        self.take_motion(Intake::BeforeChange);
+        self.lock(f)
+    }
+}
+
 /// [`Handwheel`] joined to the shared edge state through its RTIC [`Mutex`], and itself the
-/// RTIC [`Mutex`] of the handwheel.
+/// RTIC [`Mutex`] of the handwheel and a [`Wheel`].
 ///
-/// Every [`lock`](Mutex::lock) first takes the edge's new detents and illegal transitions
-/// into the accumulator under one short lock of the edge state (in the order of the CAN
-/// side's calls: motion before a change of selection or enable belongs to the old one), then
-/// runs the closure without that lock, then applies the decoder commands it made under a
-/// second one.
+/// A [`lock`](Mutex::lock) runs the closure without the edge's lock, then applies the decoder
+/// commands it made under one short lock of the edge state; [`Wheel::take_motion`] takes the
+/// edge's motion in under another.
 #[derive(Clone, Debug)]
 pub struct LinkedWheel<L> {
     edge: L,
@@ -128,30 +167,14 @@ impl<L: Mutex<T = EdgeState>> LinkedWheel<L> {
         }
     }
 
-    /// The feed accumulator, with the edge's publications taken in.
-    pub fn feed(&mut self) -> &FeedAccumulator {
-        self.sync();
+    /// The feed accumulator as the last intake left it (for tests and the checker).
+    pub fn feed(&self) -> &FeedAccumulator {
         &self.wheel.feed
     }
 
     /// The edge state's lock: on the host, the edge state itself, for the edges.
     pub fn edge(&mut self) -> &mut L {
         &mut self.edge
-    }
-
-    /// Takes the edge's publications since the last call into the accumulator.
-    fn sync(&mut self) {
-        let (now, rests_learnt) = self.edge.lock(|e| (e.snapshot(), e.rests_learnt()));
-        let wheel = &mut self.wheel;
-        wheel.rests_learnt = rests_learnt;
-        let detents = now.detents.wrapping_sub(wheel.snapshot.detents);
-        let errors = now.illegal != wheel.snapshot.illegal;
-        wheel.snapshot = now;
-        // Motion and errors commute in the accumulator: their order within one sync does not
-        // matter.
-        let moved = wheel.feed.add_detents(detents);
-        let flagged = errors && wheel.feed.note_encoder_error();
-        wheel.record_due |= moved | flagged;
     }
 
     /// Applies what the last access asked of the decoder, under one lock.
@@ -187,10 +210,26 @@ impl<L: Mutex<T = EdgeState>> Mutex for LinkedWheel<L> {
     type T = Handwheel;
 
     fn lock<R>(&mut self, f: impl FnOnce(&mut Handwheel) -> R) -> R {
-        self.sync();
         let result = f(&mut self.wheel);
         self.post();
         result
+    }
+}
+
+impl<L: Mutex<T = EdgeState>> Wheel for LinkedWheel<L> {
+    fn take_motion(&mut self, _at: Intake) {
+        let (now, rests_learnt) = self.edge.lock(|e| (e.snapshot(), e.rests_learnt()));
+        let wheel = &mut self.wheel;
+        wheel.rests_learnt = rests_learnt;
+        let detents = now.detents.wrapping_sub(wheel.snapshot.detents);
+        let errors = now.illegal != wheel.snapshot.illegal;
+        wheel.snapshot = now;
+        // Motion and errors commute in the accumulator: their order within one intake does
+        // not matter.
+        wheel.feed.add_detents(detents);
+        if errors {
+            wheel.feed.note_encoder_error();
+        }
     }
 }
 
@@ -205,13 +244,24 @@ mod tests {
     fn enabled_wheel() -> LinkedWheel<EdgeState> {
         let mut wheel = LinkedWheel::local(DecoderConfig::default(), START);
         wheel.lock(|w| {
-            let _ = w.feed.set_enabled(true);
-            let _ = w.feed.set_selection(Selection {
+            w.feed.set_enabled(true);
+            w.feed.set_selection(Selection {
                 axis: Some(Axis::X),
                 multiplier: Multiplier::X10,
             });
+            let _ = w.feed.take_record_due();
         });
         wheel
+    }
+
+    /// A round's first look at the wheel: the edge's motion taken in, then `f` under the lock.
+    fn round<R>(wheel: &mut LinkedWheel<EdgeState>, f: impl FnOnce(&mut Handwheel) -> R) -> R {
+        wheel.take_motion(Intake::RoundStart);
+        wheel.lock(f)
+    }
+
+    fn take_due(w: &mut Handwheel) -> bool {
+        w.feed.take_record_due()
     }
 
     #[test]
@@ -224,10 +274,32 @@ mod tests {
             *d = wheel.edge().on_edge(levels);
         }
         assert_eq!(due, [false, false, false, true, false, false, false, true]);
-        assert!(wheel.lock(Handwheel::take_record_due));
-        assert!(!wheel.lock(Handwheel::take_record_due), "taken once");
+        assert!(round(&mut wheel, take_due));
+        assert!(!round(&mut wheel, take_due), "taken once");
         assert_eq!(wheel.lock(|w| w.feed.position()), 20);
         assert_eq!(wheel.lock(|w| w.count()), 8);
+    }
+
+    #[test]
+    fn a_lock_takes_no_motion_in_only_an_intake_does() {
+        let mut wheel = enabled_wheel();
+        let mut levels = START;
+        for _ in 0..4 {
+            levels = levels.next_forward();
+            let _ = wheel.edge().on_edge(levels);
+        }
+        let before = wheel.lock(|w| (w.feed.position(), w.count(), take_due(w)));
+        assert_eq!(before, (0, 0, false), "the detent waits in the edge state");
+        // A change made now comes after the detent, but the detent is taken in after it:
+        // this is why every change takes the motion in first (`Wheel::change`).
+        wheel.change(|w| w.feed.set_enabled(false));
+        let after = wheel.lock(|w| (w.feed.position(), w.count(), w.feed.ignored_detents()));
+        assert_eq!(
+            after,
+            (10, 4, 0),
+            "taken in before the disable: feed at x10"
+        );
+        assert!(wheel.lock(take_due));
     }
 
     #[test]
@@ -237,13 +309,10 @@ mod tests {
             !wheel.edge().on_edge(AbLevels::from_bits(3)),
             "no wake-up for an illegal jump"
         );
-        assert!(
-            wheel.lock(Handwheel::take_record_due),
-            "but the status changed"
-        );
+        assert!(round(&mut wheel, take_due), "but the status changed");
         assert!(!wheel.edge().on_edge(AbLevels::from_bits(0)));
         assert!(
-            !wheel.lock(Handwheel::take_record_due),
+            !round(&mut wheel, take_due),
             "the status was already latched"
         );
         wheel.lock(|w| {
@@ -264,7 +333,7 @@ mod tests {
         // Two counts forward with inversion: one detent in reverse.
         let _ = wheel.edge().on_edge(START.next_forward());
         let _ = wheel.edge().on_edge(START.next_forward().next_forward());
-        wheel.lock(|w| {
+        round(&mut wheel, |w| {
             assert_eq!(w.feed.position(), -10);
             assert_eq!(w.count(), -2);
             w.reset_decoder(DecoderConfig::default());
@@ -276,7 +345,7 @@ mod tests {
             levels = levels.next_reverse();
             let _ = wheel.edge().on_edge(levels);
         }
-        wheel.lock(|w| {
+        round(&mut wheel, |w| {
             assert_eq!(w.feed.position(), -20);
             assert_eq!(w.count(), -4);
         });
@@ -290,7 +359,7 @@ mod tests {
         let _ = wheel.edge().on_edge(START.next_forward());
         let _ = wheel.edge().on_edge(levels);
         // The CAN side decides on a snapshot, the wheel moves before the request lands.
-        let decided_on = wheel.lock(|w| w.snapshot().edges);
+        let decided_on = round(&mut wheel, |w| w.snapshot().edges);
         assert_eq!(decided_on, 2);
         levels = levels.next_forward();
         let _ = wheel.edge().on_edge(levels);
@@ -298,7 +367,7 @@ mod tests {
         assert!(!settled, "moved: no settle");
         assert_eq!(wheel.edge().rests_learnt(), 0);
         // Asked with the present snapshot, it settles.
-        wheel.lock(|w| w.request_settle());
+        round(&mut wheel, |w| w.request_settle());
         assert_eq!(wheel.lock(|w| w.rests_learnt()), 1);
     }
 }

@@ -6,8 +6,8 @@
 //! check that reporting against the walk that produced the edges.
 
 use handwheel_core::{
-    AbLevels, Axis, CountsPerDetent, DecoderConfig, FeedAccumulator, Handwheel, LinkedWheel,
-    Multiplier, Mutex, QuadratureDecoder, Selection,
+    AbLevels, Axis, CountsPerDetent, DecoderConfig, FeedAccumulator, Intake, LinkedWheel,
+    Multiplier, Mutex, QuadratureDecoder, Selection, Wheel,
 };
 use proptest::prelude::*;
 
@@ -330,8 +330,8 @@ proptest! {
     ) {
         let mut wheel = LinkedWheel::local(DecoderConfig::default(), AbLevels::from_bits(0));
         wheel.lock(|w| {
-            let _ = w.feed.set_selection(Selection { axis: Some(Axis::ALL[axis]), multiplier: factor });
-            let _ = w.feed.set_enabled(true);
+            w.feed.set_selection(Selection { axis: Some(Axis::ALL[axis]), multiplier: factor });
+            w.feed.set_enabled(true);
         });
         let mut levels = AbLevels::from_bits(0);
         let mut net = 0i32;
@@ -346,11 +346,12 @@ proptest! {
                 levels = next;
                 let _ = wheel.edge().on_edge(levels);
                 if syncs.get(i * 4).copied().unwrap_or(false) {
-                    let _ = wheel.lock(Handwheel::take_record_due);
+                    wheel.take_motion(Intake::RoundStart);
                 }
             }
             net += if forward { 1 } else { -1 };
         }
+        wheel.take_motion(Intake::RoundStart);
         prop_assert_eq!(wheel.lock(|w| w.feed.position()), net * i32::from(factor.factor()));
     }
 
@@ -365,13 +366,13 @@ proptest! {
     ) {
         let mut acc = FeedAccumulator::new();
         prop_assert!(acc.set_backlog_bound(bound));
-        let _ = acc.set_unit_step_mode(true);
+        acc.set_unit_step_mode(true);
         let _ = acc.set_selection(Selection { axis: Some(Axis::X), multiplier: factor });
-        let _ = acc.set_enabled(true);
+        acc.set_enabled(true);
         let mut added = 0i64;
         let mut sent = 0i64;
         for (detents, takes) in ops {
-            let _ = acc.add_detents(detents);
+            acc.add_detents(detents);
             added += i64::from(detents) * i64::from(factor.factor());
             for _ in 0..takes {
                 if let Some(s) = acc.take_unit_step() {

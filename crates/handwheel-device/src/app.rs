@@ -2,8 +2,8 @@
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
-    CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, Handwheel, Mutex, StopReason,
-    UnitStep, UnitStepEncoder,
+    CounterStride, CountsPerDetent, DecoderConfig, FeedRecord, Handwheel, Intake, StopReason,
+    UnitStep, UnitStepEncoder, Wheel,
 };
 
 use crate::od::{
@@ -157,7 +157,7 @@ impl WheelParameters {
         let _ = wheel
             .feed
             .set_backlog_bound(self.param::<FEED_DIAGNOSTICS, 3>() as u16);
-        let _ = wheel.feed.set_unit_step_mode(self.unit_steps());
+        wheel.feed.set_unit_step_mode(self.unit_steps());
     }
 }
 
@@ -205,7 +205,7 @@ impl FeedApp {
 
 /// The application as the engine sees it during one call: the kept state plus access to
 /// the shared wheel.
-pub(crate) struct AppContext<'a, W: Mutex<T = Handwheel>> {
+pub(crate) struct AppContext<'a, W: Wheel> {
     pub app: &'a mut FeedApp,
     pub wheel: &'a mut W,
 }
@@ -216,7 +216,7 @@ fn put(buf: &mut [u8], bytes: &[u8]) -> Result<usize, SdoAbort> {
     Ok(bytes.len())
 }
 
-impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
+impl<W: Wheel> Application for AppContext<'_, W> {
     fn read(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
         self.read_object(index, sub, buf, false)
     }
@@ -237,7 +237,12 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
                 return Err(SdoAbort::DeviceState);
             }
             let write = route.write;
-            self.wheel.lock(|w| write(w, value));
+            #[cfg(feature = "mutants")]
+            if route.enables_feed && self.mutant(crate::mutant::Mutant::EnableWithoutIntake) {
+                self.wheel.lock(|w| write(w, value));
+                return Ok(());
+            }
+            self.wheel.change(|w| write(w, value));
             return Ok(());
         }
         let mut parameters = self.app.parameters;
@@ -304,7 +309,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
         {
             self.app.mutant = mutant;
         }
-        self.wheel.lock(|w| {
+        self.wheel.change(|w| {
             w.reset_decoder(const { WheelParameters::DEFAULT.decoder() });
             w.feed.reset();
         });
@@ -317,6 +322,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
             return true;
         }
         if pdo == 1 {
+            self.wheel.take_motion(Intake::RecordSnapshot);
             self.app.record = Some(self.wheel.lock(|w| w.feed.record()));
         }
         // TPDO2 carries unit steps, i.e. motion: it may only go out with a step in flight.
@@ -332,15 +338,20 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
         sub: u8,
         buf: &mut [u8],
     ) -> Result<usize, SdoAbort> {
+        #[cfg(feature = "mutants")]
+        if pdo == 1 && self.mutant(crate::mutant::Mutant::TpdoReadAtSend) {
+            self.wheel.take_motion(Intake::RecordSnapshot);
+        }
         self.read_object(index, sub, buf, pdo == 1)
     }
 
     fn on_tpdo_sent(&mut self, pdo: u8) {
         if pdo == 1 {
             let record = self.app.record.take();
-            self.wheel.lock(|w| {
+            // The number the record took may be beyond the pace, which ends the session.
+            self.wheel.change(|w| {
                 let sent = record.map_or_else(|| w.feed.record_to_send(), |r| r.state);
-                w.record_due |= w.feed.record_sent(sent);
+                w.feed.record_sent(sent);
             });
         } else if pdo == 2 && self.app.step_in_flight.take().is_some() {
             // `tpdo_ready` let TPDO2 go only with a step in flight: that step is on the bus.
@@ -365,7 +376,7 @@ impl<W: Mutex<T = Handwheel>> Application for AppContext<'_, W> {
     }
 }
 
-impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
+impl<W: Wheel> AppContext<'_, W> {
     #[cfg(feature = "mutants")]
     fn mutant(&self, m: crate::mutant::Mutant) -> bool {
         self.app.mutant == Some(m)
@@ -433,20 +444,20 @@ impl<W: Mutex<T = Handwheel>> AppContext<'_, W> {
     fn set_parameters(&mut self, parameters: WheelParameters) {
         self.app.parameters = parameters;
         self.app.step_in_flight = None;
-        self.wheel.lock(|w| {
+        self.wheel.change(|w| {
             parameters.apply(w);
-            w.record_due = true;
+            w.feed.request_record();
         });
     }
 
     fn end_session(&mut self) {
-        self.wheel.lock(|w| w.record_due |= w.feed.set_session(0));
+        self.wheel.change(|w| w.feed.set_session(0));
     }
 
     fn stop(&mut self, reason: StopReason) {
         // A step that has not reached the bus is withdrawn with the rest of the backlog.
         self.app.step_in_flight = None;
-        self.wheel.lock(|w| w.record_due |= w.feed.stop(reason));
+        self.wheel.change(|w| w.feed.stop(reason));
     }
 }
 

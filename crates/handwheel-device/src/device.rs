@@ -4,7 +4,7 @@
 use canopen_slave::{
     Config, Device, ErrorIndication, Frame, FrameSink, Instant, NmtState, NodeId, RxFilter, Storage,
 };
-use handwheel_core::{BitRate, FeedStatus, Handwheel, Mutex, Selection, StopReason};
+use handwheel_core::{BitRate, FeedStatus, Selection, StopReason, Wheel};
 
 use crate::app::{AppContext, FeedApp};
 use crate::node_config::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
@@ -102,7 +102,9 @@ impl FrameSink for KeepPending<'_> {
 
 /// The CANopen handwheel. `S` stores 0x1010 parameters (flash on the board, RAM in tests);
 /// the wheel (the CAN side's half, linked to the edge interrupt) lives outside and is reached
-/// through its RTIC [`Mutex`] on every call.
+/// through its RTIC [`Mutex`](handwheel_core::Mutex) on every call ([`Wheel`]: the device
+/// takes the edge's motion in before each change of what it counts for, and for TPDO1's
+/// record).
 #[derive(Clone, Debug)]
 pub struct HandwheelDevice<S> {
     engine: Device<S>,
@@ -138,12 +140,7 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
-    pub fn start(
-        &mut self,
-        now: Instant,
-        wheel: &mut impl Mutex<T = Handwheel>,
-        tx: &mut dyn FrameSink,
-    ) {
+    pub fn start(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
         let mut ctx = AppContext {
             app: &mut self.app,
             wheel: &mut *wheel,
@@ -161,7 +158,7 @@ impl<S: Storage> HandwheelDevice<S> {
         &mut self,
         now: Instant,
         frame: &Frame,
-        wheel: &mut impl Mutex<T = Handwheel>,
+        wheel: &mut impl Wheel,
         tx: &mut dyn FrameSink,
     ) {
         #[cfg(feature = "mutants")]
@@ -206,15 +203,11 @@ impl<S: Storage> HandwheelDevice<S> {
         }
     }
 
-    /// Time-driven work, and the wheel's new motion: call at
-    /// [`HandwheelDevice::next_deadline`] at the latest, after the edge task reported motion,
-    /// and after [`HandwheelDevice::set_selection`].
-    pub fn poll(
-        &mut self,
-        now: Instant,
-        wheel: &mut impl Mutex<T = Handwheel>,
-        tx: &mut dyn FrameSink,
-    ) {
+    /// Time-driven work, and a feed record for what changed: call at
+    /// [`HandwheelDevice::next_deadline`] at the latest, after the wheel's new motion was
+    /// taken in ([`Intake::RoundStart`](handwheel_core::Intake::RoundStart)), and after
+    /// [`HandwheelDevice::set_selection`].
+    pub fn poll(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
         self.service(now, wheel);
         let mut ctx = AppContext {
             app: &mut self.app,
@@ -225,12 +218,8 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// The debounced selector changed.
-    pub fn set_selection(&mut self, selection: Selection, wheel: &mut impl Mutex<T = Handwheel>) {
-        let changed = wheel.lock(|w| {
-            let changed = w.feed.set_selection(selection);
-            w.record_due |= changed;
-            changed
-        });
+    pub fn set_selection(&mut self, selection: Selection, wheel: &mut impl Wheel) {
+        let changed = wheel.change(|w| w.feed.set_selection(selection));
         if changed {
             // Pending unit steps were for the old selection: a prepared one goes too.
             self.app.step_in_flight = None;
@@ -246,7 +235,7 @@ impl<S: Storage> HandwheelDevice<S> {
         &mut self,
         now: Instant,
         state: TransmitState,
-        wheel: &mut impl Mutex<T = Handwheel>,
+        wheel: &mut impl Wheel,
         tx: &mut dyn FrameSink,
     ) -> bool {
         let tripped = self.stall.observe(now, state);
@@ -261,8 +250,8 @@ impl<S: Storage> HandwheelDevice<S> {
         );
         let operational = self.engine.nmt_state() == NmtState::Operational;
         self.app.step_in_flight = None;
-        wheel.lock(|w| {
-            w.record_due |= w.feed.stop(StopReason::TransmitBlocked);
+        wheel.change(|w| {
+            w.feed.stop(StopReason::TransmitBlocked);
             // What is held and queued is stale now: dropped, and a break, as when
             // leaving Operational and entering it again.
             w.feed.stop_records();
@@ -285,7 +274,9 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// When [`HandwheelDevice::poll`] (or [`HandwheelDevice::watch_transmit`]) has work next,
-    /// besides a feed record that is due ([`Handwheel::take_record_due`]: at once).
+    /// besides a feed record that is due
+    /// ([`FeedAccumulator::take_record_due`](handwheel_core::FeedAccumulator::take_record_due):
+    /// at once).
     pub fn next_deadline(&self) -> Option<Instant> {
         match (self.engine.next_deadline(), self.stall.deadline()) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -326,11 +317,11 @@ impl<S: Storage> HandwheelDevice<S> {
     /// Work between engine calls: paces the record sequence, requests the TPDOs that are
     /// due, prepares the next unit step, and keeps the encoder EMCY in step with the feed
     /// status.
-    fn service(&mut self, now: Instant, wheel: &mut impl Mutex<T = Handwheel>) {
+    fn service(&mut self, now: Instant, wheel: &mut impl Wheel) {
         let operational = self.engine.nmt_state() == NmtState::Operational;
         if wheel.lock(|w| {
             w.feed.tick(now.as_micros());
-            w.take_record_due()
+            w.feed.take_record_due()
         }) {
             // Outside Operational the request is dropped by design: entering Operational
             // sends TPDO1 with the present values anyway.

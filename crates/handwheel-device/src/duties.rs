@@ -126,7 +126,7 @@ impl Duties {
 mod tests {
     extern crate std;
     use super::*;
-    use handwheel_core::{AbLevels, Axis, DecoderConfig, LinkedWheel, Multiplier};
+    use handwheel_core::{AbLevels, Axis, DecoderConfig, Intake, LinkedWheel, Multiplier, Wheel};
     use std::vec::Vec;
 
     struct Lines(u8, u8);
@@ -227,8 +227,13 @@ mod tests {
         let half = AbLevels::from_bits(0).next_forward().next_forward();
         let _ = wheel.edge().on_edge(AbLevels::from_bits(0).next_forward());
         let _ = wheel.edge().on_edge(half);
+        // Each sample comes after its round took the motion in, as in `Node::poll`.
+        let mut sample = |ms| {
+            wheel.take_motion(Intake::RoundStart);
+            d.sample(ms, &mut Lines(0, 0), &mut wheel)
+        };
         let learnt: Vec<u32> = (0..=1000)
-            .filter_map(|ms| d.sample(ms, &mut Lines(0, 0), &mut wheel).map(|s| (ms, s)))
+            .filter_map(|ms| sample(ms).map(|s| (ms, s)))
             .filter(|(_, s)| s.rest_learnt)
             .map(|(ms, _)| ms)
             .collect();

@@ -12,10 +12,14 @@ pub enum Mutant {
     /// A reset of the node or of communication does not discard the frames that wait for the
     /// bus: they go out after it, and a full transmit path refuses the boot-up.
     ResetKeepsPending,
-    /// TPDO1 reads its mapped objects when it is built, each under its own lock of the wheel,
-    /// and the outbox takes the state at send time as sent, instead of one snapshot.
+    /// TPDO1 reads its mapped objects when it is built, each after taking the wheel's new
+    /// motion in (the freshest values), and the outbox takes the state at send time as sent,
+    /// instead of one snapshot.
     TpdoReadAtSend,
     /// The transmit path's stall watch counts its 100 ms from the last frame that got out
     /// (the rule before the fix): a bus that takes a frame now and then never trips it.
     StallCompletions,
+    /// A write of 0x2000 changes the enable without taking the motion so far in first: a
+    /// detent that came before the change is taken in after it.
+    EnableWithoutIntake,
 }

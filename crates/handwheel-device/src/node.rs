@@ -15,15 +15,17 @@
 //! the log says so once and the ERR LED is on (CiA 303-3 bus-off; RUN stays dark, the device
 //! is not initialised yet). Once the controller is on the bus, the device starts.
 //!
-//! Each later round, in this order: the switch sample, the received frames, the new
-//! selection (after the frames, so an SDO request that came first is answered under the old
-//! one), the bus state, lost frames and illegal quadrature transitions (the engine decides
+//! Each later round, in this order: the wheel's new motion taken in ([`Intake::RoundStart`];
+//! the device takes it in again right before each change of what motion counts for and for
+//! TPDO1's record, see [`handwheel_core::wheel`]), the switch sample, the received frames, the
+//! new selection (after the frames, so an SDO request that came first is answered under the
+//! old one), the bus state, lost frames and illegal quadrature transitions (the engine decides
 //! the EMCYs), the device's time-driven work, the transmit path's stall watch, an LSS
 //! bit-rate switch (one step per round), the acceptance filter (when a write of 0x1005 or a
 //! reset of communication moved SYNC), the LEDs.
 
 use canopen_slave::{BusEvent, BusState, Frame, FrameSink, RxFilter, Storage, WideClock};
-use handwheel_core::{BitRate, Handwheel, Mutex, Selection, SelectorInput};
+use handwheel_core::{BitRate, Intake, Selection, SelectorInput, Wheel};
 
 use crate::duties::{Duties, RECOVERY_POLL_MS};
 use crate::rate_switch::RateSwitch;
@@ -152,7 +154,7 @@ impl<S: Storage> Node<S> {
         now_ms: u32,
         io: &mut impl CanIo,
         switches: &mut impl SelectorInput,
-        wheel: &mut impl Mutex<T = Handwheel>,
+        wheel: &mut impl Wheel,
     ) -> Outputs {
         let mut out = Outputs::default();
         if let Phase::PowerOn = self.phase {
@@ -170,7 +172,7 @@ impl<S: Storage> Node<S> {
         let now = self.clock.now(now_ms);
         // A feed record made due after the device's last service (a transmit stall's stop)
         // goes out in the next round, at once.
-        let record_due = wheel.lock(|w| w.record_due);
+        let record_due = wheel.lock(|w| w.feed.record_due());
         let deadline = match record_due {
             true => Some(now),
             false => self.device.next_deadline(),
@@ -188,7 +190,7 @@ impl<S: Storage> Node<S> {
         now_ms: u32,
         reported: bool,
         io: &mut impl CanIo,
-        wheel: &mut impl Mutex<T = Handwheel>,
+        wheel: &mut impl Wheel,
         out: &mut Outputs,
     ) -> bool {
         let late = self
@@ -227,11 +229,12 @@ impl<S: Storage> Node<S> {
         now_ms: u32,
         io: &mut impl CanIo,
         switches: &mut impl SelectorInput,
-        wheel: &mut impl Mutex<T = Handwheel>,
+        wheel: &mut impl Wheel,
         out: &mut Outputs,
     ) {
         let now = self.clock.now(now_ms);
         let device = &mut self.device;
+        wheel.take_motion(Intake::RoundStart);
         let sample = self.duties.sample(now_ms, switches, wheel);
         while let Some(frame) = io.receive() {
             device.on_frame(now, &frame, wheel, io);

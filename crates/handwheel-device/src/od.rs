@@ -303,14 +303,14 @@ pub const APP_OBJECTS: &[AppObject] = {
             state.status.contains(FeedStatus::ENABLED).into()
         })
         .rw(0, 1)
-        .writes(|w, value| w.record_due |= w.feed.set_enabled(value == 1))
+        .writes(|w, value| w.feed.set_enabled(value == 1))
         .enables_feed(),
         O::stored(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1),
         O::wheel(FEED_SESSION, 0, "Feed session", U8, |_, wheel| {
             wheel.feed.session().into()
         })
         .rw(0, 7)
-        .writes(|w, value| w.record_due |= w.feed.set_session(value as u8)),
+        .writes(|w, value| w.feed.set_session(value as u8)),
         O::record(SELECTION, "Selection", 3),
         O::wheel(SELECTION, 1, "Axis", U8, |state, _| {
             Axis::option_value(state.axis).into()

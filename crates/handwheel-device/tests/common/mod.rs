@@ -3,7 +3,8 @@
 
 use canopen_slave::{Frame, FrameSink, Instant, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
-    AbLevels, Axis, DecoderConfig, EdgeState, FeedRecord, LinkedWheel, Multiplier, Selection,
+    AbLevels, Axis, DecoderConfig, EdgeState, FeedRecord, Intake, LinkedWheel, Multiplier,
+    Selection, Wheel,
 };
 use handwheel_device::HandwheelDevice;
 
@@ -116,11 +117,13 @@ impl Bench {
         }));
     }
 
-    /// Delivers a frame from the bus, then polls.
+    /// Delivers a frame from the bus, then polls: a round of the firmware's loop, which takes
+    /// the wheel's motion in first.
     pub fn receive(&mut self, id: u16, data: &[u8]) {
         let frame = Frame::new(id, data).unwrap();
         let mut tx = self.sink();
         let now = Instant::from_micros(self.now_us);
+        self.wheel.take_motion(Intake::RoundStart);
         self.device.on_frame(now, &frame, &mut self.wheel, &mut tx);
         self.device.poll(now, &mut self.wheel, &mut tx);
         self.record(tx);
@@ -135,8 +138,10 @@ impl Bench {
         }
     }
 
+    /// A round without a frame: the wheel's motion taken in, then the device polled.
     pub fn poll(&mut self) {
         let mut tx = self.sink();
+        self.wheel.take_motion(Intake::RoundStart);
         self.device
             .poll(Instant::from_micros(self.now_us), &mut self.wheel, &mut tx);
         self.record(tx);
