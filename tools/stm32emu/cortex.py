@@ -47,6 +47,8 @@ from unicorn import (
 from unicorn import arm_const as arm
 
 CORE_HZ = 72_000_000
+# The IT bits of the xPSR: IT[1:0] in bits 26:25, IT[7:2] in bits 15:10 (ARMv7-M ARM B1.4.2).
+_IT_BITS = 0b11 << 25 | 0x3F << 10
 
 SYST_CSR = 0xE000_E010
 SYST_RVR = 0xE000_E014
@@ -417,6 +419,15 @@ class Core:
         if decoded is None:
             decoded = self._decoded[address] = self._decode(address, size)
         if not start < address < end:
+            if end:
+                # The first instruction after an IT block. Unicorn (its hooks' view of the
+                # CPU) can leave the block's IT bits in the CPU state, where the next
+                # translation block would read them as an IT block still open (a B<cond>
+                # there is then an invalid instruction): outside a block they are 0.
+                self._it_block = (0, 0)
+                xpsr = uc.reg_read(arm.UC_ARM_REG_XPSR)
+                if xpsr & _IT_BITS:
+                    uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr & ~_IT_BITS)
             if self.cycles >= self._stop_at:
                 self.stop_reason = "slice"
                 uc.emu_stop()  # before this instruction: it runs in the next slice

@@ -2,7 +2,7 @@
 on tiny hand-assembled Thumb programs, and of the unicorn behaviour it relies on."""
 
 import pytest
-from unicorn import UcError
+from unicorn import UC_HOOK_MEM_READ, UcError
 from unicorn import arm_const as arm
 
 from stm32emu import cortex
@@ -355,3 +355,35 @@ def test_a_push_below_ram_is_a_fault_with_its_address(core):
     assert core.fault_address == RAM - 4
     run(core, slices=2)
     assert core.faults == 1, "a locked core runs nothing more"
+
+
+LDRB_R4_R3 = 0x781C  # ldrb r4, [r3]
+CMP_R4_R4 = 0x42A4
+BEQ_SKIP_ONE = 0xD000  # beq over the next half-word
+BNE_SKIP_ONE = 0xD100  # bne over the next half-word
+
+
+def test_precise_a_branch_after_an_it_block_with_a_load_is_no_it_block(precise):
+    """A load inside an IT block, then a conditional branch out of it to another B<cond>:
+    unicorn (with the precise hook) left the block's IT bits in the CPU state, and the
+    branch target's B<cond> ran as if inside an IT block, an invalid instruction (the
+    firmware's SDO read path hit it, under the machine benchmark's hook on flash reads). The
+    hook clears them after the block."""
+    precise.uc.reg_write(arm.UC_ARM_REG_R3, RAM)
+    precise.uc.hook_add(UC_HOOK_MEM_READ, lambda *_: None, begin=RAM, end=RAM + 3)
+    program(
+        precise,
+        CMP_R0_R0,
+        ITT_EQ,
+        LDRB_R4_R3,
+        CMP_R4_R4,
+        BEQ_SKIP_ONE,
+        ADDS_R7_1,
+        BNE_SKIP_ONE,
+        ADDS_R6_1,
+        ADDS_R6_1,
+    )
+    precise.run(100)
+    assert not precise.locked_up, precise.stop_reason
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R7) == 0, "beq taken"
+    assert precise.uc.reg_read(arm.UC_ARM_REG_R6) == 2, "bne not taken, both adds ran"
