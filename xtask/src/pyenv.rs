@@ -157,11 +157,16 @@ pub fn pip_install<'a>(sh: &'a Shell, python: &Path) -> Cmd<'a> {
     )
 }
 
-/// `python -m pytest <extra>`, in a shell in `host/`: the component's unit and property tests
+/// `python -m pytest` on [`HOST_WORKERS`] workers (pytest-xdist), then `<extra>` (`-n 0`
+/// there runs in one process), in a shell in `host/`: the component's unit and property tests
 /// (its pyproject puts `src` on the path).
 pub fn host_pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a> {
-    cmd!(sh, "{python} -m pytest {extra...}")
+    cmd!(sh, "{python} -m pytest -n {HOST_WORKERS} {extra...}")
 }
+
+/// The component's tests' pytest-xdist workers: most of their time is the shell's tests
+/// waiting on the wall clock (heartbeats, stalls, floods), so two workers halve the step.
+pub const HOST_WORKERS: &str = "2";
 
 /// `python -m pytest tests/interop` on [`INTEROP_WORKERS`] workers (pytest-xdist), then
 /// `<extra>` (`-n 0` there runs in one process), in a shell in the workspace root.
