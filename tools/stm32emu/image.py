@@ -1,19 +1,23 @@
-"""The firmware image and the memory it was linked for: the one loader of every tool.
+"""The firmware images and the memory they were linked for: the one loader of every tool.
 
 `Image(elf)` reads the ELF with pyelftools: its loadable segments at their load
 addresses (the firmware's reset handler copies .data to RAM itself), the symbols with their
 sizes, the vector table (`.vector_table`) and the name of the handler each vector points at.
-The memory map is the linker script's MEMORY command (the root `memory.x`: FLASH, STORAGE
-and RAM), checked against the ELF: the vector table at FLASH's origin, every load segment
-inside FLASH, and flip-link's RAM layout (the image is linked by it, see `memory.x`): the
-initial stack pointer (`_stack_start`) inside RAM with all static RAM between it and RAM's
-end, so that the stack grows down towards RAM's start. Nothing of the map is written again
-here; the chip's fixed addresses (peripherals, system memory) are in `machine.py` with
-their RM0008 sections.
+The memory map is the linker script's MEMORY command (the root `memory.x`,
+docs/FIRMWARE-UPDATE.md "Memory map": LOADER, HEADER, FLASH, STORAGE, RAM and HANDOFF; the
+map from before the loader, FLASH, STORAGE and RAM alone, is read too), checked against the
+ELF. An image is one of two kinds, told by where its vector table is: the **loader** (at
+LOADER's origin, its segments inside LOADER) or the **application** (at FLASH's origin, its
+segments inside its slot, HEADER and FLASH). Both must have flip-link's RAM layout (the
+images are linked by it, see `memory.x`): the initial stack pointer (`_stack_start`) inside
+RAM with all static RAM between it and RAM's end, so that the stack grows down towards RAM's
+start. Nothing of the map is written again here; the chip's fixed addresses (peripherals,
+system memory) are in `machine.py` with their RM0008 sections.
 """
 
 from __future__ import annotations
 
+import ast
 import bisect
 import re
 from dataclasses import dataclass
@@ -30,6 +34,12 @@ MEMORY_X = ROOT / "memory.x"
 
 # Exceptions 2..6 are NMI and the faults: never taken by the firmware's own doing.
 FAULTS = range(2, 7)
+
+# The two kinds of image (docs/FIRMWARE-UPDATE.md).
+LOADER = "loader"
+APPLICATION = "application"
+# The flash page (RM0008 3.3.3: 1 KiB in a medium-density part): what a probe erases.
+PAGE_SIZE = 1024
 
 
 @dataclass(frozen=True)
@@ -48,36 +58,105 @@ class Region:
         return self.origin <= address < self.end
 
 
+# The flash regions in address order, each following the one before it when present.
+FLASH_REGIONS = ("LOADER", "HEADER", "FLASH", "STORAGE")
+
+
+def _expression(text: str, regions: dict[str, Region]) -> int:
+    """An ld expression of a MEMORY entry: numbers (decimal, 0x hex, a K or M suffix),
+    `ORIGIN(NAME)` and `LENGTH(NAME)` of a region above it, + - * / and parentheses."""
+
+    def region(match: re.Match) -> str:
+        name = match.group(2)
+        if name not in regions:
+            raise ValueError(f"{match.group(0)} names no region above it")
+        r = regions[name]
+        return str(r.origin if match.group(1).upper() == "ORIGIN" else r.length)
+
+    text = re.sub(r"\b(ORIGIN|LENGTH)\s*\(\s*(\w+)\s*\)", region, text, flags=re.I)
+
+    def number(match: re.Match) -> str:
+        scale = {"": 1, "K": 1024, "M": 1024 * 1024}[match.group(2).upper()]
+        return str(int(match.group(1), 0) * scale)
+
+    text = re.sub(r"\b(0[xX][0-9a-fA-F]+|\d+)([KkMm]?)\b", number, text)
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError:
+        raise ValueError(f"`{text.strip()}` is not an expression this parser knows") from None
+
+    def value(node: ast.AST) -> int:
+        if isinstance(node, ast.Expression):
+            return value(node.body)
+        if isinstance(node, ast.Constant) and isinstance(node.value, int):
+            return node.value
+        if isinstance(node, ast.BinOp):
+            ops = {ast.Add: int.__add__, ast.Sub: int.__sub__, ast.Mult: int.__mul__}
+            ops[ast.Div] = int.__floordiv__
+            op = ops.get(type(node.op))
+            if op is not None:
+                return op(value(node.left), value(node.right))
+        raise ValueError(f"`{text.strip()}` is not an expression this parser knows")
+
+    return value(tree)
+
+
 @dataclass(frozen=True)
 class MemoryMap:
-    """FLASH (the linker's code and data), STORAGE (the parameter page after it) and RAM."""
+    """FLASH (the application's code and data), STORAGE (the parameter pages after it) and
+    RAM; with the resident loader (docs/FIRMWARE-UPDATE.md) also LOADER (its image), HEADER
+    (the application's image header, before FLASH) and HANDOFF (the words after RAM that ask
+    the loader to stay)."""
 
     flash: Region
     storage: Region
     ram: Region
+    loader: Region | None = None
+    header: Region | None = None
+    handoff: Region | None = None
 
     @classmethod
     def parse(cls, text: str) -> MemoryMap:
-        """The MEMORY command of a GNU ld script: `NAME [(attrs)] : ORIGIN = o, LENGTH = l`,
-        lengths with an optional K or M suffix."""
+        """The MEMORY command of a GNU ld script: `NAME [(attrs)] : ORIGIN = o, LENGTH = l`
+        a line, o and l expressions (`_expression`)."""
         text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
         block = re.search(r"MEMORY\s*\{(.*?)\}", text, flags=re.S)
         if block is None:
             raise ValueError("no MEMORY command in the linker script")
-        regions = {}
+        regions: dict[str, Region] = {}
         entry = re.compile(
-            r"(\w+)\s*(?:\([^)]*\))?\s*:\s*ORIGIN\s*=\s*(0[xX][0-9a-fA-F]+|\d+)\s*,"
-            r"\s*LENGTH\s*=\s*(0[xX][0-9a-fA-F]+|\d+)\s*([KM]?)"
+            r"^\s*(\w+)\s*(?:\([^)]*\))?\s*:\s*(?:ORIGIN|org|o)\s*=\s*(.+?)\s*,"
+            r"\s*(?:LENGTH|len|l)\s*=\s*(.+?)\s*$",
+            flags=re.I,
         )
-        for name, origin, length, unit in entry.findall(block.group(1)):
-            scale = {"": 1, "K": 1024, "M": 1024 * 1024}[unit]
-            regions[name] = Region(name, int(origin, 0), int(length, 0) * scale)
+        for line in block.group(1).splitlines():
+            if not line.strip():
+                continue
+            match = entry.match(line)
+            if match is None:
+                raise ValueError(f"`{line.strip()}` is not a MEMORY entry")
+            name, origin, length = match.groups()
+            regions[name] = Region(
+                name, _expression(origin, regions), _expression(length, regions)
+            )
         missing = [n for n in ("FLASH", "STORAGE", "RAM") if n not in regions]
         if missing:
             raise ValueError(f"the linker script has no {', '.join(missing)} region")
-        if regions["STORAGE"].origin != regions["FLASH"].end:
-            raise ValueError("the STORAGE page does not follow FLASH")
-        return cls(regions["FLASH"], regions["STORAGE"], regions["RAM"])
+        chain = [regions[n] for n in FLASH_REGIONS if n in regions]
+        for before, after in zip(chain, chain[1:]):
+            if after.origin != before.end:
+                raise ValueError(f"the {after.name} region does not follow {before.name}")
+        handoff = regions.get("HANDOFF")
+        if handoff is not None and handoff.origin != regions["RAM"].end:
+            raise ValueError("the HANDOFF region does not follow RAM")
+        return cls(
+            regions["FLASH"],
+            regions["STORAGE"],
+            regions["RAM"],
+            regions.get("LOADER"),
+            regions.get("HEADER"),
+            handoff,
+        )
 
     @classmethod
     def load(cls, path: Path | str = MEMORY_X) -> MemoryMap:
@@ -85,12 +164,25 @@ class MemoryMap:
 
     @property
     def flash_base(self) -> int:
-        return self.flash.origin
+        """The start of the flash array: the loader's pages, or FLASH without a loader."""
+        return (self.loader or self.header or self.flash).origin
 
     @property
     def flash_end(self) -> int:
-        """The end of the flash array: FLASH and the STORAGE page after it."""
+        """The end of the flash array: the STORAGE pages are its last."""
         return self.storage.end
+
+    @property
+    def slot(self) -> Region:
+        """The application's slot: HEADER and FLASH (FLASH alone without a header)."""
+        start = (self.header or self.flash).origin
+        return Region("SLOT", start, self.flash.end - start)
+
+    @property
+    def sram(self) -> Region:
+        """The chip's SRAM: RAM and the HANDOFF words after it."""
+        end = self.handoff.end if self.handoff else self.ram.end
+        return Region("SRAM", self.ram.origin, end - self.ram.origin)
 
 
 def check_stack_layout(
@@ -129,44 +221,72 @@ def readable(symbol: str) -> str:
 
 class Image:
     """What the tools need from the ELF: load segments, symbols, vector table, handler names,
-    and the memory map it was linked for."""
+    the memory map it was linked for, its kind (`LOADER` or `APPLICATION`, by where its
+    vector table is) and the flash region it lives in (`region`)."""
 
     def __init__(self, path: str, memory: MemoryMap | None = None) -> None:
         self.path = str(path)
         self.memory = memory or MemoryMap.load()
         with open(path, "rb") as f:
             elf = ELFFile(f)
-            self.segments: list[tuple[int, bytes]] = [
+            segments = [
                 (seg["p_paddr"], seg.data())
                 for seg in elf.iter_segments()
                 if seg["p_type"] == "PT_LOAD" and seg["p_filesz"] > 0
             ]
-            self.symbols: dict[str, int] = {}
-            self.sizes: dict[str, int] = {}
+            symbols: dict[str, int] = {}
+            sizes: dict[str, int] = {}
             symtab = elf.get_section_by_name(".symtab")
             if symtab is None:
                 raise ValueError(f"{path} has no symbol table")
             for sym in symtab.iter_symbols():
                 if sym.name:
-                    self.symbols.setdefault(sym.name, sym["st_value"])
-                    self.sizes.setdefault(sym.name, sym["st_size"])
+                    symbols.setdefault(sym.name, sym["st_value"])
+                    sizes.setdefault(sym.name, sym["st_size"])
             section = elf.get_section_by_name(".vector_table")
             if section is None:
                 raise ValueError(f"{path} has no .vector_table")
             table_address = section["sh_addr"]
             data = section.data()
             # Static RAM: the allocated sections the linker placed in RAM (.data, .bss, ...).
-            self.statics: list[tuple[str, int, int]] = [
+            statics = [
                 (sec.name, sec["sh_addr"], sec["sh_size"])
                 for sec in elf.iter_sections()
                 if sec["sh_flags"] & SHF_ALLOC
                 and sec["sh_size"] > 0
                 and sec["sh_addr"] in self.memory.ram
             ]
+        self._setup(segments, symbols, sizes, statics, table_address, data)
+
+    @classmethod
+    def from_segments(
+        cls, segments: list[tuple[int, bytes]], table_address: int, memory: MemoryMap
+    ) -> Image:
+        """An image of raw bytes at their addresses (no symbols, no static RAM), its vector
+        table at `table_address`: a hand-assembled test program, a binary file. Checked as
+        an ELF is."""
+        image = cls.__new__(cls)
+        image.path = f"<{len(segments)} segments>"
+        image.memory = memory
+        table = next(
+            (data[table_address - a :] for a, data in segments if a <= table_address < a + len(data)),
+            None,
+        )
+        if table is None:
+            raise ValueError(f"no segment holds the vector table at {table_address:#x}")
+        image._setup(segments, {}, {}, [], table_address, table[: 4 * 16])
+        return image
+
+    def _setup(self, segments, symbols, sizes, statics, table_address: int, data: bytes) -> None:
+        self.segments: list[tuple[int, bytes]] = segments
+        self.symbols: dict[str, int] = symbols
+        self.sizes: dict[str, int] = sizes
+        self.statics: list[tuple[str, int, int]] = statics
+        self.table_address = table_address
         # Index = exception number; [0] is the initial SP.
         self.vectors = [int.from_bytes(data[i : i + 4], "little") for i in range(0, len(data), 4)]
         self.initial_sp = self.vectors[0]
-        self._check(path, table_address)
+        self._check()
         default = self.symbols.get("DefaultHandler")
         self.handlers: dict[int, str] = {}
         for exception, vector in enumerate(self.vectors):
@@ -177,17 +297,34 @@ class Image:
             self.handlers[exception] = self._name(exception, vector & ~1)
         self._functions: list[tuple[int, str]] | None = None
 
-    def _check(self, path: str, table_address: int) -> None:
+    def _check(self) -> None:
         memory = self.memory
-        if table_address != memory.flash.origin:
-            raise ValueError(f"{path}: the vector table is not at FLASH's origin")
+        path = self.path
+        if self.table_address == memory.flash.origin:
+            self.kind, self.region = APPLICATION, memory.slot
+        elif memory.loader is not None and self.table_address == memory.loader.origin:
+            self.kind, self.region = LOADER, memory.loader
+        else:
+            where = "FLASH's" + (" or LOADER's" if memory.loader else "")
+            raise ValueError(f"{path}: the vector table is not at {where} origin")
         try:
             check_stack_layout(memory, self.initial_sp, self.statics)
         except ValueError as error:
             raise ValueError(f"{path}: {error}") from None
+        region = self.region
         for address, data in self.segments:
-            if address not in memory.flash or address + len(data) > memory.flash.end:
-                raise ValueError(f"{path}: a load segment at {address:#x} is outside FLASH")
+            if address not in region or address + len(data) > region.end:
+                raise ValueError(
+                    f"{path}: a load segment at {address:#x} is outside {region.name}"
+                )
+
+    def pages(self, page_size: int = PAGE_SIZE) -> list[int]:
+        """The addresses of the flash pages its segments cover (what a probe erases)."""
+        pages = set()
+        for address, data in self.segments:
+            first = address - address % page_size
+            pages.update(range(first, address + len(data), page_size))
+        return sorted(pages)
 
     def _name(self, exception: int, address: int) -> str:
         names = [n for n, a in self.symbols.items() if a & ~1 == address and not n.startswith("$")]
@@ -198,9 +335,9 @@ class Image:
     def function_at(self, address: int) -> str:
         """The name of the function symbol that contains `address` (demangled roughly)."""
         if self._functions is None:
-            flash = self.memory.flash
+            region = self.region
             self._functions = sorted(
-                (a & ~1, n) for n, a in self.symbols.items() if self.sizes.get(n) and a in flash
+                (a & ~1, n) for n, a in self.symbols.items() if self.sizes.get(n) and a in region
             )
             self._starts = [f[0] for f in self._functions]
         index = bisect.bisect_right(self._starts, address) - 1

@@ -1,19 +1,32 @@
-"""The emulated Blue Pill: the release ELF on the Cortex-M3 core of `cortex.py` with the
-peripherals of `periph.py`, the pins of the handwheel (wheel, switches, DIP switch, LEDs)
-and a CAN bus whose other node is the host. No I/O and no wall clock here: `run_until`
-moves emulated time on; the board emulator (`tools/board-emu/server.py`) paces it and
-connects it to TCP, the machine benchmark (`tools/machine-bench`) measures it.
+"""The emulated Blue Pill: the firmware as a flashed board holds it (the resident loader in
+the first pages and the application in its slot, docs/FIRMWARE-UPDATE.md; or, as before the
+loader, the application alone) on the Cortex-M3 core of `cortex.py` with the peripherals of
+`periph.py`, the pins of the handwheel (wheel, switches, DIP switch, LEDs) and a CAN bus
+whose other node is the host. No I/O and no wall clock here: `run_until` moves emulated
+time on; the board emulator (`tools/board-emu/server.py`) paces it and connects it to TCP,
+the machine benchmark (`tools/machine-bench`) measures it.
 
-Memory map: flash, its parameter page and SRAM as the linker script gives them (`image.py`
-reads the root `memory.x`: 62 KiB FLASH at 0x0800_0000, the 2 KiB STORAGE pages after it,
-20 KiB RAM at 0x2000_0000). The parameter pages are served by the FPEC model and persisted
-in a file (every erase and program at once; `power_cut` leaves a running one half done); the
-rest of the flash is read/execute only, so a stray write faults, as does an
-access below RAM (a stack that overflows under flip-link's layout; `Core.faults`). The
-chip's own regions (RM0008 3.3, figure 2): the system memory with the unique device ID
-(RM0008 30.2) and the flash size register (30.1), the peripherals at 0x4000_0000 with their
-bit-band alias (PM0056 2.2.5), and the Cortex-M3's private peripheral bus (NVIC, SCB,
-SysTick, DBGMCU).
+Memory map: flash and SRAM as the linker script gives them (`image.py` reads the root
+`memory.x`). The whole 64 KiB main flash belongs to the FPEC model (`periph.Fpec`): every
+erase and half-word program anywhere (loader, application slot, parameter pages) goes
+through it, with its power-cut model, and is persisted in the flash file at once (64 KiB,
+the whole flash; an older 2 KiB file is read as the parameter pages). The CPU executes from
+the flash, which unicorn can only do from plain memory: the flash is mapped read/execute,
+and a CPU store into it (unicorn's write-protection hook) goes to the FPEC, whose result
+alone is then copied into unicorn's memory, with the translated code of those bytes
+dropped (unicorn keeps executing stale code otherwise: `uc.mem_write` does not drop it).
+Loading the images is flashing them as a probe does: the pages they cover are erased and
+written, every other page keeps the flash file's content (an application an update wrote,
+the parameter pages). An access below RAM faults (a stack that overflows under flip-link's
+layout; `Core.faults`). The chip's own regions (RM0008 3.3, figure 2): the system memory
+with the unique device ID (RM0008 30.2) and the flash size register (30.1), the peripherals
+at 0x4000_0000 with their bit-band alias (PM0056 2.2.5), and the Cortex-M3's private
+peripheral bus (NVIC, SCB, SysTick, DBGMCU).
+
+Boot: the CPU starts from the vector table at the flash's start (the loader), VTOR 0 after
+every reset; the loader sets VTOR and jumps into the application. A machine without a loader
+starts the application as the loader would (VTOR at its vector table). SRAM (HANDOFF
+included) keeps its content across a system reset and is cleared by a power-on.
 """
 
 from __future__ import annotations
@@ -21,11 +34,11 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
-from unicorn import UC_PROT_EXEC, UC_PROT_READ
+from unicorn import UC_HOOK_MEM_WRITE_PROT, UC_PROT_EXEC, UC_PROT_READ
 from unicorn import arm_const as arm
 
 from . import cortex, periph
-from .image import Image
+from .image import APPLICATION, LOADER, Image, Region
 
 SYSTEM_MEMORY = 0x1FFF_F000
 UNIQUE_ID = 0x1FFF_F7E8
@@ -68,38 +81,50 @@ class Stats:
 
 
 class Machine:
-    """The board running `elf` (a path or a loaded `Image`). `flash_file` holds the
-    parameter page across power cycles (None: kept in memory only)."""
+    """The board flashed with `elf` (the application: a path or a loaded `Image`, None for
+    none) and `loader` (the resident loader, likewise; None: the application alone, started
+    as the loader would). `flash_file` holds the whole flash across power cycles and boards
+    (None: kept in memory only)."""
 
     def __init__(
         self,
-        elf: str | Image,
+        elf: str | Image | None,
         flash_file: str | None = None,
         unique_id: bytes | None = None,
         cut_seed: int = 1,
+        loader: str | Image | None = None,
     ):
-        self.image = elf if isinstance(elf, Image) else Image(elf)
-        memory = self.image.memory
-        self.flash = memory.flash
-        self.ram = memory.ram
-        page = memory.storage
+        self.app = self._load(elf, APPLICATION)
+        self.loader = self._load(loader, LOADER)
+        if self.app is None and self.loader is None:
+            raise ValueError("a board needs an application or a loader image")
+        # The image the tools look at (symbols, handlers): the application if there is one.
+        self.image = self.app or self.loader
+        memory = self.memory = self.image.memory
+        # The whole main flash (RM0008 3.3.3), which the FPEC manages.
+        self.flash = Region("MAIN", memory.flash_base, memory.flash_end - memory.flash_base)
+        self.ram = memory.sram
         self.flash_file = flash_file
         self.unique_id = unique_id or bytes.fromhex("3a0035000d5731343932353c")
         self.now = 0
         self.nvic = cortex.Nvic()
         self.uc = uc = cortex.make_uc()
+        content = self._stored_flash()
+        for image in (self.loader, self.app):
+            if image is not None:
+                self._flash_image(content, image)
+        self.fpec = periph.Fpec(self.flash.origin, content, cut_seed)
+        self.fpec.on_change = self._flash_changed
         uc.mem_map(self.flash.origin, self.flash.length, UC_PROT_READ | UC_PROT_EXEC)
-        uc.mem_write(self.flash.origin, b"\xff" * self.flash.length)
-        stored_page = bytearray(b"\xff" * page.length)
-        if flash_file and os.path.exists(flash_file):
-            with open(flash_file, "rb") as f:
-                stored = f.read(page.length)
-            stored_page[: len(stored)] = stored
-        for address, data in self.image.segments:
-            uc.mem_write(address, data)
-        self.fpec = periph.Fpec(page.origin, stored_page, cut_seed)
-        self.fpec.on_change = self.save_flash
-        uc.mmio_map(page.origin, page.length, self._page_read, None, self._page_write, None)
+        uc.mem_write(self.flash.origin, bytes(content))
+        # Before the core's hook for invalid accesses: a store into the flash is the FPEC's.
+        uc.hook_add(
+            UC_HOOK_MEM_WRITE_PROT,
+            self._flash_store,
+            begin=self.flash.origin,
+            end=self.flash.end - 1,
+        )
+        self.save_flash()
         uc.mem_map(self.ram.origin, self.ram.length)
         uc.mem_map(SYSTEM_MEMORY, 0x1000, UC_PROT_READ)
         uc.mem_write(UNIQUE_ID, self.unique_id)
@@ -147,6 +172,7 @@ class Machine:
         self.on_frame = lambda frame: None  # frames the node put on the bus
         self.on_reset = lambda cause: None
         self.on_power_off = lambda: None  # the last moment SRAM can be read (the RTT log)
+        self.on_handover = lambda: None  # VTOR written (the loader starting the application)
         self.events: list[tuple[int, int, object]] = []  # (cycle, seq, callback)
         self.host_frames: list[tuple[int, periph.Frame]] = []  # (arrival cycle, frame)
         self.host_bus_free = 0
@@ -159,10 +185,91 @@ class Machine:
         self.boot_cause = "PowerOn"
         self.power_on()
 
+    # -- images and flash ---------------------------------------------------------------------
+
+    @staticmethod
+    def _load(image: str | Image | None, kind: str) -> Image | None:
+        if image is None:
+            return None
+        image = image if isinstance(image, Image) else Image(image)
+        if image.kind != kind:
+            raise ValueError(f"{image.path} is the {image.kind} image, not the {kind}")
+        return image
+
+    def _stored_flash(self) -> bytearray:
+        """The flash as the file holds it: the whole flash, or an older file of the
+        parameter pages alone; erased where the file says nothing."""
+        content = bytearray(b"\xff" * self.flash.length)
+        if not self.flash_file or not os.path.exists(self.flash_file):
+            return content
+        with open(self.flash_file, "rb") as f:
+            stored = f.read(self.flash.length + 1)
+        storage = self.memory.storage
+        if len(stored) == self.flash.length:
+            content[:] = stored
+        elif len(stored) <= storage.length:
+            start = storage.origin - self.flash.origin
+            content[start : start + len(stored)] = stored
+        else:
+            raise ValueError(
+                f"{self.flash_file}: {len(stored)} bytes, neither the whole flash "
+                f"({self.flash.length}) nor the parameter pages ({storage.length})"
+            )
+        return content
+
+    def _flash_image(self, content: bytearray, image: Image) -> None:
+        """Flashes `image` as a probe does: its pages erased, its segments written."""
+        for page in image.pages():
+            start = page - self.flash.origin
+            content[start : start + 1024] = b"\xff" * 1024
+        for address, data in image.segments:
+            start = address - self.flash.origin
+            content[start : start + len(data)] = data
+
+    def _flash_store(self, _uc, _access, address, size, value, _user) -> bool:
+        """A CPU store into the flash: the FPEC's to apply (a half-word program, or an
+        error flag). Unicorn then leaves the flash as `_flash_changed` wrote it."""
+        self.fpec.write_memory(address - self.flash.origin, size, value, self.now)
+        return True
+
+    def _flash_changed(self, offset: int, length: int) -> None:
+        """The FPEC changed `length` bytes at `offset`: the CPU sees them (code translated
+        from the old bytes dropped) and the flash file has them."""
+        address = self.flash.origin + offset
+        self.uc.mem_write(address, bytes(self.fpec.memory[offset : offset + length]))
+        self.uc.ctl_remove_cache(address, address + length)
+        if not self.flash_file:
+            return
+        try:
+            with open(self.flash_file, "r+b") as f:
+                if f.seek(0, os.SEEK_END) == self.flash.length:
+                    f.seek(offset)
+                    f.write(self.fpec.memory[offset : offset + length])
+                    return
+        except FileNotFoundError:
+            pass
+        self.save_flash()
+
+    def write_flash(self, offset: int, data: bytes) -> None:
+        """Writes flash content directly, not through the FPEC (a probe, a test crafting
+        the flash): a running operation is forgotten."""
+        self.fpec.pending = None
+        self.fpec.memory[offset : offset + len(data)] = data
+        self._flash_changed(offset, len(data))
+
+    def running(self) -> str:
+        """Which image the CPU is in, by its PC: `loader`, `application` or `none`."""
+        pc = self.uc.reg_read(arm.UC_ARM_REG_PC)
+        if self.memory.loader is not None and pc in self.memory.loader:
+            return LOADER
+        if pc in self.memory.slot:
+            return APPLICATION
+        return "none"
+
     # -- vectors and idle ---------------------------------------------------------------------
 
     def _vector(self, exception: int) -> int:
-        base = self.nvic.vtor or self.flash.origin
+        base = self.nvic.vtor
         if base < self.flash.origin:
             base += self.flash.origin  # address 0 aliases the boot flash (RM0008 3.4)
         return int.from_bytes(self.uc.mem_read(base + 4 * exception, 4), "little")
@@ -235,16 +342,13 @@ class Machine:
 
     def _ppb_write(self, _uc, offset, size, value, _user):
         address, value, mask = self._lanes(PPB_BASE + offset, size, value)
+        if address == cortex.SCB_VTOR:
+            # The loader hands over: the last moment its RTT log is surely intact.
+            self.on_handover()
         if 0xE000_E000 <= address < 0xE000_F000:
             self.nvic.write(address, value, mask)
         else:
             self.other[address] = (self.other.get(address, 0) & ~mask) | value
-
-    def _page_read(self, _uc, offset, size, _user):
-        return self.fpec.read_memory(offset, size)
-
-    def _page_write(self, _uc, offset, size, value, _user):
-        self.fpec.write_memory(offset, size, value, self.now)
 
     def save_flash(self) -> None:
         if self.flash_file:
@@ -396,6 +500,9 @@ class Machine:
         self.stats.resets.append(f"{self.ms():.1f} ms {cause}")
         self.last_reset_ms = self.ms()
         self.nvic.reset()
+        if self.loader is None:
+            # No loader: the application starts as the loader would start it.
+            self.nvic.vtor = self.app.table_address
         # A pend during a slice is taken at its end, or in precise mode before the next
         # instruction (stopping unicorn from a memory callback would make it run the storing
         # instruction again).
@@ -530,7 +637,8 @@ class Machine:
         """Takes what the firmware wrote to RTT up-channel 0 (the defmt log): SEGGER's
         control block is `_SEGGER_RTT`: id[16], max_up, max_down, then 24-byte channel
         descriptors (name, buffer, size, write, read, flags)."""
-        cb = self.image.symbols.get("_SEGGER_RTT")
+        image = {LOADER: self.loader, APPLICATION: self.app}.get(self.running())
+        cb = image.symbols.get("_SEGGER_RTT") if image is not None else None
         if cb is None:
             return b""
         raw = bytes(self.uc.mem_read(cb + 24, 24))

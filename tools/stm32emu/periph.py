@@ -278,7 +278,8 @@ FLASH_KEY2 = 0xCDEF_89AB
 
 class Fpec:
     """The flash program/erase controller (PM0075 3.2-3.4, registers 4.1-4.5) over the pages
-    it manages (`memory`, a bytearray starting at `base`).
+    it manages (`memory`, a bytearray starting at `base`: on the board the whole 64 KiB main
+    flash, loader, application slot and parameter pages alike).
 
     - KEYR: KEY1 then KEY2 clear LOCK (PM0075 3.1, 4.2); any other sequence locks the FPEC
       until the next reset.
@@ -299,8 +300,9 @@ class Fpec:
     a random half of its half-words erased and the rest unchanged, a half-word program only
     some of the bits it clears. `arm(n, inside)` cuts power at the `n`-th operation from
     now (1: the next), before it starts or inside it; the FPEC then does nothing more and
-    `cut_requested` asks the board to cut the power. `on_change` is called whenever the
-    pages' content changed (the board writes its flash file)."""
+    `cut_requested` asks the board to cut the power. `on_change(offset, length)` is called
+    whenever bytes of `memory` changed (the board copies them into the CPU's view of the
+    flash and writes its flash file)."""
 
     ERASE_CYCLES = 20 * CORE_HZ // 1000  # 20 ms (datasheet t_ERASE 20-40 ms)
     PROGRAM_CYCLES = 52 * CORE_HZ // 1_000_000  # 52.5 us (datasheet t_prog 40-70 us)
@@ -314,7 +316,7 @@ class Fpec:
         self.operations = 0  # started: erases and half-word programs, refused ones not
         self.cuts = 0  # power cuts that left an operation half done
         self.armed: tuple[int, bool] | None = None  # (operation number, inside)
-        self.on_change = lambda: None
+        self.on_change = lambda _offset, _length: None
         # The running operation: (end cycle, offset, old bytes); its result is in `memory`.
         self.pending: tuple[int, int, bytes] | None = None
         self.reset()
@@ -442,15 +444,16 @@ class Fpec:
         self.pending = (end, offset, old)
         if cut_inside:
             self._half_done()
-        self.on_change()
+        self.on_change(offset, len(old))
 
     def cut(self, now: int) -> bool:
         """Power is lost at `now`: an operation still running is left half done. Returns
         whether one was."""
         half = self.pending is not None and now < self.pending[0]
         if half:
+            _, offset, old = self.pending
             self._half_done()
-            self.on_change()
+            self.on_change(offset, len(old))
         self.pending = None
         return half
 

@@ -22,6 +22,12 @@ pytestmark = pytest.mark.skipif(not ELF.exists(), reason=f"no release image at {
 SAVE = (0x65766173).to_bytes(4, "little")
 
 
+def storage(m) -> slice:
+    """Where the parameter pages are in the flash (the FPEC's memory, the flash file)."""
+    start = m.memory.storage.origin - m.flash.origin
+    return slice(start, start + m.memory.storage.length)
+
+
 def sdo(m, request: bytes) -> bytes:
     """One SDO exchange with node 16 through the bus."""
     before = len(m.transmitted)
@@ -53,7 +59,7 @@ def test_a_store_survives_a_power_cycle_through_the_flash_file(tmp_path):
     assert sdo(m, bytes([0x23, 0x10, 0x10, 1]) + SAVE)[0] == 0x60
     # The page is erased already: the record (154 bytes) is appended, no erase needed.
     assert m.fpec.erases == 0 and m.fpec.programs == 77
-    assert flash.read_bytes()[:154] != b"\xff" * 154
+    assert flash.read_bytes()[storage(m)][:154] != b"\xff" * 154
     again = machine.Machine(str(ELF), str(flash))  # a new board from the same flash file
     again.run_ms(50)
     reply = sdo(again, bytes([0x40, 0x17, 0x10, 0, 0, 0, 0, 0]))
@@ -83,7 +89,7 @@ def test_a_power_cut_inside_the_erase_of_a_move_boots_the_moved_record(tmp_path)
         m.step()
     assert m.now < m.stall_until, "the CPU waits for the erase"
     assert m.power_cut(), "an operation was running"
-    first = bytes(m.fpec.memory[:1024])
+    first = bytes(m.fpec.memory[storage(m)][:1024])
     assert first != b"\xff" * 1024 and b"\xff\xff" in first, "partly erased"
     assert flash.read_bytes() == bytes(m.fpec.memory)
     m.run_ms(50)
@@ -198,8 +204,8 @@ def test_time_jumps_from_event_to_event_after_a_timed_hold():
 def test_the_memory_map_is_the_linker_scripts():  # image.py, RM0008 30.1
     m = machine.Machine(str(ELF))
     memory = m.image.memory
-    assert m.fpec.base == memory.storage.origin and len(m.fpec.memory) == memory.storage.length
-    assert len(m.fpec.memory) == 2048, "two parameter pages"
+    assert m.fpec.base == 0x0800_0000 and len(m.fpec.memory) == 64 * 1024, "the whole flash"
+    assert memory.storage.length == 2048, "two parameter pages"
     size = int.from_bytes(m.uc.mem_read(machine.FLASH_SIZE_REGISTER, 2), "little")
     assert size == (memory.flash_end - memory.flash_base) // 1024 == 64
     start, data = m.image.segments[0]

@@ -186,16 +186,16 @@ def erasing(seed=1, fill=b"\x00"):
 def test_fpec_power_cut_inside_an_erase_leaves_a_seeded_part_erased():
     changes = []
     f = erasing(seed=7)
-    f.on_change = lambda: changes.append(bytes(f.memory))
+    f.on_change = lambda offset, length: changes.append((offset, length, bytes(f.memory)))
     f.write(0x10, 0x42, ALL, 1000)  # STRT at cycle 1000
-    assert changes == [b"\x00" * 1024 + b"\xff" * 1024], "written through at once"
+    assert changes == [(1024, 1024, b"\x00" * 1024 + b"\xff" * 1024)], "written through at once"
     assert f.cut(1000 + Fpec.ERASE_CYCLES // 2)
     page = bytes(f.memory[1024:])
     halves = [page[i : i + 2] for i in range(0, 1024, 2)]
     assert set(halves) == {b"\x00\x00", b"\xff\xff"}, "erased or unchanged half-words"
     assert 150 < halves.count(b"\xff\xff") < 362
     assert f.memory[:1024] == b"\x00" * 1024, "the other page is untouched"
-    assert changes[-1] == bytes(f.memory) and f.cuts == 1
+    assert changes[-1] == (1024, 1024, bytes(f.memory)) and f.cuts == 1
     # The same seed cuts the same way; another seed another way.
     again = erasing(seed=7)
     again.write(0x10, 0x42, ALL, 1000)
