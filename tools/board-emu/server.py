@@ -2,10 +2,18 @@
 bus on an SLCAN TCP port and its pins on a control TCP port, the defmt log (RTT up-channel
 0) written to stdout as raw bytes for `defmt-print` (or to a file), or with `--defmt-print`
 decoded by a `defmt-print` the server runs itself (its output on stderr) and restarts at
-every power cut, so that a log frame the cut broke never reaches the next boot's decoder.
+every reset, so that a log frame the reset broke never reaches the next boot's decoder, and
+whenever the CPU goes from one image to the other (loader, application: each its own
+ELF's log).
 
-    python server.py --elf ELF --can-port P --stim-port Q [--flash FILE] [--dip N]
-        [--defmt-print PATH] [--cut-seed N]
+    python server.py [--loader ELF] [--elf ELF] --can-port P --stim-port Q [--flash FILE]
+        [--dip N] [--defmt-print PATH] [--cut-seed N]
+
+`--loader` and `--elf` (the application) are flashed as a probe flashes them (their pages
+erased and written, every other page as the `--flash` file holds it: the whole flash, or an
+older file of the parameter pages alone); the CPU boots the loader. Without `--loader` the
+application starts alone, as before the loader; without `--elf` the application slot is
+what the flash file holds (an application an earlier update wrote, or nothing).
 
 The CPU starts only once a client is on the CAN port, so the boot-up frame is the first
 thing the master reads. The control port listens at once.
@@ -26,12 +34,18 @@ the current A/B levels; the reply comes 25 ms after the last edge), `ab <0..3>` 
 B = bit 1 directly: chatter, illegal jumps), `axis <off|x|y|z|w|v>`, `mult <1|10|100>` (the
 switch lines; the firmware's debouncing decides when the selection changes),
 `dip <0..255>` (switch n on = bit n-1, read by the firmware at its next reset), `power`
-(power cut and power-on: SRAM lost, the parameter pages kept, a flash operation running at
-that instant left half done as `Fpec.cut` says), `cut <n> <before|inside>` (cut the power at
-the n-th flash operation from now, 1 the next: before it starts or inside it; `cut off`
-disarms), `snapshot` (remember the parameter pages), `rollback` (the pages as remembered,
-then a power-on), `reload` (the pages as the `--flash` file holds them, e.g. after a test
-rewrote it, then a power-on), `reset` (NRST), `buserr <tx> <rx>`
+(power cut and power-on: SRAM lost, the flash kept, a flash operation running at that
+instant left half done as `Fpec.cut` says), `cut <n> <before|inside>` (cut the power at the
+n-th flash operation from now, 1 the next, anywhere in the flash (a page erase or a
+half-word program of the loader's, the application's or a parameter store): before it
+starts or inside it; `cut off` disarms), `flash-ops` (`flash-ops ops=N erases=N programs=N
+cuts=N armed=N|-` then `ok`: the operations started so far, the cuts that left one half
+done, the operations until the armed cut), `mode` (`mode loader|application|none`: which
+image the CPU is in, then `ok`), `peek <address> <length>` (`data <hex>` then `ok`: flash or
+SRAM content, at most 4096 bytes, e.g. the image header or the HANDOFF words), `snapshot`
+(remember the whole flash), `rollback` (the flash as remembered, then a power-on), `reload`
+(the flash as the `--flash` file holds it, e.g. after a test rewrote it, then a power-on; a
+file of the parameter pages alone replaces only them), `reset` (NRST), `buserr <tx> <rx>`
 (transmit / receive errors seen by the node: TEC += 8 each, REC += 1 each), `busoff <ms>`
 (TEC past 255, and the bus stays faulty for ms before the automatic recovery can run),
 `hold <ms|off|on>` (the bus is taken by other traffic: the node's mailboxes wait),
@@ -60,6 +74,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stm32emu import cortex, periph  # noqa: E402
 from stm32emu import machine as machine_mod  # noqa: E402
+from stm32emu.image import APPLICATION, LOADER  # noqa: E402
 
 MAX_LAG = 0.05
 SLCAN_RATES = [10, 20, 50, 100, 125, 250, 500, 800, 1000]
@@ -80,17 +95,21 @@ class Client:
 
 class Decoder:
     """`defmt-print -e ELF` fed through a pipe, its output on this process's stderr, started
-    anew at every power cut (`restart`). A decoder that exits is restarted too: the board
-    never dies of a broken log pipe."""
+    anew at every reset and with the other image's ELF when the CPU goes from one image to
+    the other (`restart`; `elfs`: image kind -> ELF). A decoder that exits is restarted too:
+    the board never dies of a broken log pipe."""
 
-    def __init__(self, command: list[str]) -> None:
-        self.command = command
+    def __init__(self, defmt_print: str, elfs: dict[str, str], kind: str) -> None:
+        self.defmt_print = defmt_print
+        self.elfs = elfs
+        self.kind = kind
         self.proc: subprocess.Popen | None = None
         self.restarts = 0
         self._start()
 
     def _start(self) -> None:
-        self.proc = subprocess.Popen(self.command, stdin=subprocess.PIPE, stdout=sys.stderr)
+        command = [self.defmt_print, "-e", self.elfs[self.kind]]
+        self.proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=sys.stderr)
 
     def write(self, data: bytes) -> None:
         try:
@@ -104,10 +123,13 @@ class Decoder:
         except (BrokenPipeError, ValueError):
             self.restart()
 
-    def restart(self) -> None:
-        """Ends the running decoder (it sees the end of its stream) and starts another."""
+    def restart(self, kind: str | None = None) -> None:
+        """Ends the running decoder (it sees the end of its stream) and starts another, for
+        the image `kind` if its ELF is known (else the same)."""
         self.close()
         self.restarts += 1
+        if kind in self.elfs:
+            self.kind = kind
         self._start()
 
     def close(self) -> None:
@@ -130,6 +152,8 @@ class Server:
         self.snapshot: bytes | None = None
         m.on_reset = self._on_reset
         m.on_power_off = self.flush_log
+        m.on_reset_start = self.flush_log
+        m.on_handover = self.flush_log
         self.sel = selectors.DefaultSelector()
         self.can_listener = self._listen(can_port, "can-listen")
         self.stim_listener = self._listen(stim_port, "stim-listen")
@@ -349,6 +373,35 @@ class Server:
                 raise StimError("out of range")
             m.fpec.arm(n, args[1] == "inside")
             ok()
+        elif name == "flash-ops":
+            if args:
+                raise StimError("extra argument")
+            fpec = m.fpec
+            armed = "-" if fpec.armed is None else fpec.armed[0] - fpec.operations
+            client.send(
+                f"flash-ops ops={fpec.operations} erases={fpec.erases} "
+                f"programs={fpec.programs} cuts={fpec.cuts} armed={armed}\n".encode()
+            )
+            ok()
+        elif name == "mode":
+            if args:
+                raise StimError("extra argument")
+            client.send(f"mode {m.running()}\n".encode())
+            ok()
+        elif name == "peek":
+            if len(args) != 2:
+                raise StimError("usage: peek <address> <length>")
+            try:
+                address, length = int(args[0], 0), int(args[1], 0)
+            except ValueError:
+                raise StimError("bad number") from None
+            if not 1 <= length <= 4096 or not any(
+                address in r and address + length <= r.end for r in (m.flash, m.ram)
+            ):
+                raise StimError("out of range")
+            data = bytes(m.uc.mem_read(address, length))
+            client.send(f"data {data.hex()}\n".encode())
+            ok()
         elif name == "snapshot":
             self.snapshot = bytes(m.fpec.memory)
             ok()
@@ -356,16 +409,13 @@ class Server:
             if name == "rollback":
                 if self.snapshot is None:
                     raise StimError("no snapshot")
-                pages = self.snapshot
+                flash = self.snapshot
             else:
                 if not m.flash_file:
                     raise StimError("no flash file")
-                with open(m.flash_file, "rb") as f:
-                    pages = f.read(len(m.fpec.memory)).ljust(len(m.fpec.memory), b"\xff")
+                flash = m.stored_flash(bytes(m.fpec.memory))
             self.flush_log()
-            m.fpec.pending = None
-            m.fpec.memory[:] = pages
-            m.save_flash()
+            m.write_flash(0, flash)
             m.power_cut()
             ok()
         elif name == "reset":
@@ -414,8 +464,8 @@ class Server:
             m.storm_started_ms = m.ms()
             ok()
         elif name == "corrupt":
-            m.fpec.memory[8] ^= 0x01
-            m.save_flash()
+            at = m.memory.storage.origin - m.flash.origin + 8
+            m.write_flash(at, bytes([m.fpec.memory[at] ^ 0x01]))
             ok()
         elif name == "rate":
             if args == ["auto"]:
@@ -441,6 +491,9 @@ class Server:
         return {
             "ms": f"{m.ms():.1f}",
             "boot": m.boot_cause,
+            "run": m.running(),
+            "vtor": f"{m.nvic.vtor:#010x}",
+            "handoff": bytes(m.uc.mem_read(m.ram.end - 8, 8)).hex(),
             "resets": len(m.stats.resets),
             "reset_ms": f"{m.last_reset_ms:.1f}",
             "storm_ms": f"{m.storm_started_ms:.1f}",
@@ -480,7 +533,7 @@ class Server:
 
     # -- the loop -----------------------------------------------------------------------------
 
-    def flush_log(self) -> None:
+    def _pass_log(self) -> None:
         data = self.m.rtt_read()
         if not data or self.log_broken or self.log_out is None:
             return
@@ -491,12 +544,22 @@ class Server:
             # The reader of stdout is gone (a decoder that gave up): the board runs on.
             self.log_broken = True
 
+    def flush_log(self) -> None:
+        """Passes on what the image that runs wrote to its RTT log; a decoder of ours first
+        starts anew with the other image's ELF if the CPU went from one image to the other
+        (the image sets RTT up anew: a new stream)."""
+        kind = self.m.running()
+        out = self.log_out
+        if isinstance(out, Decoder) and self.started and kind != out.kind and kind in out.elfs:
+            out.restart(kind)
+        self._pass_log()
+
     def _on_reset(self, cause: str) -> None:
         """A reset starts a new log stream (the firmware sets RTT up again), which a frame
-        cut off by it would garble: a decoder of ours starts anew with it."""
+        cut off by it would garble: a decoder of ours starts anew with it (the log up to
+        the reset was passed on at its start, `on_reset_start`)."""
         if isinstance(self.log_out, Decoder) and self.started:
-            self.flush_log()
-            self.log_out.restart()
+            self.log_out.restart(self.m.running())
 
     def serve(self) -> None:
         while not self.started:
@@ -525,10 +588,11 @@ class StimError(Exception):
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--elf", required=True)
+    parser.add_argument("--elf", help="the application's ELF (its slot)")
+    parser.add_argument("--loader", help="the resident loader's ELF (the first pages)")
     parser.add_argument("--can-port", type=int, required=True)
     parser.add_argument("--stim-port", type=int, required=True)
-    parser.add_argument("--flash", help="file holding the parameter page across runs")
+    parser.add_argument("--flash", help="file holding the whole flash across runs")
     parser.add_argument(
         "--dip", type=lambda v: int(v, 0), default=0, help="switch n on = bit n-1 (0b..., 0x...)"
     )
@@ -536,12 +600,17 @@ def main() -> int:
     parser.add_argument("--defmt-print", help="decode the log with this defmt-print (stderr)")
     parser.add_argument("--cut-seed", type=int, default=1, help="seed of half-done flash ops")
     args = parser.parse_args()
-    m = machine_mod.Machine(args.elf, args.flash, cut_seed=args.cut_seed)
+    if not args.elf and not args.loader:
+        parser.error("give the application (--elf), the loader (--loader) or both")
+    m = machine_mod.Machine(args.elf, args.flash, cut_seed=args.cut_seed, loader=args.loader)
     m.set_dip(args.dip)
     if args.log:
         out = open(args.log, "wb")
     elif args.defmt_print:
-        out = Decoder([args.defmt_print, "-e", args.elf])
+        elfs = {kind: elf for kind, elf in ((LOADER, args.loader), (APPLICATION, args.elf)) if elf}
+        out = Decoder(
+            args.defmt_print, elfs, m.running() if m.running() in elfs else next(iter(elfs))
+        )
     else:
         out = sys.stdout.buffer
     server = Server(m, args.can_port, args.stim_port, out)

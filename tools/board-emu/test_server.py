@@ -133,7 +133,8 @@ def test_power_never_kills_the_board_when_its_decoder_exits(board):
     """A log decoder that exits (as defmt-print did on a frame cut by a power cycle) is
     started again; `power` and the log go on."""
     m, s = board
-    s.log_out = server.Decoder(["true"])  # exits at once: every write meets a closed pipe
+    # `true` exits at once: every write meets a closed pipe.
+    s.log_out = server.Decoder("true", {"application": str(ELF)}, "application")
     s.started = True
     client = Client()
     for _ in range(3):
@@ -151,8 +152,12 @@ def test_snapshot_and_rollback_restore_the_pages(board):
     client = Client()
     command(s, client, "rollback")
     command(s, client, "snapshot")
+    before = bytes(m.fpec.memory)
+    pages = slice(0xF800, 0x10000)  # the parameter pages in the flash
+    assert before[pages] == b"\xff" * 2048
     sdo_saves(m, 250)
-    assert bytes(m.fpec.memory) != b"\xff" * 2048
+    assert bytes(m.fpec.memory[pages]) != b"\xff" * 2048
     command(s, client, "rollback")
-    assert bytes(m.fpec.memory) == b"\xff" * 2048
+    assert bytes(m.fpec.memory) == before
+    assert bytes(m.uc.mem_read(0x0800_F800, 2048)) == b"\xff" * 2048, "what the CPU reads"
     assert client.sent == b"err no snapshot\nok\nok\n"

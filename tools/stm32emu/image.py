@@ -136,9 +136,7 @@ class MemoryMap:
             if match is None:
                 raise ValueError(f"`{line.strip()}` is not a MEMORY entry")
             name, origin, length = match.groups()
-            regions[name] = Region(
-                name, _expression(origin, regions), _expression(length, regions)
-            )
+            regions[name] = Region(name, _expression(origin, regions), _expression(length, regions))
         missing = [n for n in ("FLASH", "STORAGE", "RAM") if n not in regions]
         if missing:
             raise ValueError(f"the linker script has no {', '.join(missing)} region")
@@ -269,7 +267,11 @@ class Image:
         image.path = f"<{len(segments)} segments>"
         image.memory = memory
         table = next(
-            (data[table_address - a :] for a, data in segments if a <= table_address < a + len(data)),
+            (
+                data[table_address - a :]
+                for a, data in segments
+                if a <= table_address < a + len(data)
+            ),
             None,
         )
         if table is None:
@@ -314,9 +316,7 @@ class Image:
         region = self.region
         for address, data in self.segments:
             if address not in region or address + len(data) > region.end:
-                raise ValueError(
-                    f"{path}: a load segment at {address:#x} is outside {region.name}"
-                )
+                raise ValueError(f"{path}: a load segment at {address:#x} is outside {region.name}")
 
     def pages(self, page_size: int = PAGE_SIZE) -> list[int]:
         """The addresses of the flash pages its segments cover (what a probe erases)."""

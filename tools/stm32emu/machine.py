@@ -173,6 +173,8 @@ class Machine:
         self.on_reset = lambda cause: None
         self.on_power_off = lambda: None  # the last moment SRAM can be read (the RTT log)
         self.on_handover = lambda: None  # VTOR written (the loader starting the application)
+        # A reset begins: the last moment the image that ran is the one the PC is in.
+        self.on_reset_start = lambda: None
         self.events: list[tuple[int, int, object]] = []  # (cycle, seq, callback)
         self.host_frames: list[tuple[int, periph.Frame]] = []  # (arrival cycle, frame)
         self.host_bus_free = 0
@@ -197,9 +199,13 @@ class Machine:
         return image
 
     def _stored_flash(self) -> bytearray:
-        """The flash as the file holds it: the whole flash, or an older file of the
-        parameter pages alone; erased where the file says nothing."""
-        content = bytearray(b"\xff" * self.flash.length)
+        """The flash as the file holds it, erased where it says nothing."""
+        return self.stored_flash(b"\xff" * self.flash.length)
+
+    def stored_flash(self, base: bytes) -> bytearray:
+        """`base` (the whole flash) with what the flash file holds over it: the whole flash,
+        or (an older file) the parameter pages alone."""
+        content = bytearray(base)
         if not self.flash_file or not os.path.exists(self.flash_file):
             return content
         with open(self.flash_file, "rb") as f:
@@ -497,6 +503,7 @@ class Machine:
     def _reset(self, cause: str) -> None:
         """System reset (RM0008 7.1.2): every register to its reset value but RCC_CSR's
         flags; SRAM keeps its content; the CPU starts from the vector table."""
+        self.on_reset_start()
         self.stats.resets.append(f"{self.ms():.1f} ms {cause}")
         self.last_reset_ms = self.ms()
         self.nvic.reset()

@@ -428,6 +428,10 @@ class Fpec:
         whether it is the armed one to cut inside."""
         if self.dead:
             return None
+        # The CPU waits for an operation's end before it starts the next (it stalls while
+        # BSY, `_busy`): one that begins means the one before is done, though its end was
+        # not yet charged in emulated time (the stall comes after the slice).
+        self.pending = None
         self.operations += 1
         if self.armed is None or self.armed[0] != self.operations:
             return False

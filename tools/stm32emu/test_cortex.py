@@ -2,7 +2,7 @@
 on tiny hand-assembled Thumb programs, and of the unicorn behaviour it relies on."""
 
 import pytest
-from unicorn import UC_HOOK_MEM_READ, UcError
+from unicorn import UC_HOOK_MEM_READ, UC_HOOK_MEM_WRITE_PROT, UC_PROT_EXEC, UC_PROT_READ, UcError
 from unicorn import arm_const as arm
 
 from stm32emu import cortex
@@ -387,3 +387,42 @@ def test_precise_a_branch_after_an_it_block_with_a_load_is_no_it_block(precise):
     assert not precise.locked_up, precise.stop_reason
     assert precise.uc.reg_read(arm.UC_ARM_REG_R7) == 0, "beq taken"
     assert precise.uc.reg_read(arm.UC_ARM_REG_R6) == 2, "bne not taken, both adds ran"
+
+
+def flash_uc():
+    """Code in read/execute memory (as the board maps its flash): `blx r4` to a function F
+    (`movs r0, #1; bx lr`), `mov r5, r0`, `strh r1, [r6]` (r6 = F), `blx r4` again."""
+    uc = cortex.make_uc()
+    uc.mem_map(CODE, 0x1000, UC_PROT_READ | UC_PROT_EXEC)
+    uc.mem_map(RAM, 0x1000)
+    uc.mem_write(CODE, halfwords(0x47A0, 0x4605, 0x8031, 0x47A0, B_SELF))
+    uc.mem_write(CODE + 0x200, halfwords(0x2001, BX_LR))
+    uc.reg_write(arm.UC_ARM_REG_R4, (CODE + 0x200) | 1)
+    uc.reg_write(arm.UC_ARM_REG_R6, CODE + 0x200)
+    uc.reg_write(arm.UC_ARM_REG_R1, 0x2002)  # movs r0, #2
+    uc.reg_write(arm.UC_ARM_REG_SP, RAM + 0x800)
+    return uc
+
+
+@pytest.mark.parametrize("drop", [False, True])
+def test_unicorn_store_to_protected_code_lands_only_as_the_hook_writes_it(drop):
+    """The board's flash writes (machine.py): a write-protection hook that returns True
+    makes the store count as done without its bytes landing (the hook's `mem_write` is what
+    memory holds), and a `mem_write` alone leaves the old translation of that code in use:
+    only `ctl_remove_cache` makes the CPU run the new bytes."""
+    uc = flash_uc()
+    stores = []
+
+    def hook(uc, _access, address, size, value, _user):
+        stores.append((address, size, value))
+        uc.mem_write(address, (value & 0xFFF0 | 3).to_bytes(size, "little"))  # not `value`
+        if drop:
+            uc.ctl_remove_cache(address, address + size)
+        return True
+
+    uc.hook_add(UC_HOOK_MEM_WRITE_PROT, hook, begin=CODE, end=CODE + 0xFFF)
+    uc.emu_start(CODE | 1, 0, count=8)
+    assert stores == [(CODE + 0x200, 2, 0x2002)]
+    assert bytes(uc.mem_read(CODE + 0x200, 2)) == halfwords(0x2003), "the hook's bytes"
+    first, second = uc.reg_read(arm.UC_ARM_REG_R5), uc.reg_read(arm.UC_ARM_REG_R0)
+    assert (first, second) == ((1, 3) if drop else (1, 1))

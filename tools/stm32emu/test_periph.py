@@ -539,3 +539,62 @@ def test_can_wrong_bus_rate_keeps_the_node_off_the_bus():  # 24.7.7
     assert can.deliver(Frame(0x100, b"")) == "offline"
     can.bus_bitrate = 1_000_000
     assert can.deliver(Frame(0x100, b"")) == "fifo0"
+
+
+def whole_flash(seed=1):
+    """An unlocked FPEC over the whole 64 KiB main flash of zeros, as the board's."""
+    f = Fpec(0x0800_0000, bytearray(64 * 1024), seed)
+    f.write(0x04, periph.FLASH_KEY1, ALL, 0)
+    f.write(0x04, periph.FLASH_KEY2, ALL, 0)
+    return f
+
+
+def test_fpec_erases_and_programs_a_code_page_of_the_whole_flash():  # PM0075 2.3.3, 2.3.4
+    f = whole_flash()
+    f.write(0x10, 0x02, ALL, 0)  # PER
+    f.write(0x14, 0x0800_5123, ALL, 0)  # any address in page 20
+    f.write(0x10, 0x42, ALL, 0)
+    assert f.memory[0x5000:0x5400] == b"\xff" * 1024
+    assert f.memory[:0x5000] == bytes(0x5000) and f.memory[0x5400:] == bytes(0xAC00)
+    f.write(0x10, 0x01, ALL, 0)  # PG
+    f.write_memory(0x5000, 2, 0x2002, 0)
+    assert f.memory[0x5000:0x5002] == b"\x02\x20" and not f.read(0x0C, 0) & 0x04
+    f.write_memory(0x5000, 2, 0x2001, 0)  # programmed already: PGERR
+    f.write_memory(0x0100, 2, 0x1234, 0)  # a loader page, never erased: PGERR
+    assert f.memory[0x5000:0x5002] == b"\x02\x20" and f.memory[0x100:0x102] == b"\0\0"
+    assert f.read(0x0C, 0) & 0x04 and (f.erases, f.programs) == (1, 1)
+    f.write(0x0C, 0x04, ALL, 0)
+    f.write(0x10, 0x02, ALL, 0)
+    f.write(0x14, 0x0801_0000, ALL, 0)  # past the flash: not a page of it
+    f.write(0x10, 0x42, ALL, 0)
+    assert f.read(0x0C, 0) & 0x10 and f.erases == 1, "WRPRTERR"
+
+
+def test_fpec_power_cut_inside_an_application_page_erase_leaves_a_random_half():
+    f = whole_flash(seed=11)
+    f.arm(1, inside=True)
+    f.write(0x10, 0x02, ALL, 0)
+    f.write(0x14, 0x0800_3000, ALL, 0)  # the header's page
+    f.write(0x10, 0x42, ALL, 1000)
+    assert f.cut_requested and f.cuts == 1
+    page = bytes(f.memory[0x3000:0x3400])
+    halves = [page[i : i + 2] for i in range(0, 1024, 2)]
+    assert set(halves) == {b"\x00\x00", b"\xff\xff"}
+    assert 150 < halves.count(b"\xff\xff") < 362
+    assert f.memory[:0x3000] == bytes(0x3000) and f.memory[0x3400:] == bytes(0xCC00)
+    f.write(0x10, 0x42, ALL, 2000)  # the power is going: nothing more happens
+    assert f.erases == 1 and f.operations == 1
+
+
+def test_fpec_an_operation_that_begins_ends_the_one_before():
+    """The CPU stalls until an operation ends before it can start the next: a cut armed
+    before the next one finds the erase before it done, not half done."""
+    f = whole_flash()
+    f.arm(2, inside=False)
+    f.write(0x10, 0x02, ALL, 0)
+    f.write(0x14, 0x0800_4000, ALL, 0)
+    f.write(0x10, 0x42, ALL, 1000)
+    f.write(0x10, 0x01, ALL, 1001)  # PG, still within the erase's time
+    f.write_memory(0x4000, 2, 0x1234, 1002)
+    assert f.cut_requested and not f.cut(1003) and f.cuts == 0
+    assert f.memory[0x4000:0x4400] == b"\xff" * 1024
