@@ -1,32 +1,46 @@
-//! The emulated board (`tools/board-emu`): the release ELF, the exact image a builder
-//! flashes, on the Python model of the STM32F103 in `tools/stm32emu` (unicorn for the core;
-//! NVIC, bxCAN, FPEC, IWDG, GPIO/EXTI modelled), paced in real time, with SLCAN and a
-//! control line on TCP.
+//! The emulated board (`tools/board-emu`): the release ELFs, the exact images a builder
+//! flashes (the resident loader and the application, docs/FIRMWARE-UPDATE.md), on the
+//! Python model of the STM32F103 in `tools/stm32emu` (unicorn for the core; NVIC, bxCAN,
+//! FPEC over the whole flash, IWDG, GPIO/EXTI modelled), paced in real time, with SLCAN and
+//! a control line on TCP.
 //!
-//! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N] [--image NAME]`
-//! runs it in the foreground: SLCAN on P (the CPU starts when the first client connects),
-//! the control line on Q, the firmware's RTT defmt stream decoded by `defmt-print` on
-//! stderr (the server runs the decoder and starts it anew at every reset, so that a log
-//! frame cut off by a power cut never stops the log). `--flash` keeps the parameter pages
-//! in FILE across runs (default:
-//! `target/board-emu/flash.bin`). `--image stack-overflow` runs the test build that
-//! overflows its stack on purpose (feature `stack-overflow-test`) instead of the release
-//! image.
+//! `cargo xtask board --can-port P --stim-port Q [--flash FILE] [--dip N] [--image NAME]
+//! [--loader auto|none|FILE]` runs it in the foreground: SLCAN on P (the CPU starts when the
+//! first client connects), the control line on Q, the firmware's RTT defmt stream decoded by
+//! `defmt-print` on stderr (the server runs the decoder and starts it anew at every reset
+//! and with the other image's ELF when the CPU goes from loader to application, so that a
+//! log frame cut off by a power cut never stops the log). The board is flashed as a probe
+//! flashes: the loader's and the application's pages erased and written, the rest of the
+//! flash (an application an update wrote, the parameter pages) as `--flash` FILE holds it
+//! across runs (default: `target/board-emu/flash.bin`; the whole 64 KiB flash). The CPU
+//! boots the loader, which starts the application. `--loader auto` (the default) builds
+//! and flashes the loader when the workspace has its package (`loader/`) and the image is
+//! the release image; `none` runs the application alone, as before the loader (it starts
+//! as the loader would start it); FILE flashes that loader ELF. `--image stack-overflow`
+//! runs the test build that overflows its stack on purpose (feature `stack-overflow-test`)
+//! instead of the release image, alone unless `--loader FILE`.
 
 use std::path::{Path, PathBuf};
 
 use xshell::{cmd, Cmd, Shell};
 
+use crate::fw::{board_cargo, FIRMWARE_TARGET};
 use crate::pyenv;
+use crate::workspace::{root_shell, target_dir, workspace_root};
 
 /// The server and launcher, relative to the workspace root.
 pub const PACKAGE: &str = "tools/board-emu";
 /// The chip model it runs (its unit tests run with the board's).
 pub const CHIP: &str = "tools/stm32emu";
 
+/// The resident loader's package (docs/FIRMWARE-UPDATE.md) and its directory: without it
+/// the board runs the application alone.
+pub const LOADER_PACKAGE: &str = "handwheel-loader";
+pub const LOADER_DIR: &str = "loader";
+
 /// The usage line of `cargo xtask board`.
 const USAGE: &str = "usage: cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] \
-                     [--dip N] [--image release|stack-overflow]";
+                     [--dip N] [--image release|stack-overflow] [--loader auto|none|FILE]";
 
 /// The board's two TCP ports.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -94,6 +108,29 @@ impl Image {
     }
 }
 
+/// Which resident loader the board boots.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Loader {
+    /// The workspace's loader, built, with the release image (when `loader/` exists).
+    #[default]
+    Auto,
+    /// None: the application alone, started as the loader would start it.
+    Off,
+    /// This loader ELF.
+    File(PathBuf),
+}
+
+impl Loader {
+    fn parse(value: &str) -> Result<Self, String> {
+        match value {
+            "auto" => Ok(Self::Auto),
+            "none" => Ok(Self::Off),
+            "" => Err("--loader: give auto, none or an ELF file".into()),
+            file => Ok(Self::File(PathBuf::from(file))),
+        }
+    }
+}
+
 /// `cargo xtask board` arguments: the two ports, and the board's own options.
 #[derive(Debug, PartialEq, Eq)]
 pub struct Args {
@@ -101,6 +138,7 @@ pub struct Args {
     pub flash: Option<PathBuf>,
     pub dip: Option<u8>,
     pub image: Image,
+    pub loader: Loader,
 }
 
 impl Args {
@@ -109,6 +147,7 @@ impl Args {
         let mut flash = None;
         let mut dip = None;
         let mut image = Image::Release;
+        let mut loader = Loader::Auto;
         let mut it = args.iter();
         while let Some(arg) = it.next() {
             let (flag, inline) = match arg.split_once('=') {
@@ -116,16 +155,15 @@ impl Args {
                 None => (arg.as_str(), None),
             };
             match flag {
-                "--flash" | "--dip" | "--image" => {
+                "--flash" | "--dip" | "--image" | "--loader" => {
                     let value = inline
                         .or_else(|| it.next().cloned())
                         .ok_or_else(|| format!("{flag} needs a value"))?;
-                    if flag == "--flash" {
-                        flash = Some(PathBuf::from(value));
-                    } else if flag == "--image" {
-                        image = Image::parse(&value)?;
-                    } else {
-                        dip = Some(parse_dip(&value)?);
+                    match flag {
+                        "--flash" => flash = Some(PathBuf::from(value)),
+                        "--image" => image = Image::parse(&value)?,
+                        "--loader" => loader = Loader::parse(&value)?,
+                        _ => dip = Some(parse_dip(&value)?),
                     }
                 }
                 _ => rest.push(arg.clone()),
@@ -137,8 +175,43 @@ impl Args {
             flash,
             dip,
             image,
+            loader,
         })
     }
+}
+
+/// The loader ELF the board boots for `args`, None for the application alone: `auto` builds
+/// the workspace's loader for the release image when the workspace has it (the
+/// stack-overflow image runs alone: it is a test of the application's stack, not of the
+/// boot).
+pub fn loader_elf(args: &Args) -> Result<Option<PathBuf>, String> {
+    match &args.loader {
+        Loader::Off => Ok(None),
+        Loader::File(path) => Ok(Some(path.clone())),
+        Loader::Auto => {
+            let has_loader = workspace_root()
+                .join(LOADER_DIR)
+                .join("Cargo.toml")
+                .exists();
+            if args.image != Image::Release || !has_loader {
+                return Ok(None);
+            }
+            let sh = &root_shell()?;
+            board_cargo(cmd!(
+                sh,
+                "cargo build --locked --release -p {LOADER_PACKAGE} --target {FIRMWARE_TARGET}"
+            ))?;
+            Ok(Some(release_loader_elf()))
+        }
+    }
+}
+
+/// Where the release build puts the loader's ELF (beside the application's).
+pub fn release_loader_elf() -> PathBuf {
+    target_dir()
+        .join(FIRMWARE_TARGET)
+        .join("release")
+        .join(LOADER_PACKAGE)
 }
 
 /// The DIP switch as `--dip` takes it: binary `0b01100101` (switch n on = bit n-1, so the
@@ -164,12 +237,15 @@ pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
     pyenv::emu_python(root, target_dir)
 }
 
-/// The emulator's command line for `elf`, its log decoded by `defmt_print`.
+/// The emulator's command line for the application `elf` and the `loader` (None: the
+/// application alone), its log decoded by `defmt_print`.
+#[allow(clippy::too_many_arguments)]
 pub fn command<'a>(
     sh: &'a Shell,
     python: &Path,
     root: &Path,
     elf: &Path,
+    loader: Option<&Path>,
     args: &Args,
     default_flash: &Path,
     defmt_print: &Path,
@@ -179,18 +255,23 @@ pub fn command<'a>(
     let flash = args.flash.as_deref().unwrap_or(default_flash);
     let dip = args.dip.map(|dip| ["--dip".to_string(), dip.to_string()]);
     let dip = dip.iter().flatten();
+    let loader = loader.map(|l| ["--loader".into(), l.as_os_str().to_owned()]);
+    let loader = loader.iter().flatten();
     cmd!(
         sh,
-        "{python} {server} --elf {elf} --can-port {can} --stim-port {stim} --flash {flash}
-         --defmt-print {defmt_print} {dip...}"
+        "{python} {server} {loader...} --elf {elf} --can-port {can} --stim-port {stim}
+         --flash {flash} --defmt-print {defmt_print} {dip...}"
     )
 }
 
 /// The chip model's and the board's unit tests (`tools/stm32emu/test_*.py`,
 /// `tools/board-emu/test_*.py`, pytest) with extra arguments, in a shell in the workspace
-/// root.
+/// root; the tests of loader and application together find the loader beside `elf` (they
+/// are skipped while it is not built).
 pub fn unit_tests<'a>(sh: &'a Shell, python: &Path, elf: &Path, extra: &[&str]) -> Cmd<'a> {
-    cmd!(sh, "{python} -m pytest {CHIP} {PACKAGE} -q {extra...}").env("HANDWHEEL_BOARD_ELF", elf)
+    cmd!(sh, "{python} -m pytest {CHIP} {PACKAGE} -q {extra...}")
+        .env("HANDWHEEL_BOARD_ELF", elf)
+        .env("HANDWHEEL_LOADER_ELF", elf.with_file_name(LOADER_PACKAGE))
 }
 
 #[cfg(test)]
@@ -217,6 +298,30 @@ mod tests {
         assert_eq!(args.flash, Some(PathBuf::from("f.bin")));
         assert_eq!(args.dip, Some(33));
         assert_eq!(args.image, Image::Release);
+        assert_eq!(args.loader, Loader::Auto);
+        for (written, loader) in [
+            ("none", Loader::Off),
+            ("auto", Loader::Auto),
+            ("l.elf", Loader::File(PathBuf::from("l.elf"))),
+        ] {
+            let args = Args::from_args(&strings(&[
+                "--can-port",
+                "1",
+                "--stim-port",
+                "2",
+                &format!("--loader={written}"),
+            ]))
+            .unwrap();
+            assert_eq!(args.loader, loader, "{written}");
+        }
+        assert!(Args::from_args(&strings(&[
+            "--can-port",
+            "1",
+            "--stim-port",
+            "2",
+            "--loader"
+        ]))
+        .is_err());
         let overflow = Args::from_args(&strings(&[
             "--can-port",
             "1",

@@ -18,6 +18,7 @@ const DEMO_SCRIPT: &str = "tools/demo.py";
 /// the emulator.
 pub fn run_board(args: board::Args) -> Result<(), String> {
     let setup = Board::prepare_image(args.image)?;
+    let loader = board::loader_elf(&args)?;
     let default_flash = target_dir().join("board-emu").join("flash.bin");
     if let Some(dir) = default_flash.parent() {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
@@ -29,6 +30,7 @@ pub fn run_board(args: board::Args) -> Result<(), String> {
         &setup.python,
         &root,
         &setup.elf,
+        loader.as_deref(),
         &args,
         &default_flash,
         &setup.defmt_print,

@@ -47,14 +47,17 @@ tasks:
   test                                  everything CI checks, the interop suite last
   fw                                    release firmware for the board, with its footprint checked
                                         against the budget and the README's statement of it
-  board --can-port <P> --stim-port <Q>  the release image on the emulated board (tools/board-emu):
-        [--flash FILE] [--dip N]        SLCAN on tcp:127.0.0.1:P (the CPU starts with the client),
-        [--image release|stack-overflow] control line on tcp:127.0.0.1:Q, decoded defmt log on
-                                        stderr; FILE keeps the parameter page (default
+  board --can-port <P> --stim-port <Q>  the loader and the release image on the emulated board
+        [--flash FILE] [--dip N]        (tools/board-emu), flashed as a probe flashes them:
+        [--image release|stack-overflow] SLCAN on tcp:127.0.0.1:P (the CPU starts with the
+        [--loader auto|none|FILE]       client), control line on tcp:127.0.0.1:Q, decoded defmt
+                                        log on stderr; FILE keeps the whole flash (default
                                         target/board-emu/flash.bin); N: the DIP switch in
                                         binary, switches 8..1 (0b01100101: 1, 3, 6, 7 on; 0x65
                                         and 101 too); stack-overflow: the test build that
-                                        overflows its stack right after boot
+                                        overflows its stack right after boot; --loader: auto
+                                        (the workspace's loader/, if any), none (the
+                                        application alone) or an ELF
   snippets                              run the README's and docs/' code blocks that need no
                                         hardware against the emulated board (tools/snippets)
   lint                                  ruff check and ruff format --check over all Python
