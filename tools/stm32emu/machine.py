@@ -109,6 +109,7 @@ class Machine:
         self.now = 0
         self.nvic = cortex.Nvic()
         self.uc = uc = cortex.make_uc()
+        self._flash_out = None  # the flash file, open for writing through
         content = self._stored_flash()
         for image in (self.loader, self.app):
             if image is not None:
@@ -246,15 +247,11 @@ class Machine:
         self.uc.ctl_remove_cache(address, address + length)
         if not self.flash_file:
             return
-        try:
-            with open(self.flash_file, "r+b") as f:
-                if f.seek(0, os.SEEK_END) == self.flash.length:
-                    f.seek(offset)
-                    f.write(self.fpec.memory[offset : offset + length])
-                    return
-        except FileNotFoundError:
-            pass
-        self.save_flash()
+        if self._flash_file_open():
+            # A syscall, not a new file per half-word: an update programs thousands.
+            os.pwrite(self._flash_out.fileno(), self.fpec.memory[offset : offset + length], offset)
+        else:
+            self.save_flash()
 
     def write_flash(self, offset: int, data: bytes) -> None:
         """Writes flash content directly, not through the FPEC (a probe, a test crafting
@@ -357,11 +354,29 @@ class Machine:
             self.other[address] = (self.other.get(address, 0) & ~mask) | value
 
     def save_flash(self) -> None:
+        """Writes the whole flash file anew (atomically: a board killed meanwhile leaves
+        the old one) and keeps it open for the writes through (`_flash_changed`)."""
         if self.flash_file:
             tmp = self.flash_file + ".tmp"
             with open(tmp, "wb") as f:
                 f.write(self.fpec.memory)
             os.replace(tmp, self.flash_file)
+            if self._flash_out is not None:
+                self._flash_out.close()
+            self._flash_out = open(self.flash_file, "r+b", buffering=0)  # noqa: SIM115
+
+    def _flash_file_open(self) -> bool:
+        """Whether the open flash file is still the file, whole (a test may have written a
+        file of the parameter pages in its place, or replaced it)."""
+        out = self._flash_out
+        if out is None:
+            return False
+        status = os.fstat(out.fileno())
+        if status.st_nlink and status.st_size == self.flash.length:
+            return True
+        out.close()
+        self._flash_out = None
+        return False
 
     # -- interrupt lines ---------------------------------------------------------------------
 
@@ -646,7 +661,9 @@ class Machine:
         descriptors (name, buffer, size, write, read, flags)."""
         image = {LOADER: self.loader, APPLICATION: self.app}.get(self.running())
         cb = image.symbols.get("_SEGGER_RTT") if image is not None else None
-        if cb is None:
+        if cb is None or bytes(self.uc.mem_read(cb, 10)) != b"SEGGER RTT":
+            # No log, or not set up yet (right after the loader's jump, the application's
+            # control block still holds what the loader left there).
             return b""
         raw = bytes(self.uc.mem_read(cb + 24, 24))
         _name, buf, size, write, read, _flags = (

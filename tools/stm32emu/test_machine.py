@@ -245,3 +245,40 @@ def test_precise_mode_runs_the_image_as_the_board_does():
     m.run_ms(1)
     assert m.exti.pr == 0 and m.core.exceptions_taken > taken
     assert 0 < m.core.cycles - cycles < 72_000, "busy only for what its instructions took"
+
+
+# -- the loader and the application, as a flashed board (docs/FIRMWARE-UPDATE.md) ------------
+
+LOADER_ELF = Path(
+    os.environ.get(
+        "HANDWHEEL_LOADER_ELF", ROOT / "target/thumbv7m-none-eabi/release/handwheel-loader"
+    )
+)
+with_loader = pytest.mark.skipif(not LOADER_ELF.exists(), reason=f"no loader image at {LOADER_ELF}")
+
+
+@with_loader
+def test_the_loader_starts_the_application_it_was_flashed_with():
+    """Power-on: the loader finds the application valid and jumps (VTOR at its vector
+    table, no frame of its own): the first frame is the application's boot-up."""
+    m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
+    assert m.running() == "loader" and m.nvic.vtor == 0
+    m.run_ms(300)
+    assert m.running() == "application" and m.nvic.vtor == m.app.table_address
+    assert [(f.can_id, f.data) for _, f in m.transmitted][:1] == [(0x710, b"\x00")]
+    assert m.stats.resets == ["0.0 ms PowerOn"] and not m.core.locked_up
+
+
+@with_loader
+def test_without_the_validity_mark_the_loader_stays_and_answers():
+    """The header's mark erased (as after "clear"): the loader stays, sends its boot-up and
+    answers SDO; 0x1000 says it is the loader."""
+    m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
+    header = m.memory.header.origin - m.flash.origin
+    m.write_flash(header, b"\0\0\0\0")
+    m.power_on()
+    m.run_ms(300)
+    assert m.running() == "loader" and not m.core.locked_up
+    assert [(f.can_id, f.data) for _, f in m.transmitted][:1] == [(0x710, b"\x00")]
+    reply = sdo(m, bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0]))
+    assert reply[0] == 0x43 and int.from_bytes(reply[4:8], "little") == 0x544F_4F42
