@@ -905,6 +905,12 @@ def shut_down(args, cfg: core.Config, c: core.Core, link, worker, capture=None) 
             log("an SDO transfer did not end; not writing 0x2000")
             link.close()
             return
+    action = c.shutdown_action()
+    if action is None:
+        log("the device is in its loader: 0x2000 not written")
+        if link is not None:
+            link.close()
+        return
     if link is not None and link.failed.is_set():
         link.close()
         link = None
@@ -912,7 +918,6 @@ def shut_down(args, cfg: core.Config, c: core.Core, link, worker, capture=None) 
         link = open_link(args, cfg, "0x2000 not written", capture)
         if link is None:
             return
-    action = c.shutdown_action()
     outcome = []
     thread = threading.Thread(
         target=lambda: outcome.append(carry_out(link, args.node, action)), daemon=True

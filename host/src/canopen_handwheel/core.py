@@ -1233,13 +1233,14 @@ class Core:
             self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms, keep, tokens
         )
 
-    def shutdown_action(self) -> Action:
+    def shutdown_action(self) -> Optional[Action]:
         """What to do before the component exits: disable the feed, whatever the last
         record showed. A write of 0x2000 = 1 may have been accepted without a record
         showing it yet, and a device that has been silent for a while may be back; one SDO
-        exchange too many costs nothing."""
+        exchange too many costs nothing. Except to a device held in its loader (None): it
+        has no feed, and a request could break a program download under way."""
         self.asked_off = True
-        return WriteFeed(0)
+        return None if self.in_loader else WriteFeed(0)
 
     def gate(self, letter: str) -> bool:
         """`jog-enable` of axis `letter` as the core sees it now."""
