@@ -160,6 +160,10 @@ def test_a_device_in_its_loader_is_updated_without_a_stop():
     result, d = run(dev)
     assert result.status == update.OK and dev.crc() == NEW_IMAGE.crc
     assert result.before.loader and result.before.program_crc == 0
+    assert result.message == (
+        f"node 16 updated from its loader (program CRC 0x00000000): now version 4, CRC "
+        f"0x{NEW_IMAGE.crc:08X}"
+    )
     assert writes(d) == [(0x1F51, 3), (0x1F51, 1)]
     assert not any(isinstance(s, update.Read) and s.index == 0x2000 for s in d.steps)
 

@@ -262,8 +262,8 @@ STOPPED_VALID = (
     "The device waits in its loader; its application is unchanged (a power cycle starts it again)."
 )
 CLEARED = (
-    "The device waits in its loader without a valid application (0x1F57 code 1); it answers "
-    "on the bus and takes the next update."
+    "The device waits in its loader without a valid application; it answers on the bus and "
+    "takes the next update."
 )
 STARTED = "The device was told to start the new application."
 
@@ -337,10 +337,19 @@ class Update:
                 f"the application started, but its 0x1F56 reads 0x{crc:08X}, not the file's "
                 f"CRC 0x{img.crc:08X}.",
             )
+        if before.loader:  # its revision was the loader's: the application's is not known
+            summary = (
+                f"node {node} updated from its loader (program CRC 0x{before.program_crc:08X}"
+                f"): now version {version}, CRC 0x{crc:08X}"
+            )
+        else:
+            summary = (
+                f"node {node} updated: version {before.revision} -> {version}, CRC "
+                f"0x{before.program_crc:08X} -> 0x{crc:08X}"
+            )
         return Result(
             OK,
-            f"node {node} updated: version {before.revision} -> {version}, CRC "
-            f"0x{before.program_crc:08X} -> 0x{crc:08X}",
+            summary,
             before,
             version,
             crc,

@@ -159,7 +159,7 @@ def carry_out(
     device: Device,
     step,
     data: bytes,
-    out: TextIO = sys.stderr,
+    out: Optional[TextIO] = None,
     sleep: Callable[[float], None] = time.sleep,
 ):
     """One step of `update.Update` over python-canopen: its outcome."""
@@ -196,10 +196,12 @@ def carry_out(
     raise TypeError(f"unknown step {step!r}")
 
 
-def download(device: Device, step: update.Download, data: bytes, out: TextIO):
-    """0x1F50:1 = `data`, segmented with its size indicated, the progress shown."""
+def download(device: Device, step: update.Download, data: bytes, out: Optional[TextIO] = None):
+    """0x1F50:1 = `data`, segmented with its size indicated, the progress shown on `out`
+    (stderr)."""
     import canopen
 
+    out = sys.stderr if out is None else out
     log(f"downloading {len(data)} bytes (attempt {step.attempt} of {step.attempts})")
     progress = Progress(len(data), out)
     stream = None
@@ -228,7 +230,7 @@ def download(device: Device, step: update.Download, data: bytes, out: TextIO):
         return reason
 
 
-def run(args: argparse.Namespace, argv: Sequence[str], out: TextIO = sys.stderr) -> int:
+def run(args: argparse.Namespace, argv: Sequence[str], out: Optional[TextIO] = None) -> int:
     """The update with parsed `args` (`argv`: the options as given, for the retry line)."""
     try:
         data = Path(args.file).read_bytes()
