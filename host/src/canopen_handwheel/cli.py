@@ -1,5 +1,6 @@
 """The `canopen-handwheel` command: the HAL component (`component.main`), or with `decode`
-as its first argument the capture decoder (`decode.main`)."""
+as its first argument the capture decoder (`decode.main`), with `update` the firmware update
+over CAN (`update_cli.main`)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from . import decode
 
         return decode.main(args[1:])
+    if args[:1] == ["update"]:
+        from . import update_cli
+
+        return update_cli.main(args[1:])
     from . import component
 
     return component.main(args)

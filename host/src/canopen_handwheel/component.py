@@ -74,13 +74,8 @@ def default_eds() -> str:
     return str(resources.files(__package__).joinpath("handwheel.eds"))
 
 
-def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
-        prog="canopen-handwheel",
-        description="LinuxCNC userspace HAL component for the CANopen CNC handwheel "
-        "(python-canopen as the master). Load with: loadusr -Wn handwheel canopen-handwheel "
-        "[options]",
-    )
+def add_bus_options(p: argparse.ArgumentParser) -> None:
+    """The options that find the device: the component's, and `update`'s."""
     p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan)")
     p.add_argument(
         "--channel",
@@ -94,6 +89,17 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="bit rate for interfaces that set it (default: leave it as it is)",
     )
     p.add_argument("--node", type=int, default=16, help="the handwheel's node-ID (16)")
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="canopen-handwheel",
+        description="LinuxCNC userspace HAL component for the CANopen CNC handwheel "
+        "(python-canopen as the master). Load with: loadusr -Wn handwheel canopen-handwheel "
+        "[options]. `canopen-handwheel update FILE` updates the device's firmware; "
+        "`canopen-handwheel decode` reads a capture.",
+    )
+    add_bus_options(p)
     p.add_argument("--name", default="handwheel", help="HAL prefix (handwheel)")
     p.add_argument(
         "--axes",
@@ -275,6 +281,7 @@ class HalPins:
         c["state"] = pins.state
         c["feed-stops"] = pins.feed_stops
         c["stop-reason"] = pins.stop_reason
+        c["in-loader"] = pins.in_loader
 
     def exit(self) -> None:
         try:
@@ -440,6 +447,20 @@ def slcan_bus(channel: str, **kwargs):
     return BulkSlcanBus(channel=channel, **kwargs)
 
 
+def open_bus(interface: str, channel: str, bitrate: Optional[int]):
+    """python-can's bus for the bus options (SLCAN lines read in bulk: `slcan_bus`)."""
+    import can
+
+    kwargs = {}
+    if bitrate is not None:
+        kwargs["bitrate"] = bitrate
+    if interface == "slcan":
+        if str(channel).startswith("socket://"):
+            kwargs["sleep_after_open"] = 0
+        return slcan_bus(channel, **kwargs)
+    return can.Bus(interface=interface, channel=channel, **kwargs)
+
+
 class Link:
     """python-can bus + python-canopen network with the device's node and the master's
     heartbeat. No notifier: `receive` (the main loop) reads the bus."""
@@ -450,20 +471,11 @@ class Link:
         cfg: core.Config,
         capture: Optional[captures.Capture] = None,
     ) -> None:
-        import can
         import canopen
 
         self.failed = threading.Event()
         self.capture = capture
-        kwargs = {}
-        if args.bitrate is not None:
-            kwargs["bitrate"] = args.bitrate
-        if args.interface == "slcan":
-            if str(args.channel).startswith("socket://"):
-                kwargs["sleep_after_open"] = 0
-            self.bus = slcan_bus(args.channel, **kwargs)
-        else:
-            self.bus = can.Bus(interface=args.interface, channel=args.channel, **kwargs)
+        self.bus = open_bus(args.interface, args.channel, args.bitrate)
         if capture is not None:
             captures.wrap_send(self.bus, capture)
         try:
@@ -657,7 +669,22 @@ def _configure(
 ):
     """`core.Configure`'s steps; the core decided every value (`core.consumer_plan`,
     `core.event_timer_plan`, `core.inhibit_plan`, `core.pick_token`)."""
-    report.found = found = u32(0x2002, 0)
+    import canopen
+
+    try:
+        found = u32(0x2002, 0)
+    except canopen.SdoAbortedError as refused:
+        # The loader has no 0x2002: its 0x1000 tells (anything else fails as it did).
+        report.first_reply_at = link.sdo_reply_at
+        try:
+            device_type = u32(0x1000, 0)
+        except canopen.SdoAbortedError:
+            raise refused from None
+        if device_type != core.LOADER_DEVICE_TYPE:
+            raise
+        report.loader = True
+        return report
+    report.found = found
     report.first_reply_at = link.sdo_reply_at
     if action.keep is not None and found == action.keep:
         report.intact = True
@@ -789,6 +816,7 @@ def run(
                 else:
                     worker = Worker(link, events, args.node)
                     log("bus open")
+                    c.reconnected(now)
             if link is not None and link.failed.is_set():
                 log("bus failed; reconnecting")
                 drop(link, worker)
@@ -877,6 +905,12 @@ def shut_down(args, cfg: core.Config, c: core.Core, link, worker, capture=None) 
             log("an SDO transfer did not end; not writing 0x2000")
             link.close()
             return
+    action = c.shutdown_action()
+    if action is None:
+        log("the device is in its loader: 0x2000 not written")
+        if link is not None:
+            link.close()
+        return
     if link is not None and link.failed.is_set():
         link.close()
         link = None
@@ -884,7 +918,6 @@ def shut_down(args, cfg: core.Config, c: core.Core, link, worker, capture=None) 
         link = open_link(args, cfg, "0x2000 not written", capture)
         if link is None:
             return
-    action = c.shutdown_action()
     outcome = []
     thread = threading.Thread(
         target=lambda: outcome.append(carry_out(link, args.node, action)), daemon=True

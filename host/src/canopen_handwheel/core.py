@@ -18,6 +18,8 @@ The event API (stable; `replay` runs a list of these events through a `Core`):
 - `set_enable(bool)`, `set_position_mode(bool)`, `set_velocity_mode(bool)`,
   `set_run_on_budget(s)`: the input pins; `set_motion_known(bool)`: LinuxCNC shows its axes'
   motion (teleop mode);
+- `reconnected(now)`: the shell opened the bus again (what the device did meanwhile is
+  unknown);
 - `next_action(now)` -> the `Action` to carry out (`Configure`, `WriteFeed`) or None, and
   `done(action, ok, abort, now, result)`: its outcome (a `Configure`'s: a `Configured`);
 - `take_log()` -> the lines the core wants logged (a feed stop and its reason, a session
@@ -276,6 +278,10 @@ OVERRIDE_STEP_RANGE = (0.01, 100.0)
 
 # SDO abort: "data cannot be transferred because of the present device state".
 ABORT_DEVICE_STATE = 0x08000022
+
+# The resident loader's device type 0x1000, "BOOT" (docs/FIRMWARE-UPDATE.md): a device that
+# answers with it runs no application and sends no feed records.
+LOADER_DEVICE_TYPE = 0x544F_4F42
 
 # The event timer written when the device has none (0x1800:5 = 0) or one outside the range,
 # and assumed until the first configuration when `--event-timer-ms` is not given (the
@@ -752,13 +758,16 @@ def meter_counts(pending: int, step: int, scale: float, motion: AxisMotion, budg
 @dataclass(frozen=True)
 class Configure:
     """The configuration, in this order, every write read back (a difference fails it):
-    read 0x2002; if it is `keep` (the host's session, on a check after records of another
-    session) the configuration is intact and nothing is written. Otherwise: the 0x1016 entry
-    `consumer_plan` gives; the event timer 0x1800:5 as `event_timer_plan` says; the inhibit
-    time 0x1800:3 as `inhibit_plan` says (TPDO1 made invalid for the write, valid again
-    after); 0x2001 = 0; 0x2000 = 0 (feed off); 0x2002 = `pick_token(tokens, found)` (the
-    session, last: every write before it ends a session); then NMT start. Its outcome
-    (`Core.done`) carries a `Configured`, also when it failed part way."""
+    read 0x2002; if that is refused (an SDO abort), read 0x1000: a device that answers the
+    loader's "BOOT" (`LOADER_DEVICE_TYPE`) is in its loader, reported as `Configured.loader`,
+    and nothing else is read or written. If 0x2002 is `keep` (the host's session, on a check
+    after records of another session) the configuration is intact and nothing is written.
+    Otherwise: the 0x1016 entry `consumer_plan` gives; the event timer 0x1800:5 as
+    `event_timer_plan` says; the inhibit time 0x1800:3 as `inhibit_plan` says (TPDO1 made
+    invalid for the write, valid again after); 0x2001 = 0; 0x2000 = 0 (feed off); 0x2002 =
+    `pick_token(tokens, found)` (the session, last: every write before it ends a session);
+    then NMT start. Its outcome (`Core.done`) carries a `Configured`, also when it failed
+    part way."""
 
     master: int
     timeout_ms: int
@@ -775,7 +784,8 @@ class Configured:
     the kept one); `event_timer_ms`, 0x1800:5 as read back; `first_reply_at`, when (the
     core's clock) the shell handled the device's answer to its first transfer: a
     configuration answered only after a boot-up the core saw while it ran was made in the
-    device's new life and stands."""
+    device's new life and stands; `loader`, the device refused 0x2002 and its 0x1000 is the
+    loader's (nothing else was done)."""
 
     event_timer_ms: Optional[int] = None
     first_reply_at: Optional[float] = None
@@ -783,6 +793,7 @@ class Configured:
     intact: bool = False
     tried: Optional[int] = None
     session: Optional[int] = None
+    loader: bool = False
 
 
 @dataclass(frozen=True)
@@ -814,6 +825,7 @@ class Pins:
     counts_dropped: int = 0  # counts the run-on budget dropped (wrapping)
     feed_stops: int = 0  # feed stops by the device the component did not ask for (wrapping)
     stop_reason: int = STOP_NONE  # the last one's reason (`STOP_REASONS`)
+    in_loader: bool = False  # the device answered as its loader at the last configuration
 
 
 def _with(pins: Pins, counts: Dict[str, int], gates: Dict[str, bool]) -> Pins:
@@ -882,6 +894,11 @@ class Core:
     feed_stops: int = 0
     stop_reason: int = STOP_NONE
     feed_on: bool = False  # the last record of the session showed the feed on
+    # The last configuration found the device in its loader (`Configured.loader`): no
+    # configuration until something shows that an application may run (its boot-up, a
+    # record, the bus opened again); none on a timer, since SDO requests of the component
+    # would break a program download under way.
+    in_loader: bool = False
     log: Deque[str] = field(default_factory=lambda: collections.deque(maxlen=LOG_LINES))
     # Actions.
     config_due: float = 0.0  # configure at this time (without a session)
@@ -921,6 +938,13 @@ class Core:
         if self.drained_at is None or now > self.drained_at:
             self.drained_at = now
         self.tick(now)
+
+    def reconnected(self, now: float) -> None:
+        """The shell opened the bus again: a boot-up may have come while it was closed, so
+        a device held in its loader is asked again."""
+        self.tick(now)
+        if self.in_loader and self.session is None and self.config_due == math.inf:
+            self.config_due = self.now
 
     def set_enable(self, enable: bool) -> None:
         if enable != self.enable:
@@ -1007,6 +1031,16 @@ class Core:
         before_boot = booted is not None and (
             r.first_reply_at is None or r.first_reply_at <= booted
         )
+        if ok and r.loader:
+            if before_boot:
+                self.config_due = self.now  # the device booted since: ask it again
+            else:
+                self._loader_found()
+            return
+        if r.found is not None and self.in_loader:
+            # It answered 0x2002: an application runs.
+            self.in_loader = False
+            self.log.append("the device runs its application again (it left its loader)")
         for token in (r.found, r.tried):
             if token and token != self.session:
                 self.busy[token] = self.now
@@ -1039,6 +1073,19 @@ class Core:
             self.config_due = self.now if again else self.now + self.cfg.retry
         else:
             self.check_at = self.now + self.cfg.retry
+
+    def _loader_found(self) -> None:
+        """The device answered as its loader: no session, nothing to configure, until its
+        boot-up (after an update, or `reconnected`, or a record) says an application may
+        run. Logged once per stay."""
+        if not self.in_loader:
+            self.log.append(
+                f'node {self.cfg.node} is in its loader (0x1000 = "BOOT"), not its '
+                "application: no jogging; waiting for its boot-up (`canopen-handwheel update "
+                "FILE` installs an application)"
+            )
+        self.in_loader = True
+        self.config_due = math.inf
 
     def _new_session(self, token: int, found: Optional[int]) -> None:
         """The configuration wrote `token` and read it back: it is the session now, with
@@ -1186,13 +1233,14 @@ class Core:
             self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms, keep, tokens
         )
 
-    def shutdown_action(self) -> Action:
+    def shutdown_action(self) -> Optional[Action]:
         """What to do before the component exits: disable the feed, whatever the last
         record showed. A write of 0x2000 = 1 may have been accepted without a record
         showing it yet, and a device that has been silent for a while may be back; one SDO
-        exchange too many costs nothing."""
+        exchange too many costs nothing. Except to a device held in its loader (None): it
+        has no feed, and a request could break a program download under way."""
         self.asked_off = True
-        return WriteFeed(0)
+        return None if self.in_loader else WriteFeed(0)
 
     def gate(self, letter: str) -> bool:
         """`jog-enable` of axis `letter` as the core sees it now."""
@@ -1318,6 +1366,7 @@ class Core:
             counts_dropped=self.counts_dropped,
             feed_stops=self.feed_stops,
             stop_reason=self.stop_reason,
+            in_loader=self.in_loader,
         )
 
     # Frame handlers -------------------------------------------------------------------
@@ -1334,6 +1383,9 @@ class Core:
             self._impossible()
             return
         if self.session is None or rec.session != self.session:
+            if self.in_loader and self.config_due == math.inf:
+                # A loader sends no records: an application runs (its boot-up was missed).
+                self.config_due = self.now
             self._foreign(rec)
             return
         verdict, ahead = order_verdict(self.order, rec, self.now)
@@ -1604,6 +1656,13 @@ COMPONENT_PINS = [
         "out",
         "the last such stop's reason: 0 none yet, 1 master heartbeat lost, 2 transmit path "
         "blocked, 3 disabled by a master write, 4 the device left Operational, 5 session ended",
+    ),
+    (
+        "in-loader",
+        "bit",
+        "out",
+        "the device answered as its resident loader (0x1000 = BOOT): no application, no "
+        "jogging; false once it answers as its application",
     ),
 ]
 

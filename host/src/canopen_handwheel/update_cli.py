@@ -1,0 +1,290 @@
+"""`canopen-handwheel update FILE`: the firmware update over CAN (CiA 302-3 program
+download, docs/FIRMWARE-UPDATE.md). The shell around `update.Update`: it reads and checks
+the file (`image.UpdateImage`, before the bus is opened), opens the bus with the component's
+options, carries out each step over python-canopen, shows the download's progress on stderr
+and prints the outcome. It decides nothing itself.
+
+python-canopen's SDO client repeats no request here (`MAX_RETRIES`): whether a step that got
+no answer is repeated is the planner's decision, since the device may have carried it out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Callable, Optional, Sequence, TextIO
+
+from . import component, update
+from .image import ImageError, UpdateImage
+
+# Bytes handed to python-canopen's segmented download per write (7 fit one segment).
+SEGMENT = 7
+
+
+def log(message: str) -> None:
+    sys.stderr.write(f"canopen-handwheel update: {message}\n")
+    sys.stderr.flush()
+
+
+def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="canopen-handwheel update",
+        description="Update the handwheel's firmware over CAN (CiA 302-3 program download) "
+        "with the update file `cargo xtask fw` writes (it prints `update image: PATH`). The "
+        "device must not have its feed enabled. Exit status: 0 updated, 1 failed (the "
+        "message says how to retry), 2 usage, 3 refused (nothing was changed), 4 not an "
+        "update file (nothing was sent).",
+    )
+    p.add_argument("file", help="the update file")
+    component.add_bus_options(p)
+    p.add_argument(
+        "--retries",
+        type=int,
+        default=update.Settings.retries,
+        help=f"download again from clear after a failed download this many times "
+        f"({update.Settings.retries}, 0..10)",
+    )
+    p.add_argument(
+        "--sdo-timeout",
+        type=float,
+        default=1.0,
+        help="seconds to wait for each SDO answer (1.0, 0.05..10)",
+    )
+    p.add_argument(
+        "--boot-timeout",
+        type=float,
+        default=update.Settings.boot_timeout,
+        help=f"seconds to wait for the boot-up after stop and start "
+        f"({update.Settings.boot_timeout:g}, 0.1..60)",
+    )
+    p.add_argument(
+        "--status-timeout",
+        type=float,
+        default=update.Settings.status_timeout,
+        help=f"seconds the flash status 0x1F57 may show 'in progress' "
+        f"({update.Settings.status_timeout:g}, 0.1..600)",
+    )
+    args = p.parse_args(argv)
+    for name, low, high in (
+        ("node", 1, 127),
+        ("retries", 0, 10),
+        ("sdo_timeout", 0.05, 10),
+        ("boot_timeout", 0.1, 60),
+        ("status_timeout", 0.1, 600),
+    ):
+        value = getattr(args, name)
+        if not low <= value <= high:  # also false for nan
+            p.error(f"--{name.replace('_', '-')} must be {low}..{high}")
+    return args
+
+
+class Progress:
+    """The download's progress on `out`: one line redrawn in place on a terminal, else a
+    line every 10 %."""
+
+    def __init__(self, total: int, out: TextIO, clock: Callable[[], float] = time.monotonic):
+        self.total = total
+        self.out = out
+        self.clock = clock
+        self.start = clock()
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.shown = -1  # percent (terminal: hundredths of a second too) last shown
+        self.last_draw = 0.0
+
+    def show(self, done: int) -> None:
+        now = self.clock()
+        percent = 100 * done // max(self.total, 1)
+        text = update.progress_text(done, self.total, now - self.start)
+        if self.tty:
+            if done < self.total and now - self.last_draw < 0.1:
+                return
+            self.last_draw = now
+            self.out.write(f"\r{text}")
+            if done >= self.total:
+                self.out.write("\n")
+        elif percent // 10 > self.shown // 10 or (done >= self.total and percent != self.shown):
+            self.shown = percent
+            self.out.write(f"{text}\n")
+        self.out.flush()
+
+    def end(self) -> None:
+        """A download that stopped short: the terminal's line is ended."""
+        if self.tty:
+            self.out.write("\n")
+            self.out.flush()
+
+
+class Bootups:
+    """The node's boot-ups (0x700 + node, data 0x00) as python-canopen's notifier sees
+    them."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.armed = 0
+        self.cond = threading.Condition()
+
+    def on_frame(self, can_id: int, data, timestamp) -> None:
+        if bytes(data) == b"\x00":
+            with self.cond:
+                self.count += 1
+                self.cond.notify_all()
+
+    def arm(self) -> None:
+        with self.cond:
+            self.armed = self.count
+
+    def wait(self, timeout: float) -> bool:
+        with self.cond:
+            return self.cond.wait_for(lambda: self.count > self.armed, timeout)
+
+
+class Device:
+    """python-canopen's view of the node: SDO client, NMT, boot-ups."""
+
+    def __init__(self, network, node_id: int, sdo_timeout: float) -> None:
+        import canopen
+
+        self.network = network
+        self.node = network.add_node(canopen.RemoteNode(node_id, canopen.ObjectDictionary()))
+        self.node.sdo.RESPONSE_TIMEOUT = sdo_timeout
+        self.node.sdo.MAX_RETRIES = 1  # python-canopen's count includes the first request
+        self.bootups = Bootups()
+        network.subscribe(0x700 + node_id, self.bootups.on_frame)
+
+
+def carry_out(
+    device: Device,
+    step,
+    data: bytes,
+    out: Optional[TextIO] = None,
+    sleep: Callable[[float], None] = time.sleep,
+):
+    """One step of `update.Update` over python-canopen: its outcome."""
+    import canopen
+
+    sdo = device.node.sdo
+    try:
+        if isinstance(step, update.Read):
+            return update.Ok(int.from_bytes(sdo.upload(step.index, step.sub), "little"))
+        if isinstance(step, update.Write):
+            if step.arm_bootup:
+                device.bootups.arm()
+            sdo.download(step.index, step.sub, step.value.to_bytes(step.size, "little"))
+            return update.Ok()
+        if isinstance(step, update.PreOperational):
+            device.node.nmt.state = "PRE-OPERATIONAL"
+            return update.Ok()
+        if isinstance(step, update.WaitBootup):
+            if device.bootups.wait(step.timeout):
+                return update.Ok()
+            return update.NoAnswer(f"no boot-up within {step.timeout:g} s")
+        if isinstance(step, update.Pause):
+            sleep(step.seconds)
+            return update.Ok()
+        if isinstance(step, update.Note):
+            log(step.text)
+            return update.Ok()
+        if isinstance(step, update.Download):
+            return download(device, step, data, out)
+    except canopen.SdoAbortedError as e:
+        return update.Aborted(e.code)
+    except canopen.SdoCommunicationError as e:
+        return update.NoAnswer(str(e))
+    raise TypeError(f"unknown step {step!r}")
+
+
+def download(device: Device, step: update.Download, data: bytes, out: Optional[TextIO] = None):
+    """0x1F50:1 = `data`, segmented with its size indicated, the progress shown on `out`
+    (stderr)."""
+    import canopen
+
+    out = sys.stderr if out is None else out
+    log(f"downloading {len(data)} bytes (attempt {step.attempt} of {step.attempts})")
+    progress = Progress(len(data), out)
+    stream = None
+    sent = 0
+    try:
+        stream = device.node.sdo.open(
+            0x1F50, 1, "wb", buffering=0, size=len(data), block_transfer=False
+        )
+        progress.show(0)
+        while sent < len(data):
+            sent += stream.write(data[sent : sent + SEGMENT])
+            progress.show(sent)
+        stream.close()  # every byte went with its segment: sends nothing more
+        return update.Ok()
+    except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as e:
+        progress.end()
+        if stream is not None:
+            # python-canopen would close a stream it drops by sending an empty last segment:
+            # a stream that failed is over (the client aborted it, or the device did).
+            stream._done = True
+        reason = (
+            update.Aborted(e.code)
+            if isinstance(e, canopen.SdoAbortedError)
+            else update.NoAnswer(f"{e} after {sent} of {len(data)} bytes")
+        )
+        return reason
+
+
+def run(args: argparse.Namespace, argv: Sequence[str], out: Optional[TextIO] = None) -> int:
+    """The update with parsed `args` (`argv`: the options as given, for the retry line)."""
+    try:
+        data = Path(args.file).read_bytes()
+    except OSError as e:
+        log(f"cannot read {args.file}: {e.strerror or e}")
+        return update.EXIT_BAD_FILE
+    try:
+        image = UpdateImage.parse(data)
+    except ImageError as e:
+        log(f"{args.file} is not an update file this device takes: {e}. Nothing was sent.")
+        return update.EXIT_BAD_FILE
+    settings = update.Settings(
+        node=args.node,
+        retries=args.retries,
+        boot_timeout=args.boot_timeout,
+        status_timeout=args.status_timeout,
+    )
+    import canopen
+
+    try:
+        bus = component.open_bus(args.interface, args.channel, args.bitrate)
+    except Exception as e:
+        log(
+            f"cannot open the bus ({e!r}). Nothing was sent. To retry: {update.retry_command(argv)}"
+        )
+        return update.EXIT_FAILED
+    network = canopen.Network(bus)
+    try:
+        network.connect()  # the bus is there: only python-canopen's notifier is started
+        device = Device(network, args.node, args.sdo_timeout)
+        plan = update.Update(image, settings)
+        while plan.step is not None:
+            plan.answer(carry_out(device, plan.step, image.data, out))
+    finally:
+        network.disconnect()
+    result = plan.result
+    assert result is not None
+    if result.status == update.OK:
+        print(result.message)
+    else:
+        log(f"{result.status}: {result.message}")
+        if result.status == update.FAILED:
+            log(f"to retry: {update.retry_command(argv)}")
+    return result.exit_code
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    argv = list(sys.argv[2:] if argv is None else argv)
+    args = parse_args(argv)
+    try:
+        return run(args, argv)
+    except KeyboardInterrupt:
+        log(
+            "interrupted: the device may be in its loader; it answers on the bus and takes "
+            f"the next update. To retry: {update.retry_command(argv)}"
+        )
+        return update.EXIT_FAILED

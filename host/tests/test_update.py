@@ -1,0 +1,489 @@
+"""The update's decisions (`update.Update`) and the file's checks (`image.UpdateImage`)
+against a model of the device's program download (program_device.py), step by step: the
+contract's sequence, refusals, the device's answers and aborts, lost answers and boot-ups."""
+
+import struct
+import zlib
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from canopen_handwheel import image, update
+from canopen_handwheel.update import Aborted, NoAnswer, Ok
+from program_device import (
+    LOADER_DEVICE_TYPE,
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    PRODUCT,
+    VENDOR,
+    Abort,
+    ProgramDevice,
+    update_file,
+)
+
+OLD = update_file(3)
+NEW = update_file(4, size=3000)
+NEW_IMAGE = image.UpdateImage.parse(NEW)
+FAST = update.Settings(node=16, boot_timeout=0.5, status_timeout=0.5, poll_interval=0.05)
+
+LOSE_ANSWER = "lose answer"  # the device did it; its answer never arrived
+LOSE_REQUEST = "lose request"  # the device never saw it
+LOSE_BOOTUP = "lose boot-up"  # the boot-up after a reset never arrived
+MASTER_STARTS = "master starts"  # another master sends NMT start before this step
+
+
+class Driver:
+    """Carries out the planner's steps on a `ProgramDevice`, with `faults(n, step)` naming
+    what goes wrong with step n (None: nothing)."""
+
+    def __init__(self, dev: ProgramDevice, faults=None):
+        self.dev = dev
+        self.faults = faults or (lambda n, step: None)
+        self.seen_bootups = 0
+        self.armed = 0
+        self.steps = []
+        self.notes = []
+
+    def run(self, plan: update.Update, limit: int = 5000) -> update.Result:
+        while plan.step is not None:
+            assert len(self.steps) < limit, "the update does not end"
+            plan.answer(self.carry_out(plan.step))
+        assert plan.result is not None
+        return plan.result
+
+    def carry_out(self, step):
+        n = len(self.steps)
+        self.steps.append(step)
+        fault = self.faults(n, step)
+        dev = self.dev
+        if fault == MASTER_STARTS:
+            dev.nmt(OPERATIONAL)
+        if isinstance(step, update.Note):
+            self.notes.append(step.text)
+            return Ok()
+        if isinstance(step, update.Pause):
+            return Ok()
+        if isinstance(step, update.PreOperational):
+            if fault != LOSE_REQUEST:
+                dev.nmt(PRE_OPERATIONAL)
+            return Ok()
+        if isinstance(step, update.WaitBootup):
+            return Ok() if self.seen_bootups > self.armed else NoAnswer("no boot-up")
+        if fault == LOSE_REQUEST:
+            return NoAnswer("timeout")
+        try:
+            if isinstance(step, update.Read):
+                out = Ok(dev.read(step.index, step.sub))
+            elif isinstance(step, update.Write):
+                if step.arm_bootup:
+                    self.armed = self.seen_bootups
+                dev.write(step.index, step.sub, step.value)
+                out = Ok()
+            elif isinstance(step, update.Download):
+                assert step.size == len(NEW_IMAGE.data)
+                dev.download(self.data)
+                out = Ok()
+            else:
+                raise AssertionError(step)
+        except Abort as e:
+            out = Aborted(e.code)
+        if dev.take_reset():
+            dev.boot()
+            if fault != LOSE_BOOTUP:
+                self.seen_bootups += 1
+        return NoAnswer("timeout") if fault == LOSE_ANSWER else out
+
+    data = NEW
+
+
+def run(dev, faults=None, settings=FAST, data=NEW):
+    d = Driver(dev, faults)
+    d.data = data
+    plan = update.Update(image.UpdateImage.parse(NEW), settings)
+    return d.run(plan), d
+
+
+def writes(d):
+    return [(s.index, s.value) for s in d.steps if isinstance(s, update.Write)]
+
+
+def test_a_full_update_from_the_application_in_the_contracts_order():
+    dev = ProgramDevice(OLD)
+    result, d = run(dev)
+    assert result.status == update.OK and result.exit_code == 0
+    assert not dev.loader and dev.crc() == NEW_IMAGE.crc and dev.version() == 4
+    assert (result.version, result.crc) == (4, NEW_IMAGE.crc)
+    assert result.before.revision == 3 and result.before.program_crc == zlib.crc32(OLD[256:])
+    assert result.message == (
+        f"node 16 updated: version 3 -> 4, CRC 0x{zlib.crc32(OLD[256:]):08X} -> "
+        f"0x{NEW_IMAGE.crc:08X}"
+    )
+    order = [
+        type(s).__name__ + (f" {s.index:04X}:{s.sub}" if hasattr(s, "index") else "")
+        for s in d.steps
+        if not isinstance(s, (update.Note, update.Pause))
+    ]
+    assert order == [
+        "Read 1000:0",
+        "Read 1018:1",
+        "Read 1018:2",
+        "Read 1018:3",
+        "Read 1F56:1",
+        "Read 1F57:1",
+        "Read 2000:0",
+        "PreOperational",
+        "Write 1F51:1",  # stop
+        "WaitBootup",
+        "Read 1000:0",  # the loader's BOOT
+        "PreOperational",
+        "Write 1F51:1",  # clear
+        "Read 1F57:1",
+        "Download",
+        "Read 1F57:1",
+        "Read 1F56:1",
+        "PreOperational",
+        "Write 1F51:1",  # start
+        "WaitBootup",
+        "Read 1000:0",
+        "Read 1F56:1",
+        "Read 1018:3",
+    ]
+    assert writes(d) == [(0x1F51, 0), (0x1F51, 3), (0x1F51, 1)]
+    assert [s.arm_bootup for s in d.steps if isinstance(s, update.Write)] == [True, False, True]
+    assert dev.bootups == 3  # power-on, the loader, the new application
+
+
+def test_a_device_in_its_loader_is_updated_without_a_stop():
+    dev = ProgramDevice(None)
+    assert dev.loader
+    result, d = run(dev)
+    assert result.status == update.OK and dev.crc() == NEW_IMAGE.crc
+    assert result.before.loader and result.before.program_crc == 0
+    assert result.message == (
+        f"node 16 updated from its loader (program CRC 0x00000000): now version 4, CRC "
+        f"0x{NEW_IMAGE.crc:08X}"
+    )
+    assert writes(d) == [(0x1F51, 3), (0x1F51, 1)]
+    assert not any(isinstance(s, update.Read) and s.index == 0x2000 for s in d.steps)
+
+
+def test_the_feed_enabled_refuses_before_anything_is_written():
+    dev = ProgramDevice(OLD, feed=1)
+    result, d = run(dev)
+    assert result.status == update.REFUSED and result.exit_code == update.EXIT_REFUSED
+    assert "feed enabled (0x2000 = 1)" in result.message and "enable pin" in result.message
+    assert writes(d) == [] and not any(isinstance(s, update.PreOperational) for s in d.steps)
+    assert dev.crc() == zlib.crc32(OLD[256:]) and not dev.loader
+
+
+@pytest.mark.parametrize("loader", [False, True])
+def test_another_devices_file_is_refused(loader):
+    dev = ProgramDevice(None if loader else OLD)
+    other = update_file(4, product=PRODUCT + 1)
+    d = Driver(dev)
+    d.data = other
+    result = d.run(update.Update(image.UpdateImage.parse(other), FAST))
+    assert result.status == update.REFUSED
+    assert f"product 0x{PRODUCT + 1:08X}" in result.message
+    expected = PRODUCT | 0x8000_0000 if loader else PRODUCT
+    assert f"is vendor 0x{VENDOR:08X} product 0x{expected:08X}" in result.message
+    assert writes(d) == []
+
+
+def test_an_application_without_program_download_is_refused():
+    dev = ProgramDevice(OLD)
+    real_read = dev.read
+
+    def old_firmware(index, sub):
+        if index in (0x1F56, 0x1F57):
+            raise Abort(0x0602_0000)
+        return real_read(index, sub)
+
+    dev.read = old_firmware
+    result, d = run(dev)
+    assert result.status == update.REFUSED and "without program download" in result.message
+    assert "SDO abort 0x06020000" in result.message and writes(d) == []
+
+
+def test_a_device_without_a_loader_restarts_as_its_application():
+    dev = ProgramDevice(OLD, has_loader=False)
+    result, d = run(dev)
+    assert result.status == update.FAILED
+    assert "restarted as its application, not its loader" in result.message
+    assert writes(d) == [(0x1F51, 0)]
+
+
+def test_a_refused_stop_is_tried_again_after_pre_operational():
+    """Another master started the node between the NMT pre-operational and the stop: the
+    stop is refused (0x08000022) and tried again, each time after NMT pre-operational."""
+    dev = ProgramDevice(OLD)
+    stops = []
+
+    def faults(n, step):
+        if isinstance(step, update.Write) and step.value == 0:
+            stops.append(n)
+            return MASTER_STARTS if len(stops) == 1 else None
+        return None
+
+    result, d = run(dev, faults)
+    assert result.status == update.OK
+    assert writes(d)[:2] == [(0x1F51, 0), (0x1F51, 0)]
+    assert any("again after NMT pre-operational" in n for n in d.notes)
+
+
+def test_a_stop_refused_every_time_is_refused_and_changes_nothing():
+    dev = ProgramDevice(OLD)
+    result, d = run(dev, lambda n, s: MASTER_STARTS if isinstance(s, update.Write) else None)
+    assert result.status == update.REFUSED and "did not stop" in result.message
+    assert "0x08000022" in result.message
+    assert writes(d) == [(0x1F51, 0)] * 3 and not dev.loader
+
+
+def test_a_stop_whose_answer_and_boot_up_were_lost_is_not_repeated():
+    """The stop was done (the device reset into its loader) but neither its answer nor its
+    boot-up arrived: the loader's 0x1000 says so; no second stop."""
+    dev = ProgramDevice(OLD)
+
+    def faults(n, step):
+        if isinstance(step, update.Write) and step.value == 0:
+            return LOSE_ANSWER
+        return None
+
+    result, d = run(dev, faults)
+    assert result.status == update.OK and writes(d).count((0x1F51, 0)) == 1
+
+
+def test_a_clear_whose_answer_was_lost_is_read_back_not_repeated():
+    """The go-canopen pitfall: the clear was done, its answer came too late. 0x1F51 reads
+    3: the update goes on; the write is not repeated."""
+    dev = ProgramDevice(OLD)
+
+    def faults(n, step):
+        if isinstance(step, update.Write) and step.value == 3:
+            return LOSE_ANSWER
+        return None
+
+    result, d = run(dev, faults)
+    assert result.status == update.OK
+    assert writes(d).count((0x1F51, 3)) == 1
+    assert any("but 0x1F51 reads 3: done" in n for n in d.notes)
+    reads = [(s.index, s.sub) for s in d.steps if isinstance(s, update.Read)]
+    assert (0x1F51, 1) in reads
+
+
+def test_a_clear_that_never_arrived_is_repeated():
+    dev = ProgramDevice(OLD)
+    clears = []
+
+    def faults(n, step):
+        if isinstance(step, update.Write) and step.value == 3:
+            clears.append(n)
+            return LOSE_REQUEST if len(clears) == 1 else None
+        return None
+
+    result, d = run(dev, faults)
+    assert result.status == update.OK and writes(d).count((0x1F51, 3)) == 2
+
+
+def test_0x1f57_is_polled_until_not_in_progress():
+    dev = ProgramDevice(OLD, status_polls=4)
+    result, d = run(dev)
+    assert result.status == update.OK
+    polls = [s for s in d.steps if isinstance(s, update.Read) and s.index == 0x1F57]
+    assert len(polls) == 1 + 5 + 5  # at start; after clear and after the download: 4 busy
+    assert sum(isinstance(s, update.Pause) for s in d.steps) == 8
+
+
+def test_0x1f57_in_progress_too_long_fails_with_the_state():
+    dev = ProgramDevice(None, status_polls=1000)
+    dev.busy = 0
+    result, d = run(dev)
+    assert result.status == update.FAILED
+    assert "still shows the flash in progress after 0.5 s" in result.message
+    assert "without a valid application" in result.message
+
+
+@pytest.mark.parametrize(
+    "damage, code, abort, words",
+    [
+        ("crc", 3, 0x0800_0020, "the CRC does not match"),
+        ("product", 2, 0x0609_0030, "another device"),
+    ],
+)
+def test_a_download_the_loader_refuses_is_retried_then_fails_with_both_codes(
+    damage, code, abort, words
+):
+    """The loader refuses the stream (here: a damaged copy of what the host sends): each
+    attempt goes again from clear, `retries` times; the message names the SDO abort and the
+    0x1F57 code with their meanings, and where the device is."""
+    data = bytearray(NEW)
+    if damage == "crc":
+        data[300] ^= 0xFF
+    else:
+        struct.pack_into("<I", data, 0x0C, PRODUCT + 1)
+    dev = ProgramDevice(OLD)
+    result, d = run(dev, data=bytes(data))
+    assert result.status == update.FAILED and result.exit_code == 1
+    assert writes(d).count((0x1F51, 3)) == 3
+    assert sum(isinstance(s, update.Download) for s in d.steps) == 3
+    assert [s.attempt for s in d.steps if isinstance(s, update.Download)] == [1, 2, 3]
+    assert f"SDO abort 0x{abort:08X}" in result.message and words in result.message
+    assert f"code {code}," in result.message
+    assert "the download failed 3 times" in result.message
+    assert "without a valid application" in result.message and "takes the next update" in (
+        result.message
+    )
+    assert (0x1F51, 1) not in writes(d)
+    assert sum("trying again from clear" in n for n in d.notes) == 2
+
+
+def test_a_download_that_fails_once_succeeds_on_the_retry():
+    dev = ProgramDevice(OLD)
+    downloads = []
+
+    def faults(n, step):
+        if isinstance(step, update.Download):
+            downloads.append(n)
+            return LOSE_REQUEST if len(downloads) == 1 else None
+        return None
+
+    result, d = run(dev, faults)
+    assert result.status == update.OK and len(downloads) == 2
+    assert writes(d) == [(0x1F51, 0), (0x1F51, 3), (0x1F51, 3), (0x1F51, 1)]
+
+
+def test_no_retries_means_one_download():
+    data = bytearray(NEW)
+    data[400] ^= 1
+    settings = update.Settings(node=16, retries=0, boot_timeout=0.5, status_timeout=0.5)
+    result, d = run(ProgramDevice(OLD), settings=settings, data=bytes(data))
+    assert result.status == update.FAILED
+    assert sum(isinstance(s, update.Download) for s in d.steps) == 1
+
+
+def test_a_start_whose_boot_up_was_lost_is_seen_by_its_device_type():
+    dev = ProgramDevice(OLD)
+
+    def faults(n, step):
+        if isinstance(step, update.Write) and step.value == 1:
+            return LOSE_ANSWER if n % 2 else LOSE_BOOTUP
+        return None
+
+    result, d = run(dev, faults)
+    assert result.status == update.OK and writes(d).count((0x1F51, 1)) == 1
+
+
+def test_a_node_that_never_answers_fails_with_a_hint():
+    result, d = run(ProgramDevice(OLD), lambda n, s: LOSE_REQUEST)
+    assert result.status == update.FAILED
+    assert "no answer from node 16 reading the device type 0x1000 (3 times" in result.message
+    assert "node-ID and bit rate" in result.message and "was not changed" in result.message
+
+
+def test_texts():
+    assert update.abort_text(0x0800_0020).startswith(
+        "SDO abort 0x08000020 (data cannot be transferred or stored to the application): the "
+        "CRC does not match"
+    )
+    assert update.abort_text(0x1234_5678) == "SDO abort 0x12345678 (unknown abort code)"
+    assert update.status_text(3 << 1 | 1) == (
+        "0x1F57 = 0x00000007: code 3, data format error (the CRC does not match, or the stream "
+        "ended short or ran past its length), in progress"
+    )
+    assert update.status_text(99 << 1).endswith("code 99, unknown code")
+    assert update.retry_command(["fw.bin", "--channel", "my can"]) == (
+        "canopen-handwheel update fw.bin --channel 'my can'"
+    )
+    assert update.progress_text(0, 100, 0.0) == f"[{'.' * 30}]   0 % 0/100 B 0 s"
+    assert update.progress_text(50, 100, 10.0) == (
+        f"[{'#' * 15}{'.' * 15}]  50 % 50/100 B 10 s, about 10 s left"
+    )
+    assert update.progress_text(100, 100, 20.0) == f"[{'#' * 30}] 100 % 100/100 B 20 s"
+
+
+FAULTS = st.sampled_from([None] * 6 + [LOSE_ANSWER, LOSE_REQUEST, LOSE_BOOTUP, MASTER_STARTS])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(FAULTS, max_size=80), st.booleans(), st.integers(0, 3))
+def test_whatever_goes_wrong_the_update_ends_and_never_claims_what_is_not(faults, loader, polls):
+    """Lost answers, lost requests, lost boot-ups and another master's NMT start at any
+    steps: the update ends within a bounded number of steps, never raises, and reports
+    success only when the device runs the new application; a device it leaves in its
+    loader still answers and takes a clean update afterwards."""
+    dev = ProgramDevice(None if loader else OLD, status_polls=polls)
+    result, d = run(dev, lambda n, s: faults[n] if n < len(faults) else None)
+    assert result.status in (update.OK, update.FAILED, update.REFUSED)
+    assert result.message
+    if result.status == update.OK:
+        assert not dev.loader and dev.crc() == NEW_IMAGE.crc
+    # The device is never left unreachable, and a clean run afterwards updates it.
+    again, _ = run(dev)
+    assert again.status == update.OK and not dev.loader and dev.crc() == NEW_IMAGE.crc
+
+
+# The file --------------------------------------------------------------------------------
+
+
+def test_the_update_file_is_parsed():
+    img = image.UpdateImage.parse(NEW)
+    assert (img.vendor_id, img.product_code, img.version, img.length) == (
+        VENDOR,
+        PRODUCT,
+        4,
+        3000,
+    )
+    assert img.crc == zlib.crc32(NEW[256:]) and img.data == NEW
+    assert NEW[:4] == b"HWIM" and len(NEW) == 256 + 3000
+    assert NEW[0x20:0x100] == b"\xff" * 0xE0
+    assert img.describe() == (
+        f"version 4, CRC 0x{img.crc:08X}, 3000 bytes, for vendor 0x{VENDOR:08X} product "
+        f"0x{PRODUCT:08X}"
+    )
+
+
+def _patched(offset, fmt, value):
+    data = bytearray(NEW)
+    struct.pack_into(fmt, data, offset, value)
+    return bytes(data)
+
+
+@pytest.mark.parametrize(
+    "data, why",
+    [
+        (NEW[:255], "shorter than the 256-byte header slot"),
+        (b"\x7fELF" + NEW[4:], "not b'HWIM'"),
+        (_patched(4, "<H", 2), "header format 2, size 32"),
+        (_patched(6, "<H", 64), "header format 1, size 64"),
+        (_patched(0x14, "<I", 0xFFFF_FFFF), "not sealed"),
+        (_patched(0x14, "<I", image.SLOT_SIZE), "does not fit the 51200-byte"),
+        (NEW + b"\xff", "the file has 3001"),
+        (NEW[:-1], "the file has 2999"),
+        (NEW[:-1] + bytes([NEW[-1] ^ 1]), "its header says"),
+    ],
+)
+def test_a_bad_file_is_refused_with_its_reason(data, why):
+    with pytest.raises(image.ImageError, match=why.replace("(", r"\(")):
+        image.UpdateImage.parse(data)
+
+
+def test_the_largest_image_that_fits_the_slot():
+    body = bytes(image.SLOT_SIZE - image.SLOT_HEADER)
+    assert image.UpdateImage.parse(image.build(body, VENDOR, PRODUCT, 1)).length == len(body)
+    with pytest.raises(image.ImageError, match="does not fit"):
+        image.UpdateImage.parse(image.build(body + b"\0", VENDOR, PRODUCT, 1))
+
+
+@given(st.binary(max_size=600))
+def test_any_bytes_parse_or_raise_image_error(data):
+    try:
+        img = image.UpdateImage.parse(data)
+    except image.ImageError:
+        return
+    assert zlib.crc32(data[256:]) == img.crc and len(data) == 256 + img.length
+
+
+def test_loader_device_type_is_the_contracts():
+    assert LOADER_DEVICE_TYPE == update.LOADER_DEVICE_TYPE == 0x544F_4F42
+    assert struct.pack("<I", LOADER_DEVICE_TYPE) == b"BOOT"
