@@ -216,9 +216,13 @@ def test_a_stored_tpdo_cob_id_of_0x000_is_not_restored(board):
         node = Node(board, bus, frames)
         node.booted(0)
         node.save_heartbeat(250)
-        page = bytearray(board.flash.read_bytes())  # written through at once
+        # The flash file is the whole flash, written through at once; the parameter pages
+        # are its last two (memory.x's STORAGE).
+        flash = bytearray(board.flash.read_bytes())
+        page = flash[PARAMETER_PAGES:]
         craft_tpdo1_cob_id(page, 0x4000_0000)
-        board.flash.write_bytes(bytes(page))
+        flash[PARAMETER_PAGES:] = page
+        board.flash.write_bytes(bytes(flash))
         mark = frames.mark()
         board.control("reload")
         node.booted(mark)
@@ -227,6 +231,10 @@ def test_a_stored_tpdo_cob_id_of_0x000_is_not_restored(board):
         assert node.read(0x1800, 1) == 0x4000_0190
         assert node.read(0x1017, 0) == 250, "the rest of the page is restored"
         board.wait_for_log(r"stored 0x1800:1 not restored \(InvalidValue\)")
+
+
+# Offset of the parameter pages in the board's flash file (memory.x: STORAGE at 0x0800_F800).
+PARAMETER_PAGES = 0xF800
 
 
 def crc32(data: bytes) -> int:
