@@ -114,9 +114,9 @@ def test_a_full_update_from_the_application_in_the_contracts_order():
     assert result.status == update.OK and result.exit_code == 0
     assert not dev.loader and dev.crc() == NEW_IMAGE.crc and dev.version() == 4
     assert (result.version, result.crc) == (4, NEW_IMAGE.crc)
-    assert result.before.revision == 3 and result.before.program_crc == zlib.crc32(OLD[256:])
+    assert result.before.revision == 3 and result.before.program_crc == zlib.crc32(OLD[512:])
     assert result.message == (
-        f"node 16 updated: version 3 -> 4, CRC 0x{zlib.crc32(OLD[256:]):08X} -> "
+        f"node 16 updated: version 3 -> 4, CRC 0x{zlib.crc32(OLD[512:]):08X} -> "
         f"0x{NEW_IMAGE.crc:08X}"
     )
     order = [
@@ -174,7 +174,7 @@ def test_the_feed_enabled_refuses_before_anything_is_written():
     assert result.status == update.REFUSED and result.exit_code == update.EXIT_REFUSED
     assert "feed enabled (0x2000 = 1)" in result.message and "enable pin" in result.message
     assert writes(d) == [] and not any(isinstance(s, update.PreOperational) for s in d.steps)
-    assert dev.crc() == zlib.crc32(OLD[256:]) and not dev.loader
+    assert dev.crc() == zlib.crc32(OLD[512:]) and not dev.loader
 
 
 @pytest.mark.parametrize("loader", [False, True])
@@ -319,7 +319,7 @@ def test_a_download_the_loader_refuses_is_retried_then_fails_with_both_codes(
     0x1F57 code with their meanings, and where the device is."""
     data = bytearray(NEW)
     if damage == "crc":
-        data[300] ^= 0xFF
+        data[700] ^= 0xFF
     else:
         struct.pack_into("<I", data, 0x0C, PRODUCT + 1)
     dev = ProgramDevice(OLD)
@@ -355,7 +355,7 @@ def test_a_download_that_fails_once_succeeds_on_the_retry():
 
 def test_no_retries_means_one_download():
     data = bytearray(NEW)
-    data[400] ^= 1
+    data[800] ^= 1
     settings = update.Settings(node=16, retries=0, boot_timeout=0.5, status_timeout=0.5)
     result, d = run(ProgramDevice(OLD), settings=settings, data=bytes(data))
     assert result.status == update.FAILED
@@ -434,9 +434,9 @@ def test_the_update_file_is_parsed():
         4,
         3000,
     )
-    assert img.crc == zlib.crc32(NEW[256:]) and img.data == NEW
-    assert NEW[:4] == b"HWIM" and len(NEW) == 256 + 3000
-    assert NEW[0x20:0x100] == b"\xff" * 0xE0
+    assert img.crc == zlib.crc32(NEW[512:]) and img.data == NEW
+    assert NEW[:4] == b"HWIM" and len(NEW) == 512 + 3000
+    assert NEW[0x20:0x200] == b"\xff" * 0x1E0
     assert img.describe() == (
         f"version 4, CRC 0x{img.crc:08X}, 3000 bytes, for vendor 0x{VENDOR:08X} product "
         f"0x{PRODUCT:08X}"
@@ -452,7 +452,7 @@ def _patched(offset, fmt, value):
 @pytest.mark.parametrize(
     "data, why",
     [
-        (NEW[:255], "shorter than the 256-byte header slot"),
+        (NEW[:511], "shorter than the 512-byte header slot"),
         (b"\x7fELF" + NEW[4:], "not b'HWIM'"),
         (_patched(4, "<H", 2), "header format 2, size 32"),
         (_patched(6, "<H", 64), "header format 1, size 64"),
@@ -481,7 +481,7 @@ def test_any_bytes_parse_or_raise_image_error(data):
         img = image.UpdateImage.parse(data)
     except image.ImageError:
         return
-    assert zlib.crc32(data[256:]) == img.crc and len(data) == 256 + img.length
+    assert zlib.crc32(data[512:]) == img.crc and len(data) == 512 + img.length
 
 
 def test_loader_device_type_is_the_contracts():

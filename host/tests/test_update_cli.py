@@ -69,7 +69,7 @@ class BusDevice:
             if index == 0x1F50:
                 data = bytearray(data)
                 if self.damage:
-                    data[300] ^= 0xFF
+                    data[700] ^= 0xFF
                 self.model.download(bytes(data))
             else:
                 self.model.write(index, subindex, int.from_bytes(data, "little"))
@@ -119,7 +119,7 @@ def test_options_and_their_limits():
 
 @pytest.mark.parametrize(
     "content, why",
-    [(None, "cannot read"), (b"\x7fELF" + bytes(300), "not b'HWIM'"), (NEW[:-1], "the file has")],
+    [(None, "cannot read"), (b"\x7fELF" + bytes(600), "not b'HWIM'"), (NEW[:-1], "the file has")],
 )
 def test_a_bad_file_is_refused_before_the_bus(tmp_path, monkeypatch, capsys, content, why):
     path = tmp_path / "fw.bin"
@@ -147,11 +147,11 @@ def test_a_full_update_over_python_canopen(tmp_path, capsys):
     assert out.startswith("node 16 updated: version 3 -> 4, CRC 0x")
     assert out.rstrip().endswith(f"-> 0x{new_crc:08X}")
     assert "node 16 is in its loader" in err and "node 16 runs its application" in err
-    assert "downloading 2256 bytes (attempt 1 of 3)" in err
+    assert "downloading 2512 bytes (attempt 1 of 3)" in err
     bars = [line for line in err.splitlines() if line.startswith("[")]
-    assert bars[0].startswith("[....") and " 100 % 2256/2256 B" in bars[-1]
+    assert bars[0].startswith("[....") and " 100 % 2512/2512 B" in bars[-1]
     assert len(bars) == 11  # 0 %, then every 10 % (stderr is not a terminal here)
-    assert [e[:2] for e in model.log if e[0] == "download"] == [("download", 2256)]
+    assert [e[:2] for e in model.log if e[0] == "download"] == [("download", 2512)]
 
 
 def test_a_device_that_refuses_the_image_fails_with_codes_and_the_retry_line(tmp_path, capsys):

@@ -1,5 +1,5 @@
 """The update file (docs/FIRMWARE-UPDATE.md, "The image header"): the application slot's
-bytes from its start, a 256-byte header slot followed by the image. `UpdateImage.parse`
+bytes from its start, a 512-byte header slot followed by the image. `UpdateImage.parse`
 checks everything the loader would check that the file alone can tell, so that a wrong or
 damaged file is refused before the command touches the bus (the loader would refuse it too,
 but only after the application was stopped and its slot erased).
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 MAGIC = 0x4D49_5748  # the bytes "HWIM": the validity mark
 FORMAT = 1
 HEADER_SIZE = 32
-SLOT_HEADER = 256  # the header slot before the image
+SLOT_HEADER = 512  # the header slot before the image
 # The application slot, HEADER + FLASH: 0x0800_3000..0x0800_F800.
 SLOT_SIZE = 0x0800_F800 - 0x0800_3000
 _HEADER = struct.Struct("<IHHIIIIII")
