@@ -82,8 +82,8 @@ fn take_handoff() -> bool {
 ///
 /// The slot must hold a valid application (`valid_application`).
 unsafe fn start_application() -> ! {
-    // SAFETY: VTOR takes any 128-byte aligned address in code memory (APP_ORIGIN is 256-byte
-    // aligned); `bootload` loads MSP and jumps to the reset vector of the table at
+    // SAFETY: VTOR takes a 512-byte aligned address in code memory (APP_ORIGIN is: asserted
+    // in canopen_loader::layout); `bootload` loads MSP and jumps to the reset vector of the table at
     // APP_ORIGIN, which the caller checked; nothing of the loader runs after it.
     unsafe {
         (*SCB::PTR).vtor.write(APP_ORIGIN);

@@ -1,5 +1,6 @@
 //! The application's image header (docs/FIRMWARE-UPDATE.md, "The image header"): 32 bytes
-//! little-endian at the start of the slot's 256-byte header slot, padded with 0xFF.
+//! little-endian at the start of the slot's header slot ([`HEADER_SLOT`] bytes, padded with
+//! 0xFF).
 //!
 //! ```text
 //! 0x00 magic u32          MAGIC, the validity mark, written last
@@ -296,11 +297,14 @@ mod tests {
         assert_eq!(seal(&mut file), Ok(header));
         assert_eq!(file, again);
 
-        assert_eq!(seal(&mut file[..263]), Err(SealError::TooShort));
+        assert_eq!(
+            seal(&mut file[..HEADER_SLOT + MIN_IMAGE - 1]),
+            Err(SealError::TooShort)
+        );
         let mut big = ImageHeader::unsealed(1, 2, 3).to_slot().to_vec();
         big.resize(HEADER_SLOT + MAX_IMAGE + 1, 0);
         assert_eq!(seal(&mut big), Err(SealError::TooLarge));
-        let mut plain = vec![0u8; 300];
+        let mut plain = vec![0u8; HEADER_SLOT + 100];
         assert_eq!(seal(&mut plain), Err(SealError::Header(HeaderError::Magic)));
     }
 }

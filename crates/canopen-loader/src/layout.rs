@@ -16,7 +16,12 @@ pub const SLOT_SIZE: usize = 50 * 1024;
 /// Pages in the slot.
 pub const SLOT_PAGES: usize = SLOT_SIZE / PAGE_SIZE;
 /// The header slot at the start of the slot (`HEADER`): the header, padded with 0xFF.
-pub const HEADER_SLOT: usize = 256;
+///
+/// 512 bytes, not the contract's 256: the application's vector table follows it, and VTOR
+/// on the STM32F10x takes only 512-byte aligned tables (PM0056 4.4.4: TBLOFF is bits 29:9,
+/// bits 8:0 read as zero; a table of 76 vectors needs 512 anyway), so a table at 0x0800_3100
+/// would be read from 0x0800_3000, the header.
+pub const HEADER_SLOT: usize = 512;
 /// The application's vector table and first byte (`FLASH`'s origin, VTOR's value).
 pub const APP_ORIGIN: u32 = SLOT_ORIGIN + HEADER_SLOT as u32;
 /// The most image bytes (after the header slot) the slot takes.
@@ -46,5 +51,5 @@ pub const fn is_handoff_request(words: [u32; 2]) -> bool {
 const _: () = assert!(LOADER_ORIGIN + LOADER_LENGTH == SLOT_ORIGIN);
 const _: () = assert!(SLOT_ORIGIN + SLOT_SIZE as u32 == STORAGE_ORIGIN);
 const _: () = assert!(STORAGE_ORIGIN + STORAGE_LENGTH == 0x0801_0000);
-const _: () = assert!(APP_ORIGIN.is_multiple_of(256));
+const _: () = assert!(APP_ORIGIN.is_multiple_of(512));
 const _: () = assert!(SLOT_ORIGIN.is_multiple_of(PAGE_SIZE as u32));

@@ -2,8 +2,8 @@
 //! the same.
 
 use canopen_loader::layout::{
-    APP_ORIGIN, HANDOFF_ORIGIN, HEADER_SLOT, LOADER_LENGTH, LOADER_ORIGIN, MAX_IMAGE,
-    RAM_LENGTH, RAM_ORIGIN, SLOT_ORIGIN, STORAGE_LENGTH, STORAGE_ORIGIN,
+    APP_ORIGIN, HANDOFF_ORIGIN, HEADER_SLOT, LOADER_LENGTH, LOADER_ORIGIN, MAX_IMAGE, RAM_LENGTH,
+    RAM_ORIGIN, SLOT_ORIGIN, STORAGE_LENGTH, STORAGE_ORIGIN,
 };
 
 /// Evaluates a length or origin of memory.x: hex or decimal numbers, `K` suffixes, `+`, `-`.

@@ -3,7 +3,7 @@
 
 mod common;
 
-use canopen_loader::layout::{HEADER_SLOT, MAX_IMAGE, PAGE_SIZE, SLOT_SIZE};
+use canopen_loader::layout::{APP_ORIGIN, HEADER_SLOT, MAX_IMAGE, PAGE_SIZE, SLOT_SIZE};
 use canopen_loader::{seal, DeviceId, ImageHeader};
 use common::{
     header_of, image, image_for, mix, Bench, CutFlash, Transfer, DEVICE, HEARTBEAT,
@@ -221,9 +221,12 @@ fn an_implausible_vector_table() {
     for (at, value) in [
         // Stack pointer in flash.
         (0u32, 0x0800_4000u32),
-        // Reset vector without the Thumb bit, and one past the image.
-        (4, 0x0800_3100 + 0x100),
-        (4, 0x0800_3101 + 3000),
+        // Stack pointer past RAM.
+        (0, 0x2000_5000),
+        // Reset vector without the Thumb bit, one past the image, one in the header.
+        (4, APP_ORIGIN + 0x100),
+        (4, APP_ORIGIN + 1 + 3000),
+        (4, APP_ORIGIN - 0x100 + 1),
     ] {
         let mut file = image(1, 3000);
         let at = HEADER_SLOT + at as usize;

@@ -422,4 +422,4 @@ pub fn slot_holds(flash: &CutFlash, file: &[u8]) -> bool {
     flash.slot()[..file.len()] == *file
 }
 
-const _: () = assert!(HEADER_SLOT == 256);
+const _: () = assert!(HEADER_SLOT == 512);
