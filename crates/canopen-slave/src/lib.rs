@@ -78,6 +78,7 @@ mod abort;
 mod cob_id;
 
 pub mod bus;
+pub mod crc;
 pub mod device;
 pub mod emcy;
 pub mod filter;

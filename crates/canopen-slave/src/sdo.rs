@@ -14,7 +14,7 @@ pub const SDO_BUFFER: usize = 32;
 
 /// What the SDO server needs from the object dictionary. Every method checks existence and
 /// access itself, so the server can report its abort code verbatim.
-pub(crate) trait ObjectAccess {
+pub trait ObjectAccess {
     /// Reads an object for an upload into `buf`, returning the number of bytes.
     fn upload(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort>;
     /// The object's size, for an expedited download that does not indicate one.
@@ -23,6 +23,32 @@ pub(crate) trait ObjectAccess {
     fn check_download(&mut self, index: u16, sub: u8, size: Option<u32>) -> Result<(), SdoAbort>;
     /// Fully checked write; must leave everything unchanged when it fails.
     fn download(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort>;
+
+    /// Whether a segmented download of `index:sub` goes to the object segment by segment
+    /// ([`download_chunk`](Self::download_chunk)) instead of whole, from the server's
+    /// [`SDO_BUFFER`]-byte buffer, to [`download`](Self::download): for a DOMAIN longer than
+    /// any buffer (the loader's program data). The object then checks the indicated size
+    /// itself (it had it in [`check_download`](Self::check_download)). An expedited
+    /// download still goes to `download`. By default nothing streams, and a device whose
+    /// objects keep the default compiles to the server without streaming.
+    fn streams(&mut self, _index: u16, _sub: u8) -> bool {
+        false
+    }
+
+    /// The data bytes (0..=7) of one segment of a streamed download of `index:sub`, in
+    /// order; `last` on the final segment. An error aborts the transfer with that code. A
+    /// transfer that ends otherwise (client abort, timeout, a new request replacing it,
+    /// an NMT state change) does not call it again: the caller sees the server idle
+    /// ([`SdoServer::deadline`] is `None`) with the object's stream unfinished.
+    fn download_chunk(
+        &mut self,
+        _index: u16,
+        _sub: u8,
+        _data: &[u8],
+        _last: bool,
+    ) -> Result<(), SdoAbort> {
+        Err(SdoAbort::UnsupportedAccess)
+    }
 }
 
 /// Which segmented transfer is running, named after the CiA 301 protocols.
@@ -39,7 +65,7 @@ enum Mode {
 /// past `mode` only mean something while a transfer runs, and flat fields are much cheaper
 /// to update in place.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub(crate) struct SdoServer {
+pub struct SdoServer {
     mode: Mode,
     /// Toggle bit the next segment must carry.
     toggle: bool,
@@ -71,7 +97,8 @@ pub(crate) fn abort_payload(index: u16, sub: u8, abort: SdoAbort) -> [u8; 8] {
 }
 
 impl SdoServer {
-    pub(crate) const fn new(timeout_ms: u16) -> Self {
+    /// An idle server whose transfers time out `timeout_ms` after the client's last request.
+    pub const fn new(timeout_ms: u16) -> Self {
         Self {
             mode: Mode::Idle,
             toggle: false,
@@ -88,12 +115,12 @@ impl SdoServer {
     }
 
     /// Drops any transfer silently (client abort, NMT state change, reset).
-    pub(crate) fn reset(&mut self) {
+    pub fn reset(&mut self) {
         self.mode = Mode::Idle;
     }
 
     /// NMT state change: a transfer does not survive leaving the communicating states.
-    pub(crate) fn on_nmt_state(&mut self, next: NmtState) {
+    pub fn on_nmt_state(&mut self, next: NmtState) {
         if !next.communicating() {
             self.reset();
         }
@@ -109,13 +136,13 @@ impl SdoServer {
         self.sent = 0;
     }
 
-    /// When the current transfer times out.
-    pub(crate) fn deadline(&self) -> Option<Instant> {
+    /// When the current transfer times out; `None` while no transfer runs.
+    pub fn deadline(&self) -> Option<Instant> {
         (self.mode != Mode::Idle).then_some(self.deadline)
     }
 
     /// Aborts a transfer the client has left unfinished for too long.
-    pub(crate) fn poll(&mut self, now: Instant) -> Option<[u8; 8]> {
+    pub fn poll(&mut self, now: Instant) -> Option<[u8; 8]> {
         if self.mode == Mode::Idle || now < self.deadline {
             return None;
         }
@@ -125,7 +152,7 @@ impl SdoServer {
     }
 
     /// Handles one client request (DLC already checked to be 8); returns the reply, if any.
-    pub(crate) fn on_request(
+    pub fn on_request(
         &mut self,
         now: Instant,
         req: &[u8; 8],
@@ -224,6 +251,15 @@ impl SdoServer {
         }
         // Bytes 1..8 carry 7 - n data bytes.
         let used = 7 - usize::from((cmd >> 1) & 0x07);
+        let last = cmd & 0x01 != 0;
+        if od.streams(self.index, self.sub) {
+            let data = req.get(1..1 + used).unwrap_or(&[]);
+            od.download_chunk(self.index, self.sub, data, last)?;
+            if last {
+                self.reset();
+            }
+            return Ok([0x20 | toggle, 0, 0, 0, 0, 0, 0, 0]);
+        }
         let start = usize::from(self.len);
         let end = start + used;
         if end > SDO_BUFFER {
@@ -234,7 +270,7 @@ impl SdoServer {
         }
         // end <= SDO_BUFFER, checked above.
         self.len = end as u8;
-        if cmd & 0x01 != 0 {
+        if last {
             if self.size.is_some_and(|s| s != end as u32) {
                 return Err(SdoAbort::LengthMismatch);
             }

@@ -322,17 +322,7 @@ pub fn scan(page: &[u8]) -> Log<'_> {
     log
 }
 
-/// CRC-32 as in IEEE 802.3 / zlib (reflected, polynomial 0x04C11DB7, init and final XOR
-/// 0xFFFFFFFF): `crc32(b"123456789") == 0xCBF4_3926`. Bitwise, to keep the image small; a
-/// few hundred bytes at boot and on a store are all it ever sees.
-pub fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = !0u32;
-    for &byte in bytes {
-        crc ^= u32::from(byte);
-        for _ in 0..8 {
-            let lsb = crc & 1;
-            crc = (crc >> 1) ^ (0xEDB8_8320 & lsb.wrapping_neg());
-        }
-    }
-    !crc
-}
+/// CRC-32 as in IEEE 802.3 / zlib: `crc32(b"123456789") == 0xCBF4_3926`. The engine's (one
+/// implementation for records, serial number and firmware image); a few hundred bytes at boot
+/// and on a store are all it sees here.
+pub use canopen_slave::crc::crc32;

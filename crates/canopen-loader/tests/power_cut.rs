@@ -1,0 +1,145 @@
+//! Power cuts during an update, exhaustively: before and inside every flash operation of
+//! "clear", of the streamed program data and of the validity mark. After each cut the board
+//! boots from what the flash holds: the boot decision finds the new application (only once
+//! the mark is complete) or none (the loader stays and answers SDO), never a partial image;
+//! the loader's and the parameter pages are byte-identical; and a fresh loader takes a
+//! complete second update.
+
+mod common;
+
+use canopen_loader::layout::PAGE_SIZE;
+use canopen_loader::MAGIC;
+use common::{header_of, image, Bench, Cut, CutFlash};
+
+/// A flash holding `old` as a complete, valid update.
+fn with_old(old: &[u8]) -> CutFlash {
+    let mut bench = Bench::boot(CutFlash::new());
+    bench.update(old).unwrap();
+    assert_eq!(bench.valid(), Some(header_of(old)));
+    bench.flash.powered_up()
+}
+
+/// The update of `new` over `before`, cut at `cut`; the flash afterwards.
+fn cut_update(before: &CutFlash, new: &[u8], cut: Option<Cut>) -> CutFlash {
+    let mut flash = before.powered_up();
+    flash.cut = cut;
+    let mut bench = Bench::boot(flash);
+    // With the power off the answers mean nothing: what counts is the flash.
+    let _ = bench.update(new);
+    bench.flash
+}
+
+/// Which part of the update an operation belongs to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Clear,
+    Stream,
+    Mark,
+}
+
+#[test]
+fn a_cut_anywhere_boots_the_new_image_or_the_loader() {
+    // Three pages and an odd length: the stream erases pages 1 and 2 on its way and ends
+    // with a half-word of one byte.
+    let old = image(1, 2 * PAGE_SIZE + 101);
+    let new = image(2, 2 * PAGE_SIZE + 301);
+    let new_header = header_of(&new);
+    let before = with_old(&old);
+    let outside = before.outside_slot();
+
+    let ops = cut_update(&before, &new, None).ops;
+    // 1 erase at clear, 2 erases on the way, the half-words of the image that are not
+    // 0xFFFF, 2 of the mark.
+    assert!(ops > 1 + 2 + 2 + 1000, "{ops} operations");
+    let phase = |op: usize| match op {
+        0 => Phase::Clear,
+        n if n + 2 >= ops => Phase::Mark,
+        _ => Phase::Stream,
+    };
+
+    let mut tried = 0;
+    for op in 0..ops {
+        let mut cuts = vec![Cut::Before(op)];
+        cuts.extend((1..=3).map(|s| Cut::Inside(op, s * 7919 + op as u64)));
+        for cut in cuts {
+            tried += 1;
+            let after = cut_update(&before, &new, Some(cut)).powered_up();
+            assert_eq!(
+                after.outside_slot(),
+                outside,
+                "{cut:?}: only the slot is written"
+            );
+            let mut bench = Bench::boot(after);
+            let valid = bench.valid();
+            match phase(op) {
+                Phase::Clear => assert!(
+                    valid.is_none() || valid == Some(header_of(&old)),
+                    "{cut:?} in clear: {valid:?}"
+                ),
+                Phase::Stream => assert_eq!(valid, None, "{cut:?} in the stream"),
+                Phase::Mark => {
+                    let mark = u32::from_le_bytes(bench.flash.slot()[..4].try_into().unwrap());
+                    match valid {
+                        None => assert_ne!(mark, MAGIC, "{cut:?}: a complete mark is valid"),
+                        Some(h) => {
+                            assert_eq!(h, new_header, "{cut:?}");
+                            assert_eq!(mark, MAGIC);
+                            assert!(common::slot_holds(&bench.flash, &new), "{cut:?}");
+                        }
+                    }
+                }
+            }
+            // The loader stays (or would be left by the boot decision) and answers.
+            assert_eq!(bench.read(0x1000, 0), Ok(0x544F_4F42), "{cut:?}");
+            let (control, id, status) = bench.program_state();
+            assert_eq!(control, 0);
+            match valid {
+                Some(h) => assert_eq!((id, status), (h.crc, 0), "{cut:?}"),
+                None => assert_eq!((id, status), (0, 1 << 1), "{cut:?}"),
+            }
+            // The next update goes through.
+            let third = image(3, PAGE_SIZE + 77);
+            assert_eq!(bench.update(&third), Ok(()), "{cut:?}: second update");
+            assert_eq!(bench.valid(), Some(header_of(&third)), "{cut:?}");
+            assert_eq!(bench.program_state(), (0, header_of(&third).crc, 0));
+            assert_eq!(bench.flash.outside_slot(), outside, "{cut:?}");
+        }
+    }
+    assert_eq!(tried, 4 * ops);
+}
+
+/// A cut during a second clear, after a cut inside the stream (the slot's pages past the
+/// header page hold a half-written image), then a complete update: every cut of the second
+/// clear leaves no valid image.
+#[test]
+fn a_cut_clear_over_a_cut_stream() {
+    let new = image(2, 3 * PAGE_SIZE);
+    let before = with_old(&image(1, 3 * PAGE_SIZE));
+    let stream_cut = cut_update(&before, &new, Some(Cut::Inside(900, 5))).powered_up();
+    for cut in [Cut::Before(0), Cut::Inside(0, 1), Cut::Inside(0, 2)] {
+        let after = cut_update(&stream_cut, &new, Some(cut)).powered_up();
+        let mut bench = Bench::boot(after);
+        assert_eq!(bench.valid(), None, "{cut:?}");
+        assert_eq!(bench.update(&new), Ok(()));
+        assert_eq!(bench.valid(), Some(header_of(&new)));
+    }
+}
+
+#[test]
+fn a_stream_that_ends_short_leaves_the_mark_erased() {
+    let new = image(4, 1000);
+    let mut bench = Bench::boot(with_old(&image(1, 3000)));
+    bench.write(0x1F51, 1, &[3]).unwrap();
+    let short = &new[..new.len() - 3];
+    let how = common::Transfer {
+        size: None,
+        segment: 7,
+        seed: None,
+    };
+    assert_eq!(bench.download(short, how), Err(0x0800_0020));
+    // The header went to flash as it arrived, but for the mark.
+    assert_eq!(&bench.flash.slot()[..4], &[0xFF; 4]);
+    assert_eq!(&bench.flash.slot()[4..32], &new[4..32]);
+    assert_eq!(bench.valid(), None);
+    assert_eq!(bench.program_state(), (0, 0, 3 << 1));
+}

@@ -1,0 +1,234 @@
+//! The handwheel's resident loader: the first image in flash (pages 0-11), never overwritten
+//! by an update (docs/FIRMWARE-UPDATE.md).
+//!
+//! At every reset, before it touches any peripheral, it decides: a request in `HANDOFF` (the
+//! application's 0x1F51 "stop") keeps it; otherwise a valid application in the slot (mark,
+//! header, vector table, CRC: `canopen_loader::valid_application`) is started with every
+//! peripheral in its reset state (VTOR, MSP, reset vector). Otherwise it is a minimal
+//! CANopen node (`canopen_loader::LoaderNode`) at the application's node-ID and bit rate,
+//! which takes a new image by CiA 302-3 program download, in a polled loop: no interrupts,
+//! no RTIC, no logging.
+//!
+//! Watchdog: the loader starts the IWDG (2 s nominal, at least 1.3 s with the LSI's
+//! spread) and feeds it in its loop and around every page erase, so that a loader stuck by a
+//! fault resets into the boot decision again. The application starts with the IWDG off
+//! whenever it is started by the boot decision (a reset stops the IWDG; the jump happens
+//! before the loader starts it).
+#![no_std]
+#![no_main]
+
+mod bus;
+mod flash;
+
+use canopen_loader::layout::{is_handoff_request, APP_ORIGIN, HANDOFF_ORIGIN};
+use canopen_loader::{valid_application, DeviceId, LoaderConfig, LoaderNode, Request};
+use canopen_slave::{FrameSink, Instant, NodeId};
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::{SCB, SYST};
+use cortex_m_rt::entry;
+use handwheel_device::node_config;
+use handwheel_device::od::IDENTITY;
+use handwheel_device::page::ParameterPage;
+use stm32f1xx_hal::can::Can;
+use stm32f1xx_hal::watchdog::IndependentWatchdog;
+use stm32f1xx_hal::{pac, prelude::*, rcc};
+
+/// The application this loader takes images for (0x1018:1 and :2 of the application).
+const DEVICE: DeviceId = DeviceId {
+    vendor_id: IDENTITY.vendor_id,
+    product_code: IDENTITY.product_code,
+};
+/// 0x1018:3 of the loader.
+const REVISION: u32 = 1;
+/// The node-ID when the stored settings say "unconfigured" (LSS, 0xFF): the loader has no
+/// LSS slave to be given one, so it answers at the factory node-ID.
+const UNCONFIGURED_NODE_ID: u8 = 16;
+/// The watchdog's nominal timeout.
+const WATCHDOG_MS: u32 = 2000;
+/// Core clock: HSE 8 MHz, PLL x9, as the application.
+const SYSCLK_HZ: u32 = 72_000_000;
+/// How long a reset waits for the frames queued before it (the answer to "start").
+const FLUSH_US: u64 = 50_000;
+/// Address of the 96-bit unique device ID (RM0008, "Unique device ID register").
+const UNIQUE_ID_ADDRESS: usize = 0x1FFF_F7E8;
+
+#[entry]
+fn main() -> ! {
+    if !take_handoff() && valid_application(&flash::MappedSlot, DEVICE).is_some() {
+        // SAFETY: the slot holds a complete application for this device (mark, header, CRC,
+        // a stack pointer in RAM and a reset vector inside the image), and no peripheral
+        // has been touched: the application starts as from a reset.
+        unsafe { start_application() }
+    }
+    run()
+}
+
+/// Reads and clears the hand-off words: whether the application asked to stay here.
+fn take_handoff() -> bool {
+    let at = HANDOFF_ORIGIN as *mut u32;
+    // SAFETY: HANDOFF is two word-aligned words of SRAM (memory.x) outside every image's
+    // RAM region, so no Rust object lives there; nothing else runs yet (no interrupts).
+    unsafe {
+        let words = [at.read_volatile(), at.add(1).read_volatile()];
+        at.write_volatile(0);
+        at.add(1).write_volatile(0);
+        is_handoff_request(words)
+    }
+}
+
+/// Starts the application: its vector table for VTOR, its stack pointer, its reset vector.
+///
+/// # Safety
+///
+/// The slot must hold a valid application (`valid_application`).
+unsafe fn start_application() -> ! {
+    // SAFETY: VTOR takes a 512-byte aligned address in code memory (APP_ORIGIN is: asserted
+    // in canopen_loader::layout); `bootload` loads MSP and jumps to the reset vector of the table at
+    // APP_ORIGIN, which the caller checked; nothing of the loader runs after it.
+    unsafe {
+        (*SCB::PTR).vtor.write(APP_ORIGIN);
+        cortex_m::asm::bootload(APP_ORIGIN as *const u32)
+    }
+}
+
+/// The loader's clock: SysTick at the core clock as a free-running 24-bit down counter,
+/// extended to microseconds. It wraps every 233 ms; the loop reads it far more often (its
+/// longest step is a page erase, 40 ms, or a CRC over the slot, about 40 ms).
+struct Clock {
+    last: u32,
+    us: u64,
+    /// Cycles not yet counted as a whole microsecond.
+    rest: u32,
+}
+
+impl Clock {
+    const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
+
+    fn start(mut syst: SYST) -> Self {
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload(0x00FF_FFFF);
+        syst.clear_current();
+        syst.enable_counter();
+        Self {
+            last: SYST::get_current(),
+            us: 0,
+            rest: 0,
+        }
+    }
+
+    fn now(&mut self) -> Instant {
+        let current = SYST::get_current();
+        // A down counter: the cycles since the last read, modulo its 24 bits.
+        let cycles = (self.last.wrapping_sub(current) & 0x00FF_FFFF) + self.rest;
+        self.last = current;
+        self.us += u64::from(cycles / Self::CYCLES_PER_US);
+        self.rest = cycles % Self::CYCLES_PER_US;
+        Instant::from_micros(self.us)
+    }
+}
+
+/// The MCU's 96-bit unique ID, lowest address first (for the serial number).
+fn unique_id() -> [u32; 3] {
+    let base = UNIQUE_ID_ADDRESS as *const u32;
+    core::array::from_fn(|word| {
+        // SAFETY: the unique ID is factory-programmed system memory at a fixed, word-aligned
+        // address; `word` < 3 keeps the read inside its 12 bytes; reads have no side effects.
+        unsafe { core::ptr::read_volatile(base.add(word)) }
+    })
+}
+
+/// The loader as a CANopen node, for good (it leaves by a system reset).
+fn run() -> ! {
+    let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+        SCB::sys_reset()
+    };
+    let mut flash = dp.FLASH.constrain();
+    // HSE, PLL x9, AHB /1, APB1 /2 (36 MHz: the bxCAN clock of the bit timing table), APB2
+    // /1, two flash wait states: the application's clocks.
+    let mut rcc = dp.RCC.freeze(
+        rcc::Config::hse(8.MHz())
+            .sysclk(SYSCLK_HZ.Hz())
+            .hclk(SYSCLK_HZ.Hz())
+            .pclk1(bus::APB1_HZ.Hz())
+            .pclk2(SYSCLK_HZ.Hz()),
+        &mut flash.acr,
+    );
+    let mut watchdog = IndependentWatchdog::new(dp.IWDG);
+    watchdog.stop_on_debug(&dp.DBGMCU, true);
+    watchdog.start(WATCHDOG_MS.millis());
+
+    let mut afio = dp.AFIO.constrain(&mut rcc);
+    let mut gpiob = dp.GPIOB.split(&mut rcc);
+    // The DIP switch as the application reads it (src/board/pins.rs): switches 1..8 on PB12,
+    // PB13, PB14, PB15, PB0, PB1, PB10, PB11, pulled up, on = low.
+    let dip_pins = [
+        gpiob.pb12.into_pull_up_input(&mut gpiob.crh).erase(),
+        gpiob.pb13.into_pull_up_input(&mut gpiob.crh).erase(),
+        gpiob.pb14.into_pull_up_input(&mut gpiob.crh).erase(),
+        gpiob.pb15.into_pull_up_input(&mut gpiob.crh).erase(),
+        gpiob.pb0.into_pull_up_input(&mut gpiob.crl).erase(),
+        gpiob.pb1.into_pull_up_input(&mut gpiob.crl).erase(),
+        gpiob.pb10.into_pull_up_input(&mut gpiob.crh).erase(),
+        gpiob.pb11.into_pull_up_input(&mut gpiob.crh).erase(),
+    ];
+    // bxCAN on PB8 (RX, pulled up) and PB9 (TX), AFIO remap 2, as the application.
+    let can = Can::new(
+        dp.CAN.remap::<2>(&mut afio.mapr),
+        dp.USB,
+        (gpiob.pb9, gpiob.pb8.into_pull_up_input(&mut gpiob.crh)),
+        &mut rcc,
+    );
+    // The pull-ups need a moment to lift the open lines after the mode change.
+    cortex_m::asm::delay(SYSCLK_HZ / 10_000);
+    let dip = dip_pins.iter().enumerate().fold(0u8, |dip, (switch, pin)| {
+        dip | u8::from(pin.is_low()) << switch
+    });
+
+    // Node-ID and bit rate exactly as the application chooses them.
+    let stored = ParameterPage::new(flash::ParameterPages)
+        .stored()
+        .map(|(settings, _)| settings);
+    let (settings, _source) = node_config::select(dip, stored);
+    let node_id = settings
+        .node_id
+        .or(NodeId::new(UNCONFIGURED_NODE_ID).ok())
+        .unwrap_or_else(|| SCB::sys_reset());
+    let serial = node_config::serial_number(unique_id());
+
+    let mut can = bus::start(can, settings.bit_rate, node_id);
+    let mut slot = flash::Fpec::new(flash, watchdog);
+    let mut clock = Clock::start(cp.SYST);
+    let mut queue = bus::TxQueue::new();
+    let config = LoaderConfig::new(node_id, DEVICE, REVISION, serial);
+    let mut node = LoaderNode::new(config, &slot);
+    node.start(clock.now(), &mut queue);
+
+    loop {
+        slot.watchdog.feed();
+        let now = clock.now();
+        while let Some(frame) = bus::receive(&mut can) {
+            if node.on_frame(now, &frame, &mut slot, &mut queue) == Some(Request::Reset) {
+                reset_after(&mut can, &mut queue, &mut clock);
+            }
+        }
+        node.poll(clock.now(), &mut queue);
+        bus::transmit(&mut can, &mut queue);
+    }
+}
+
+/// Sends what is queued (the answer to "start"), for at most [`FLUSH_US`], then resets: the
+/// boot decision runs again.
+fn reset_after(can: &mut bus::Bxcan, queue: &mut bus::TxQueue, clock: &mut Clock) -> ! {
+    let until = clock.now().add_micros(FLUSH_US);
+    while (!queue.is_empty() || !can.is_transmitter_idle()) && clock.now() < until {
+        bus::transmit(can, queue);
+    }
+    queue.discard_pending();
+    SCB::sys_reset()
+}
+
+/// A panic resets: the boot decision again, and the loader if there is no application.
+#[panic_handler]
+fn panic(_: &core::panic::PanicInfo) -> ! {
+    SCB::sys_reset()
+}
