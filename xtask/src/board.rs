@@ -23,6 +23,9 @@ use crate::pyenv;
 pub const PACKAGE: &str = "tools/board-emu";
 /// The chip model it runs (its unit tests run with the board's).
 pub const CHIP: &str = "tools/stm32emu";
+/// The image header's seal at link time (`tools/seal/linker`); its unit tests run with the
+/// board's, as the board boots what it seals.
+pub const SEAL: &str = "tools/seal";
 
 /// The usage line of `cargo xtask board`.
 const USAGE: &str = "usage: cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] \
@@ -186,11 +189,15 @@ pub fn command<'a>(
     )
 }
 
-/// The chip model's and the board's unit tests (`tools/stm32emu/test_*.py`,
-/// `tools/board-emu/test_*.py`, pytest) with extra arguments, in a shell in the workspace
-/// root.
+/// The chip model's, the board's and the seal's unit tests (`tools/stm32emu/test_*.py`,
+/// `tools/board-emu/test_*.py`, `tools/seal/test_*.py`, pytest) with extra arguments, in a
+/// shell in the workspace root.
 pub fn unit_tests<'a>(sh: &'a Shell, python: &Path, elf: &Path, extra: &[&str]) -> Cmd<'a> {
-    cmd!(sh, "{python} -m pytest {CHIP} {PACKAGE} -q {extra...}").env("HANDWHEEL_BOARD_ELF", elf)
+    cmd!(
+        sh,
+        "{python} -m pytest {CHIP} {PACKAGE} {SEAL} -q {extra...}"
+    )
+    .env("HANDWHEEL_BOARD_ELF", elf)
 }
 
 #[cfg(test)]
