@@ -6,6 +6,10 @@
 //! put on the search path as well, for flip-link, which relinks in a directory of its own
 //! with a modified copy of this map.
 //!
+//! `header.x` (also at the root) places the application's image header in memory.x's HEADER
+//! region, before the vector table; the configuration's linker (tools/seal/linker) then seals
+//! it with the image's length and CRC.
+//!
 //! The link arguments live here (not in `.cargo/config.toml` rustflags) so that they apply to
 //! this package's binary and its on-target tests only, exactly once each.
 use std::{env, path::PathBuf};
@@ -14,6 +18,7 @@ fn main() {
     let root = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets it"));
     println!("cargo:rustc-link-search={}", root.display());
     println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=header.x");
     println!("cargo:rerun-if-changed=build.rs");
 
     // Only the MCU build links; a host `cargo check` of this package must not get these.
@@ -21,6 +26,8 @@ fn main() {
         // cortex-m-rt's script (it INCLUDEs memory.x), then defmt's symbol table.
         println!("cargo:rustc-link-arg=-Tlink.x");
         println!("cargo:rustc-link-arg=-Tdefmt.x");
+        // The image header before the vector table (it INSERTs into link.x's sections).
+        println!("cargo:rustc-link-arg=-Theader.x");
         // No page alignment of the output sections: the image is placed by memory.x alone.
         println!("cargo:rustc-link-arg=--nmagic");
     }

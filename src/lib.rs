@@ -15,6 +15,8 @@
 //!   errors, selections, bit-rate switches).
 //! - [`edge`]: the CAN side's access to the wheel state it shares with the edge task.
 //! - [`priority`]: the interrupt priorities the firmware programs itself.
+//! - [`image_header`]: the image header the resident loader checks (sealed at link time), and
+//!   [`handoff`]: the request to stay in the loader, written before the reset into it.
 //!
 //! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
 //! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' larger
@@ -26,6 +28,8 @@ pub mod board;
 pub mod can;
 pub mod edge;
 pub mod events;
+pub mod handoff;
+pub mod image_header;
 mod mem;
 pub use handwheel_device::node_config;
 #[cfg(feature = "stack-overflow-test")]

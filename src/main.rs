@@ -56,13 +56,13 @@ mod app {
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::info;
     use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
-    use handwheel_device::{HandwheelDevice, Node};
+    use handwheel_device::{CanIo, HandwheelDevice, Node};
     use handwheel_firmware::{
         board,
         can::{self, CanPort, CanSide, Mode, RxConsumer, RxProducer, RxQueue},
         edge,
         events::EventSet,
-        node_config, priority, round_log,
+        handoff, image_header, node_config, priority, round_log,
     };
     use rtic_monotonics::systick::prelude::*;
 
@@ -73,6 +73,13 @@ mod app {
     /// Watchdog timeout: several missed rounds of the CAN-side task (which sleeps at most
     /// `duties::MAX_SLEEP_MS`), longer than a flash page erase (up to 40 ms).
     const WATCHDOG_MS: u32 = 500;
+
+    /// How long the transmit path may take to drain before the reset into the loader, in
+    /// milliseconds: the SDO answer and what waits before it (a heartbeat, an EMCY; the feed
+    /// is off), each frame at most 135 bits, 13.5 ms at the slowest rate (10 kbit/s), well
+    /// under 1 ms at 125 kbit/s and up. Bounded: a bus that takes nothing must not keep the
+    /// node out of the loader.
+    const LOADER_DRAIN_MS: u32 = 50;
 
     /// The CANopen handwheel with its parameter page, as the step function `canopen` runs.
     type HandwheelNode = Node<DeviceStorage>;
@@ -129,7 +136,8 @@ mod app {
         // `node_config` yields node-IDs 1..=127, or 0xFF stored by LSS: unconfigured (`None`),
         // the device then answers LSS only.
         let node_id = settings.node_id;
-        let device = HandwheelDevice::with_settings(node_id, settings.bit_rate, serial, page);
+        let device = HandwheelDevice::with_settings(node_id, settings.bit_rate, serial, page)
+            .with_software_id(image_header::own_crc());
         let node = Node::new(device, settings.bit_rate);
 
         // The defaults' filter; `canopen` reprograms it once the device has loaded stored
@@ -264,6 +272,19 @@ mod app {
                 can.set_rx_filter(filter);
             }
             round_log::print(&out.log, can.counters);
+            if out.enter_loader {
+                // 0x1F51:1 = 0 was answered: let that answer reach the bus (a bounded wait,
+                // `LOADER_DRAIN_MS`), then reset into the loader, which stays
+                // (docs/FIRMWARE-UPDATE.md).
+                // A spin, not a sleep: nothing else of this task is left to do, and the CAN
+                // interrupts that drain the path and SysTick preempt it.
+                let start = Mono::now().ticks();
+                while can.transmit_state().waiting
+                    && Mono::now().ticks().wrapping_sub(start) < LOADER_DRAIN_MS
+                {}
+                info!("program control: stop, resetting into the loader");
+                handoff::reset_into_loader();
+            }
             // Whatever wakes the round (frames, the bus, the edge's `FEED_DUE`), the node
             // looks at everything.
             let wake_at =

@@ -14,7 +14,7 @@
 //! flash (an application an update wrote, the parameter pages) as `--flash` FILE holds it
 //! across runs (default: `target/board-emu/flash.bin`; the whole 64 KiB flash). The CPU
 //! boots the loader, which starts the application. `--loader auto` (the default) builds
-//! and flashes the loader when the workspace has its package (`loader/`) and the image is
+//! and flashes the loader (`loader/`) when the image is
 //! the release image; `none` runs the application alone, as before the loader (it starts
 //! as the loader would start it); FILE flashes that loader ELF. `--image stack-overflow`
 //! runs the test build that overflows its stack on purpose (feature `stack-overflow-test`)
@@ -24,19 +24,15 @@ use std::path::{Path, PathBuf};
 
 use xshell::{cmd, Cmd, Shell};
 
-use crate::fw::{board_cargo, FIRMWARE_TARGET};
 use crate::pyenv;
-use crate::workspace::{root_shell, target_dir, workspace_root};
 
 /// The server and launcher, relative to the workspace root.
 pub const PACKAGE: &str = "tools/board-emu";
 /// The chip model it runs (its unit tests run with the board's).
 pub const CHIP: &str = "tools/stm32emu";
-
-/// The resident loader's package (docs/FIRMWARE-UPDATE.md) and its directory: without it
-/// the board runs the application alone.
-pub const LOADER_PACKAGE: &str = "handwheel-loader";
-pub const LOADER_DIR: &str = "loader";
+/// The image header's seal at link time (`tools/seal/linker`); its unit tests run with the
+/// board's, as the board boots what it seals.
+pub const SEAL: &str = "tools/seal";
 
 /// The usage line of `cargo xtask board`.
 const USAGE: &str = "usage: cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] \
@@ -189,29 +185,13 @@ pub fn loader_elf(args: &Args) -> Result<Option<PathBuf>, String> {
         Loader::Off => Ok(None),
         Loader::File(path) => Ok(Some(path.clone())),
         Loader::Auto => {
-            let has_loader = workspace_root()
-                .join(LOADER_DIR)
-                .join("Cargo.toml")
-                .exists();
-            if args.image != Image::Release || !has_loader {
+            if args.image != Image::Release {
                 return Ok(None);
             }
-            let sh = &root_shell()?;
-            board_cargo(cmd!(
-                sh,
-                "cargo build --locked --release -p {LOADER_PACKAGE} --target {FIRMWARE_TARGET}"
-            ))?;
-            Ok(Some(release_loader_elf()))
+            crate::fw::loader_build()?;
+            Ok(Some(crate::fw::loader_elf()))
         }
     }
-}
-
-/// Where the release build puts the loader's ELF (beside the application's).
-pub fn release_loader_elf() -> PathBuf {
-    target_dir()
-        .join(FIRMWARE_TARGET)
-        .join("release")
-        .join(LOADER_PACKAGE)
 }
 
 /// The DIP switch as `--dip` takes it: binary `0b01100101` (switch n on = bit n-1, so the
@@ -264,14 +244,17 @@ pub fn command<'a>(
     )
 }
 
-/// The chip model's and the board's unit tests (`tools/stm32emu/test_*.py`,
-/// `tools/board-emu/test_*.py`, pytest) with extra arguments, in a shell in the workspace
-/// root; the tests of loader and application together find the loader beside `elf` (they
-/// are skipped while it is not built).
+/// The chip model's, the board's and the seal's unit tests (`tools/stm32emu/test_*.py`,
+/// `tools/board-emu/test_*.py`, `tools/seal/test_*.py`, pytest) with extra arguments, in a
+/// shell in the workspace root; the tests of loader and application together find the loader
+/// beside `elf` (they are skipped while it is not built).
 pub fn unit_tests<'a>(sh: &'a Shell, python: &Path, elf: &Path, extra: &[&str]) -> Cmd<'a> {
-    cmd!(sh, "{python} -m pytest {CHIP} {PACKAGE} -q {extra...}")
-        .env("HANDWHEEL_BOARD_ELF", elf)
-        .env("HANDWHEEL_LOADER_ELF", elf.with_file_name(LOADER_PACKAGE))
+    cmd!(
+        sh,
+        "{python} -m pytest {CHIP} {PACKAGE} {SEAL} -q {extra...}"
+    )
+    .env("HANDWHEEL_BOARD_ELF", elf)
+    .env("HANDWHEEL_LOADER_ELF", crate::fw::loader_elf())
 }
 
 #[cfg(test)]

@@ -211,10 +211,10 @@ fn described(index: u16) -> Result<Described, String> {
         .collect();
     Ok(Described {
         name: first.name.into(),
-        code: if first.is_header() {
-            ObjectCode::Record
-        } else {
-            ObjectCode::Var
+        code: match (first.is_header(), first.array) {
+            (true, true) => ObjectCode::Array,
+            (true, false) => ObjectCode::Record,
+            (false, _) => ObjectCode::Var,
         },
         subs,
     })

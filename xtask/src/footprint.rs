@@ -13,7 +13,8 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Where the STM32F103C8's memories sit (see `memory.x`).
+/// Where the STM32F103C8's memories sit (see `memory.x`): an image's flash is whatever it puts
+/// there (the application's header slot and image, or the loader).
 const FLASH: std::ops::Range<u32> = 0x0800_0000..0x0801_0000;
 const RAM: std::ops::Range<u32> = 0x2000_0000..0x2000_5000;
 
@@ -31,11 +32,15 @@ pub struct Budget {
 
 /// One allocated section.
 #[derive(Clone, Debug, PartialEq, Eq)]
-struct Section {
-    name: String,
-    addr: u32,
-    size: u32,
-    nobits: bool,
+pub struct Section {
+    /// Its name.
+    pub name: String,
+    /// Its address.
+    pub addr: u32,
+    /// Its size in bytes.
+    pub size: u32,
+    /// No bytes in the file (`.bss`, `.uninit`).
+    pub nobits: bool,
 }
 
 /// What an image uses.
@@ -160,7 +165,7 @@ pub fn check_readme(readme: &str, footprint: &Footprint) -> Result<(), String> {
 /// Sums the allocated sections of an ELF32 little-endian image by where they live.
 pub fn measure(elf: &[u8]) -> Result<Footprint, String> {
     let mut footprint = Footprint::default();
-    for section in sections(elf)? {
+    for section in elf_sections(elf)? {
         let in_flash = FLASH.contains(&section.addr);
         let in_ram = RAM.contains(&section.addr);
         let flash = if in_flash || (in_ram && !section.nobits) {
@@ -179,7 +184,8 @@ pub fn measure(elf: &[u8]) -> Result<Footprint, String> {
     Ok(footprint)
 }
 
-fn sections(elf: &[u8]) -> Result<Vec<Section>, String> {
+/// The allocated sections of an ELF32 little-endian image.
+pub fn elf_sections(elf: &[u8]) -> Result<Vec<Section>, String> {
     if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
         return Err("not an ELF file".into());
     }
@@ -219,14 +225,14 @@ fn sections(elf: &[u8]) -> Result<Vec<Section>, String> {
     Ok(out)
 }
 
-fn u32_at(bytes: &[u8], at: usize) -> Result<u32, String> {
+pub fn u32_at(bytes: &[u8], at: usize) -> Result<u32, String> {
     bytes
         .get(at..at + 4)
         .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .ok_or_else(|| format!("truncated ELF (offset {at:#x})"))
 }
 
-fn u16_at(bytes: &[u8], at: usize) -> Result<u16, String> {
+pub fn u16_at(bytes: &[u8], at: usize) -> Result<u16, String> {
     bytes
         .get(at..at + 2)
         .map(|b| u16::from_le_bytes([b[0], b[1]]))
@@ -350,7 +356,7 @@ mod tests {
         let (flash, ram) = stated(&readme).unwrap();
         let flash: f64 = flash.parse().unwrap();
         let ram: f64 = ram.parse().unwrap();
-        assert!(flash > 0.0 && flash <= 32.0, "{flash} KiB of flash");
+        assert!(flash > 0.0 && flash <= 40.0, "{flash} KiB of flash");
         assert!(ram > 0.0 && ram <= 4.0, "{ram} KiB of static RAM");
     }
 

@@ -1,31 +1,60 @@
-//! The firmware images: the release build with its footprint check, the stack-overflow test
-//! build, and the check that `cargo fw` builds the same image.
+//! The firmware images: the release application and the resident loader with their
+//! footprint checks and the application's update file, the stack-overflow test build, and
+//! the check that `cargo fw` builds the same image.
 
 use std::path::PathBuf;
 
 use xshell::{cmd, Cmd};
 
 use crate::workspace::{root_shell, target_dir, workspace_root};
-use crate::{footprint, linker, shell};
+use crate::{footprint, linker, shell, update};
 
 /// The MCU's target (STM32F103: Cortex-M3).
 pub const FIRMWARE_TARGET: &str = "thumbv7m-none-eabi";
 
-/// Release footprint budget: 32 KiB flash (what the services need, the image's history in
-/// docs/CHANGELOG.md), 4 KiB static RAM (RTT included). CI fails above it.
+/// The application's release footprint budget: 40 KiB flash with its image header (of the 50
+/// KiB slot, docs/FIRMWARE-UPDATE.md; the image's history in docs/CHANGELOG.md), 4 KiB static
+/// RAM (RTT included). CI fails above it.
 const RELEASE_BUDGET: footprint::Budget = footprint::Budget {
-    flash: 32 * 1024,
+    flash: 40 * 1024,
     ram: 4 * 1024,
 };
 
-/// Builds the release firmware and fails if it is over its footprint budget or the README's
-/// statement of its footprint is not the image's.
+/// The resident loader's budget: its 12 KiB of flash (memory.x's LOADER), 4 KiB static RAM.
+const LOADER_BUDGET: footprint::Budget = footprint::Budget {
+    flash: 12 * 1024,
+    ram: 4 * 1024,
+};
+
+/// The loader's package (`loader/`) and binary.
+const LOADER: &str = "handwheel-loader";
+
+/// What `cargo xtask fw` prints before the update file's path, at the start of its line.
+pub const UPDATE_LINE: &str = "update image:";
+
+/// Builds the release application and the loader, fails if either is over its footprint
+/// budget or the README's statement of the application's footprint is not the image's, and
+/// writes the application's update file (printing `update image: PATH`).
 pub fn firmware_build() -> Result<(), String> {
     release_build()?;
     let footprint = footprint_check()?;
+    loader_build()?;
+    footprint::check(&loader_elf(), "release loader", LOADER_BUDGET)?;
     let readme = std::fs::read_to_string(workspace_root().join("README.md"))
         .map_err(|e| format!("cannot read README.md: {e}"))?;
-    footprint::check_readme(&readme, &footprint)
+    footprint::check_readme(&readme, &footprint)?;
+    let path = update_file();
+    let image = update::write(&firmware_elf("release"), &path)?;
+    eprintln!(
+        "xtask: update file of {} B (header slot {} B, image {} B, CRC-32 {:#010x}) for {:#010x}",
+        image.bytes.len(),
+        image.slot,
+        image.bytes.len() - image.slot as usize,
+        image.crc,
+        image.address
+    );
+    println!("{UPDATE_LINE} {}", path.display());
+    Ok(())
 }
 
 /// `cargo fw`, the README's build, right after xtask's: it must compile nothing, since both
@@ -68,6 +97,36 @@ pub fn release_build() -> Result<(), String> {
     ))
 }
 
+/// Builds the release loader: a workspace of its own (`loader/Cargo.toml` says why), built
+/// into the root's target directory as `cargo loader` does.
+pub fn loader_build() -> Result<(), String> {
+    let sh = &root_shell()?;
+    let target = target_dir();
+    board_cargo(cmd!(
+        sh,
+        "cargo build --locked --release --manifest-path {LOADER_MANIFEST} --target {FIRMWARE_TARGET} --target-dir {target}"
+    ))
+}
+
+/// The loader's manifest, from the workspace root.
+pub const LOADER_MANIFEST: &str = "loader/Cargo.toml";
+
+/// The release loader's ELF.
+pub fn loader_elf() -> PathBuf {
+    target_dir()
+        .join(FIRMWARE_TARGET)
+        .join("release")
+        .join(LOADER)
+}
+
+/// The release application's update file (docs/FIRMWARE-UPDATE.md).
+pub fn update_file() -> PathBuf {
+    target_dir()
+        .join(FIRMWARE_TARGET)
+        .join("release")
+        .join("handwheel-firmware.update")
+}
+
 /// Prints the release firmware's footprint and fails if it is over its budget; returns it.
 pub fn footprint_check() -> Result<footprint::Footprint, String> {
     footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)
@@ -97,8 +156,8 @@ pub fn firmware_elf(profile: &str) -> PathBuf {
         .join("handwheel-firmware")
 }
 
-/// Runs cargo for a firmware image: linked by the configuration's flip-link, as `cargo fw`
-/// links (installed on first use; see `linker.rs`).
+/// Runs cargo for a firmware image: linked by the configuration's linker (flip-link, installed
+/// on first use, and the seal; see `linker.rs`), as `cargo fw` links.
 pub fn board_cargo(command: Cmd<'_>) -> Result<(), String> {
     shell::run(command.env("PATH", linker::flip_link()?.path))
 }

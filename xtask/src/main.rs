@@ -26,6 +26,7 @@ mod pyenv;
 mod shell;
 mod suites;
 mod test;
+mod update;
 mod wiring;
 mod workspace;
 
@@ -45,8 +46,11 @@ const USAGE: &str = "usage: cargo xtask <task>
 
 tasks:
   test                                  everything CI checks, the interop suite last
-  fw                                    release firmware for the board, with its footprint checked
-                                        against the budget and the README's statement of it
+  fw                                    release firmware for the board: the application and the
+                                        resident loader, their footprints checked against their
+                                        budgets (and the README's statement of the
+                                        application's), and the update file, its path printed
+                                        on a line `update image: PATH`
   board --can-port <P> --stim-port <Q>  the loader and the release image on the emulated board
         [--flash FILE] [--dip N]        (tools/board-emu), flashed as a probe flashes them:
         [--image release|stack-overflow] SLCAN on tcp:127.0.0.1:P (the CPU starts with the

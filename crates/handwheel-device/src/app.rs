@@ -1,4 +1,5 @@
-//! The handwheel's application objects (0x2000 and up, 0x6004) over the shared wheel.
+//! The handwheel's application objects (0x2000 and up, 0x6004) over the shared wheel, and
+//! the application's side of CiA 302-3 program download (0x1F51, 0x1F56, 0x1F57).
 
 use canopen_slave::{Application, NmtState, SdoAbort};
 use handwheel_core::{
@@ -7,8 +8,9 @@ use handwheel_core::{
 };
 
 use crate::od::{
-    stored_slot, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE, FEED_FORMAT,
-    FEED_SESSION, OD, STEP_BYTE, STORED, STORED_BYTES, STORED_LEN, WHEEL_READS, WHEEL_WRITES,
+    stored_slot, Program, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE,
+    FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, STEP_BYTE, STORED, STORED_BYTES, STORED_LEN,
+    WHEEL_READS, WHEEL_WRITES,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
@@ -181,6 +183,10 @@ pub struct FeedApp {
     /// whether TPDO1 is ready, so that every mapped object reads the same record however the
     /// edge task moves the wheel meanwhile.
     pub(crate) record: Option<FeedRecord>,
+    /// 0x1F56:1: the CRC-32 of the image that runs, its header's `crc`.
+    pub(crate) software_id: u32,
+    /// 0x1F51:1 = 0 ("stop") was answered: the firmware is to reset into the loader.
+    pub(crate) enter_loader: bool,
     /// The bug the feed checker's mutation tests run, if any.
     #[cfg(feature = "mutants")]
     pub(crate) mutant: Option<crate::mutant::Mutant>,
@@ -197,6 +203,8 @@ impl FeedApp {
             master_lost: false,
             transmit_blocked: false,
             record: None,
+            software_id: 0,
+            enter_loader: false,
             #[cfg(feature = "mutants")]
             mutant: None,
         }
@@ -229,6 +237,12 @@ impl<W: Wheel> Application for AppContext<'_, W> {
             *dst = src;
         }
         let value = u32::from_le_bytes(bytes);
+        if PROGRAM_OBJECTS
+            .iter()
+            .any(|&(i, s, p)| (i, s, p) == (index, sub, Program::Control))
+        {
+            return self.program_control(value);
+        }
         if let Some(route) = WHEEL_WRITES
             .iter()
             .find(|r| (r.index, r.sub) == (index, sub))
@@ -297,14 +311,16 @@ impl<W: Wheel> Application for AppContext<'_, W> {
     fn on_reset_application(&mut self) {
         let (nmt, master_lost) = (self.app.nmt, self.app.master_lost);
         let transmit_blocked = self.app.transmit_blocked;
+        let software_id = self.app.software_id;
         #[cfg(feature = "mutants")]
         let mutant = self.app.mutant;
         *self.app = FeedApp::new();
         // Engine and port state, not application state: the engine ends the loss itself, the
-        // stall watch the block.
+        // stall watch the block. The image's CRC is the image's.
         self.app.nmt = nmt;
         self.app.master_lost = master_lost;
         self.app.transmit_blocked = transmit_blocked;
+        self.app.software_id = software_id;
         #[cfg(feature = "mutants")]
         {
             self.app.mutant = mutant;
@@ -406,6 +422,19 @@ impl<W: Wheel> AppContext<'_, W> {
         let (value, size) = match app.parameters.get(index, sub) {
             Some(parameter) => parameter,
             None if (index, sub) == STEP_BYTE => (app.step_byte.into(), 1),
+            None if index & 0xFFF0 == 0x1F50 => {
+                let &(.., program) = PROGRAM_OBJECTS
+                    .iter()
+                    .find(|&&(i, s, _)| (i, s) == (index, sub))
+                    .ok_or(SdoAbort::NoObject)?;
+                match program {
+                    // The application runs: "started".
+                    Program::Control => (1, 1),
+                    Program::SoftwareId => (app.software_id, 4),
+                    // No download in progress, no error: downloads are the loader's.
+                    Program::FlashStatus => (0, 4),
+                }
+            }
             None => {
                 let route = WHEEL_READS
                     .iter()
@@ -439,6 +468,35 @@ impl<W: Wheel> AppContext<'_, W> {
     /// move the axis late.
     fn feed_may_run(&self) -> bool {
         self.app.nmt == NmtState::Operational && !self.app.master_lost && !self.app.transmit_blocked
+    }
+
+    /// 0x1F51:1 program control written with `value` (docs/FIRMWARE-UPDATE.md). Every write
+    /// is refused outside Pre-operational (0x08000022), as CiA 302-3 has it; values that mean
+    /// nothing to the application are refused in any state (0x06090030). "Stop" (0) is the
+    /// way into the loader: only with the feed disabled, like a store (the reset ends the
+    /// wheel's service); the SDO answer goes out first, then the firmware resets
+    /// ([`HandwheelDevice::loader_requested`](crate::HandwheelDevice::loader_requested)).
+    fn program_control(&mut self, value: u32) -> Result<(), SdoAbort> {
+        const STOP: u32 = 0;
+        const START: u32 = 1;
+        const CLEAR: u32 = 3;
+        if !matches!(value, STOP | START | CLEAR) {
+            return Err(SdoAbort::InvalidValue);
+        }
+        if self.app.nmt != NmtState::PreOperational {
+            return Err(SdoAbort::DeviceState);
+        }
+        match value {
+            STOP if self.wheel.lock(|w| w.feed.enabled()) => Err(SdoAbort::DeviceState),
+            STOP => {
+                self.app.enter_loader = true;
+                Ok(())
+            }
+            // Already started: the application is the program that runs.
+            START => Ok(()),
+            // Clearing the slot is the loader's: stop first.
+            _ => Err(SdoAbort::DeviceState),
+        }
     }
 
     fn set_parameters(&mut self, parameters: WheelParameters) {

@@ -139,6 +139,21 @@ impl<S: Storage> HandwheelDevice<S> {
         }
     }
 
+    /// The device with `crc` as 0x1F56:1 (program software identification): the `crc` of
+    /// the running image's header (docs/FIRMWARE-UPDATE.md), which the firmware reads from
+    /// flash; 0 until set.
+    #[must_use]
+    pub fn with_software_id(mut self, crc: u32) -> Self {
+        self.app.software_id = crc;
+        self
+    }
+
+    /// 0x1F51:1 = 0 ("stop") was answered: the firmware must reset into the resident loader
+    /// once the answer has left ([`Outputs::enter_loader`](crate::Outputs::enter_loader)).
+    pub fn loader_requested(&self) -> bool {
+        self.app.enter_loader
+    }
+
     /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
     pub fn start(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
         let mut ctx = AppContext {

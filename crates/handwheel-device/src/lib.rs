@@ -24,6 +24,9 @@
 //!   erase-and-program glue;
 //! - 0x1010, 0x1011 and LSS store are refused (0x08000022) while the feed is enabled: writing
 //!   flash stalls the CPU, and with it the wheel's edges;
+//! - 0x1F51:1 = 0 (CiA 302-3 "stop": reset into the resident loader for a firmware update) is
+//!   refused (0x08000022) unless Pre-operational with the feed disabled; once answered, the
+//!   node's [`Outputs::enter_loader`] tells the firmware to reset;
 //! - the paper's unit-step stream (0x2001 = 1) goes out on TPDO2, one frame per step, from a
 //!   bounded backlog.
 #![no_std]

@@ -81,6 +81,10 @@ pub struct Outputs {
     pub sleep_ms: u32,
     /// What to log.
     pub log: LogEvents,
+    /// A master stopped the application (0x1F51:1 = 0) and its answer is in the transmit
+    /// path: the caller lets the path drain, then resets into the resident loader
+    /// (docs/FIRMWARE-UPDATE.md). Once set, every later round says so again.
+    pub enter_loader: bool,
 }
 
 /// Where the node is in its life.
@@ -181,6 +185,7 @@ impl<S: Storage> Node<S> {
             .duties
             .sleep_ms(now_ms, now, deadline, self.bus)
             .min(self.rate_switch.sleep_cap_ms());
+        out.enter_loader = self.device.loader_requested();
         out
     }
 

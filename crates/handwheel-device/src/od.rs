@@ -17,6 +17,17 @@ use canopen_slave::{
 };
 use handwheel_core::{Axis, FeedRecord, FeedState, FeedStatus, Handwheel, DEFAULT_STEP_BACKLOG};
 
+/// Program control (CiA 302-3), sub 1: U8 rw. Reads 1 ("started": this is the application);
+/// writing 0 ("stop") resets into the resident loader, only in Pre-operational with the feed
+/// disabled; 1 ("start") is already done; 3 ("clear") is the loader's (stop first); 2 and
+/// other values are refused. docs/FIRMWARE-UPDATE.md.
+pub const PROGRAM_CONTROL: u16 = 0x1F51;
+/// Program software identification (CiA 302-3), sub 1: U32 ro, the `crc` of the application's
+/// own image header (the CRC-32 of the image that runs).
+pub const PROGRAM_SOFTWARE_ID: u16 = 0x1F56;
+/// Flash status identification (CiA 302-3), sub 1: U32 ro, 0 in the application (no download
+/// in progress, no error): downloads are the loader's.
+pub const FLASH_STATUS: u16 = 0x1F57;
 /// Feed enable: 1 = handwheel mode on. U8 rw, 0..1, default 0.
 pub const FEED_ENABLE: u16 = 0x2000;
 /// Feed format: 0 = feed record, 1 = the paper's unit-step stream. U8 rw, 0..1, default 0.
@@ -135,6 +146,9 @@ pub enum Behaviour {
     Stored,
     /// The unit-step byte in flight, which the device keeps for TPDO2.
     UnitStep,
+    /// One of CiA 302-3's program download objects, which the application answers for the
+    /// loader ([`Program`]).
+    Program(Program),
     /// Read from the wheel under its lock and, if writable, written there.
     Wheel {
         /// The value.
@@ -144,6 +158,18 @@ pub enum Behaviour {
         /// Writing 1 turns the feed on: refused (0x08000022) unless the device allows it now.
         enables_feed: bool,
     },
+}
+
+/// CiA 302-3's program download objects as the application has them: the download itself
+/// (0x1F50) is the resident loader's, the application's part is to reset into it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Program {
+    /// 0x1F51:1 program control.
+    Control,
+    /// 0x1F56:1 program software identification: the image's CRC-32.
+    SoftwareId,
+    /// 0x1F57:1 flash status identification: always 0 here.
+    FlashStatus,
 }
 
 /// One sub-index of an application object, as the dictionary, the stored record, the EDS
@@ -172,6 +198,9 @@ pub struct AppObject {
     pub mappable: bool,
     /// How it is read and written.
     pub behaviour: Behaviour,
+    /// On a header row: the object is an ARRAY (sub-indices of one type, as CiA 302-3 has
+    /// its objects), not a RECORD.
+    pub array: bool,
 }
 
 impl AppObject {
@@ -194,6 +223,7 @@ impl AppObject {
             refused: 0,
             mappable: false,
             behaviour,
+            array: false,
         }
     }
 
@@ -225,6 +255,25 @@ impl AppObject {
             default: highest as u32,
             ..Self::new(index, 0, name, DataType::U8, Behaviour::Header)
         }
+    }
+
+    /// The header row of an array with sub-indices 1..=`highest`.
+    const fn array(index: u16, name: &'static str, highest: u8) -> Self {
+        Self {
+            array: true,
+            ..Self::record(index, name, highest)
+        }
+    }
+
+    /// A program download object.
+    const fn program(index: u16, name: &'static str, data_type: DataType, p: Program) -> Self {
+        Self::new(index, 1, name, data_type, Behaviour::Program(p))
+    }
+
+    /// Writable, every value of its type passed to the write (which refuses what it must).
+    const fn writable(mut self) -> Self {
+        self.access = Access::Rw;
+        self
     }
 
     /// Writable within `min..=max`.
@@ -299,6 +348,25 @@ pub const APP_OBJECTS: &[AppObject] = {
     use DataType::{I32, U16, U32, U8};
     type O = AppObject;
     &[
+        O::array(PROGRAM_CONTROL, "Program control", 1),
+        // Reads 1: the application is the program that runs ("started").
+        O::program(PROGRAM_CONTROL, "Program control 1", U8, Program::Control)
+            .writable()
+            .default(1),
+        O::array(PROGRAM_SOFTWARE_ID, "Program software identification", 1),
+        O::program(
+            PROGRAM_SOFTWARE_ID,
+            "Program software identification 1",
+            U32,
+            Program::SoftwareId,
+        ),
+        O::array(FLASH_STATUS, "Flash status identification", 1),
+        O::program(
+            FLASH_STATUS,
+            "Flash status identification 1",
+            U32,
+            Program::FlashStatus,
+        ),
         O::wheel(FEED_ENABLE, 0, "Feed enable", U8, |state, _| {
             state.status.contains(FeedStatus::ENABLED).into()
         })
@@ -376,7 +444,15 @@ pub const APP_OBJECTS: &[AppObject] = {
 
 /// Notes the EDS carries before an object's section: what a master must know beyond the
 /// object's type and limits.
-pub const EDS_NOTES: [(u16, &str); 6] = [
+pub const EDS_NOTES: [(u16, &str); 7] = [
+    (
+        PROGRAM_CONTROL,
+        "0x1F51:1 program control (CiA 302-3): 0 (stop) resets into the resident loader, which
+takes a firmware update (0x1F50 there; its 0x1000 reads 0x544F4F42): accepted only in
+Pre-operational with the feed disabled, the answer goes out first. 1 (start): nothing to do;
+3 (clear, the loader's): 0x08000022; other values 0x06090030; any write outside
+Pre-operational 0x08000022. 0x1F56:1 is the running image's CRC-32.",
+    ),
     (
         0x1010,
         "0x1010 \"save\" and 0x1011 \"load\" write the parameter page (README \"Storing parameters\"):
@@ -441,9 +517,9 @@ const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
             );
         }
         let written = match o.behaviour {
-            Behaviour::Stored => true,
+            Behaviour::Stored | Behaviour::Program(Program::Control) => true,
             Behaviour::Wheel { write, .. } => write.is_some(),
-            Behaviour::Header | Behaviour::UnitStep => false,
+            Behaviour::Header | Behaviour::UnitStep | Behaviour::Program(_) => false,
         };
         assert!(
             written == o.access.writable(),
@@ -662,6 +738,36 @@ pub(crate) const STEP_BYTE: (u16, u8) = {
         Some(key) => key,
         None => panic!("no unit-step byte"),
     }
+};
+
+/// How many rows are program download objects.
+const PROGRAM_ROWS: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        if let Behaviour::Program(_) = APP_OBJECTS[i].behaviour {
+            n += 1;
+        }
+        i += 1;
+    }
+    n
+};
+
+/// The program download objects as the device's read and write paths look them up:
+/// `(index, sub, which)`.
+pub(crate) static PROGRAM_OBJECTS: [(u16, u8, Program); PROGRAM_ROWS] = {
+    let mut routes = [(0, 0, Program::Control); PROGRAM_ROWS];
+    let mut k = 0;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if let Behaviour::Program(p) = o.behaviour {
+            routes[k] = (o.index, o.sub, p);
+            k += 1;
+        }
+        i += 1;
+    }
+    routes
 };
 
 /// The whole dictionary; an unsorted or inconsistent table fails the build.

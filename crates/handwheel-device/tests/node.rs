@@ -453,3 +453,33 @@ fn a_debounced_selection_reaches_the_device_and_the_log() {
     }
     assert_eq!(seen, [(20, Some(Axis::Z), Multiplier::X100)]);
 }
+
+#[test]
+fn a_stop_of_the_program_asks_for_the_loader_after_its_answer() {
+    let mut r = Rig::new(true);
+    assert!(!r.poll(0).enter_loader);
+    // Operational: refused, and no reset.
+    r.receive(1, 0x000, &[0x01, NODE]);
+    let out = r.receive(
+        2,
+        0x600 + u16::from(NODE),
+        &[0x2F, 0x51, 0x1F, 1, 0, 0, 0, 0],
+    );
+    assert!(!out.enter_loader);
+    let abort = [0x80, 0x51, 0x1F, 1, 0x22, 0x00, 0x00, 0x08];
+    assert_eq!(r.sent_on(0x580 + u16::from(NODE)), [abort.to_vec()]);
+    // Pre-operational: the answer is in the transmit path when the round says "reset".
+    r.receive(3, 0x000, &[0x80, NODE]);
+    let out = r.receive(
+        4,
+        0x600 + u16::from(NODE),
+        &[0x2F, 0x51, 0x1F, 1, 0, 0, 0, 0],
+    );
+    assert!(out.enter_loader);
+    let answer = [0x60, 0x51, 0x1F, 1, 0, 0, 0, 0];
+    assert_eq!(
+        r.sent_on(0x580 + u16::from(NODE)).last(),
+        Some(&answer.to_vec())
+    );
+    assert!(r.poll(5).enter_loader, "until the firmware resets");
+}

@@ -65,9 +65,18 @@ impl Bench {
     }
 
     pub fn with_serial(storage: MemoryStorage, serial: u32) -> Self {
+        Self::with_device(HandwheelDevice::new(
+            NodeId::new(NODE).unwrap(),
+            serial,
+            storage,
+        ))
+    }
+
+    /// `device` (node-ID [`NODE`]) booted.
+    pub fn with_device(device: HandwheelDevice<MemoryStorage>) -> Self {
         let levels = AbLevels::from_bits(0);
         let mut bench = Self {
-            device: HandwheelDevice::new(NodeId::new(NODE).unwrap(), serial, storage),
+            device,
             wheel: LinkedWheel::local(DecoderConfig::default(), levels),
             now_us: 0,
             levels,

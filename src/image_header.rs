@@ -1,0 +1,67 @@
+//! The application's image header (docs/FIRMWARE-UPDATE.md): the first bytes of its slot,
+//! which the resident loader checks before it starts the application.
+//!
+//! The source defines it unsealed (`length` and `crc` all ones, erased flash); the link step
+//! seals the ELF (tools/seal: the image's length and CRC-32 written in), so every linked image
+//! carries its own. `header.x` places the section at `ORIGIN(HEADER)` (memory.x), right
+//! before the vector table.
+
+use handwheel_device::od::IDENTITY;
+
+/// The validity mark: the bytes "HWIM" as a little-endian word; the loader programs it last.
+pub const MAGIC: u32 = 0x4D49_5748;
+/// The header's layout version.
+pub const FORMAT: u16 = 1;
+/// The header's fields, in bytes; the rest of the slot is padding.
+pub const HEADER_SIZE: u16 = 32;
+/// The header slot: memory.x's HEADER (its vector table after it must be 512-byte aligned
+/// for VTOR); header.x checks that the section fills it exactly.
+pub const SLOT: usize = 512;
+
+/// The header as it lies in flash, little-endian.
+#[repr(C)]
+pub struct ImageHeader {
+    magic: u32,
+    format: u16,
+    header_size: u16,
+    vendor_id: u32,
+    product_code: u32,
+    version: u32,
+    /// Bytes of the image after the slot: set by the seal.
+    length: u32,
+    /// CRC-32 (zlib's) of those bytes: set by the seal.
+    crc: u32,
+    reserved: u32,
+    padding: [u8; SLOT - HEADER_SIZE as usize],
+}
+
+const _: () = assert!(core::mem::size_of::<ImageHeader>() == SLOT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, length) == 0x14);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, crc) == 0x18);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, padding) == HEADER_SIZE as usize);
+
+/// This image's header, unsealed in the source. `#[used]`: nothing in the code refers to it
+/// but [`own_crc`]; the loader reads it.
+#[link_section = ".image_header"]
+#[used]
+pub static IMAGE_HEADER: ImageHeader = ImageHeader {
+    magic: MAGIC,
+    format: FORMAT,
+    header_size: HEADER_SIZE,
+    vendor_id: IDENTITY.vendor_id,
+    product_code: IDENTITY.product_code,
+    version: IDENTITY.revision,
+    length: u32::MAX,
+    crc: u32::MAX,
+    reserved: u32::MAX,
+    padding: [0xFF; SLOT - HEADER_SIZE as usize],
+};
+
+/// The `crc` of this image's header as the seal wrote it into flash (0x1F56:1): the source's
+/// value is the unsealed one, so it is read from memory, never from the constant.
+pub fn own_crc() -> u32 {
+    // SAFETY: a read of a field of a `static`, through a reference: valid, aligned and never
+    // written while the program runs. Volatile so that the compiler reads the flash the seal
+    // patched instead of the initialiser it knows.
+    unsafe { core::ptr::read_volatile(&IMAGE_HEADER.crc) }
+}
