@@ -11,6 +11,7 @@ from rig import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
 # Objects whose value the firmware supplies at run time, not the EDS default.
 RUNTIME_VALUES = {
     (0x1018, 4),  # serial number: derived from the MCU's unique ID by the firmware
+    (0x1F56, 1),  # the running image's CRC-32, sealed into its header at link time
 }
 
 

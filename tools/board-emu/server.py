@@ -96,8 +96,9 @@ class Client:
 class Decoder:
     """`defmt-print -e ELF` fed through a pipe, its output on this process's stderr, started
     anew at every reset and with the other image's ELF when the CPU goes from one image to
-    the other (`restart`; `elfs`: image kind -> ELF). A decoder that exits is restarted too:
-    the board never dies of a broken log pipe."""
+    the other (`restart`; `elfs`: image kind -> ELF, only images that log with defmt). While
+    an image without a defmt log runs (the loader), nothing is decoded: it writes no RTT
+    log. A decoder that exits is restarted too: the board never dies of a broken log pipe."""
 
     def __init__(self, defmt_print: str, elfs: dict[str, str], kind: str) -> None:
         self.defmt_print = defmt_print
@@ -108,16 +109,23 @@ class Decoder:
         self._start()
 
     def _start(self) -> None:
+        if self.kind not in self.elfs:
+            self.proc = None
+            return
         command = [self.defmt_print, "-e", self.elfs[self.kind]]
         self.proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=sys.stderr)
 
     def write(self, data: bytes) -> None:
+        if self.proc is None:
+            return
         try:
             self.proc.stdin.write(data)
         except (BrokenPipeError, ValueError):
             self.restart()
 
     def flush(self) -> None:
+        if self.proc is None:
+            return
         try:
             self.proc.stdin.flush()
         except (BrokenPipeError, ValueError):
@@ -125,14 +133,16 @@ class Decoder:
 
     def restart(self, kind: str | None = None) -> None:
         """Ends the running decoder (it sees the end of its stream) and starts another, for
-        the image `kind` if its ELF is known (else the same)."""
+        the image `kind` (else the same)."""
         self.close()
         self.restarts += 1
-        if kind in self.elfs:
+        if kind is not None:
             self.kind = kind
         self._start()
 
     def close(self) -> None:
+        if self.proc is None:
+            return
         try:
             self.proc.stdin.close()
         except (BrokenPipeError, ValueError):
@@ -142,6 +152,14 @@ class Decoder:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
+
+
+def logs_with_defmt(elf: str) -> bool:
+    """Whether the ELF carries defmt's symbol table (the loader logs nothing)."""
+    from elftools.elf.elffile import ELFFile
+
+    with open(elf, "rb") as f:
+        return ELFFile(f).get_section_by_name(".defmt") is not None
 
 
 class Server:
@@ -607,10 +625,12 @@ def main() -> int:
     if args.log:
         out = open(args.log, "wb")
     elif args.defmt_print:
-        elfs = {kind: elf for kind, elf in ((LOADER, args.loader), (APPLICATION, args.elf)) if elf}
-        out = Decoder(
-            args.defmt_print, elfs, m.running() if m.running() in elfs else next(iter(elfs))
-        )
+        elfs = {
+            kind: elf
+            for kind, elf in ((LOADER, args.loader), (APPLICATION, args.elf))
+            if elf and logs_with_defmt(elf)
+        }
+        out = Decoder(args.defmt_print, elfs, m.running())
     else:
         out = sys.stdout.buffer
     server = Server(m, args.can_port, args.stim_port, out)

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use xshell::cmd;
 
-use crate::fw::{firmware_elf, overflow_build, release_build};
+use crate::fw::{firmware_elf, loader_build, overflow_build, release_build, update_file};
 use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
 use crate::{board, host, linuxcnc, pyenv, shell};
 
@@ -34,7 +34,13 @@ impl Board {
         let elf = match image {
             board::Image::Release => {
                 release_build()?;
-                firmware_elf("release")
+                let elf = firmware_elf("release");
+                // The board boots the loader, and the update tests send this file.
+                loader_build()?;
+                let update = update_file();
+                crate::update::write(&elf, &update)?;
+                env::set_var("HANDWHEEL_UPDATE_FILE", &update);
+                elf
             }
             board::Image::StackOverflow => overflow_build()?,
         };
