@@ -156,7 +156,7 @@ class ProgramDevice:
         if image.SLOT_HEADER + length > image.SLOT_SIZE:
             self.status = status(6)
             raise Abort(0x0504_0005)
-        if len(data) != image.SLOT_HEADER + length or zlib.crc32(data[image.SLOT_HEADER:]) != crc:
+        if len(data) != image.SLOT_HEADER + length or zlib.crc32(data[image.SLOT_HEADER :]) != crc:
             self.status = status(3)
             raise Abort(0x0800_0020)
         self.slot = bytes(data)

@@ -11,6 +11,7 @@ no answer is repeated is the planner's decision, since the device may have carri
 from __future__ import annotations
 
 import argparse
+import queue
 import sys
 import threading
 import time
@@ -190,10 +191,26 @@ def carry_out(
         if isinstance(step, update.Download):
             return download(device, step, data, out)
     except canopen.SdoAbortedError as e:
+        settle(device, sleep)
         return update.Aborted(e.code)
     except canopen.SdoCommunicationError as e:
+        settle(device, sleep)
         return update.NoAnswer(str(e))
     raise TypeError(f"unknown step {step!r}")
+
+
+# How long a failed SDO exchange may still bring answers in: the device answers a request
+# that crossed its abort (a segment after a toggle error gets "unknown command"), and an
+# answer the master gave up on may yet arrive.
+SETTLE = 0.2
+
+
+def settle(device: Device, sleep: Callable[[float], None] = time.sleep) -> None:
+    """After a failed exchange: waits for late answers, then drops them, so that the next
+    request reads its own answer and not one left over (python-canopen empties its queue
+    only before a request, not of answers that arrive after it was sent)."""
+    sleep(SETTLE)
+    device.node.sdo.responses = queue.Queue()
 
 
 def download(device: Device, step: update.Download, data: bytes, out: Optional[TextIO] = None):
@@ -227,6 +244,7 @@ def download(device: Device, step: update.Download, data: bytes, out: Optional[T
             if isinstance(e, canopen.SdoAbortedError)
             else update.NoAnswer(f"{e} after {sent} of {len(data)} bytes")
         )
+        settle(device)
         return reason
 
 

@@ -1,0 +1,304 @@
+"""The firmware update over CAN (issue 36, docs/FIRMWARE-UPDATE.md) on the emulated board as
+a flashed board is: the resident loader and the release application, python-canopen as the
+master through the host's own command, `canopen-handwheel update`, run as a user runs it.
+
+The master reaches the board through the rig's relay (`rig.relay`), which lets a test drop
+the device's frames or put a frame of its own on the bus. A new image is the release one with
+bytes appended to it and its header sealed again (`variant`): another length, CRC-32 and
+version, the same code, so that 0x1F56 shows which of the two runs.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import subprocess
+import sys
+import threading
+import time
+import zlib
+from contextlib import contextmanager
+from pathlib import Path
+
+import canopen
+import pytest
+
+from rig import Board
+from rig.constants import NODE_ID, START_TIMEOUT
+from rig.relay import Relay
+
+ROOT = Path(__file__).resolve().parents[2]
+UPDATE_FILE = Path(
+    os.environ.get(
+        "HANDWHEEL_UPDATE_FILE",
+        ROOT / "target" / "thumbv7m-none-eabi" / "release" / "handwheel-firmware.update",
+    )
+)
+HEADER_SLOT = 512  # docs/FIRMWARE-UPDATE.md: the header slot before the image
+SLOT_SIZE = 50 * 1024
+BOOT = 0x544F_4F42  # the loader's 0x1000
+SAVE = 0x6576_6173
+COMMAND = "import sys; from canopen_handwheel import cli; sys.exit(cli.main())"
+
+
+def variant(data: bytes, version: int, pad: int) -> bytes:
+    """`data` (an update file) with `pad` bytes of 0xFF appended to its image, its header's
+    version set to `version` and its length and CRC-32 sealed again."""
+    body = data[HEADER_SLOT:] + b"\xff" * pad
+    header = bytearray(data[:HEADER_SLOT])
+    struct.pack_into("<III", header, 0x10, version, len(body), zlib.crc32(body))
+    return bytes(header) + body
+
+
+def image_crc(data: bytes) -> int:
+    return struct.unpack_from("<I", data, 0x18)[0]
+
+
+@pytest.fixture(scope="module")
+def release() -> bytes:
+    data = UPDATE_FILE.read_bytes()
+    assert data[:4] == b"HWIM", f"{UPDATE_FILE} is not an update file (cargo xtask fw)"
+    return data
+
+
+@pytest.fixture
+def relay(board: Board):
+    r = Relay(board)
+    try:
+        r.device.wait_id(0x700 + NODE_ID, b"\x00", timeout=START_TIMEOUT)
+        yield r
+    finally:
+        r.close()
+
+
+@contextmanager
+def master(relay: Relay, node_id: int = NODE_ID):
+    """A python-canopen master on the relay's client port for a few SDO requests."""
+    network = canopen.Network()
+    network.connect(interface="slcan", channel=relay.channel, tty_baudrate=115200)
+    try:
+        node = network.add_node(node_id, canopen.ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = 1.0
+        yield network, node
+    finally:
+        network.disconnect()
+
+
+def read(node, index: int, sub: int) -> int:
+    return int.from_bytes(node.sdo.upload(index, sub), "little")
+
+
+def run_update(relay: Relay, path: Path, *options: str, timeout: float = 600):
+    """`canopen-handwheel update PATH` on the relay's port: (exit status, stdout, stderr)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "host" / "src"))
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-c", COMMAND, "update", str(path)]
+        + ["--interface", "slcan", "--channel", relay.channel]
+        + list(options),
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    print(f"update of {path.name}: exit {done.returncode} in {time.monotonic() - started:.1f} s")
+    print(done.stderr[-2000:])
+    return done.returncode, done.stdout, done.stderr
+
+
+def flash_ops(board: Board) -> dict[str, int]:
+    (reply,) = board.control("flash-ops")
+    fields = dict(item.split("=") for item in reply.split()[1:])
+    return {k: int(v) for k, v in fields.items() if v.lstrip("-").isdigit()}
+
+
+def test_an_update_runs_the_new_image_and_keeps_the_stored_settings(
+    board, relay, release, tmp_path
+):
+    """The stored heartbeat survives; 0x1F56 reads the new image's CRC-32 before and after
+    the update, 0x1000 the application's, and the loader never ran feed records."""
+    with master(relay) as (_, node):
+        assert read(node, 0x1F56, 1) == image_crc(release)
+        node.sdo.download(0x1017, 0, (250).to_bytes(2, "little"))
+        node.sdo.download(0x1010, 1, SAVE.to_bytes(4, "little"))
+    new = variant(release, version=7, pad=100)
+    path = tmp_path / "new.update"
+    path.write_bytes(new)
+    before = flash_ops(board)
+    started_ms = float(board.status()["ms"])
+    code, out, err = run_update(relay, path)
+    assert code == 0, err
+    assert f"0x{image_crc(new):08X}" in out, out
+    took_ms = float(board.status()["ms"]) - started_ms
+    ops = flash_ops(board)
+    print(f"update at 1 Mbit/s: {took_ms:.0f} ms emulated, {ops['ops'] - before['ops']} flash ops")
+    with master(relay) as (_, node):
+        assert read(node, 0x1000, 0) == 0, "the application runs"
+        assert read(node, 0x1F56, 1) == image_crc(new)
+        assert read(node, 0x1F57, 1) == 0
+        assert read(node, 0x1017, 0) == 250, "the stored heartbeat survived"
+    assert board.control("mode") == ["mode application"]
+    feed = [f for f in relay.device.frames() if f.id in (0x180 + NODE_ID, 0x280 + NODE_ID)]
+    assert not feed, "no feed record without a turn of the wheel"
+
+
+def flash_file(board: Board) -> bytes:
+    return Path(board.flash).read_bytes()
+
+
+def flash_ops_of(data: bytes) -> int:
+    """The flash operations a complete download of update file `data` takes: the header
+    page's erase at "clear", one erase per further page the stream reaches, one program per
+    half-word that is not 0xFFFF (the erase left those), the mark (two half-words) last."""
+    erases = -(-len(data) // 1024)
+    programs = sum(1 for i in range(4, len(data), 2) if data[i : i + 2] != b"\xff\xff")
+    return erases + programs + 2
+
+
+def test_power_cuts_during_a_download_leave_a_loader_that_takes_the_next_update(
+    board, relay, release, tmp_path
+):
+    """Power fails inside "clear"'s erase, before the first program, inside a page erase of
+    the stream, in the middle of the image and inside the mark's last half-word: each time
+    the board comes back in the loader, which answers SDO and reports "no valid program";
+    the loader's pages and the parameter pages are as they were; then a complete update runs
+    the image. (Every operation of clear, stream and mark is cut on the host:
+    crates/canopen-loader/tests.)"""
+    new = variant(release, version=9, pad=10)
+    path = tmp_path / "new.update"
+    path.write_bytes(new)
+    total = flash_ops_of(new)
+    kept = flash_file(board)
+    cuts = [(1, "inside"), (2, "before"), (1 + 512, "inside"), (total // 2, "inside")]
+    cuts.append((total, "inside"))
+    with master(relay) as (_, node):
+        enter_loader(relay, node)
+    for n, where in cuts:
+        with master(relay) as (_, node):
+            mark = relay.device.mark()
+            board.control(f"cut {n} {where}")
+            with pytest.raises(canopen.SdoCommunicationError):
+                node.sdo.download(0x1F51, 1, b"\x03")  # clear
+                download(node, new)
+        relay.device.wait_id(0x700 + NODE_ID, b"\x00", since=mark, timeout=5)
+        assert board.control("mode") == ["mode loader"], f"cut at operation {n}"
+        with master(relay) as (_, node):
+            assert read(node, 0x1000, 0) == BOOT
+            assert read(node, 0x1F57, 1) == 1 << 1, "no valid program"
+            assert read(node, 0x1F56, 1) == 0
+        now = flash_file(board)
+        assert now[:0x3000] == kept[:0x3000], "the loader's pages are untouched"
+        assert now[0xF800:] == kept[0xF800:], "the parameter pages are untouched"
+    assert flash_ops(board)["cuts"] == len([w for _, w in cuts if w == "inside"])
+    code, out, err = run_update(relay, path)
+    assert code == 0, err
+    with master(relay) as (_, node):
+        assert read(node, 0x1000, 0) == 0
+        assert read(node, 0x1F56, 1) == image_crc(new)
+    assert board.control("mode") == ["mode application"]
+
+
+def enter_loader(relay: Relay, node) -> None:
+    mark = relay.device.mark()
+    node.sdo.download(0x1F51, 1, b"\x00")
+    relay.device.wait_id(0x700 + NODE_ID, b"\x00", since=mark, timeout=5)
+    assert read(node, 0x1000, 0) == BOOT
+
+
+def download(node, data: bytes, size: int | None = None) -> int | None:
+    """0x1F50:1 = `data` (segmented, `size` indicated): the abort code, None if none."""
+    try:
+        stream = node.sdo.open(
+            0x1F50, 1, "wb", buffering=0, size=len(data) if size is None else size
+        )
+        sent = 0
+        while sent < len(data):
+            sent += stream.write(data[sent : sent + 7])
+        stream.close()
+    except canopen.SdoAbortedError as e:
+        return e.code
+    return None
+
+
+def small_image(release: bytes, body: bytes) -> bytearray:
+    header = bytearray(release[:HEADER_SLOT])
+    struct.pack_into("<II", header, 0x14, len(body), zlib.crc32(body))
+    return header + body
+
+
+def test_the_loader_refuses_another_devices_image_a_bad_crc_and_an_oversized_one(
+    relay, release, tmp_path
+):
+    """Each refusal gives the SDO abort and 0x1F57 code of docs/FIRMWARE-UPDATE.md, leaves no
+    valid program, and the next complete update succeeds."""
+    with master(relay) as (_, node):
+        enter_loader(relay, node)
+        cases = []
+        other = small_image(release, bytes(range(64)))
+        struct.pack_into("<I", other, 0x0C, struct.unpack_from("<I", other, 0x0C)[0] + 1)
+        cases.append(("another device", bytes(other), None, 0x0609_0030, 2))
+        bad_crc = small_image(release, bytes(range(64)))
+        bad_crc[HEADER_SLOT + 5] ^= 0xFF
+        cases.append(("a bad CRC", bytes(bad_crc), None, 0x0800_0020, 3))
+        cases.append(("too large", release, SLOT_SIZE + 2, 0x0504_0005, 6))
+        big = bytearray(release[:HEADER_SLOT] + bytes(16))
+        struct.pack_into("<I", big, 0x14, SLOT_SIZE)
+        cases.append(("a header too large", bytes(big), None, 0x0504_0005, 6))
+        for what, data, size, abort, status in cases:
+            node.sdo.download(0x1F51, 1, b"\x03")
+            assert read(node, 0x1F57, 1) & 1 == 0
+            assert download(node, data, size) == abort, what
+            assert read(node, 0x1F57, 1) == status << 1, what
+            assert read(node, 0x1F56, 1) == 0, what
+        # Data without "clear" first.
+        assert download(node, release[:64]) == 0x0800_0022
+        assert read(node, 0x1F57, 1) == 4 << 1
+    code, _, err = run_update(relay, UPDATE_FILE)
+    assert code == 0, err
+    with master(relay) as (_, node):
+        assert read(node, 0x1F56, 1) == image_crc(release)
+
+
+def test_a_dropped_answer_and_a_repeated_segment_cost_a_retry_each(board, relay, release, tmp_path):
+    """The device's answer to the 100th segment of the first download is lost (the host's
+    SDO request times out), and the 100th segment of the second reaches the device twice
+    (its toggle bit is wrong the second time: abort 0x05030000); the third download from
+    "clear" completes."""
+    answers = {"n": 0}
+
+    def hundredth_answer(frame) -> bool:
+        if frame.id != 0x580 + NODE_ID or frame.data[0] & 0xE0 != 0x20:
+            return False
+        answers["n"] += 1
+        return answers["n"] == 100
+
+    relay.drop(hundredth_answer)
+    new = variant(release, version=11, pad=20)
+    path = tmp_path / "new.update"
+    path.write_bytes(new)
+    done = {}
+
+    def repeat_a_segment() -> None:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and "sent" not in done:
+            requests = relay.host.frames(0x600 + NODE_ID)
+            initiates = [i for i, f in enumerate(requests) if f.data[:3] == b"\x21\x50\x1f"]
+            if len(initiates) >= 2:
+                segments = [f for f in requests[initiates[1] :] if f.data[0] & 0xE0 == 0]
+                if len(segments) >= 100:
+                    relay.send(0x600 + NODE_ID, segments[99].data, to_client=False)
+                    done["sent"] = segments[99]
+                    return
+            time.sleep(0.005)
+
+    repeater = threading.Thread(target=repeat_a_segment, daemon=True)
+    repeater.start()
+    code, _, err = run_update(relay, path, "--retries", "2")
+    repeater.join(1)
+    assert "sent" in done, "the repeated segment was never sent"
+    assert code == 0, err
+    assert "attempt 3 of 3" in err, err
+    assert "0x05030000" in err or "toggle" in err, err
+    with master(relay) as (_, node):
+        assert read(node, 0x1F56, 1) == image_crc(new)
+    assert board.control("mode") == ["mode application"]
