@@ -7,7 +7,9 @@ use xshell::cmd;
 
 use crate::bench::{machine_bench, stack_check};
 use crate::docs::wiring_check;
-use crate::fw::{board_cargo, firmware_build, firmware_elf, one_build_check, FIRMWARE_TARGET};
+use crate::fw::{
+    board_cargo, firmware_build, firmware_elf, one_build_check, FIRMWARE_TARGET, LOADER_MANIFEST,
+};
 use crate::lint::python_lint;
 use crate::suites::{
     board_unit_tests, feed_check, host_tests, interop, linuxcnc_suite, snippets_run,
@@ -16,7 +18,12 @@ use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
 use crate::{dbc, eds, footprint};
 
 /// Crates that must also build without `std` for the MCU.
-const NO_STD_CRATES: &[&str] = &["handwheel-core", "canopen-slave", "handwheel-device"];
+const NO_STD_CRATES: &[&str] = &[
+    "handwheel-core",
+    "canopen-slave",
+    "handwheel-device",
+    "canopen-loader",
+];
 /// The cargo-fuzz package (its own workspace: `cargo fuzz run` needs nightly).
 const FUZZ_MANIFEST: &str = "crates/canopen-slave/fuzz/Cargo.toml";
 /// Random frame sequences `cargo xtask test` runs through the fuzz target's body.
@@ -29,6 +36,10 @@ pub fn test() -> Result<(), String> {
     cargo(cmd!(
         sh,
         "cargo fmt --manifest-path {FUZZ_MANIFEST} -- --check"
+    ))?;
+    cargo(cmd!(
+        sh,
+        "cargo fmt --manifest-path {LOADER_MANIFEST} -- --check"
     ))?;
     python_lint()?;
     cargo(cmd!(sh, "cargo test --locked"))?;
@@ -53,6 +64,13 @@ pub fn test() -> Result<(), String> {
         sh,
         "cargo clippy --locked -p handwheel-firmware --target {FIRMWARE_TARGET} --all-targets
          -- -D warnings"
+    ))?;
+    // The resident loader (a workspace of its own), for the MCU; `firmware_build` builds it.
+    let target = target_dir();
+    board_cargo(cmd!(
+        sh,
+        "cargo clippy --locked --manifest-path {LOADER_MANIFEST} --target {FIRMWARE_TARGET}
+         --target-dir {target} -- -D warnings"
     ))?;
     firmware_build()?;
     one_build_check()?;
