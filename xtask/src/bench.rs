@@ -6,12 +6,13 @@ use xshell::cmd;
 use crate::fw::{firmware_elf, footprint_check, release_build};
 use crate::suites::Board;
 use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
-use crate::{linuxcnc, machine_bench, shell};
+use crate::{linuxcnc, machine_bench, pyenv, shell};
 
-/// The four benchmarks: 1. the feed protocol simulation (paper vs this project,
+/// The five benchmarks: 1. the feed protocol simulation (paper vs this project,
 /// with its plot), 2. the CPU cost of the release machine code in the emulator, 3. the
 /// release footprint by section and the worst-case stack, with their headroom, 4. detent to
-/// motion in LinuxCNC and the run-on after a fast spin ([`linuxcnc_bench`]).
+/// motion in LinuxCNC and the run-on after a fast spin ([`linuxcnc_bench`]), 5. the update
+/// over CAN at two bit rates ([`update_bench`]).
 pub fn bench() -> Result<(), String> {
     eprintln!("xtask: ## 1. Feed protocol");
     let sh = &root_shell()?;
@@ -26,8 +27,27 @@ pub fn bench() -> Result<(), String> {
     footprint_check()?;
     stack_check(&stack)?;
     eprintln!("xtask: ## 4. Detent to motion in LinuxCNC");
-    linuxcnc_bench()
+    linuxcnc_bench()?;
+    eprintln!("xtask: ## 5. Update over CAN");
+    update_bench()
 }
+
+/// `tests/interop/bench_update.py` (not part of the suite): the update over CAN of the
+/// release image through the loader on the emulated board at 1 Mbit/s and 125 kbit/s.
+pub fn update_bench() -> Result<(), String> {
+    Board::prepare()?;
+    let root = workspace_root();
+    let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
+    let sh = &shell::at(&root)?;
+    shell::run(cmd!(
+        sh,
+        "{python} -m pytest -q -s -p no:cacheprovider {UPDATE_BENCH}"
+    ))
+    .map_err(|e| format!("the update benchmark failed: {e}"))
+}
+
+/// The update benchmark's script.
+const UPDATE_BENCH: &str = "tests/interop/bench_update.py";
 
 /// `tests/linuxcnc/bench_motion.py` (not part of the suite) with the emulated board, its
 /// figures on stdout.

@@ -33,7 +33,7 @@ mod workspace;
 use std::env;
 use std::process::ExitCode;
 
-use bench::{bench, linuxcnc_bench};
+use bench::{bench, linuxcnc_bench, update_bench};
 use docs::docs;
 use fw::firmware_build;
 use interactive::{demo, linuxcnc_console, run_board};
@@ -88,12 +88,13 @@ tasks:
                                         cantools, SavvyCAN, Wireshark) from the object table for
                                         the default node-ID; --check: fail if the committed file
                                         differs; --node N: print node N's to stdout
-  bench [linuxcnc]                      1. feed protocol comparison (writes docs/feed-protocols.svg),
+  bench [linuxcnc|update]               1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
                                         worst-case stack, with their headroom, 4. detent to
                                         motion in LinuxCNC 2.9 (emulated board) and the run-on
-                                        after a fast spin (`linuxcnc`: only that)";
+                                        after a fast spin (`linuxcnc`: only that), 5. the update
+                                        over CAN at 1 Mbit/s and 125 kbit/s (`update`: only that)";
 
 fn main() -> ExitCode {
     let args: Vec<String> = env::args().skip(1).collect();
@@ -113,7 +114,8 @@ fn main() -> ExitCode {
         Some("bench") => match rest {
             [] => bench(),
             [part] if part == "linuxcnc" => linuxcnc_bench(),
-            _ => Err("usage: cargo xtask bench [linuxcnc]".into()),
+            [part] if part == "update" => update_bench(),
+            _ => Err("usage: cargo xtask bench [linuxcnc|update]".into()),
         },
         Some("docs") => docs(rest),
         Some("eds") => eds::run(&workspace_root(), &target_dir(), rest),
