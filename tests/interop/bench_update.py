@@ -13,15 +13,21 @@ from __future__ import annotations
 import time
 
 import pytest
+
 from rig import Board
 from rig.constants import START_TIMEOUT
 from rig.relay import Relay
-from test_update import flash_ops, release, run_update, variant  # noqa: F401 (a fixture)
+from test_update import UPDATE_FILE, flash_ops, run_update, variant
 
 BITS_PER_FRAME = 111  # an 8-byte data frame: 47 + 64 bits, before stuffing
 # The flash model's times (tools/stm32emu/periph.py `Fpec`; datasheet t_ERASE 20-40 ms,
 # t_prog 40-70 us): the CPU stalls for each.
 ERASE_S, PROGRAM_S = 0.020, 52.5e-6
+
+
+@pytest.fixture(scope="module")
+def release() -> bytes:
+    return UPDATE_FILE.read_bytes()
 
 
 @pytest.mark.parametrize("kbit, code", [(1000, 0), (125, 4)])
@@ -53,7 +59,8 @@ def test_update_time(tmp_path, release, kbit, code):
         print(
             f"\nupdate at {kbit} kbit/s: {len(new)} B file, {from_host} frames from the host, "
             f"{from_device} from the device; bus time at least {bus_s:.2f} s, flash time "
-            f"{flash_s:.2f} s ({erases} erases, {programs} programs), together {bus_s + flash_s:.2f} s; "
+            f"{flash_s:.2f} s ({erases} erases, {programs} programs), "
+            f"together {bus_s + flash_s:.2f} s; "
             f"device time {device_ms / 1000:.2f} s, wall time {wall:.1f} s"
         )
     finally:
