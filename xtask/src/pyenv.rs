@@ -173,7 +173,7 @@ pub const HOST_WORKERS: &str = "2";
 pub fn pytest<'a>(sh: &'a Shell, python: &Path, extra: &[String]) -> Cmd<'a> {
     cmd!(
         sh,
-        "{python} -m pytest {SUITE} -n {INTEROP_WORKERS} {extra...}"
+        "{python} -m pytest {SUITE} -n {INTEROP_WORKERS} --durations=12 {extra...}"
     )
 }
 
