@@ -267,3 +267,165 @@ def test_the_pin_exists_from_the_start(pin):
     args = component.parse_args(["--axes", "xz"])
     pins = component.HalPins(fake_hal, "hwp", component.config_from(args))
     assert pins.comp[pin] is False
+
+
+# Another master's update while the component runs -------------------------------------------------
+
+SDO_REQUEST, SDO_ANSWER = 0x600 + NODE, 0x580 + NODE
+
+
+def sdo_read(index: int, sub: int) -> bytes:
+    return bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0])
+
+
+def program_control(value: int) -> bytes:
+    """An expedited write of 0x1F51:1 (one byte)."""
+    return bytes([0x2F, 0x51, 0x1F, 0x01, value, 0, 0, 0])
+
+
+WRITTEN = bytes([0x60, 0x51, 0x1F, 0x01, 0, 0, 0, 0])
+REFUSED = bytes([0x80, 0x51, 0x1F, 0x01]) + (0x0800_0022).to_bytes(4, "little")
+
+
+def test_another_masters_sdo_exchange_holds_the_components_requests_back():
+    """An update reads the device, then sends NMT pre-operational: the session drops, but
+    the configuration (which would end with an NMT start and take the other master's
+    answers) waits until that master has sent no SDO request for FOREIGN_SDO_QUIET; logged
+    once."""
+    r = Run()
+    r.frame(SDO_REQUEST, sdo_read(0x1000, 0))
+    r.hb(core.PRE_OPERATIONAL, dt=0.05)
+    assert not r.c.configured
+    for _ in range(60):  # 3 s of requests, 0.05 s apart
+        r.frame(SDO_REQUEST, sdo_read(0x1F57, 1), dt=0.05)
+        assert r.c.next_action(r.at()) is None
+    r.c.tick(r.at(core.FOREIGN_SDO_QUIET - 0.01))
+    assert r.c.next_action(r.at()) is None
+    log = r.c.take_log()
+    assert sum("another master is exchanging SDO with node 16" in line for line in log) == 1
+    r.c.tick(r.at(0.02))
+    assert isinstance(r.c.next_action(r.at()), Configure)
+
+
+def test_the_feed_enable_waits_too():
+    r = Run()
+    r.c.set_enable(True)
+    r.record(0, flags=0)
+    r.frame(SDO_REQUEST, sdo_read(0x1018, 1))
+    for _ in range(19):  # records every 0.1 s (the event timer)
+        r.record(0, flags=0, dt=0.1)
+        assert r.c.next_action(r.at()) is None
+    r.record(0, flags=0, dt=0.1)
+    assert r.c.next_action(r.at()) == core.WriteFeed(1)
+
+
+def test_a_stop_confirmed_to_another_master_makes_the_next_boot_up_the_loaders():
+    """0x1F51:1 = 0 written by another master and confirmed by the device: the boot-up that
+    follows is the loader's (in-loader, logged, no request to it, whatever the time); the
+    start (0x1F51:1 = 1) confirmed and the application's boot-up: configured once the other
+    master is quiet, in-loader false, jogging again."""
+    r = Run()
+    r.c.set_enable(True)
+    r.record(0)
+    r.record(2)
+    assert r.counts()["x"] == 2
+    r.frame(SDO_REQUEST, sdo_read(0x2000, 0))
+    r.hb(core.PRE_OPERATIONAL)
+    r.frame(SDO_REQUEST, program_control(0))
+    r.frame(SDO_ANSWER, WRITTEN, dt=0.001)
+    r.hb(core.BOOTUP, dt=0.02)
+    assert r.c.in_loader and r.c.pins().in_loader and not r.c.configured
+    log = r.c.take_log()
+    assert any("is in its loader (another master stopped its program" in line for line in log)
+    for _ in range(40):  # the download
+        r.frame(SDO_REQUEST, bytes([0x00]) + bytes(7), dt=0.05)
+        assert r.c.next_action(r.at()) is None
+    r.hb(core.PRE_OPERATIONAL, dt=1.0)
+    r.c.tick(r.at(10.0))
+    assert r.c.next_action(r.at()) is None  # a loader is never asked on a timer
+    r.frame(SDO_REQUEST, program_control(1))
+    r.frame(SDO_ANSWER, WRITTEN, dt=0.001)
+    r.hb(core.BOOTUP, dt=0.05)
+    assert not any("in its loader" in line for line in r.c.take_log())  # once per stay
+    r.frame(SDO_REQUEST, sdo_read(0x1F56, 1), dt=0.01)
+    assert r.c.next_action(r.at()) is None
+    r.c.tick(r.at(core.FOREIGN_SDO_QUIET))
+    a = r.c.next_action(r.at())
+    assert isinstance(a, Configure)
+    r.c.done(a, True, None, r.at(), result(a))
+    assert r.c.configured and not r.c.pins().in_loader
+    r.record(10)
+    r.record(13)
+    assert r.counts()["x"] == 5
+
+
+@pytest.mark.parametrize(
+    "answer, delay",
+    [(REFUSED, 0.02), (None, 0.02), (WRITTEN, core.FOREIGN_SDO_QUIET + 1.0)],
+    ids=["refused", "unanswered", "boot-up long after"],
+)
+def test_a_boot_up_without_a_stop_just_confirmed_is_asked(answer, delay):
+    """A stop the device refused or did not answer, or a boot-up long after the stop: the
+    boot-up is not taken for the loader's; the component asks the device once the other
+    master is quiet."""
+    r = Run()
+    r.frame(SDO_REQUEST, program_control(0))
+    if answer is not None:
+        r.frame(SDO_ANSWER, answer, dt=0.001)
+    r.hb(core.BOOTUP, dt=delay)
+    assert not r.c.in_loader
+    r.c.tick(r.at(core.FOREIGN_SDO_QUIET))
+    assert isinstance(r.c.next_action(r.at()), Configure)
+
+
+def test_a_start_or_another_object_confirmed_is_no_stop():
+    for request in (program_control(1), bytes([0x2F, 0x51, 0x1F, 0x02, 0, 0, 0, 0])):
+        r = Run()
+        r.frame(SDO_REQUEST, request)
+        r.frame(SDO_ANSWER, bytes([0x60]) + request[1:4] + bytes(4), dt=0.001)
+        r.hb(core.BOOTUP, dt=0.02)
+        assert not r.c.in_loader
+
+
+def test_the_component_beside_another_masters_stop_and_start(capfd):
+    """The shell hands the SDO channel's frames to the core: on the virtual bus, another
+    master stops the application (0x1F51:1 = 0, confirmed) and the device boots up: the
+    component shows the loader without asking it anything while that master works; after
+    its start and the boot-up, and FOREIGN_SDO_QUIET without its requests, the component
+    configures and starts the application."""
+    channel = f"hwm-{time.monotonic_ns()}"
+    app = Device(channel)
+    running = Running(channel)
+    comp = running.comp
+    other = canopen.Network()
+    other.connect(interface="virtual", channel=channel, receive_own_messages=False)
+    try:
+        node = other.add_node(NODE, canopen.ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = 1.0
+        wait(lambda: app.seen(0x000, bytes([1, NODE])), what="configured and started")
+        mark = len(app.seen(SDO_REQUEST))
+        node.sdo.upload(0x1000, 0)
+        node.sdo.download(0x1F51, 1, b"\x00")
+        app.network.send_message(0x700 + NODE, bytes([core.BOOTUP]))  # the loader's
+        wait(lambda: comp["in-loader"], what="in-loader")
+        for _ in range(20):  # its download, 1 s
+            node.sdo.upload(0x1000, 0)
+            time.sleep(0.05)
+        node.sdo.download(0x1F51, 1, b"\x01")
+        started = time.monotonic()
+        app.network.send_message(0x700 + NODE, bytes([core.BOOTUP]))  # the application's
+        wait(lambda: not comp["in-loader"], timeout=5, what="in-loader false")
+        assert time.monotonic() - started >= core.FOREIGN_SDO_QUIET - 0.1
+        wait(lambda: len(app.seen(0x000, bytes([1, NODE]))) == 2, what="NMT start")
+        mine = [d for d in app.seen(SDO_REQUEST)[mark:] if d[:4] != b"\x40\x00\x10\x00"]
+        assert mine[0] == program_control(0)[:5] + bytes(3)  # python-canopen's own padding
+        later = [d[:4] for d in mine[1:]]
+        assert later[0] == program_control(1)[:4] and later[1] == b"\x40\x02\x20\x00", later
+    finally:
+        other.disconnect()
+        running.end()
+        app.close()
+    err = capfd.readouterr().err
+    assert "is in its loader (another master stopped its program" in err
+    assert "another master is exchanging SDO with node 16" in err
+    assert "the device runs its application again" in err

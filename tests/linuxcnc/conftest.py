@@ -16,6 +16,7 @@ import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Callable, Optional
 
 import can
 import canopen
@@ -30,6 +31,13 @@ TOL = 1e-6
 # The sim machine's servo period ([EMCMOT]SERVO_PERIOD) and the device's event timer.
 SERVO_PERIOD = 0.001
 EVENT_TIMER = 0.1
+
+
+def component_script() -> str:
+    """The installed `canopen-handwheel` console script."""
+    return os.environ.get("HANDWHEEL_COMPONENT") or str(
+        Path(sys.executable).parent / "canopen-handwheel"
+    )
 
 
 def start_emulator(tmp: Path, run: int) -> Board:
@@ -101,10 +109,10 @@ def last_change(samples, column: int):
 class Machine:
     """Everything of one run: emulator, stimulus, hub, listener, LinuxCNC."""
 
-    def __init__(self, tmp: Path) -> None:
-        component = os.environ.get("HANDWHEEL_COMPONENT") or str(
-            Path(sys.executable).parent / "canopen-handwheel"
-        )
+    def __init__(self, tmp: Path, prepare: Optional[Callable[["Machine"], None]] = None) -> None:
+        """`prepare`, if given, runs with the board, the hub and the listener up and before
+        LinuxCNC starts (the component's first look at the device comes after it)."""
+        component = component_script()
         user = os.environ.get("HANDWHEEL_LINUXCNC_USER") or None
         self.tmp = tmp
         self.runs = 1
@@ -117,6 +125,13 @@ class Machine:
         self.network.connect()
         self.hub.protect_current()  # the listener survives `break_clients`
         self.stim = Stimulus(self.board.stim_port, self.board)
+        if prepare is not None:
+            try:
+                prepare(self)
+            except BaseException:
+                print("--- board log ---\n" + "\n".join(self.board.log().splitlines()[-40:]))
+                self._close_steps(self._rig_steps())
+                raise
         self.cnc = SimMachine(component, self.hub.channel, tmp / "linuxcnc.log", user=user)
         self.cnc.connect()
 
@@ -250,31 +265,29 @@ class Machine:
         self.hub.attach(self.board.can_port)
         self.stim = Stimulus(self.board.stim_port, self.board)
 
+    def _rig_steps(self) -> tuple:
+        return (self.stim.close, self.network.disconnect, self.hub.close, self.board.stop)
+
     def close(self) -> None:
-        for step in (
-            self.cnc.stop,
-            self.stim.close,
-            self.network.disconnect,
-            self.hub.close,
-            self.board.stop,
-        ):
+        self._close_steps((self.cnc.stop,) + self._rig_steps())
+
+    @staticmethod
+    def _close_steps(steps) -> None:
+        for step in steps:
             try:
                 step()
             except Exception as e:
                 print(f"teardown {step}: {e!r}")
 
 
-@pytest.fixture(scope="module")
-def machine(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("linuxcnc")
-    m = Machine(tmp)
+@contextmanager
+def running_machine(tmp: Path, ready, what: str, prepare=None):
+    """A `Machine` (its `prepare` run before LinuxCNC starts) with the machine switched on
+    and `ready(status)` true; its logs' last lines printed if anything fails."""
+    m = Machine(tmp, prepare)
     try:
         m.cnc.must("on")
-        m.wait(
-            lambda s: s["pins"]["connected"] and s["pins"]["state"] == 5,
-            30,
-            "handwheel connected and Operational",
-        )
+        m.wait(ready, 30, what)
         yield m
     except BaseException:
         print("--- LinuxCNC log ---\n" + m.cnc.tail(80))
@@ -282,3 +295,31 @@ def machine(tmp_path_factory):
         raise
     finally:
         m.close()
+
+
+@pytest.fixture(scope="module")
+def machine(tmp_path_factory):
+    with running_machine(
+        tmp_path_factory.mktemp("linuxcnc"),
+        lambda s: s["pins"]["connected"] and s["pins"]["state"] == 5,
+        "handwheel connected and Operational",
+    ) as m:
+        yield m
+
+
+@contextmanager
+def master(channel: str, timeout: float = 1.0):
+    """A python-canopen master of its own on the hub (`channel`) for a few SDO requests to
+    the device: (network, node)."""
+    network = canopen.Network()
+    network.connect(interface="slcan", channel=channel, sleep_after_open=0)
+    try:
+        node = network.add_node(NODE_ID, canopen.ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = timeout
+        yield network, node
+    finally:
+        network.disconnect()
+
+
+def read_u32(node, index: int, sub: int) -> int:
+    return int.from_bytes(node.sdo.upload(index, sub), "little")

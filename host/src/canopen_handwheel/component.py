@@ -481,6 +481,8 @@ class Link:
         try:
             self.network = canopen.Network(self.bus)
             self.device_ids = {0x180 + args.node, 0x080 + args.node, 0x700 + args.node}
+            # Another master's SDO requests (the core holds its own back meanwhile).
+            self.sdo_request = 0x600 + args.node
             self.node = self.network.add_node(args.node, args.eds or default_eds())
             self.sdo_response = self.node.sdo.tx_cobid
             # When (the main loop's clock) the last SDO response was handled: a
@@ -500,7 +502,8 @@ class Link:
 
     def receive(self, c: core.Core, clock: Callable[[], float], wait: float, budget: float):
         """Reads the bus for up to `budget` seconds (the first read waits up to `wait`):
-        the device's frames to the core, SDO responses to python-canopen; when a read finds
+        the device's frames to the core, SDO responses to python-canopen and the core (which
+        also sees another master's SDO requests: `core.FOREIGN_SDO_QUIET`); when a read finds
         nothing, `Core.drained` with the time taken before that read (and the heartbeat is
         told that the loop keeps up). A bus that raises is marked failed."""
         end = clock() + budget
@@ -531,6 +534,9 @@ class Link:
             elif data_frame and cob_id == self.sdo_response:
                 self.sdo_reply_at = now
                 self.network.notify(cob_id, msg.data, msg.timestamp)
+                c.frame(cob_id, bytes(msg.data), now)  # also answers to another master
+            elif data_frame and cob_id == self.sdo_request:
+                c.frame(cob_id, bytes(msg.data), now)  # never the component's own
             if clock() >= end:
                 return
 

@@ -283,6 +283,17 @@ ABORT_DEVICE_STATE = 0x08000022
 # answers with it runs no application and sends no feed records.
 LOADER_DEVICE_TYPE = 0x544F_4F42
 
+# Another master's SDO exchange with the device (`canopen-handwheel update`, a configuration
+# tool): CiA 301's default SDO channel (0x600 + node, 0x580 + node) serves one client at a
+# time, and either client takes the other's answer for its own, so the component sends no
+# SDO request until that master has sent none for this long. Longer than the gaps inside a
+# program download (0x1F57 polled every 0.05 s; the boot-up after "start" comes within
+# milliseconds on the board), short against a person's pause.
+FOREIGN_SDO_QUIET = 2.0
+# Program control 0x1F51:1 (CiA 302-3): "stop" resets the application into its loader.
+PROGRAM_CONTROL = b"\x51\x1f\x01"
+PROGRAM_STOP = 0
+
 # The event timer written when the device has none (0x1800:5 = 0) or one outside the range,
 # and assumed until the first configuration when `--event-timer-ms` is not given (the
 # device's default, too). At most 1 s: three periods of silence (staleness) then stay within
@@ -899,6 +910,13 @@ class Core:
     # record, the bus opened again); none on a timer, since SDO requests of the component
     # would break a program download under way.
     in_loader: bool = False
+    # Another master's SDO requests (`FOREIGN_SDO_QUIET`): when the last one was seen, and
+    # its expedited write of 0x1F51:1 waiting for the device's answer; when the device
+    # confirmed a "stop": a boot-up soon after it is its loader's.
+    foreign_sdo_at: Optional[float] = None
+    holding_logged: bool = False
+    program_request: Optional[int] = None
+    program_stopped_at: Optional[float] = None
     log: Deque[str] = field(default_factory=lambda: collections.deque(maxlen=LOG_LINES))
     # Actions.
     config_due: float = 0.0  # configure at this time (without a session)
@@ -928,6 +946,10 @@ class Core:
             self._emcy(bytes(data))
         elif cob_id == 0x700 + node:
             self._heartbeat(bytes(data), now)
+        elif cob_id == 0x600 + node:
+            self._foreign_sdo_request(bytes(data))
+        elif cob_id == 0x580 + node:
+            self._sdo_response(bytes(data))
 
     def drained(self, now: float) -> None:
         """The shell found its receive path empty at a moment not before `now`: every frame
@@ -1074,13 +1096,13 @@ class Core:
         else:
             self.check_at = self.now + self.cfg.retry
 
-    def _loader_found(self) -> None:
-        """The device answered as its loader: no session, nothing to configure, until its
-        boot-up (after an update, or `reconnected`, or a record) says an application may
-        run. Logged once per stay."""
+    def _loader_found(self, how: str = '0x1000 = "BOOT"') -> None:
+        """The device answered as its loader (or booted after another master stopped its
+        program): no session, nothing to configure, until its boot-up (after an update, or
+        `reconnected`, or a record) says an application may run. Logged once per stay."""
         if not self.in_loader:
             self.log.append(
-                f'node {self.cfg.node} is in its loader (0x1000 = "BOOT"), not its '
+                f"node {self.cfg.node} is in its loader ({how}), not its "
                 "application: no jogging; waiting for its boot-up (`canopen-handwheel update "
                 "FILE` installs an application)"
             )
@@ -1193,7 +1215,7 @@ class Core:
         enable. 0x2000 = 1 only while the newest record is of the host's session and shows
         the feed off."""
         self.tick(now)
-        if self.pending is not None:
+        if self.pending is not None or self._holding_back():
             return None
         action: Optional[Action] = None
         if self.session is None:
@@ -1232,6 +1254,22 @@ class Core:
         return Configure(
             self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms, keep, tokens
         )
+
+    def _holding_back(self) -> bool:
+        """Another master's SDO exchange is under way (`FOREIGN_SDO_QUIET`): no request of
+        the component now. Logged once per exchange."""
+        if self.foreign_sdo_at is None:
+            return False
+        if self.now - self.foreign_sdo_at < FOREIGN_SDO_QUIET:
+            if not self.holding_logged:
+                self.holding_logged = True
+                self.log.append(
+                    f"another master is exchanging SDO with node {self.cfg.node}: no request "
+                    f"of the component until it has been quiet for {FOREIGN_SDO_QUIET:g} s"
+                )
+            return True
+        self.holding_logged = False
+        return False
 
     def shutdown_action(self) -> Optional[Action]:
         """What to do before the component exits: disable the feed, whatever the last
@@ -1512,6 +1550,25 @@ class Core:
             if self.stop_seen is not None:
                 self._stopped()
 
+    def _foreign_sdo_request(self, data: bytes) -> None:
+        """An SDO request to the device that the component did not send (the shell never
+        receives its own frames): another master's exchange (`FOREIGN_SDO_QUIET`). An
+        expedited write of 0x1F51:1 is remembered until the device answers it."""
+        self.foreign_sdo_at = self.now
+        expedited_write = len(data) == 8 and data[0] & 0xE2 == 0x22
+        control = expedited_write and data[1:4] == PROGRAM_CONTROL
+        self.program_request = data[4] if control else None
+
+    def _sdo_response(self, data: bytes) -> None:
+        """The device's SDO answer (to the component or another master): a confirmed write
+        of 0x1F51:1 = "stop" (the component writes none) means that the boot-up following
+        it is the loader's."""
+        if self.program_request is None or len(data) != 8 or data[1:4] != PROGRAM_CONTROL:
+            return
+        if data[0] == 0x60 and self.program_request == PROGRAM_STOP:  # confirmed
+            self.program_stopped_at = self.now
+        self.program_request = None
+
     def _heartbeat(self, data: bytes, now: float) -> None:
         if len(data) != 1:
             self._bad()
@@ -1529,6 +1586,11 @@ class Core:
                 # Its outcome counts only if the device answered it after this boot-up
                 # (`done`); another one now would only run after it, in the same worker.
                 self.booted_during = self.now
+            stopped, self.program_stopped_at = self.program_stopped_at, None
+            if stopped is not None and self.now - stopped <= FOREIGN_SDO_QUIET:
+                # Another master stopped the program (an update): the loader booted. Asking
+                # it (0x2002, 0x1000) would break that master's exchange.
+                self._loader_found("another master stopped its program: 0x1F51:1 = 0")
         elif state in (PRE_OPERATIONAL, STOPPED):
             if self.feed_on and not self.asked_off:
                 self._report_stop(STOP_NOT_OPERATIONAL)
@@ -1661,8 +1723,9 @@ COMPONENT_PINS = [
         "in-loader",
         "bit",
         "out",
-        "the device answered as its resident loader (0x1000 = BOOT): no application, no "
-        "jogging; false once it answers as its application",
+        "the device answered as its resident loader (0x1000 = BOOT), or booted right after "
+        "another master stopped its program: no application, no jogging; false once it "
+        "answers as its application",
     ),
 ]
 
