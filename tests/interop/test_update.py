@@ -316,3 +316,50 @@ def test_a_dropped_answer_and_a_repeated_segment_cost_a_retry_each(board, relay,
     with master(relay) as (_, node):
         assert read(node, 0x1F56, 1) == image_crc(new)
     assert board.control("mode") == ["mode application"]
+
+
+def test_the_loader_answers_at_the_stored_node_id_and_bit_rate(board, relay, release):
+    """Node-ID 7 and 125 kbit/s stored by LSS (DIP switch off): the application's 0x1F51
+    stop is refused while the feed is enabled; in Pre-operational with the feed off the node
+    resets into its loader, which boots up at node 7 on the 125 kbit/s bus and reads the
+    application's CRC-32 in 0x1F56; "start" boots the application, at node 7 again."""
+    from canopen.lss import LssMaster
+
+    with master(relay) as (network, node):
+        lss = network.lss
+        lss.RESPONSE_TIMEOUT = 1.0
+        lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
+        lss.configure_node_id(7)
+        lss.configure_bit_timing(4)  # CiA 301's table: 125 kbit/s
+        lss.store_configuration()
+        lss.send_switch_state_global(LssMaster.WAITING_STATE)
+    board.control("rate 125")
+    powered = relay.device.mark()
+    board.control("power")
+    relay.device.wait_id(0x707, b"\x00", since=powered, timeout=10)
+    with master(relay, node_id=7) as (network, node):
+        network.send_message(0x000, bytes([0x01, 7]))  # NMT start
+        time.sleep(0.1)
+        node.sdo.download(0x2000, 0, b"\x01")  # feed enabled
+        with pytest.raises(canopen.SdoAbortedError) as refused:
+            node.sdo.download(0x1F51, 1, b"\x00")
+        assert refused.value.code == 0x0800_0022
+        node.sdo.download(0x2000, 0, b"\x00")
+        network.send_message(0x000, bytes([0x80, 7]))  # NMT pre-operational
+        time.sleep(0.1)
+        mark = relay.device.mark()
+        node.sdo.download(0x1F51, 1, b"\x00")
+        relay.device.wait_id(0x707, b"\x00", since=mark, timeout=5)
+        assert board.control("mode") == ["mode loader"]
+        assert read(node, 0x1000, 0) == BOOT
+        assert read(node, 0x1018, 2) == 0x8000_0001, "the loader of product 1"
+        assert read(node, 0x1F56, 1) == image_crc(release), "the application is still valid"
+        assert read(node, 0x1F57, 1) == 0
+        assert read(node, 0x1F51, 1) == 0, "stopped"
+        mark = relay.device.mark()
+        node.sdo.download(0x1F51, 1, b"\x01")  # start
+        relay.device.wait_id(0x707, b"\x00", since=mark, timeout=5)
+        assert board.control("mode") == ["mode application"]
+        assert read(node, 0x1000, 0) == 0
+        assert read(node, 0x1F51, 1) == 1, "started"
+    assert not relay.device.frames(0x710, since=powered), "nothing at node 16 after the store"
