@@ -8,7 +8,7 @@
 mod common;
 
 use canopen_loader::layout::PAGE_SIZE;
-use canopen_loader::MAGIC;
+use canopen_loader::{SlotFlash, MAGIC};
 use common::{header_of, image, Bench, Cut, CutFlash};
 
 /// A flash holding `old` as a complete, valid update.
@@ -142,4 +142,53 @@ fn a_stream_that_ends_short_leaves_the_mark_erased() {
     assert_eq!(&bench.flash.slot()[4..32], &new[4..32]);
     assert_eq!(bench.valid(), None);
     assert_eq!(bench.program_state(), (0, 0, 3 << 1));
+}
+
+/// An updater without the loader's order: it erases the pages, then programs the file as it
+/// comes, the mark first (the file starts with it).
+fn naive_update(flash: &mut CutFlash, file: &[u8]) -> bool {
+    for page in 0..file.len().div_ceil(PAGE_SIZE) {
+        if flash.erase(page).is_err() {
+            return false;
+        }
+    }
+    for (i, pair) in file.chunks(2).enumerate() {
+        let value = u16::from_le_bytes([pair[0], pair.get(1).copied().unwrap_or(0xFF)]);
+        if value != 0xFFFF && flash.program(2 * i, value).is_err() {
+            return false;
+        }
+    }
+    true
+}
+
+/// The cuts find the hole they guard against: with the mark programmed first, a cut in the
+/// stream leaves a slot that carries a complete mark over a partial image, which a boot
+/// check of the mark alone would start. The loader's boot check (the CRC over the image)
+/// refuses every one of them; its own order (`a_cut_anywhere_boots_the_new_image_or_the_loader`)
+/// never makes one.
+#[test]
+fn the_cuts_find_a_mark_written_first() {
+    let new = image(2, 2 * PAGE_SIZE + 301);
+    let mut marked_but_partial = 0;
+    let mut op = 0;
+    loop {
+        let mut flash = CutFlash::new();
+        flash.cut = Some(Cut::Inside(op, 17 + op as u64));
+        let finished = naive_update(&mut flash, &new);
+        let after = flash.powered_up();
+        let mark = u32::from_le_bytes(after.slot()[..4].try_into().unwrap());
+        if mark == MAGIC && !common::slot_holds(&after, &new) {
+            marked_but_partial += 1;
+            assert_eq!(Bench::boot(after).valid(), None, "cut inside {op}");
+        }
+        if finished {
+            break;
+        }
+        op += 1;
+    }
+    assert!(op > 1000, "{op} operations");
+    assert!(
+        marked_but_partial > op / 2,
+        "{marked_but_partial} of {op} cuts left a mark over a partial image"
+    );
 }
