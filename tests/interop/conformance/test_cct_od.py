@@ -5,7 +5,8 @@ from canopen.objectdictionary import ODVariable
 
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
 
-RUNTIME_VALUES = {(0x1018, 4)}  # serial number from the MCU
+# The serial number (from the MCU) and the running image's CRC-32 (sealed at link time).
+RUNTIME_VALUES = {(0x1018, 4), (0x1F56, 1)}
 
 
 def variables(rig, low, high):
