@@ -102,8 +102,8 @@ pub fn snippets_run() -> Result<(), String> {
     })
 }
 
-/// `cargo xtask feed-check`: the feed contract's exhaustive bounded check, in release mode (a
-/// few million states), then the vectors for the component's rule, whose path the host tests
+/// `cargo xtask feed-check`: the feed contract's exhaustive bounded check, optimised with
+/// overflow checks (the `harness` profile; a few million states), then the vectors for the component's rule, whose path the host tests
 /// that follow read from `HANDWHEEL_FEED_VECTORS`.
 pub fn feed_check(only: &[String]) -> Result<(), String> {
     let vectors = target_dir().join("feed-check").join("vectors.jsonl");
@@ -112,7 +112,7 @@ pub fn feed_check(only: &[String]) -> Result<(), String> {
     let sh = &root_shell()?;
     cargo(cmd!(
         sh,
-        "cargo run --locked --release -q -p feed-check -- --vectors {vectors} {only...}"
+        "cargo run --locked --profile harness -q -p feed-check -- --vectors {vectors} {only...}"
     ))?;
     env::set_var("HANDWHEEL_FEED_VECTORS", &vectors);
     Ok(())

@@ -13,7 +13,7 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 }
 
 /// A CRC-32 computed over data that arrives in pieces (flash read in chunks).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Crc32(u32);
 
 impl Default for Crc32 {

@@ -113,7 +113,7 @@ pub trait Application {
 }
 
 /// Run-time configuration of the device.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Config {
     /// Our node-ID at power-on; `None`: unconfigured (CiA 305 node-ID 0xFF), the node sends
     /// no boot-up and answers only LSS until a master gives it a node-ID.
@@ -148,7 +148,7 @@ impl Config {
 }
 
 /// Counters of things that went wrong without stopping the engine.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Stats {
     /// Frames the sink refused. TPDOs and EMCYs are retried later; SDO replies,
@@ -161,12 +161,12 @@ pub struct Stats {
 }
 
 /// [`Device::request_tpdo`] was given a PDO number the device does not have.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct NoSuchPdo;
 
 /// A CANopen device.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Hash)]
 pub struct Device<S> {
     sdo: SdoServer,
     /// LSS (CiA 305): it also owns the node-ID the next reset of communication activates.
@@ -176,7 +176,7 @@ pub struct Device<S> {
 
 /// Everything but the SDO server, so that the server can borrow the objects mutably while
 /// it runs (the same split as smoltcp's `Interface` / `InterfaceInner`).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Hash)]
 struct Inner<S> {
     /// The NMT state and the communication objects' services.
     comm: Comm,

@@ -40,7 +40,7 @@ pub mod code {
 }
 
 /// Why an error could not be raised.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EmcyError {
     /// 0x0000 means "error reset" and cannot be raised.
@@ -49,14 +49,14 @@ pub enum EmcyError {
     TooManyErrors,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 struct ActiveError {
     code: u16,
     register: u8,
 }
 
 /// Emergency producer state.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub(crate) struct Emcy {
     cob_id: u32,
     inhibit_100us: u16,

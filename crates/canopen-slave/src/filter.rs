@@ -14,7 +14,7 @@ use crate::lss::LSS_REQUEST;
 /// every heartbeat 0x700..=0x77F (the consumer picks its producers itself, so a change
 /// of 0x1016 needs no new filter) and LSS requests (0x7E5). An unconfigured node
 /// ([`RxFilter::unconfigured`]) has no SYNC and no SDO: NMT, heartbeats and LSS only.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RxFilter {
     sync: u16,

@@ -39,7 +39,7 @@ pub struct Frame {
 }
 
 /// Why [`Frame::new`] refused its arguments.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FrameError {
     /// The identifier does not fit 11 bits.
@@ -102,7 +102,7 @@ impl Frame {
 }
 
 /// The sink refused a frame (its queue is full).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SinkFull;
 
@@ -146,7 +146,7 @@ impl<const N: usize> FrameSink for heapless::Deque<Frame, N> {
 pub struct NodeId(u8);
 
 /// The value is not a valid node-ID (1..=127).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InvalidNodeId;
 

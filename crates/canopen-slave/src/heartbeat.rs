@@ -9,7 +9,7 @@ use crate::time::{earliest, Instant};
 pub const CONSUMERS: usize = 2;
 
 /// Monitoring state of one consumer entry.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Monitor {
     /// Configured (or not), but no heartbeat seen yet: CiA 301 starts monitoring only with
     /// the first heartbeat received.
@@ -20,7 +20,7 @@ enum Monitor {
     Lost,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 struct Consumer {
     /// 0x1016 entry: node-ID in bits 23..16, time in ms in bits 15..0.
     param: u32,
@@ -44,7 +44,7 @@ impl Consumer {
 }
 
 /// Heartbeat producer and consumers.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub(crate) struct Heartbeat {
     producer_ms: u16,
     next_beat: Option<Instant>,

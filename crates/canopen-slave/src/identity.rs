@@ -5,7 +5,7 @@ use crate::frame::cob;
 
 /// Identity and description objects. The serial number (0x1018:04) is not here: it is only
 /// known at run time and goes in [`Config`](crate::Config).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Identity {
     /// 0x1000: profile number in the low word, additional information in the high word.
     pub device_type: u32,
@@ -24,7 +24,7 @@ pub struct Identity {
 }
 
 /// Defaults of one transmit PDO (0x1800+n and 0x1A00+n).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TpdoDefaults {
     /// COB-ID without the node-ID (0x180 for TPDO1); set bit 31 to disable the PDO.
     pub cob_id_base: u32,
@@ -53,7 +53,7 @@ impl TpdoDefaults {
 }
 
 /// Defaults of the engine-owned communication parameters.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct CommDefaults {
     /// 0x1017 producer heartbeat time, ms (0 = off).
     pub heartbeat_ms: u16,

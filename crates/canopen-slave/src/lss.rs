@@ -130,7 +130,7 @@ impl LssAddress {
 }
 
 /// What the device must do after a request, besides sending the answer.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum LssAction {
     /// Nothing.
     None,
@@ -140,14 +140,14 @@ pub enum LssAction {
 }
 
 /// A pending bit-rate switch (activate bit timing).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 struct Switch {
     index: u8,
     at: Instant,
 }
 
 /// The LSS slave.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct LssSlave {
     address: LssAddress,
     state: LssState,

@@ -400,7 +400,7 @@ impl OdEntry {
 const _: () = assert!(core::mem::size_of::<OdEntry>() == 12);
 
 /// Why a table was rejected.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum OdError {
     /// Entries out of (index, sub-index) order or duplicated, across all parts; the entry
@@ -424,6 +424,13 @@ impl core::fmt::Debug for Od {
         f.debug_struct("Od")
             .field("parts", &self.parts.len())
             .finish()
+    }
+}
+
+/// As its `Debug`: the number of parts stands for the constant table.
+impl core::hash::Hash for Od {
+    fn hash<H: core::hash::Hasher>(&self, state: &mut H) {
+        self.parts.len().hash(state);
     }
 }
 

@@ -52,7 +52,7 @@ pub trait ObjectAccess {
 }
 
 /// Which segmented transfer is running, named after the CiA 301 protocols.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Mode {
     Idle,
     SegmentedDownload,
@@ -64,7 +64,7 @@ enum Mode {
 /// A flat record rather than an enum with the transfer's fields in each variant: the fields
 /// past `mode` only mean something while a transfer runs, and flat fields are much cheaper
 /// to update in place.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct SdoServer {
     mode: Mode,
     /// Toggle bit the next segment must carry.

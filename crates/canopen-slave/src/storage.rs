@@ -66,7 +66,7 @@ pub trait Storage {
 
 /// A [`Storage`] in RAM: for tests, and for boards that keep parameters only until power
 /// is lost (they still survive NMT resets).
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct MemoryStorage {
     data: [u8; MemoryStorage::CAPACITY],
     len: usize,

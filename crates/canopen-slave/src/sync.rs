@@ -8,7 +8,7 @@ use crate::frame::{Frame, MAX_STANDARD_ID};
 const SYNC_PRODUCER: u32 = 1 << 30;
 
 /// SYNC consumer configuration.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub(crate) struct SyncConsumer {
     cob_id: u32,
 }

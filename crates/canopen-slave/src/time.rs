@@ -80,7 +80,7 @@ pub(crate) fn earliest(a: Option<Instant>, b: Option<Instant>) -> Option<Instant
 /// days) to the engine's [`Instant`], which never wraps. It must see the count at least
 /// once per wrap; a caller that polls the engine at its deadlines and at least every few
 /// seconds does.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Hash)]
 pub struct WideClock {
     last: u32,
     wraps: u64,
@@ -119,7 +119,7 @@ pub fn sleep_ms(now: Instant, deadline: Instant, max_ms: u32) -> u32 {
 ///
 /// After a late round the next one is a full period away, never sooner: a duty that counts
 /// its rounds (a debouncer) must not be caught up in a burst.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Periodic {
     next_ms: u32,
     period_ms: u32,

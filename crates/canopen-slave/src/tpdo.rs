@@ -33,7 +33,7 @@ pub(crate) fn check_mapping(od: &Od, entry: u32) -> Result<(&'static OdEntry, us
 }
 
 /// One transmit PDO: its parameters and its transmission state.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub(crate) struct Tpdo {
     cob_id: u32,
     transmission_type: u8,

@@ -219,7 +219,7 @@ pub const ALL: &[Bounds] = &[
 /// What found issue 34's findings 1, 2, 4 and 6 on the code before feed record v2 (there
 /// with the sequence lowered to 5 bits and copies of any age), with the narrowed v2 sequence,
 /// its pace and copies of the contract's age: no breach now. `cargo xtask feed-check` runs
-/// them after [`ALL`], in release mode on two threads (as a test they took over a minute).
+/// them after [`ALL`], optimised on two threads (as a test they took over a minute).
 pub const ISSUE34: &[Bounds] = &[
     // Finding 1: a copy of a record as old as the sequence's wrap read as one a few ahead.
     // The wheel turned at x100 and back, copies of any record of the contract's age.

@@ -331,8 +331,9 @@ impl Path {
     }
 }
 
-/// The node and its wheel: real code, compared and hashed through their `Debug` form
-/// (neither needs `Hash` for the firmware's sake).
+/// The node and its wheel: real code, hashed as their types derive `Hash` (the firmware's
+/// types derive it for the checker: a state's hash is most of the checker's time) and
+/// compared through their `Debug` form.
 #[derive(Clone)]
 struct Real {
     node: Node<MemoryStorage>,
@@ -354,47 +355,13 @@ impl PartialEq for Real {
     }
 }
 
-/// Feeds what is formatted into a hasher in pieces of a small buffer, building no string
-/// (hashing states is most of the checker's time).
-struct HashWriter<'a, H> {
-    hasher: &'a mut H,
-    buffer: [u8; 256],
-    len: usize,
-}
-
-impl<H: Hasher> HashWriter<'_, H> {
-    fn flush(&mut self) {
-        self.hasher.write(&self.buffer[..self.len]);
-        self.len = 0;
-    }
-}
-
-impl<H: Hasher> fmt::Write for HashWriter<'_, H> {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        let bytes = s.as_bytes();
-        if self.len + bytes.len() > self.buffer.len() {
-            self.flush();
-            if bytes.len() > self.buffer.len() {
-                self.hasher.write(bytes);
-                return Ok(());
-            }
-        }
-        self.buffer[self.len..self.len + bytes.len()].copy_from_slice(bytes);
-        self.len += bytes.len();
-        Ok(())
-    }
-}
-
+/// Hashed as the firmware's types derive it (every field), which tells apart whatever their
+/// `Debug` does.
 impl Hash for Real {
     fn hash<H: Hasher>(&self, state: &mut H) {
-        // The same value is always formatted in the same pieces, so equal states hash equal.
-        let mut w = HashWriter {
-            hasher: state,
-            buffer: [0; 256],
-            len: 0,
-        };
-        let _ = write!(w, "{:?}{:?}{:?}", self.node, self.wheel, self.levels);
-        w.flush();
+        self.node.hash(state);
+        self.wheel.hash(state);
+        self.levels.hash(state);
     }
 }
 

@@ -39,7 +39,7 @@ use crate::selector::{Multiplier, Selection};
 pub const DEFAULT_STEP_BACKLOG: u16 = 40;
 
 /// Why the feed was stopped from outside.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum StopReason {
     /// The master's heartbeat timed out.
     MasterLost,
@@ -50,7 +50,7 @@ pub enum StopReason {
 }
 
 /// The feed accumulator.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct FeedAccumulator {
     enabled: bool,
     unit_steps: bool,

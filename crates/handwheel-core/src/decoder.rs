@@ -108,7 +108,7 @@ impl AbLevels {
 }
 
 /// What one pair of levels means relative to the previous pair.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Transition {
     /// Same levels as before: a bounce already undone, or a late interrupt.
     Stay,
@@ -167,7 +167,7 @@ const fn steps(invert: bool) -> [i8; 16] {
 }
 
 /// Counts per detent of the wheel: one full quadrature cycle (4) on a typical 100-detent MPG.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
 #[repr(u8)]
 pub enum CountsPerDetent {
     /// Every count is a detent.
@@ -198,7 +198,7 @@ impl CountsPerDetent {
 }
 
 /// Decoder settings (object 0x2020 sub 3 and 4).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
 pub struct DecoderConfig {
     /// Counts that make one detent.
     pub counts_per_detent: CountsPerDetent,
@@ -207,7 +207,7 @@ pub struct DecoderConfig {
 }
 
 /// What one edge did.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[must_use = "a detent that is not passed on is lost motion"]
 pub enum EdgeOutcome {
     /// No change of levels.
@@ -236,7 +236,7 @@ impl EdgeOutcome {
 
 /// The quadrature decoder state: the edge interrupt's own (see [`edge`](crate::edge)), and
 /// the host tests'.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct QuadratureDecoder {
     /// [`STEPS`] for the counting direction: one lookup per edge, no test of `invert`.
     steps: &'static [i8; 16],

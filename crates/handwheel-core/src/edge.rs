@@ -20,7 +20,7 @@ pub use rtic_core::Mutex;
 use crate::decoder::{AbLevels, DecoderConfig, EdgeOutcome, QuadratureDecoder};
 
 /// One copy of what the edge has published, as the CAN side takes it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct EdgeSnapshot {
     /// Edges that changed something since start-up, wrapping: the sequence number.
     pub edges: u32,
@@ -33,7 +33,7 @@ pub struct EdgeSnapshot {
 }
 
 /// The decoder and its running totals: the edge task's work, the CAN side's source.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct EdgeState {
     decoder: QuadratureDecoder,
     edges: u32,

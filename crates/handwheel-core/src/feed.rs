@@ -72,7 +72,7 @@ impl FeedStatus {
 
 /// What one feed record says, without its sequence number: the feed as it is (or was, at the
 /// end of a selection epoch).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct FeedState {
     /// Cumulative feed position in multiplied units, wrapping (object 0x6004).
     pub position: i32,
@@ -108,7 +108,7 @@ impl FeedState {
 }
 
 /// One unit step of the paper's format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct UnitStep {
     /// The axis the step is for.
     pub axis: Axis,

@@ -76,7 +76,7 @@ impl SequencePace {
 }
 
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct FeedOutbox {
     held: [FeedState; HELD_EPOCHS],
     /// Index of the oldest held record.

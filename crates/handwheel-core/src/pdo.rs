@@ -35,7 +35,7 @@ use crate::feed::{FeedState, FeedStatus, UnitStep};
 use crate::selector::{Axis, Multiplier};
 
 /// The content of one feed record.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct FeedRecord {
     /// What the record says. Only the low three bits of the epoch and the session travel.
     pub state: FeedState,
@@ -44,7 +44,7 @@ pub struct FeedRecord {
 }
 
 /// Why 8 bytes are not a feed record the device can send.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FeedRecordError {
     /// Axis field not in 0..=5.
     Axis(u8),
@@ -56,7 +56,7 @@ pub enum FeedRecordError {
 }
 
 /// One mapped object of the feed record: where its value lies in the 8 bytes.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct RecordField {
     /// Object index.
     pub index: u16,
@@ -147,7 +147,7 @@ impl FeedRecord {
 }
 
 /// How far the unit-step counter moves per frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
 pub enum CounterStride {
     /// Bits 4-7 step by one: the format the paper describes for real use.
     #[default]
@@ -157,7 +157,7 @@ pub enum CounterStride {
 }
 
 /// Encodes unit steps into the paper's 1-byte format, keeping the rolling counter.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, Hash)]
 pub struct UnitStepEncoder {
     counter: u8,
     stride: CounterStride,

@@ -144,7 +144,7 @@ impl Multiplier {
 }
 
 /// The debounced state of both switches.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Hash)]
 pub struct Selection {
     /// The selected axis, `None` when the switch shows no valid position.
     pub axis: Option<Axis>,
@@ -153,7 +153,7 @@ pub struct Selection {
 }
 
 /// Accepts a value once it has been read the same `threshold` times in a row.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Hash)]
 pub struct Debouncer<T> {
     stable: T,
     candidate: T,
@@ -209,7 +209,7 @@ impl<T: Copy + PartialEq> Debouncer<T> {
 pub const DEFAULT_DEBOUNCE_SAMPLES: u8 = 4;
 
 /// Debounces the two switches into a [`Selection`].
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Hash)]
 pub struct Selector {
     axis: Debouncer<Option<Axis>>,
     multiplier: Debouncer<Option<Multiplier>>,

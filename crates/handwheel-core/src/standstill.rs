@@ -65,7 +65,7 @@ type Snapshot = (u32, u32, u32);
 
 /// Calls [`Settle::settle`] once the wheel has been still for [`STANDSTILL_MS`],
 /// once per standstill.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct Standstill {
     /// The previous sample; `None` before the first.
     last: Option<Snapshot>,

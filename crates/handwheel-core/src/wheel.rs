@@ -37,7 +37,7 @@ use crate::edge::{EdgeSnapshot, EdgeState, Mutex};
 /// The CAN side's wheel: the edge's decoder as last taken in and the settings asked of it
 /// (object 0x2020, with the bases that a reset of the application moves), and the feed
 /// accumulator.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct Handwheel {
     /// Feed accumulator (objects 0x2000, 0x2001, 0x2010, 0x2030, 0x6004).
     pub feed: FeedAccumulator,
@@ -152,7 +152,7 @@ pub trait Wheel: Mutex<T = Handwheel> {
 /// A [`lock`](Mutex::lock) runs the closure without the edge's lock, then applies the decoder
 /// commands it made under one short lock of the edge state; [`Wheel::take_motion`] takes the
 /// edge's motion in under another.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct LinkedWheel<L> {
     edge: L,
     wheel: Handwheel,

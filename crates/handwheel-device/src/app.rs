@@ -17,7 +17,7 @@ use crate::od::{
 /// the wheel, never the feed enable (a handwheel must not power up live). Which objects they
 /// are, their defaults, limits and refused values are the rows of [`APP_OBJECTS`] marked
 /// stored; they are kept as the stored section lays them out ([`STORED`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct WheelParameters {
     bytes: [u8; STORED_BYTES],
 }
@@ -164,7 +164,7 @@ impl WheelParameters {
 }
 
 /// What the application keeps between engine calls.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct FeedApp {
     pub(crate) parameters: WheelParameters,
     pub(crate) nmt: NmtState,

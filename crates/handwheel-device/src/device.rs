@@ -105,7 +105,7 @@ impl FrameSink for KeepPending<'_> {
 /// through its RTIC [`Mutex`](handwheel_core::Mutex) on every call ([`Wheel`]: the device
 /// takes the edge's motion in before each change of what it counts for, and for TPDO1's
 /// record).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct HandwheelDevice<S> {
     engine: Device<S>,
     app: FeedApp,

@@ -32,7 +32,7 @@ const SELECTOR: Selector = match Selector::new(DEFAULT_DEBOUNCE_SAMPLES) {
 };
 
 /// What one switch sample found.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Sample {
     /// The debounced selection, when it changed.
     pub selection: Option<Selection>,
@@ -41,7 +41,7 @@ pub struct Sample {
 }
 
 /// The periodic duties' state.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct Duties {
     next_sample: Periodic,
     next_led: Periodic,

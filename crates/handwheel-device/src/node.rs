@@ -48,7 +48,7 @@ pub trait CanIo: FrameSink {
 
 /// What one round found worth a log line. The caller prints them; the lines' texts are the
 /// firmware's.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct LogEvents {
     /// The controller found no 11 recessive bits at this rate within
     /// [`SYNC_LIMIT_MS`](crate::rate_switch::SYNC_LIMIT_MS): at boot (`true`, the node waits
@@ -71,7 +71,7 @@ pub struct LogEvents {
 }
 
 /// What the caller applies after a round.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct Outputs {
     /// The RUN and ERR LED levels, when they are due.
     pub leds: Option<(bool, bool)>,
@@ -88,7 +88,7 @@ pub struct Outputs {
 }
 
 /// Where the node is in its life.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Phase {
     /// Not polled yet.
     PowerOn,
@@ -99,7 +99,7 @@ enum Phase {
 }
 
 /// The handwheel node: the device and everything the firmware loop decides around it.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Hash)]
 pub struct Node<S> {
     device: HandwheelDevice<S>,
     phase: Phase,

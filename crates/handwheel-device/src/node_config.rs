@@ -27,7 +27,7 @@ use handwheel_core::BitRate;
 use crate::record::NodeSettings;
 
 /// Where the settings in force came from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Source {
     /// Node-ID and bit rate from the DIP switch.

@@ -136,7 +136,7 @@ pub type WriteFn = fn(&mut Handwheel, u32);
 /// How an application object is read and written: the part of a row that `app.rs` carries
 /// out, as CANopenNode attaches read and write functions to an object (`OD_extension_t`) and
 /// zencan's table entries answer their own reads and writes.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Hash)]
 pub enum Behaviour {
     /// A record's header: its highest sub-index, a constant the table answers.
     Header,
@@ -162,7 +162,7 @@ pub enum Behaviour {
 
 /// CiA 302-3's program download objects as the application has them: the download itself
 /// (0x1F50) is the resident loader's, the application's part is to reset into it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Program {
     /// 0x1F51:1 program control.
     Control,
@@ -175,7 +175,7 @@ pub enum Program {
 /// One sub-index of an application object, as the dictionary, the stored record, the EDS
 /// and the device's read and write paths see it. A record is a header row (its name,
 /// sub-index 0 = the highest sub-index) followed by its sub-index rows.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Hash)]
 pub struct AppObject {
     /// Object index.
     pub index: u16,
@@ -571,7 +571,7 @@ const fn size(o: &AppObject) -> u8 {
 
 /// One stored parameter: its object, where it sits in the stored section, and the values
 /// within its limits that its write refuses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct StoredParameter {
     /// Object index.
     pub index: u16,
@@ -639,7 +639,7 @@ pub(crate) const fn stored_slot(index: u16, sub: u8) -> usize {
 }
 
 /// A value of the wheel as the device's read path looks it up at run time.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Hash)]
 pub(crate) struct WheelRead {
     /// Object index.
     pub index: u16,
@@ -678,7 +678,7 @@ pub(crate) static WHEEL_READS: [WheelRead; count(Rows::Read)] = {
 };
 
 /// A value of the wheel as the device's write path looks it up at run time.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Hash)]
 pub(crate) struct WheelWrite {
     /// Object index.
     pub index: u16,

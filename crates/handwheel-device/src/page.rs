@@ -94,7 +94,7 @@ const _: () = assert!(RECORDS_END.is_multiple_of(2) && MARK_LEN.is_multiple_of(2
 const _: () = assert!(RECORD_MAX + RECORD_GAP <= RECORDS_END && RECORD_MAX.is_multiple_of(2));
 
 /// A failed erase or program.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FlashError {
     /// The erase failed or did not read back as erased.
@@ -126,7 +126,7 @@ pub trait Flash {
 }
 
 /// The erase budget: the instant at which the erases made so far are paid back.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct WearBudget {
     paid_at: Instant,
 }

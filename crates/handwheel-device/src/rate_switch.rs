@@ -25,7 +25,7 @@ pub const SYNC_LIMIT_MS: u32 = 50;
 pub const SWITCH_POLL_MS: u32 = 1;
 
 /// A bit-rate switch under way, if any.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct RateSwitch {
     /// The rate and when its switch began (loop ticks, ms).
     pending: Option<(BitRate, u32)>,

@@ -49,7 +49,7 @@ pub const BLOB_MAX: usize = 256;
 pub const RECORD_MAX: usize = HEADER + BLOB_MAX + CRC_LEN;
 
 /// Node-ID and bit rate: what the firmware itself needs before the CAN controller starts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct NodeSettings {
     /// CANopen node-ID; `None`: unconfigured, the node waits for an LSS master to give it
     /// one (stored as 0xFF, [`canopen_slave::lss::UNCONFIGURED`]).
@@ -119,7 +119,7 @@ impl defmt::Format for NodeSettings {
 }
 
 /// One record as read from the page.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Record<'a> {
     /// Node-ID and bit rate; `None`: nothing stored (0x1011 "restore defaults" of all).
     pub settings: Option<NodeSettings>,
@@ -278,7 +278,7 @@ pub fn decode(bytes: &[u8]) -> Option<Record<'_>> {
 }
 
 /// The page as [`scan`] reads it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Log<'a> {
     /// The last intact record: the stored state (a "nothing stored" record included).
     pub newest: Option<Record<'a>>,

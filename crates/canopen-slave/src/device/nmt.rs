@@ -12,7 +12,7 @@ use crate::time::Instant;
 use crate::tpdo;
 
 /// Why the device (re)initialises.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub(super) enum Boot {
     PowerOn,
     ResetNode,

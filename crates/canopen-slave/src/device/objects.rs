@@ -25,7 +25,7 @@ use crate::time::Instant;
 use crate::tpdo::{Tpdo, MAX_MAPPED, NO_RTR, TPDOS};
 
 /// The NMT state and the services behind the communication objects.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Hash)]
 pub(super) struct Comm {
     pub(super) od: Od,
     /// The active node-ID; `None` while unconfigured (the NMT state is then Initialising).
@@ -42,7 +42,7 @@ pub(super) struct Comm {
 
 /// A stored value the checked write path refused at a restore: the object keeps its
 /// default.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub(super) struct Refused {
     pub(super) index: u16,
     pub(super) sub: u8,
@@ -123,7 +123,7 @@ impl CommObject {
 /// The name of a communication object: CiA 301's, with the PDO's number after the first
 /// word for the objects of one PDO ("TPDO communication parameter" of the first TPDO is
 /// "TPDO1 communication parameter").
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ObjectName {
     text: &'static str,
     number: Option<u16>,
@@ -869,7 +869,7 @@ fn object(index: u16) -> Option<&'static Route> {
 }
 
 /// The objects whose COB-IDs must differ (see [`Comm::check_cob_id`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum CobSlot {
     Sync,
     Emcy,
