@@ -5,7 +5,7 @@ use bxcan::filter::ListEntry16;
 use bxcan::{Fifo, Id, StandardId};
 use canopen_slave::frame::cob;
 use canopen_slave::{Frame, NodeId};
-use handwheel_core::{BitRate, BitTiming};
+use handwheel_core::{btr_table, BitRate};
 use stm32f1xx_hal::can::Can;
 use stm32f1xx_hal::gpio::PullUp;
 use stm32f1xx_hal::pac;
@@ -18,21 +18,8 @@ pub type TxQueue = heapless::Deque<Frame, 8>;
 /// The bxCAN kernel clock (APB1), as the application sets it up.
 pub const APB1_HZ: u32 = 36_000_000;
 
-/// `CAN_BTR` timing bits for every rate of [`BitRate::ALL`] (by code) at 36 MHz, evaluated
-/// at compile time as in the application.
-const BTR_TABLE: [u32; 8] = {
-    let mut table = [0; 8];
-    let mut code = 0;
-    while code < 8 {
-        let rate = BitRate::ALL[code];
-        table[code] = match BitTiming::for_bitrate(APB1_HZ, rate.bits_per_second()) {
-            Ok(timing) => timing.btr(),
-            Err(_) => panic!("a table bit rate has no exact bxCAN timing at 36 MHz"),
-        };
-        code += 1;
-    }
-    table
-};
+/// `CAN_BTR` timing bits for every rate (by code) at 36 MHz: the application's table.
+const BTR_TABLE: [u32; 8] = btr_table(APB1_HZ);
 
 fn standard_id(id: u16) -> StandardId {
     StandardId::new(id & 0x7FF).unwrap_or(StandardId::ZERO)

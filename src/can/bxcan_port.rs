@@ -4,7 +4,7 @@
 use bxcan::filter::{ListEntry16, Mask16};
 use bxcan::{Fifo, Interrupts, Mailbox, StandardId};
 use canopen_slave::RxFilter;
-use handwheel_core::{BitRate, BitTiming};
+use handwheel_core::{btr_table, BitRate};
 
 use super::bus::{BusState, ErrorCounters};
 use super::port::{Busy, CanLink, Received};
@@ -15,22 +15,10 @@ use crate::pac;
 /// The configured controller.
 pub type Bxcan = bxcan::Can<CanInstance>;
 
-/// `CAN_BTR` timing bits for every rate of [`BitRate::ALL`] (by code) at the 36 MHz APB1
-/// clock, from `handwheel-core`'s search, evaluated at compile time: the build fails if a
-/// table rate has no exact timing, and the image carries no 64-bit division.
-pub const BTR_TABLE: [u32; 8] = {
-    let mut table = [0; 8];
-    let mut code = 0;
-    while code < 8 {
-        let rate = BitRate::ALL[code];
-        table[code] = match BitTiming::for_bitrate(APB1_HZ, rate.bits_per_second()) {
-            Ok(timing) => timing.btr(),
-            Err(_) => panic!("a table bit rate has no exact bxCAN timing at 36 MHz"),
-        };
-        code += 1;
-    }
-    table
-};
+/// `CAN_BTR` timing bits for every rate of [`BitRate::ALL`](handwheel_core::BitRate::ALL)
+/// (by code) at the 36 MHz APB1 clock, evaluated at compile time (the loader programs the
+/// same table).
+pub const BTR_TABLE: [u32; 8] = btr_table(APB1_HZ);
 
 /// `CAN_BTR`'s mode bits, silent and loopback (RM0008 24.9.7); the rest are timing bits.
 const BTR_MODE_BITS: u32 = 0xC000_0000;

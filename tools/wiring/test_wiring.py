@@ -182,3 +182,19 @@ def test_stamp_replaces_an_older_one_and_reads_back():
     assert twice.count("wiring source") == 1
     assert twice.replace(wiring.STAMP.format(digest="b" * 64) + "\n", "") == svg
     assert wiring.svg_texts(twice) == {"PB6"}
+
+
+@pytest.mark.parametrize("image", sorted(wiring.DIP_CODE))
+def test_both_images_read_the_dip_switch_on_the_pin_maps_pins(firmware, image):
+    """The loader reads the DIP switch for the node-ID and bit rate it answers at: a pin
+    moved in one image alone would give it another node-ID than the application's."""
+    code = wiring.dip_pins_in_code(wiring.DIP_CODE[image].read_text(encoding="utf-8"))
+    assert code == [firmware[f"DIP {n}"] for n in range(1, 9)]
+
+
+def test_a_dip_pin_moved_in_the_code_is_seen():
+    source = wiring.DIP_CODE["loader"].read_text(encoding="utf-8")
+    moved = source.replace("gpiob.pb13.into_pull_up_input", "gpiob.pb4.into_pull_up_input")
+    assert wiring.dip_pins_in_code(moved)[1] == "PB4"
+    with pytest.raises(wiring.PinMapError):
+        wiring.dip_pins_in_code(source.replace("let dip_pins", "let switches"))

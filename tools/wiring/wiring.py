@@ -18,6 +18,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_PINS = ROOT / "src" / "board" / "pins.rs"
+# The code that sets the DIP switch's pins up: the application's board and the loader, which
+# must read the same node-ID and bit rate.
+DIP_CODE = {
+    "application": ROOT / "src" / "board" / "mod.rs",
+    "loader": ROOT / "loader" / "src" / "main.rs",
+}
 README = ROOT / "README.md"
 SOURCE = ROOT / "docs" / "wiring" / "handwheel.yml"
 SVG = ROOT / "docs" / "wiring" / "handwheel.svg"
@@ -110,6 +116,15 @@ def firmware_pin_map(rust_source: str) -> dict[str, str]:
     """The pin map in the module doc (`//!` lines) of `src/board/pins.rs`."""
     doc = [line.strip()[3:] for line in rust_source.splitlines() if line.strip().startswith("//!")]
     return pin_map(table_rows(doc))
+
+
+def dip_pins_in_code(rust_source: str) -> list[str]:
+    """The DIP switch's pins as the code sets them up, switch 1 first: the pins of the
+    `let dip_pins = [...]` array (`gpiob.pb12.into_pull_up_input(...)`, ...)."""
+    array = re.search(r"let dip_pins = \[(.*?)\];", rust_source, re.S)
+    if array is None:
+        raise PinMapError("no `let dip_pins = [...]` array")
+    return [f"P{port.upper()}{n}" for port, n in re.findall(r"\bgpio([a-e])\.p\1(\d+)\.", array[1])]
 
 
 def readme_pin_map(readme: str) -> dict[str, str]:

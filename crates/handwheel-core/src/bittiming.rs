@@ -108,7 +108,7 @@ pub const fn bit_rate_from_lss(index: u8) -> Option<BitRate> {
 }
 
 /// Why a bit rate cannot be configured.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum BitTimingError {
     /// No prescaler and segment split divides the clock into this rate exactly.
     NotExact,
@@ -119,7 +119,7 @@ pub enum BitTimingError {
 }
 
 /// A validated bxCAN bit timing.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct BitTiming {
     prescaler: u16,
     ts1: u8,
@@ -234,11 +234,43 @@ impl BitTiming {
     }
 }
 
+/// `CAN_BTR` timing bits for every rate of [`BitRate::ALL`], by code, at the bxCAN clock
+/// `clock_hz`; the one table the application and the resident loader both program.
+///
+/// Meant for a `const`: evaluated at compile time, the build fails if a rate has no exact
+/// timing at that clock, and the image carries no 64-bit division.
+pub const fn btr_table(clock_hz: u32) -> [u32; 8] {
+    let mut table = [0; 8];
+    let mut code = 0;
+    while code < 8 {
+        let rate = BitRate::ALL[code];
+        table[code] = match BitTiming::for_bitrate(clock_hz, rate.bits_per_second()) {
+            Ok(timing) => timing.btr(),
+            Err(_) => panic!("a table bit rate has no exact bxCAN timing at this clock"),
+        };
+        code += 1;
+    }
+    table
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     const APB1: u32 = 36_000_000;
+
+    #[test]
+    fn the_table_is_each_rates_timing_by_code() {
+        const TABLE: [u32; 8] = btr_table(APB1);
+        for rate in BitRate::ALL {
+            let timing = BitTiming::for_bitrate(APB1, rate.bits_per_second()).unwrap();
+            assert_eq!(TABLE[usize::from(rate.code())], timing.btr(), "{rate:?}");
+        }
+        assert_eq!(
+            TABLE[0], 0x001E_0001,
+            "1 Mbit/s: 2 x 18 quanta, 16 before the sample"
+        );
+    }
 
     #[test]
     fn every_table_rate_is_exact_with_sample_point_in_cia_window() {

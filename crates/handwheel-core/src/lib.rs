@@ -32,7 +32,7 @@ pub mod standstill;
 pub mod wheel;
 
 pub use accumulator::{FeedAccumulator, StopReason, DEFAULT_STEP_BACKLOG};
-pub use bittiming::{BitRate, BitTiming, BitTimingError};
+pub use bittiming::{btr_table, BitRate, BitTiming, BitTimingError};
 pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,
 };
