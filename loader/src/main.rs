@@ -206,13 +206,20 @@ fn run() -> ! {
     loop {
         slot.watchdog.feed();
         let now = clock.now();
+        let mut received = false;
         while let Some(frame) = bus::receive(&mut can) {
+            received = true;
             if node.on_frame(now, &frame, &mut slot, &mut queue) == Some(Request::Reset) {
                 reset_after(&mut can, &mut queue, &mut clock);
             }
         }
         node.poll(clock.now(), &mut queue);
         bus::transmit(&mut can, &mut queue);
+        if !received {
+            // YIELD: a no-op on the Cortex-M3, and the hint that this loop only waits, which
+            // the emulated board takes to let time pass (tools/board-emu/server.py, `idle`).
+            core::hint::spin_loop();
+        }
     }
 }
 

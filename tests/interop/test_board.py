@@ -252,6 +252,19 @@ def test_burst_during_a_flash_erase_overruns_and_the_node_recovers(rig):
     assert rig.read(0x1017) == 1100, "the node still answers"
 
 
+def feed_quiet(rig, quiet: float = 0.1, timeout: float = 3.0) -> None:
+    """Waits until the records the enable and the selection made are out: `quiet` s without a
+    feed record and the mailboxes empty. (A record still waiting when a test holds the bus
+    waits past the transmit stall limit and changes what the test sees.)"""
+    deadline = time.monotonic() + timeout
+    while True:
+        mark = rig.frames.mark()
+        time.sleep(quiet)
+        if not rig.frames.frames(TPDO1, since=mark) and rig.board.status()["pending"] == "-":
+            return
+        assert time.monotonic() < deadline, "the feed records do not stop"
+
+
 def wait_pending(board, ids: set[str], timeout: float = 3.0) -> None:
     """Waits until the transmit mailboxes hold exactly the identifiers `ids` (hex)."""
     deadline = time.monotonic() + timeout
@@ -280,6 +293,7 @@ def test_a_full_transmit_side_never_loses_a_frame(rig):
     board = rig.board
     rig.write(0x1800, 5, 0, 2)  # no event timer: feed records only on motion
     rig.feed_on("x")
+    feed_quiet(rig)
     board.control("hold on")
     held = rig.frames.mark()
     wait_pending(board, {"710"})  # the next heartbeat (within 1 s)
@@ -314,6 +328,7 @@ def test_a_turn_after_a_timed_hold_is_answered_and_the_held_frames_go_out(rig):
     board = rig.board
     rig.write(0x1800, 5, 0, 2)  # no event timer: feed records only on motion
     rig.feed_on("x")
+    feed_quiet(rig)
     start = float(board.status()["ms"])
     board.control("hold 90")
     held = rig.frames.mark()

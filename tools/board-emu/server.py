@@ -21,7 +21,8 @@ thing the master reads. The control port listens at once.
 Pacing: emulated time never runs ahead of the wall clock (the loop waits on the sockets
 instead); when the emulation falls behind by more than `MAX_LAG` (a busy stretch: boot,
 a flash erase in Python's slow path) the wall clock reference slips, so emulated time never
-rushes to catch up. `status` reports the slips.
+rushes to catch up. `status` reports the slips. An idle CPU (YIELD, nothing to take) waits
+on the sockets until its next event, and input arriving meanwhile reaches it at once.
 
 SLCAN (Lawicel, as python-can's `slcan` interface speaks it): `O`, `L`, `C` answer `\\r`;
 `S0`..`S8` set the bit rate of the host's side of the bus (10 .. 1000 kbit/s; unset, the bus
@@ -597,7 +598,25 @@ class Server:
             if steps % 16 == 0:
                 self.poll(0)
                 self.flush_log()
-            self.m.step()
+            if self.m.step(idle_jump=False):
+                self.idle()
+
+    def idle(self) -> None:
+        """The CPU waits for an event: emulated time follows the wall clock up to the next
+        event, or up to the moment a host's input arrives, which then reaches the node at the
+        emulated instant it arrived. (Jumping to the next event at once would put emulated
+        time ahead of the wall clock, and input arriving meanwhile would wait until the wall
+        clock caught up: up to the 10 ms of `Machine.next_event` per round trip.)"""
+        self.flush_log()
+        if self.m.interrupt_due():
+            return
+        until = self.m.next_event()
+        wait = until / cortex.CORE_HZ - (time.monotonic() - self.wall0)
+        if wait > 0:
+            self.sel.select(wait)
+        reached = int((time.monotonic() - self.wall0) * cortex.CORE_HZ)
+        self.m.idle_until(min(until, reached))
+        self.poll(0)
 
 
 class StimError(Exception):

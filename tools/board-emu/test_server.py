@@ -161,3 +161,37 @@ def test_snapshot_and_rollback_restore_the_pages(board):
     assert bytes(m.fpec.memory) == before
     assert bytes(m.uc.mem_read(0x0800_F800, 2048)) == b"\xff" * 2048, "what the CPU reads"
     assert client.sent == b"err no snapshot\nok\nok\n"
+
+
+def test_an_idle_cpu_waits_in_wall_time_for_input(board, monkeypatch):
+    """Idle, the board lets emulated time follow the wall clock until the next event or
+    the host's input, whichever comes first; input 0.2 ms into the wait finds emulated
+    time 0.2 ms on, not at the next event (which would hold the reply until the wall clock
+    got there)."""
+    m, s = board
+    m.run_ms(50)
+    while not m.step(idle_jump=False):
+        pass
+    wall = {"s": m.now / machine.cortex.CORE_HZ}
+    monkeypatch.setattr(server.time, "monotonic", lambda: wall["s"])
+    s.wall0 = 0.0
+
+    def input_after_200_us(timeout):
+        wall["s"] += min(timeout, 0.0002)
+        return []
+
+    monkeypatch.setattr(s.sel, "select", input_after_200_us)
+    before, next_event = m.now, m.next_event()
+    assert next_event - before > 14_400, "the next event is more than 0.2 ms away"
+    s.idle()
+    assert m.now - before == pytest.approx(14_400, abs=1)
+    wall["s"] += 1.0  # the wall clock far ahead: time goes to the next event, no further
+    s.idle()
+    assert m.now == next_event
+    # A wheel edge pends EXTI9_5: the CPU is not idle, no time passes before it runs.
+    while not m.step(idle_jump=False):
+        pass
+    m.set_ab(m.ab ^ 1)
+    before = m.now
+    s.idle()
+    assert m.now == before

@@ -623,8 +623,14 @@ class Machine:
         # The whole slice, or in precise mode what its instructions and exception entries
         # and returns took.
         elapsed = self.core.cycles - before
-        # The idle task's `spin_loop` (YIELD) in thread mode: the CPU has nothing to do.
-        if self.core.stop_reason == "yield" and not self.nvic.active_stack:
+        # The idle task's `spin_loop` (YIELD) in thread mode: the CPU has nothing to do,
+        # unless the slice started a flash operation, whose stall (or armed cut) comes first.
+        if (
+            self.core.stop_reason == "yield"
+            and not self.nvic.active_stack
+            and not self.fpec.stall
+            and not self.fpec.cut_requested
+        ):
             primask, basepri = self.core.mask_levels()
             if self.nvic.preempting(primask, basepri) is None:
                 # Idle until the next event: nothing else can happen before it.
@@ -645,6 +651,22 @@ class Machine:
         if stall:
             self.stall_until = self.now + stall
         return False
+
+    def interrupt_due(self) -> bool:
+        """An exception would preempt what the CPU runs now (after an idle `step`: an event
+        at the slice's end woke it)."""
+        primask, basepri = self.core.mask_levels()
+        return self.nvic.preempting(primask, basepri) is not None
+
+    def idle_until(self, cycle: int) -> None:
+        """Lets time pass to `cycle` (no later than the next event) with the CPU idle, after
+        a `step(idle_jump=False)` that returned idle: its caller decides how far (the board
+        emulator: as far as the wall clock has gone). No time passes if an interrupt is due:
+        the CPU is not idle any more, and a second event (a wheel edge) before it ran would
+        be merged with the first."""
+        cycle = min(cycle, self.next_event())
+        if cycle > self.now and not self.interrupt_due():
+            self._advance_to(cycle)
 
     def run_until(self, cycle: int) -> None:
         while self.now < cycle:

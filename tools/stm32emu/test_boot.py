@@ -29,6 +29,8 @@ REQUEST = 0x4C4F_4144  # "LOAD": stay in the loader
 FPEC = periph.FLASH_IF_BASE
 ICSR, AIRCR, VTOR = cortex.SCB_ICSR, cortex.SCB_AIRCR, cortex.SCB_VTOR
 B_SELF = 0xE7FE
+YIELD = 0xBF10
+B_BACK_2 = 0xE7FD  # b to the half-word before
 BX_LR = 0x4770
 
 
@@ -360,3 +362,46 @@ def test_a_cut_before_a_program_of_a_code_page_leaves_it_erased(tmp_path):
         m.step()
     assert m.fpec.cuts == 0 and (m.fpec.erases, m.fpec.programs) == (1, 0)
     assert path.read_bytes()[0x5000:0x5400] == b"\xff" * 0x400
+
+
+def loader_erasing_then_idle() -> Image:
+    """Starts the erase of F's page, then waits in a YIELD loop (as the resident loader's
+    loop does when nothing came in): the YIELD lands in the slice that started the erase."""
+    a = Asm(FLASH + 0x40)
+    a.ldr(6, FPEC)
+    a.ldr(1, periph.FLASH_KEY1)
+    a.str(1, 6, 0x04)
+    a.ldr(1, periph.FLASH_KEY2)
+    a.str(1, 6, 0x04)
+    a.movs(1, 0x02)  # CR.PER
+    a.str(1, 6, 0x10)
+    a.ldr(7, F)
+    a.str(7, 6, 0x14)  # AR
+    a.movs(1, 0x42)  # PER | STRT
+    a.str(1, 6, 0x10)
+    a.op(YIELD, B_BACK_2)
+    return image(FLASH, 0x2000_4000, a)
+
+
+def test_a_yield_right_after_a_flash_operation_waits_for_it():
+    """The erase stalls the CPU for its 20 ms although the slice ended idle (YIELD): idle
+    time never skips an operation's stall."""
+    m = machine.Machine(None, None, loader=loader_erasing_then_idle())
+    while m.fpec.erases == 0:
+        assert not m.step(idle_jump=False), "idle before the erase ran"
+    assert m.stall_until - m.now >= 20 * cortex.CORE_HZ // 1000 - machine.SLICE
+
+
+@pytest.mark.parametrize("inside", [False, True])
+def test_a_cut_armed_at_an_operation_right_before_a_yield_happens(tmp_path, inside):
+    """The cut at the erase comes although the CPU yields right after it (before the fix,
+    the idle slice dropped it: the page was erased whole and the power never failed)."""
+    path, _ = flash_with_f(tmp_path)
+    m = machine.Machine(None, str(path), loader=loader_erasing_then_idle())
+    m.fpec.arm(1, inside=inside)
+    for _ in range(1000):
+        if len(m.stats.resets) == 2:
+            break
+        m.step(idle_jump=False)
+    assert m.stats.resets[-1].endswith("PowerOn") and len(m.stats.resets) == 2
+    assert m.fpec.cuts == int(inside)
