@@ -2,7 +2,7 @@
 //! footprint checks and the application's update file, the stack-overflow test build, and
 //! the check that `cargo fw` builds the same image.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use xshell::{cmd, Cmd};
 
@@ -132,20 +132,28 @@ pub fn footprint_check() -> Result<footprint::Footprint, String> {
     footprint::check(&firmware_elf("release"), "release firmware", RELEASE_BUDGET)
 }
 
-/// Builds the stack-overflow test image (release profile, feature `stack-overflow-test`, its
-/// own target directory, linked like the release image); returns its ELF.
+/// Builds the stack-overflow test image (release profile, feature `stack-overflow-test`,
+/// linked like the release image) and returns a copy of it in `target/stack-overflow/`.
+///
+/// It builds in the shared target directory, where only the firmware crate compiles anew
+/// (the feature is its own), and then the release image again, which compiles nothing
+/// (cargo keeps both builds) and puts the release image back at its path.
 pub fn overflow_build() -> Result<PathBuf, String> {
-    let dir = target_dir().join("stack-overflow");
     let sh = &root_shell()?;
     board_cargo(cmd!(
         sh,
         "cargo build --locked --release -p handwheel-firmware --target {FIRMWARE_TARGET}
-         --features stack-overflow-test --target-dir {dir}"
+         --features stack-overflow-test"
     ))?;
-    Ok(dir
-        .join(FIRMWARE_TARGET)
-        .join("release")
-        .join("handwheel-firmware"))
+    let copy = target_dir()
+        .join("stack-overflow")
+        .join("handwheel-firmware");
+    let dir = copy.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    std::fs::copy(firmware_elf("release"), &copy)
+        .map_err(|e| format!("cannot copy the stack-overflow image: {e}"))?;
+    release_build()?;
+    Ok(copy)
 }
 
 /// The firmware ELF of a profile directory (`release` or `debug`).

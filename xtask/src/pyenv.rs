@@ -93,24 +93,76 @@ pub fn ensure(root: &Path, venv: &Path) -> Result<PathBuf, String> {
 
 /// Creates or refreshes the venv at `venv` from the pinned `requirements` file; returns the
 /// venv's interpreter. Does nothing when the stamp matches.
+///
+/// When the base interpreter's pip can install into another environment (`pip --python`,
+/// pip 22.3 and later), the venv gets no pip of its own and the base's pip fills it: making
+/// a venv with its own pip is most of the time a venv takes.
 pub fn ensure_from(requirements: &Path, venv: &Path) -> Result<PathBuf, String> {
-    ensure_with(&base_python()?, &[], requirements, venv)
+    let base = base_python()?;
+    let pip = if pip_can_target(&base) {
+        Pip::Base
+    } else {
+        Pip::Own
+    };
+    make_venv(&base, &[], pip, requirements, venv)
 }
 
 /// Like [`ensure_from`], with the base interpreter `base` and extra `venv_options` (such as
-/// `--system-site-packages`, which then become part of the stamp).
+/// `--system-site-packages`, which then become part of the stamp), and a pip (and
+/// setuptools) of the venv's own.
 pub fn ensure_with(
     base: &Path,
     venv_options: &[&str],
     requirements: &Path,
     venv: &Path,
 ) -> Result<PathBuf, String> {
+    make_venv(base, venv_options, Pip::Own, requirements, venv)
+}
+
+/// Which pip fills a venv.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Pip {
+    /// The venv's own (`ensurepip`).
+    Own,
+    /// The base interpreter's, with `--python` (the venv has none).
+    Base,
+}
+
+/// Whether `base -m pip` is pip 22.3 or later, which takes `--python`.
+fn pip_can_target(base: &Path) -> bool {
+    let Ok(out) = Command::new(base).args(["-m", "pip", "--version"]).output() else {
+        return false;
+    };
+    let text = String::from_utf8_lossy(&out.stdout);
+    let version: Vec<u32> = text
+        .split_whitespace()
+        .nth(1)
+        .unwrap_or("")
+        .split('.')
+        .map_while(|part| part.parse().ok())
+        .collect();
+    out.status.success() && version.as_slice() >= [22, 3].as_slice()
+}
+
+fn make_venv(
+    base: &Path,
+    venv_options: &[&str],
+    pip: Pip,
+    requirements: &Path,
+    venv: &Path,
+) -> Result<PathBuf, String> {
     let pinned = std::fs::read(requirements)
         .map_err(|e| format!("cannot read {}: {e}", requirements.display()))?;
     let base = base.to_path_buf();
+    let without_pip: &[&str] = if pip == Pip::Base {
+        &["--without-pip"]
+    } else {
+        &[]
+    };
     let version = [
         interpreter_version(&base),
         base.display().to_string(),
+        without_pip.join(" "),
         venv_options.join(" "),
     ]
     .join(" ")
@@ -128,7 +180,7 @@ pub fn ensure_with(
     let make = |python: &Path| {
         shell::run(cmd!(
             sh,
-            "{python} -m venv --clear {venv_options...} {venv}"
+            "{python} -m venv --clear {without_pip...} {venv_options...} {venv}"
         ))
     };
     if let Err(first) = make(&base) {
@@ -142,7 +194,15 @@ pub fn ensure_with(
         host::apt_install(&["python3-venv"])?;
         make(&base)?;
     }
-    shell::run(pip_install(sh, &python).arg("-r").arg(requirements))?;
+    let install = match pip {
+        Pip::Own => pip_install(sh, &python),
+        Pip::Base => cmd!(
+            sh,
+            "{base} -m pip --python {python} install --disable-pip-version-check --no-input
+             --quiet"
+        ),
+    };
+    shell::run(install.arg("-r").arg(requirements))?;
     std::fs::write(&stamp_path, stamp)
         .map_err(|e| format!("cannot write {}: {e}", stamp_path.display()))?;
     Ok(python)
