@@ -22,6 +22,19 @@ import pytest
 # host tools.
 from rig import Board, FrameRecorder, Rig, Stimulus, open_rig
 
+# The suite's longest tests (tens of seconds each: every flash operation of a store cut, the
+# update's downloads) go first: on two workers the short ones then fill in beside them,
+# instead of one long test running alone at the end.
+LONGEST_FIRST = ["test_update.py", "test_power_cut.py"]
+
+
+def pytest_collection_modifyitems(config, items):
+    def rank(item) -> int:
+        module = item.nodeid.split("::")[0].rsplit("/", 1)[-1]
+        return LONGEST_FIRST.index(module) if module in LONGEST_FIRST else len(LONGEST_FIRST)
+
+    items.sort(key=rank)
+
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):

@@ -134,10 +134,15 @@ pub fn host_tests(pytest_args: &[String]) -> Result<(), String> {
 /// The LinuxCNC suite (`tests/linuxcnc`): the emulated board and the component in the real
 /// LinuxCNC 2.9, set up by [`linuxcnc::prepare`].
 pub fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
+    let setup = linuxcnc::prepare(&workspace_root(), &target_dir())?;
+    linuxcnc_suite_with(&setup, pytest_args)
+}
+
+/// [`linuxcnc_suite`] with LinuxCNC and the component set up already.
+pub fn linuxcnc_suite_with(setup: &linuxcnc::Setup, pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
     Board::prepare()?;
     let root = workspace_root();
-    let setup = linuxcnc::prepare(&root, &target_dir())?;
     let sh = &shell::at(&root)?;
     let (python, suite) = (&setup.python, linuxcnc::SUITE);
     let pytest = cmd!(sh, "{python} -m pytest {suite} {pytest_args...}");
