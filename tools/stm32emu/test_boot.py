@@ -240,24 +240,34 @@ def test_an_application_without_a_loader_starts_as_the_loader_would_start_it():
 F = 0x0800_5000  # a function in the application's slot
 
 
-def loader_rewriting_f() -> Image:
-    """Calls F (r5 := its result), erases F's page, programs `movs r0, #2; bx lr` there,
-    stores a half-word with PG off (PGERR: nothing written), calls F again (r0)."""
-    a = Asm(FLASH + 0x40)
+def unlock_fpec(a: Asm) -> None:
+    """r6 := the FPEC's base; the key sequence into FLASH_KEYR (PM0075 2.3.1)."""
     a.ldr(6, FPEC)
     a.ldr(1, periph.FLASH_KEY1)
     a.str(1, 6, 0x04)
     a.ldr(1, periph.FLASH_KEY2)
     a.str(1, 6, 0x04)
-    a.ldr(4, F | 1)
-    a.blx(4)
-    a.mov(5, 0)
+
+
+def erase_page_of_f(a: Asm) -> None:
+    """Starts the erase of F's page (r6 the FPEC's base; r7 := F): PER, AR, PER | STRT."""
     a.movs(1, 0x02)  # CR.PER
     a.str(1, 6, 0x10)
     a.ldr(7, F)
     a.str(7, 6, 0x14)  # AR
     a.movs(1, 0x42)  # PER | STRT
     a.str(1, 6, 0x10)
+
+
+def loader_rewriting_f() -> Image:
+    """Calls F (r5 := its result), erases F's page, programs `movs r0, #2; bx lr` there,
+    stores a half-word with PG off (PGERR: nothing written), calls F again (r0)."""
+    a = Asm(FLASH + 0x40)
+    unlock_fpec(a)
+    a.ldr(4, F | 1)
+    a.blx(4)
+    a.mov(5, 0)
+    erase_page_of_f(a)
     a.movs(1, 0x01)  # PG
     a.str(1, 6, 0x10)
     a.ldr(1, 0x2002)  # movs r0, #2
@@ -368,17 +378,8 @@ def loader_erasing_then_idle() -> Image:
     """Starts the erase of F's page, then waits in a YIELD loop (as the resident loader's
     loop does when nothing came in): the YIELD lands in the slice that started the erase."""
     a = Asm(FLASH + 0x40)
-    a.ldr(6, FPEC)
-    a.ldr(1, periph.FLASH_KEY1)
-    a.str(1, 6, 0x04)
-    a.ldr(1, periph.FLASH_KEY2)
-    a.str(1, 6, 0x04)
-    a.movs(1, 0x02)  # CR.PER
-    a.str(1, 6, 0x10)
-    a.ldr(7, F)
-    a.str(7, 6, 0x14)  # AR
-    a.movs(1, 0x42)  # PER | STRT
-    a.str(1, 6, 0x10)
+    unlock_fpec(a)
+    erase_page_of_f(a)
     a.op(YIELD, B_BACK_2)
     return image(FLASH, 0x2000_4000, a)
 

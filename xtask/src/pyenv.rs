@@ -130,18 +130,24 @@ enum Pip {
 
 /// Whether `base -m pip` is pip 22.3 or later, which takes `--python`.
 fn pip_can_target(base: &Path) -> bool {
-    let Ok(out) = Command::new(base).args(["-m", "pip", "--version"]).output() else {
-        return false;
-    };
-    let text = String::from_utf8_lossy(&out.stdout);
-    let version: Vec<u32> = text
+    Command::new(base)
+        .args(["-m", "pip", "--version"])
+        .output()
+        .is_ok_and(|out| {
+            out.status.success() && pip_takes_python(&String::from_utf8_lossy(&out.stdout))
+        })
+}
+
+/// Whether the pip of `pip --version`'s line (`pip 23.2.1 from ...`) is 22.3 or later.
+fn pip_takes_python(version_line: &str) -> bool {
+    let version: Vec<u32> = version_line
         .split_whitespace()
         .nth(1)
         .unwrap_or("")
         .split('.')
         .map_while(|part| part.parse().ok())
         .collect();
-    out.status.success() && version.as_slice() >= [22, 3].as_slice()
+    version.as_slice() >= [22, 3].as_slice()
 }
 
 fn make_venv(
@@ -165,9 +171,11 @@ fn make_venv(
         without_pip.join(" "),
         venv_options.join(" "),
     ]
-    .join(" ")
-    .trim_end()
-    .to_string();
+    .iter()
+    .filter(|part| !part.is_empty())
+    .cloned()
+    .collect::<Vec<_>>()
+    .join(" ");
     let stamp = format!("{:016x} {version}\n", fnv1a(&[&pinned, version.as_bytes()]));
     let python = venv_python(venv);
     let stamp_path = venv.join(STAMP);
@@ -245,6 +253,18 @@ pub const INTEROP_WORKERS: &str = "2";
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pip_takes_python_from_22_3_on() {
+        assert!(pip_takes_python(
+            "pip 23.2.1 from /usr/lib/python3/dist-packages/pip"
+        ));
+        assert!(pip_takes_python("pip 22.3 from x"));
+        assert!(!pip_takes_python("pip 22.2.2 from x"));
+        assert!(!pip_takes_python("pip 9.0.1 from x"));
+        assert!(!pip_takes_python("/usr/bin/python3: No module named pip"));
+        assert!(!pip_takes_python(""));
+    }
 
     #[test]
     fn hash_notices_changes_and_chunk_boundaries() {
