@@ -140,6 +140,40 @@ class Host:
         newest = self.relay.newest_record()
         return newest is not None and self.hal.number("position") == decode(newest).position
 
+    def verdict_of(self, record: Frame) -> tuple:
+        """(what the host's rule made of `record`, the rule's staleness time), by a replay of
+        the component's capture so far (the component flushes it every round); the text says
+        so if the record is not there (yet)."""
+        from canopen_handwheel import capture as captures
+        from canopen_handwheel import decode
+
+        try:
+            replay = decode.replay([captures.read(p) for p in captures.files_of(self.capture)])
+        except (OSError, ValueError) as e:  # a line cut off by the component's next write
+            return f"the capture does not read: {e}", 0.0
+        verdicts = [
+            line.verdict.text
+            for line in replay.lines
+            if line.verdict is not None
+            and line.frame.id == TPDO1
+            and line.frame.data == bytes(record.data)
+        ]
+        return (verdicts[-1] if verdicts else "not in the capture"), replay.core.stale_after
+
+    def busy_host_drop(self, record: Frame) -> Optional[str]:
+        """The rule's verdict on `record` if it dropped the record because the component was
+        held up, else None: a record from a backlog (its receive path not found empty for
+        over BACKLOG_LIMIT), or one the rule found stale although the device's record before
+        it passed the relay less than the staleness time before it."""
+        verdict, stale_after = self.verdict_of(record)
+        if "from a backlog" in verdict:
+            return verdict
+        if "baseline: nothing of the session" in verdict:
+            before = [f.t for f in self.relay.records_since(0) if f.t < record.t]
+            if before and record.t - before[-1] < stale_after:
+                return f"{verdict} (at the relay: {record.t - before[-1]:.3f} s)"
+        return None
+
     def select(self, axis: str) -> int:
         """Moves the switch; returns the index (in `relay.records`) of the first record that
         shows the new axis."""
@@ -217,6 +251,9 @@ TURN = 40  # detents turned fast before each copy (more come before the first)
 LIVELY = 0.5
 # The component's view of the newest record once it has passed the relay (a busy host).
 CATCH_UP = 3.0
+# Detents in a row a busy host may drop after a copy (`Host.busy_host_drop`) before the
+# wheel counts as dead.
+BUSY_RETRIES = 3
 
 
 def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
@@ -225,7 +262,9 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
     once, right after a genuine record, and then one detent is turned. Per k, X's counts
     never step back, never exceed what the records since the k's start say was turned, and
     the detent after the copy is credited (exactly its 100 counts) within LIVELY of its record
-    passing the relay: the wheel is not dead. Over all, X is credited at most what was turned
+    passing the relay: the wheel is not dead. A detent the rule dropped because the component
+    was held up (`Host.busy_host_drop`, from a replay of its capture) is excused, and the
+    next one must count, up to BUSY_RETRIES in a row. Over all, X is credited at most what was turned
     while enabled (exactly that unless a busy host made the component take a record from a
     backlog, a baseline). Before the fix a copy 249-255 (or 511) back read as a few records
     ahead and was credited backwards, 129-248 (and 1000) back became the reference and left
@@ -262,6 +301,26 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
         )
         lively = h.wait(lambda c=counts: h.counts("x") == c + 100, LIVELY)
         late = time.monotonic() - detent.t
+        busy = []  # the detents a busy host dropped (records from a backlog), by the rule
+        while not lively and len(busy) < BUSY_RETRIES:
+            verdict = h.busy_host_drop(detent)
+            if verdict is None:
+                break
+            # The component was held up: the record is only a baseline, by design (nothing
+            # moves late). The next detent must count.
+            busy.append(verdict)
+            h.must(h.caught_up, CATCH_UP, "the component at the dropped detent's record")
+            counts, before, mark = h.counts("x"), before + 100, relay.device.mark()
+            h.stim.turn(1)
+            detent = relay.device.wait_for(
+                lambda f, b=before: f.id == TPDO1 and decode(f).position == b + 100,
+                since=mark,
+                what="the record of the detent after a dropped one",
+            )
+            lively = h.wait(lambda c=counts: h.counts("x") == c + 100, LIVELY)
+            late = time.monotonic() - detent.t
+        if busy:
+            print(f"k={k}: {len(busy)} detent(s) dropped by a busy host: {busy}")
         truth = before + 100 - start_position
         values = [start_counts] + [int(v) for _, v in h.hal.history("axis.x.jog-counts", since)]
         backwards = [b - a for a, b in zip(values, values[1:]) if b < a]
@@ -274,7 +333,7 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
         if not lively:
             problems.append(
                 f"the detent after the copy not credited {late:.2f} s after its record "
-                f"(X {h.counts('x') - counts:+d})"
+                f"(X {h.counts('x') - counts:+d}; the rule: {h.verdict_of(detent)[0]})"
             )
         if problems:
             copied, newest = decode(copy.copy), decode(copy.newest)
