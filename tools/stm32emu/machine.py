@@ -53,6 +53,12 @@ PPB_SIZE = 0x10_0000
 # Instructions per slice: 2000 cycles, 27.8 us at 72 MHz. An interrupt raised from outside
 # the CPU (a CAN frame, a wheel edge) is taken at the end of the slice it falls in.
 SLICE = 2000
+# The longest slice of the loader's stretches of pure computation (its CRC over the
+# application's slot, 40 ms of the core's time): slices double up to it while the loader
+# runs whole slices without touching a peripheral, and fall back to SLICE at the first
+# access. The Python work per slice, not the instructions, made a boot take twice its
+# emulated time. 0.9 ms: a host frame arriving meanwhile waits at most that long.
+LONG_SLICE = 32 * SLICE
 
 # Pins (src/board/pins.rs, README "Pin map").
 WHEEL_A, WHEEL_B = 6, 7  # PB6, PB7
@@ -185,6 +191,8 @@ class Machine:
         self.storm_until = 0
         self.storm_started_ms = 0.0
         self.stats = Stats()
+        self.slice = SLICE  # the next slice's length (`_next_slice`)
+        self.accesses = 0  # peripheral and flash-store accesses of the CPU so far
         self.boot_cause = "PowerOn"
         self.power_on()
 
@@ -236,6 +244,7 @@ class Machine:
     def _flash_store(self, _uc, _access, address, size, value, _user) -> bool:
         """A CPU store into the flash: the FPEC's to apply (a half-word program, or an
         error flag). Unicorn then leaves the flash as `_flash_changed` wrote it."""
+        self.accesses += 1
         self.fpec.write_memory(address - self.flash.origin, size, value, self.now)
         return True
 
@@ -286,6 +295,7 @@ class Machine:
         return address & ~3, (value << shift) & mask, mask
 
     def _periph_read(self, _uc, offset, size, _user):
+        self.accesses += 1
         address = PERIPH_BASE + offset
         word = self._read_word(address & ~3)
         return (word >> ((address & 3) * 8)) & ((1 << (size * 8)) - 1)
@@ -302,6 +312,7 @@ class Machine:
         return model.read(offset)
 
     def _periph_write(self, _uc, offset, size, value, _user):
+        self.accesses += 1
         address, value, mask = self._lanes(PERIPH_BASE + offset, size, value)
         self._write_word(address, value, mask)
 
@@ -323,11 +334,13 @@ class Machine:
             self.update_irqs()
 
     def _bb_read(self, _uc, offset, _size, _user):
+        self.accesses += 1
         address = PERIPH_BASE + (offset >> 5)
         bit = ((offset >> 2) & 7) + 8 * (address & 3)
         return (self._read_word(address & ~3) >> bit) & 1
 
     def _bb_write(self, _uc, offset, _size, value, _user):
+        self.accesses += 1
         address = PERIPH_BASE + (offset >> 5)
         bit = ((offset >> 2) & 7) + 8 * (address & 3)
         word = address & ~3
@@ -336,6 +349,7 @@ class Machine:
         self._write_word(word, new, 0xFFFF_FFFF)
 
     def _ppb_read(self, _uc, offset, size, _user):
+        self.accesses += 1
         address = PPB_BASE + offset
         if 0xE000_E000 <= address < 0xE000_F000:
             word = self.nvic.read(address & ~3)
@@ -344,6 +358,7 @@ class Machine:
         return (word >> ((address & 3) * 8)) & ((1 << (size * 8)) - 1)
 
     def _ppb_write(self, _uc, offset, size, value, _user):
+        self.accesses += 1
         address, value, mask = self._lanes(PPB_BASE + offset, size, value)
         if address == cortex.SCB_VTOR:
             # The loader hands over: the last moment its RTT log is surely intact.
@@ -617,9 +632,11 @@ class Machine:
             return False
         before = self.core.cycles
         self.core.check_preemption()
-        count = min(SLICE, target - self.now)
+        count = min(self.slice, target - self.now)
+        accesses = self.accesses
         self.core.run(count)
         self.stats.slices += 1
+        self.slice = self._next_slice(count, self.accesses != accesses)
         # The whole slice, or in precise mode what its instructions and exception entries
         # and returns took.
         elapsed = self.core.cycles - before
@@ -651,6 +668,22 @@ class Machine:
         if stall:
             self.stall_until = self.now + stall
         return False
+
+    def _next_slice(self, count: int, accessed: bool) -> int:
+        """The next slice's length: doubled after a whole slice of the loader's (real-time
+        mode) that touched no peripheral, with no exception pending; else SLICE. The loader
+        takes no interrupts; a pending exception could be let in by an MSR, which is no
+        access."""
+        if (
+            accessed
+            or count < self.slice
+            or self.core.stop_reason
+            or self.core.cost is not None
+            or self.nvic.pending
+            or self.running() != LOADER
+        ):
+            return SLICE
+        return min(2 * self.slice, LONG_SLICE)
 
     def interrupt_due(self) -> bool:
         """An exception would preempt what the CPU runs now (after an idle `step`: an event

@@ -406,3 +406,41 @@ def test_a_cut_armed_at_an_operation_right_before_a_yield_happens(tmp_path, insi
         m.step(idle_jump=False)
     assert m.stats.resets[-1].endswith("PowerOn") and len(m.stats.resets) == 2
     assert m.fpec.cuts == int(inside)
+
+
+def spinning(table: int, sp: int, poll: int | None = None) -> Image:
+    """Pure computation forever (a branch to itself), or with `poll` a loop reading that
+    peripheral register."""
+    a = Asm(table + 0x40)
+    if poll is not None:
+        a.ldr(0, poll)
+        a.label("loop")
+        a.ldr_imm(1, 0)
+        a.op(0xE000 | (a.labels["loop"] - (a.here() + 4)) // 2 & 0x7FF)  # B loop
+    else:
+        a.op(B_SELF)
+    return image(table, sp, a)
+
+
+def slices_in_5_ms(m) -> list[int]:
+    lengths = []
+    end = m.now + 5 * cortex.CORE_HZ // 1000
+    while m.now < end:
+        before = m.now
+        m.step()
+        lengths.append(m.now - before)
+    return lengths
+
+
+def test_the_loaders_pure_computation_runs_in_growing_slices():
+    """A stretch of the loader's that touches no peripheral (its CRC over the slot) runs in
+    slices doubling up to LONG_SLICE; a loop polling a register, or the application, keeps
+    SLICE (its interrupts are taken at the end of a slice)."""
+    computing = slices_in_5_ms(machine.Machine(None, None, loader=spinning(FLASH, 0x2000_4000)))
+    doubling = [machine.SLICE << n for n in range(6)]
+    assert computing[:6] == doubling and set(computing[6:-1]) == {machine.LONG_SLICE}
+    polling = machine.Machine(None, None, loader=spinning(FLASH, 0x2000_4000, FPEC + 0x0C))
+    assert set(slices_in_5_ms(polling)[:-1]) == {machine.SLICE}
+    app = machine.Machine(spinning(APP_TABLE, 0x2000_2000))
+    assert app.running() == APPLICATION
+    assert set(slices_in_5_ms(app)[:-1]) == {machine.SLICE}
