@@ -264,12 +264,12 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
     the detent after the copy is credited (exactly its 100 counts) within LIVELY of its record
     passing the relay: the wheel is not dead. A detent the rule dropped because the component
     was held up (`Host.busy_host_drop`, from a replay of its capture) is excused, and the
-    next one must count, up to BUSY_RETRIES in a row. Over all, X is credited at most what was turned
-    while enabled (exactly that unless a busy host made the component take a record from a
-    backlog, a baseline). Before the fix a copy 249-255 (or 511) back read as a few records
-    ahead and was credited backwards, 129-248 (and 1000) back became the reference and left
-    the wheel dead for up to 2 s, 256 (512) back had the newest's sequence number, a bad
-    record that made the next one a baseline."""
+    next one must count, up to BUSY_RETRIES in a row. Over all, X is credited at most what
+    was turned while enabled (exactly that unless a busy host made the component take a
+    record from a backlog, a baseline). Before the fix a copy 249-255 (or 511) back read as
+    a few records ahead and was credited backwards, 129-248 (and 1000) back became the
+    reference and left the wheel dead for up to 2 s, 256 (512) back had the newest's
+    sequence number, a bad record that made the next one a baseline."""
     h = host100
     relay = h.relay
     first = h.first_enabled().seq  # copies only of records of the feed enabled

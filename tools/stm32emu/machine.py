@@ -51,13 +51,15 @@ PPB_BASE = 0xE000_0000
 PPB_SIZE = 0x10_0000
 
 # Instructions per slice: 2000 cycles, 27.8 us at 72 MHz. An interrupt raised from outside
-# the CPU (a CAN frame, a wheel edge) is taken at the end of the slice it falls in.
+# the CPU (a CAN frame, a wheel edge) is taken at the end of the slice it falls in (the
+# loader's stretches of pure computation excepted: LONG_SLICE).
 SLICE = 2000
 # The longest slice of the loader's stretches of pure computation (its CRC over the
 # application's slot, 40 ms of the core's time): slices double up to it while the loader
 # runs whole slices without touching a peripheral, and fall back to SLICE at the first
-# access. The Python work per slice, not the instructions, made a boot take twice its
-# emulated time. 0.9 ms: a host frame arriving meanwhile waits at most that long.
+# access. The Python work per slice, not the instructions, made a boot take longer than its
+# emulated time (docs/EMULATED-BOARD.md). 0.9 ms: a host frame arriving meanwhile waits at
+# most that long.
 LONG_SLICE = 32 * SLICE
 
 # Pins (src/board/pins.rs, README "Pin map").
