@@ -76,7 +76,8 @@ def relay(board: Board):
 def master(relay: Relay, node_id: int = NODE_ID):
     """A python-canopen master on the relay's client port for a few SDO requests."""
     network = canopen.Network()
-    network.connect(interface="slcan", channel=relay.channel, tty_baudrate=115200)
+    # No 2 s pause after opening: that is for serial adapters, the relay is a TCP port.
+    network.connect(interface="slcan", channel=relay.channel, sleep_after_open=0)
     try:
         node = network.add_node(node_id, canopen.ObjectDictionary())
         # Generous: on a loaded machine the emulated board can fall a second behind, and a
