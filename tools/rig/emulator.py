@@ -5,6 +5,10 @@ on its CAN port.
 `HANDWHEEL_BOARD_COMMAND` overrides the runner, e.g. to skip cargo:
 "python tools/board-emu/server.py --elf ELF --can-port {can_port} --stim-port {stim_port}
 --flash {flash}" (the defmt stream then is not decoded).
+
+`HANDWHEEL_BOARD_SERVER` (the release image) and `HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW`, set
+by the `cargo xtask` suites once they built everything, hold the server's command up to the
+board's own options (a shell line): the board then starts without cargo and the task runner.
 """
 
 from __future__ import annotations
@@ -38,6 +42,14 @@ def free_ports(count: int) -> List[int]:
             s.close()
 
 
+def server_variable(image: str | None) -> str:
+    """The variable that holds the prepared server command of `image` (None: the release
+    image): `HANDWHEEL_BOARD_SERVER`, with `_STACK_OVERFLOW` for `stack-overflow`."""
+    if image in (None, "release"):
+        return "HANDWHEEL_BOARD_SERVER"
+    return "HANDWHEEL_BOARD_SERVER_" + image.upper().replace("-", "_")
+
+
 class Board:
     """`cargo xtask board --can-port P --stim-port Q --flash FILE`, its stderr (the server's
     messages and the decoded defmt log) in `log_path`. `flash` is its parameter page file
@@ -65,10 +77,22 @@ class Board:
         if image is not None:
             extra["image"] = image  # `cargo xtask board --image`: release, stack-overflow
         template = os.environ.get("HANDWHEEL_BOARD_COMMAND")
+        server = os.environ.get(server_variable(image))
         if template:
             command = shlex.split(
                 template.format(can_port=self.can_port, stim_port=self.stim_port, **extra)
             )
+        elif server:
+            command = shlex.split(server) + [
+                "--can-port",
+                str(self.can_port),
+                "--stim-port",
+                str(self.stim_port),
+                "--flash",
+                str(self.flash),
+            ]
+            if dip is not None:
+                command += ["--dip", str(dip)]
         else:
             command = [
                 os.environ.get("CARGO", "cargo"),

@@ -20,6 +20,7 @@
 //! runs the test build that overflows its stack on purpose (feature `stack-overflow-test`)
 //! instead of the release image, alone unless `--loader FILE`.
 
+use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 use xshell::{cmd, Cmd, Shell};
@@ -218,30 +219,52 @@ pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
 }
 
 /// The emulator's command line for the application `elf` and the `loader` (None: the
-/// application alone), its log decoded by `defmt_print`.
-#[allow(clippy::too_many_arguments)]
-pub fn command<'a>(
-    sh: &'a Shell,
+/// application alone), its log decoded by `defmt_print`, up to the board's own options
+/// (ports, flash file, DIP switch).
+pub fn server_argv(
     python: &Path,
     root: &Path,
     elf: &Path,
     loader: Option<&Path>,
+    defmt_print: &Path,
+) -> Vec<OsString> {
+    let mut argv: Vec<OsString> = vec![python.into(), root.join(PACKAGE).join("server.py").into()];
+    if let Some(loader) = loader {
+        argv.extend(["--loader".into(), loader.into()]);
+    }
+    argv.extend(["--elf".into(), elf.into()]);
+    argv.extend(["--defmt-print".into(), defmt_print.into()]);
+    argv
+}
+
+/// [`server_argv`] with the board's own options from `args`.
+pub fn command<'a>(
+    sh: &'a Shell,
+    server: &[OsString],
     args: &Args,
     default_flash: &Path,
-    defmt_print: &Path,
 ) -> Cmd<'a> {
-    let server = root.join(PACKAGE).join("server.py");
     let (can, stim) = (args.ports.can.to_string(), args.ports.stim.to_string());
     let flash = args.flash.as_deref().unwrap_or(default_flash);
     let dip = args.dip.map(|dip| ["--dip".to_string(), dip.to_string()]);
     let dip = dip.iter().flatten();
-    let loader = loader.map(|l| ["--loader".into(), l.as_os_str().to_owned()]);
-    let loader = loader.iter().flatten();
+    let (program, server) = server
+        .split_first()
+        .expect("the server's command has a program");
     cmd!(
         sh,
-        "{python} {server} {loader...} --elf {elf} --can-port {can} --stim-port {stim}
-         --flash {flash} --defmt-print {defmt_print} {dip...}"
+        "{program} {server...} --can-port {can} --stim-port {stim} --flash {flash} {dip...}"
     )
+}
+
+/// `argv` as one line that a POSIX shell, and Python's `shlex.split`, read back into the
+/// same words: each word in single quotes, a quote inside as `'\''`.
+pub fn shell_line(argv: &[OsString]) -> String {
+    let words: Vec<String> = argv
+        .iter()
+        .map(|word| format!("'{}'", word.to_string_lossy().replace('\'', r"'\''")))
+        .collect();
+    words.join(" ")
 }
 
 /// The chip model's, the board's and the seal's unit tests (`tools/stm32emu/test_*.py`,
@@ -350,6 +373,15 @@ mod tests {
         }
         let usage = Args::from_args(&strings(&["--can-port", "1"])).unwrap_err();
         assert!(usage.contains("cargo xtask board"), "{usage}");
+    }
+
+    #[test]
+    fn a_shell_line_keeps_every_word() {
+        let argv: Vec<OsString> = ["/a b/python", "it's", "", "--elf"]
+            .iter()
+            .map(OsString::from)
+            .collect();
+        assert_eq!(shell_line(&argv), r"'/a b/python' 'it'\''s' '' '--elf'");
     }
 
     #[test]

@@ -25,16 +25,14 @@ pub fn run_board(args: board::Args) -> Result<(), String> {
     }
     let root = workspace_root();
     let sh = &shell::at(&root)?;
-    let server = board::command(
-        sh,
+    let argv = board::server_argv(
         &setup.python,
         &root,
         &setup.elf,
         loader.as_deref(),
-        &args,
-        &default_flash,
         &setup.defmt_print,
     );
+    let server = board::command(sh, &argv, &args, &default_flash);
     eprintln!("xtask: {server}");
     // The server runs defmt-print itself (restarting it at every reset). It replaces this
     // process, which xshell (waiting for its commands) does not do.

@@ -8,7 +8,9 @@ use std::time::Instant;
 
 use xshell::cmd;
 
-use crate::fw::{firmware_elf, loader_build, overflow_build, release_build, update_file};
+use crate::fw::{
+    firmware_elf, loader_build, loader_elf, overflow_build, release_build, update_file,
+};
 use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
 use crate::{board, host, linuxcnc, pyenv, shell};
 
@@ -54,6 +56,37 @@ impl Board {
     }
 }
 
+impl Board {
+    /// Lets the rig (`tools/rig/emulator.py`) start boards of `image` by running their server
+    /// itself instead of `cargo xtask board` (cargo and the task runner: about 0.9 s of each
+    /// board's start, and most of a short test's time): `HANDWHEEL_BOARD_SERVER` (the
+    /// release image) or `HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW` holds the server's command
+    /// up to the board's own options, as a shell line. The release image boots the loader,
+    /// as `cargo xtask board` does.
+    pub fn export(&self, image: board::Image) {
+        let (variable, loader) = match image {
+            board::Image::Release => ("HANDWHEEL_BOARD_SERVER", Some(loader_elf())),
+            board::Image::StackOverflow => ("HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW", None),
+        };
+        let argv = board::server_argv(
+            &self.python,
+            &workspace_root(),
+            &self.elf,
+            loader.as_deref(),
+            &self.defmt_print,
+        );
+        env::set_var(variable, board::shell_line(&argv));
+    }
+}
+
+/// The boards of the suites' tests, built once and started without cargo ([`Board::export`]).
+fn export_boards() -> Result<(), String> {
+    Board::prepare()?.export(board::Image::Release);
+    // The stack-overflow test runs this image.
+    Board::prepare_image(board::Image::StackOverflow)?.export(board::Image::StackOverflow);
+    Ok(())
+}
+
 /// The emulated board's own unit tests (register models, exception model; pytest).
 pub fn board_unit_tests() -> Result<(), String> {
     let setup = Board::prepare()?;
@@ -67,9 +100,7 @@ pub fn board_unit_tests() -> Result<(), String> {
 /// `pytest_args`.
 pub fn interop(pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
-    Board::prepare()?;
-    // The stack-overflow test runs this image.
-    overflow_build()?;
+    export_boards()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let sh = &shell::at(&root)?;
@@ -85,7 +116,7 @@ pub fn interop(pytest_args: &[String]) -> Result<(), String> {
 /// ([`SNIPPETS_RUN`], pytest in the interop venv).
 pub fn snippets_run() -> Result<(), String> {
     let started = Instant::now();
-    Board::prepare()?;
+    export_boards()?;
     let root = workspace_root();
     let python = pyenv::ensure(&root, &pyenv::venv_dir(&target_dir()))?;
     let sh = &shell::at(&root)?;
@@ -141,7 +172,7 @@ pub fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
 /// [`linuxcnc_suite`] with LinuxCNC and the component set up already.
 pub fn linuxcnc_suite_with(setup: &linuxcnc::Setup, pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
-    Board::prepare()?;
+    Board::prepare()?.export(board::Image::Release);
     let root = workspace_root();
     let sh = &shell::at(&root)?;
     let (python, suite) = (&setup.python, linuxcnc::SUITE);
