@@ -24,6 +24,7 @@ pub struct Board {
     pub python: PathBuf,
     pub defmt_print: PathBuf,
     pub elf: PathBuf,
+    pub image: board::Image,
 }
 
 impl Board {
@@ -52,19 +53,18 @@ impl Board {
             python,
             defmt_print,
             elf,
+            image,
         })
     }
-}
 
-impl Board {
-    /// Lets the rig (`tools/rig/emulator.py`) start boards of `image` by running their server
-    /// itself instead of `cargo xtask board` (cargo and the task runner: about 0.9 s of each
-    /// board's start, and most of a short test's time): `HANDWHEEL_BOARD_SERVER` (the
-    /// release image) or `HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW` holds the server's command
-    /// up to the board's own options, as a shell line. The release image boots the loader,
-    /// as `cargo xtask board` does.
-    pub fn export(&self, image: board::Image) {
-        let (variable, loader) = match image {
+    /// Lets the rig (`tools/rig/emulator.py`) start boards of this image by running their server
+    /// itself instead of `cargo xtask board` (cargo and the task runner were most of a board's
+    /// start: docs/TESTING.md): `HANDWHEEL_BOARD_SERVER` (the release image) or
+    /// `HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW` holds the server's command up to the board's
+    /// own options, as a shell line. The release image boots the loader, as `cargo xtask
+    /// board` does.
+    pub fn export(&self) {
+        let (variable, loader) = match self.image {
             board::Image::Release => ("HANDWHEEL_BOARD_SERVER", Some(loader_elf())),
             board::Image::StackOverflow => ("HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW", None),
         };
@@ -81,9 +81,9 @@ impl Board {
 
 /// The boards of the suites' tests, built once and started without cargo ([`Board::export`]).
 fn export_boards() -> Result<(), String> {
-    Board::prepare()?.export(board::Image::Release);
+    Board::prepare()?.export();
     // The stack-overflow test runs this image.
-    Board::prepare_image(board::Image::StackOverflow)?.export(board::Image::StackOverflow);
+    Board::prepare_image(board::Image::StackOverflow)?.export();
     Ok(())
 }
 
@@ -172,7 +172,7 @@ pub fn linuxcnc_suite(pytest_args: &[String]) -> Result<(), String> {
 /// [`linuxcnc_suite`] with LinuxCNC and the component set up already.
 pub fn linuxcnc_suite_with(setup: &linuxcnc::Setup, pytest_args: &[String]) -> Result<(), String> {
     let started = Instant::now();
-    Board::prepare()?.export(board::Image::Release);
+    Board::prepare()?.export();
     let root = workspace_root();
     let sh = &shell::at(&root)?;
     let (python, suite) = (&setup.python, linuxcnc::SUITE);
