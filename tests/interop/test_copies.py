@@ -140,6 +140,17 @@ class Host:
         newest = self.relay.newest_record()
         return newest is not None and self.hal.number("position") == decode(newest).position
 
+    def detent_x100(self, at: int, what: str) -> tuple:
+        """(X's counts before, the record, credited): one detent turned at x100 from
+        position `at`, the device's record of it, and whether X was credited its 100 counts
+        within LIVELY of that record passing the relay."""
+        counts, mark = self.counts("x"), self.relay.device.mark()
+        self.stim.turn(1)
+        record = self.relay.device.wait_for(
+            lambda f: f.id == TPDO1 and decode(f).position == at + 100, since=mark, what=what
+        )
+        return counts, record, self.wait(lambda: self.counts("x") == counts + 100, LIVELY)
+
     def verdict_of(self, record: Frame) -> tuple:
         """(what the host's rule made of `record`, the rule's staleness time), by a replay of
         the component's capture so far (the component flushes it every round); the text says
@@ -290,18 +301,10 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
         h.must(h.caught_up, CATCH_UP, "the component at the newest record after the turn")
         copy = relay.replay(k, since=first)
         assert copy.wait(FRAME_TIMEOUT), f"the copy {k} back was never sent"
-        counts = h.counts("x")
         before = decode(h.newest()).position
-        mark = relay.device.mark()
-        h.stim.turn(1)
-        detent = relay.device.wait_for(
-            lambda f, b=before: f.id == TPDO1 and decode(f).position == b + 100,
-            since=mark,
-            what="the record of the detent after the copy",
-        )
-        lively = h.wait(lambda c=counts: h.counts("x") == c + 100, LIVELY)
+        counts, detent, lively = h.detent_x100(before, "the record of the detent after the copy")
         late = time.monotonic() - detent.t
-        busy = []  # the detents a busy host dropped (records from a backlog), by the rule
+        busy = []  # the detents a busy host dropped, by the rule
         while not lively and len(busy) < BUSY_RETRIES:
             verdict = h.busy_host_drop(detent)
             if verdict is None:
@@ -310,14 +313,8 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
             # moves late). The next detent must count.
             busy.append(verdict)
             h.must(h.caught_up, CATCH_UP, "the component at the dropped detent's record")
-            counts, before, mark = h.counts("x"), before + 100, relay.device.mark()
-            h.stim.turn(1)
-            detent = relay.device.wait_for(
-                lambda f, b=before: f.id == TPDO1 and decode(f).position == b + 100,
-                since=mark,
-                what="the record of the detent after a dropped one",
-            )
-            lively = h.wait(lambda c=counts: h.counts("x") == c + 100, LIVELY)
+            before += 100
+            counts, detent, lively = h.detent_x100(before, "the detent after a dropped one")
             late = time.monotonic() - detent.t
         if busy:
             print(f"k={k}: {len(busy)} detent(s) dropped by a busy host: {busy}")
