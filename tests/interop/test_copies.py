@@ -151,38 +151,51 @@ class Host:
         )
         return counts, record, self.wait(lambda: self.counts("x") == counts + 100, LIVELY)
 
-    def verdict_of(self, record: Frame) -> tuple:
-        """(what the host's rule made of `record`, the rule's staleness time), by a replay of
-        the component's capture so far (the component flushes it every round); the text says
-        so if the record is not there (yet)."""
+    def verdicts(self) -> tuple:
+        """({a feed record's bytes: the rule's last verdict on it}, the rule's staleness
+        time), by a replay of the component's capture so far (the component flushes it every
+        round); an empty map if it does not read yet."""
         from canopen_handwheel import capture as captures
         from canopen_handwheel import decode
 
         try:
             replay = decode.replay([captures.read(p) for p in captures.files_of(self.capture)])
-        except (OSError, ValueError) as e:  # a line cut off by the component's next write
-            return f"the capture does not read: {e}", 0.0
-        verdicts = [
-            line.verdict.text
+        except (OSError, ValueError):  # a line cut off by the component's next write
+            return {}, 0.0
+        judged = {
+            line.frame.data: line.verdict
             for line in replay.lines
-            if line.verdict is not None
-            and line.frame.id == TPDO1
-            and line.frame.data == bytes(record.data)
-        ]
-        return (verdicts[-1] if verdicts else "not in the capture"), replay.core.stale_after
+            if line.verdict is not None and line.frame.id == TPDO1
+        }
+        return judged, replay.core.stale_after
+
+    def verdict_of(self, record: Frame) -> str:
+        """What the host's rule made of `record` (`verdicts`)."""
+        verdict = self.verdicts()[0].get(bytes(record.data))
+        return verdict.text if verdict is not None else "not in the capture (yet)"
 
     def busy_host_drop(self, record: Frame) -> Optional[str]:
         """The rule's verdict on `record` if it dropped the record because the component was
         held up, else None: a record from a backlog (its receive path not found empty for
         over BACKLOG_LIMIT), or one the rule found stale although the device's record before
-        it passed the relay less than the staleness time before it."""
-        verdict, stale_after = self.verdict_of(record)
-        if "from a backlog" in verdict:
-            return verdict
-        if "baseline: nothing of the session" in verdict:
-            before = [f.t for f in self.relay.records_since(0) if f.t < record.t]
-            if before and record.t - before[-1] < stale_after:
-                return f"{verdict} (at the relay: {record.t - before[-1]:.3f} s)"
+        it passed the relay less than the staleness time before it and the rule took that
+        one (had it refused it, the staleness could be the rule's own doing)."""
+        from canopen_handwheel import decode as rule
+
+        judged, stale_after = self.verdicts()
+        verdict = judged.get(bytes(record.data))
+        if verdict is None:
+            return None
+        if "from a backlog" in verdict.text:
+            return verdict.text
+        if verdict.kind == rule.BASELINE and "nothing of the session" in verdict.text:
+            before = [f for f in self.relay.records_since(0) if f.t < record.t]
+            taken = (rule.CREDITED, rule.AT_REST, rule.BASELINE, rule.NOT_CREDITED)
+            previous = judged.get(bytes(before[-1].data)) if before else None
+            if previous is not None and previous.kind in taken:
+                gap = record.t - before[-1].t
+                if gap < stale_after:
+                    return f"{verdict.text} (at the relay: {gap:.3f} s after one it took)"
         return None
 
     def select(self, axis: str) -> int:
@@ -330,7 +343,7 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
         if not lively:
             problems.append(
                 f"the detent after the copy not credited {late:.2f} s after its record "
-                f"(X {h.counts('x') - counts:+d}; the rule: {h.verdict_of(detent)[0]})"
+                f"(X {h.counts('x') - counts:+d}; the rule: {h.verdict_of(detent)})"
             )
         if problems:
             copied, newest = decode(copy.copy), decode(copy.newest)
