@@ -402,11 +402,14 @@ class SlcanDevice:
         (0x1016, 0): (1, 1),
         (0x1016, 1): (0, 4),
         (0x1800, 1): (0x4000_0180 + NODE, 4),
+        (0x1800, 2): (254, 1),
         (0x1800, 3): (20, 2),
         (0x1800, 5): (50, 2),
         (0x2000, 0): (0, 1),
         (0x2001, 0): (0, 1),
         (0x2002, 0): (0, 1),
+        (0x2020, 3): (4, 1),
+        (0x2020, 4): (0, 1),
         (0x1A00, 0): (len(core.FEED_RECORD_MAPPING), 1),
         **{(0x1A00, i + 1): (m, 4) for i, m in enumerate(core.FEED_RECORD_MAPPING)},
     }
@@ -802,7 +805,7 @@ class SlcanFeed:
 
 
 def test_a_frozen_component_moves_nothing_from_its_backlog(tmp_path):
-    """Issue 26, finding 3 without the firmware: the component stopped (SIGSTOP) for 3 s
+    """Without the firmware: the component stopped (SIGSTOP) for 3 s
     while 20 detents' records (in the first 0.3 s) and the event timer's records wait in its
     socket; continued, it reads them all but moves nothing; the next record moves again."""
     feed = SlcanFeed(tmp_path)
@@ -832,7 +835,7 @@ def test_a_frozen_component_moves_nothing_from_its_backlog(tmp_path):
 
 
 def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(tmp_path):
-    """Issue 26, finding 5 without the firmware: 5 000 EMCYs per second on the component's
+    """Without the firmware: 5 000 EMCYs per second on the component's
     SLCAN line while a detent's record comes every 0.2 s: every detent reaches jog-counts
     within 0.1 s of its record being sent, and the resident memory grows less than 2 MB
     (python-canopen's EMCY consumer kept about 500 B per EMCY)."""
@@ -930,19 +933,30 @@ class FakeLink:
         self.sdo_reply_at = 1.5
 
 
+# What a configuration sets that shapes motion (`core.motion_settings`) for the default
+# options: 4 counts per detent, direction as wired, the feed record.
+SETTINGS = core.motion_settings(core.Config())
+
+
 def test_the_configuration_steps_and_their_read_backs(capfd):
-    """Spec 4.5 in order: 0x2002 (intact check), the 0x1016 entry written and read back, the
-    event timer, the inhibit time below 1 ms made 2 ms with TPDO1 invalid meanwhile, 0x2001,
-    feed off, the session written last and read back, NMT start."""
+    """In order: 0x2002 (intact check), the 0x1016 entry written and read back, the event
+    timer, the inhibit time below 1 ms made 2 ms with TPDO1 invalid meanwhile, the
+    transmission type, the wheel's parameters and 0x2001 set where they differ (another
+    master inverted the wheel and chose the unit-step format), TPDO1's mapping and COB-ID,
+    feed off, the session written and read back, then everything that shapes motion read
+    back once more and the session last, NMT start."""
     objects = dict(SlcanDevice.OBJECTS)
+    objects[(0x1800, 2)] = (1, 1)  # synchronous: records only at a SYNC
     objects[(0x1800, 3)] = (5, 2)  # 0.5 ms
     objects[(0x2001, 0)] = (1, 1)
     objects[(0x2002, 0)] = (4, 1)  # another master's session
+    objects[(0x2020, 4)] = (1, 1)  # another master inverted the wheel
     sdo = FakeSdo(objects)
-    action = core.Configure(1, 500, None, keep=2, tokens=(4, 5))
+    action = core.Configure(1, 500, None, keep=2, tokens=(4, 5), settings=SETTINGS)
     ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
     assert ok and abort is None
     cob = 0x4000_0180 + NODE
+    mapping = [("upload", 0x1A00, i) for i in range(len(core.FEED_RECORD_MAPPING) + 1)]
     assert sdo.log == [
         ("upload", 0x2002, 0),
         ("upload", 0x1016, 0),
@@ -957,24 +971,105 @@ def test_the_configuration_steps_and_their_read_backs(capfd):
         ("download", 0x1800, 1, cob),
         ("upload", 0x1800, 3),
         ("upload", 0x1800, 1),
+        ("upload", 0x1800, 2),
+        ("upload", 0x1800, 2),
+        ("download", 0x1800, 2, 254),
+        ("upload", 0x1800, 2),
+        ("upload", 0x2020, 3),
+        ("upload", 0x2020, 4),
+        ("download", 0x2020, 4, 0),
+        ("upload", 0x2020, 4),
         ("upload", 0x2001, 0),
         ("download", 0x2001, 0, 0),
         ("upload", 0x2001, 0),
-        ("upload", 0x1A00, 0),
-        *[("upload", 0x1A00, i) for i in range(1, len(core.FEED_RECORD_MAPPING) + 1)],
+        *mapping,
         ("upload", 0x1800, 1),
         ("download", 0x2000, 0, 0),
         ("download", 0x2002, 0, 5),
         ("upload", 0x2002, 0),
+        ("upload", 0x1016, 1),
+        ("upload", 0x1800, 5),
+        ("upload", 0x1800, 3),
+        ("upload", 0x1800, 2),
+        ("upload", 0x2020, 3),
+        ("upload", 0x2020, 4),
+        ("upload", 0x2001, 0),
+        *mapping,
+        ("upload", 0x1800, 1),
+        ("upload", 0x2002, 0),
     ]
+    assert sdo.objects[(0x2020, 4)] == (0, 1) and sdo.objects[(0x1800, 2)] == (254, 1)
     assert result == core.Configured(
         event_timer_ms=50, first_reply_at=1.5, found=4, intact=False, tried=5, session=5
     )
     line = (
         "canopen-handwheel: device configured: session 5 (0x2002 = 4 before), 0x1016:1 = "
-        "0x000101F4, event timer 50 ms, inhibit time 2 ms, feed off; NMT start sent\n"
+        "0x000101F4, event timer 50 ms, inhibit time 2 ms, 0x2020:3 = 4, 0x2020:4 = 0, "
+        "0x2001:0 = 0, all read back after the session; feed off; NMT start sent\n"
     )
     assert capfd.readouterr().err == line
+
+
+@pytest.mark.parametrize(
+    "where, value",
+    [
+        ((0x2020, 4), 1),
+        ((0x2020, 3), 1),
+        ((0x2001, 0), 1),
+        ((0x1800, 5), 1000),
+        ((0x1800, 2), 1),
+        ((0x1016, 1), 0),
+        ((0x1A00, 2), 0x2010_0108),
+    ],
+)
+def test_a_change_by_another_master_before_the_session_fails_the_configuration(
+    capfd, where, value
+):
+    """Another master changes something that shapes motion after the configuration read
+    it back and before the session is written (here: with the component's feed-off write;
+    its own write ended no session yet, and the session written next would start with the
+    change in force). The read-back after the session finds it: the configuration fails
+    (the core retries it), however the session itself read back."""
+
+    class Racing(FakeSdo):
+        def download(self, index, sub, data):
+            super().download(index, sub, data)
+            if (index, sub) == (0x2000, 0):
+                self.objects[where] = (value, self.objects[where][1])
+
+    sdo = Racing(dict(SlcanDevice.OBJECTS))
+    action = core.Configure(1, 500, None, tokens=(1,), settings=SETTINGS)
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert not ok and abort is None and result.tried == 1 and result.session is None
+    assert f"0x{where[0]:04X}:{where[1]} reads 0x{value:X}" in capfd.readouterr().err
+    assert sdo.log[-1] == ("upload", *where)
+
+
+@pytest.mark.parametrize("counts, invert", [(1, False), (2, True), (4, True)])
+def test_the_wheel_options_are_what_the_configuration_sets(counts, invert):
+    """`--counts-per-detent` and `--invert-direction` reach the device's 0x2020:3 and :4,
+    written where the device differs and read back; other values are refused as options."""
+    args = component.parse_args(
+        ["--counts-per-detent", str(counts)] + (["--invert-direction"] if invert else [])
+    )
+    assert (args.config.counts_per_detent, args.config.invert_direction) == (counts, invert)
+    sdo = FakeSdo(dict(SlcanDevice.OBJECTS))
+    action = core.Configure(1, 500, None, tokens=(1,), settings=core.motion_settings(args.config))
+    ok, _, _ = component.carry_out(FakeLink(sdo), NODE, action)
+    assert ok
+    assert sdo.objects[(0x2020, 3)][0] == counts and sdo.objects[(0x2020, 4)][0] == int(invert)
+    writes = [e for e in sdo.log if e[0] == "download" and e[1] == 0x2020]
+    expected = [] if counts == 4 else [("download", 0x2020, 3, counts)]
+    expected += [("download", 0x2020, 4, 1)] if invert else []
+    assert writes == expected  # the device's factory values: 4 counts, as wired
+
+
+@pytest.mark.parametrize("counts", [0, 3, 8])
+def test_other_counts_per_detent_are_refused(counts):
+    with pytest.raises(SystemExit):
+        component.parse_args(["--counts-per-detent", str(counts)])
+    with pytest.raises(ValueError, match="counts-per-detent"):
+        core.make_config(16, None, "xyz", 0.001, None, 100, counts_per_detent=counts)
 
 
 def test_an_intact_configuration_writes_nothing():
@@ -1023,7 +1118,7 @@ def test_a_remapped_or_moved_tpdo1_fails_the_configuration(capfd, where, value, 
 
 
 def test_a_missed_boot_up_is_configured_again_before_the_feed_is_enabled(capfd):
-    """Issue 34, finding 3 without the firmware: the device power-cycles unseen (no boot-up
+    """Without the firmware: the device power-cycles unseen (no boot-up
     reaches the component) and comes back Operational, in no session, its feed off. The
     component checks 0x2002, configures the device (the 0x1016 entry read back) and only then
     writes 0x2000 = 1; it logs the stop as the session's end."""

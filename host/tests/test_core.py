@@ -466,7 +466,13 @@ def test_records_lost_from_sequence_gaps():
 def test_configure_first_retried_while_it_fails():
     r = Run(configured=False)
     a = r.c.next_action(r.at())
-    assert a == Configure(master=1, timeout_ms=500, event_timer_ms=None, tokens=core.TOKENS)
+    assert a == Configure(
+        master=1,
+        timeout_ms=500,
+        event_timer_ms=None,
+        tokens=core.TOKENS,
+        settings=((0x2020, 3, 4), (0x2020, 4, 0), (0x2001, 0, 0)),
+    )
     assert r.c.next_action(r.at()) is None  # one at a time
     r.c.done(a, False, None, r.at())
     assert r.c.next_action(r.at(0.1)) is None
@@ -578,7 +584,9 @@ def test_the_option_asks_for_the_event_timer_and_the_bucket_follows_it():
     cfg = core.make_config(16, None, "xyz", 0.001, 1000, 100, max_detents_per_s=100)
     assert cfg.event_timer_ms == 1000 and cfg.stale_after == pytest.approx(3.0)
     r = Run(event_timer_ms=1000, max_detents_per_s=100, configured=False)
-    assert r.c.next_action(r.at()) == Configure(1, 500, 1000, tokens=core.TOKENS)
+    assert r.c.next_action(r.at()) == Configure(
+        1, 500, 1000, tokens=core.TOKENS, settings=core.motion_settings(r.c.cfg)
+    )
     r.c.pending = None
     r.configure(event_timer_ms=20)  # what the device reports back rules
     assert r.c.stale_after == pytest.approx(0.06)

@@ -1,6 +1,7 @@
-"""Issue 34 at the core: the feed record v2, the session token, the order reference bounded by
-the device's sequence budget, copies of every age, power cycles with and without a boot-up,
-tokens reused only after COPY_AGE, and the report of feed stops (no bus, no HAL)."""
+"""Copies and power cycles at the core: the feed record v2, the session token, the order
+reference bounded by the device's sequence budget, copies of every age, power cycles with and
+without a boot-up, tokens reused only after COPY_AGE, and the report of feed stops (no bus, no
+HAL)."""
 
 import math
 
@@ -219,9 +220,9 @@ def test_copies_65529_back_and_more_are_older_than_the_contract_covers():
 
 @pytest.mark.parametrize("back", [1, 2, 128, 129, 200, 249, 255, 256, 257, 1000, 32768])
 def test_copies_of_every_age_move_nothing(back):
-    """The device turned X at x100 (a record every 2 ms, 500 per second, as in the issue);
+    """The device turned X at x100 (a record every 2 ms, 500 per second, as on the board);
     then the genuine record `back` records old is sent again right after a genuine one:
-    ignored and counted bad (issue 34, finding 1: 249-255 back read as 6 ahead and moved X
+    ignored and counted bad (before feed record v2, 249-255 back read as 6 ahead and moved X
     by everything turned since). The next genuine record goes on from the last genuine one."""
     d = Dev()
     d.send(mult=100)
@@ -235,9 +236,8 @@ def test_copies_of_every_age_move_nothing(back):
 
 
 def test_a_copy_seven_epochs_and_255_records_old_moves_nothing():
-    """Issue 34, finding 2: a Y record 255 records and 7 epochs back, sent again while X is
-    selected: with 8-bit numbers it read as the next record of the next epoch; now as a
-    copy."""
+    """A Y record 255 records and 7 epochs back, sent again while X is selected: with 8-bit
+    numbers it read as the next record of the next epoch; now as a copy."""
     d = Dev()
     d.send(axis=2)
     d.send(30, axis=2)
@@ -336,7 +336,8 @@ def test_a_record_of_another_session_is_foreign():
         assert d.x == 0 and p.frames_bad == 0 and not p.feed_enabled
         assert not any(p.jog_enable.values())
     a = d.c.next_action(d.at())
-    assert a == Configure(1, 500, None, keep=SESSION, tokens=(3, 4, 5, 6, 7))
+    wanted = core.motion_settings(d.c.cfg)
+    assert a == Configure(1, 500, None, keep=SESSION, tokens=(3, 4, 5, 6, 7), settings=wanted)
     ok, result = core.configure_outcome(a, SESSION, d.c.event_timer)
     assert result.intact and result.tried is None
     d.c.done(a, ok, None, d.at(), result)
@@ -368,10 +369,10 @@ def test_no_feed_enable_while_the_newest_record_is_foreign():
 
 
 def test_a_missed_boot_up_leads_to_a_configuration_before_any_feed_enable():
-    """Issue 34, finding 3: the device power-cycled, its boot-up lost, started by another
-    node: its records show session 0 and the feed off. The component's next action is the
-    check, which finds 0 and configures (0x1016 written and read back) before the feed is
-    enabled again; the stop is reported as the session's end."""
+    """The device power-cycled, its boot-up lost, started by another node: its records show
+    session 0 and the feed off. The component's next action is the check, which finds 0 and
+    configures (0x1016 written and read back) before the feed is enabled again; the stop is
+    reported as the session's end."""
     d = Dev()
     d.send(flags=0)
     d.c.done(d.c.next_action(d.at()), True, None, d.at())  # 0x2000 = 1
@@ -396,9 +397,9 @@ def test_a_missed_boot_up_leads_to_a_configuration_before_any_feed_enable():
 
 @pytest.mark.parametrize("bootup_seen", [True, False])
 def test_a_quick_power_cycle_costs_only_the_configuration(bootup_seen):
-    """Issue 34, finding 4: the last record before the cut at sequence 130, the device back
-    with its sequence from 8 (1..128 below it): the second record of the new session moves
-    the axis, at once, with nothing counted bad."""
+    """The last record before the cut at sequence 130, the device back with its sequence from 8
+    (1..128 below it): the second record of the new session moves the axis, at once, with
+    nothing counted bad."""
     d = Dev(seq=129)
     d.send()
     d.send(1)
@@ -417,9 +418,9 @@ def test_a_quick_power_cycle_costs_only_the_configuration(bootup_seen):
 
 @pytest.mark.parametrize("bootup_seen", [True, False])
 def test_copies_across_a_power_cycle_move_nothing(bootup_seen):
-    """Issue 34, finding 6: records from before a power cycle sent again after it (every
-    one of them, in any order) are another session's once the new session is written; and
-    before that, they are copies of the old session (or foreign after a boot-up)."""
+    """Records from before a power cycle sent again after it (every one of them, in any order)
+    are another session's once the new session is written; and before that, they are copies of
+    the old session (or foreign after a boot-up)."""
     d = Dev()
     d.send()
     for _ in range(20):

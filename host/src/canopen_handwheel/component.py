@@ -49,7 +49,7 @@ import sys
 import threading
 import time
 from importlib import resources
-from typing import Callable, Optional
+from typing import Callable, List, Optional, Tuple
 
 from . import capture as captures
 from . import core
@@ -158,6 +158,20 @@ def parse_args(argv=None) -> argparse.Namespace:
         f"({core.DEFAULT_OVERRIDE_STEP:g})",
     )
     p.add_argument(
+        "--counts-per-detent",
+        type=int,
+        default=core.DEFAULT_COUNTS_PER_DETENT,
+        choices=core.COUNTS_PER_DETENT,
+        help=f"quadrature counts per detent of the wheel, written to the device's 0x2020:3 at "
+        f"every configuration ({core.DEFAULT_COUNTS_PER_DETENT})",
+    )
+    p.add_argument(
+        "--invert-direction",
+        action="store_true",
+        help="reverse the wheel's direction (a wheel wired A/B swapped): 0x2020:4 = 1, "
+        "written at every configuration (default 0: as wired)",
+    )
+    p.add_argument(
         "--max-detents-per-s",
         type=int,
         default=core.DEFAULT_MAX_DETENTS_PER_S,
@@ -206,6 +220,8 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.velocity_mode,
             args.run_on_budget,
             args.override_step,
+            args.counts_per_detent,
+            args.invert_direction,
         )
     except ValueError as e:
         p.error(str(e))
@@ -699,17 +715,28 @@ def _configure(
     token = core.pick_token(action.tokens, found)
     if token is None:
         raise Mismatch(f"no session token to write (0x2002 reads {found})")
+    # What shapes motion, as written or checked: read back once more after the session.
+    expected: List[Tuple[int, int, int]] = []
+
+    def setting(index: int, sub: int, value: int, size: int) -> None:
+        if u32(index, sub) != value:
+            write(index, sub, value, size)
+            read_back(index, sub, value)
+        expected.append((index, sub, value))
+
     count = u32(0x1016, 0)
     entries = {sub: u32(0x1016, sub) for sub in range(1, count + 1)}
     sub, value = core.consumer_plan(entries, action.master, action.timeout_ms)
     write(0x1016, sub, value, 4)
     read_back(0x1016, sub, value)
+    expected.append((0x1016, sub, value))
     timer = u32(0x1800, 5)
     wanted = core.event_timer_plan(timer, action.event_timer_ms)
     if wanted is not None:
         write(0x1800, 5, wanted, 2)
         read_back(0x1800, 5, wanted)
         timer = wanted
+    expected.append((0x1800, 5, timer))
     inhibit = u32(0x1800, 3)
     wanted = core.inhibit_plan(inhibit)
     if wanted is not None:
@@ -720,20 +747,32 @@ def _configure(
         read_back(0x1800, 3, wanted)
         read_back(0x1800, 1, cob & ~PDO_INVALID)
         inhibit = wanted
-    if u32(0x2001, 0) != 0:
-        write(0x2001, 0, 0, 1)
-        read_back(0x2001, 0, 0)
+    expected.append((0x1800, 3, inhibit))
+    kind = u32(0x1800, 2)
+    wanted = core.transmission_type_plan(kind)
+    setting(0x1800, 2, kind if wanted is None else wanted, 1)
+    for index, sub_index, wanted in action.settings:
+        setting(index, sub_index, wanted, 1)
     mapping = tuple(u32(0x1A00, sub) for sub in range(1, u32(0x1A00, 0) + 1))
     if mapping != core.FEED_RECORD_MAPPING:
         raise Mismatch(f"TPDO1 maps {[f'0x{m:08X}' for m in mapping]}, not the feed record")
-    fault = core.tpdo1_cob_id_fault(u32(0x1800, 1), node_id)
+    expected.append((0x1A00, 0, len(mapping)))
+    expected += [(0x1A00, n + 1, m) for n, m in enumerate(mapping)]
+    cob = u32(0x1800, 1)
+    fault = core.tpdo1_cob_id_fault(cob, node_id)
     if fault is not None:
         raise Mismatch(fault)
+    expected.append((0x1800, 1, cob))
     # Feed off: a fresh start enables it again, stepping the selection epoch.
     write(0x2000, 0, 0, 1)
     # The session last: every write before it ended whatever session the device had.
     report.tried = token
     write(0x2002, 0, token, 1)
+    read_back(0x2002, 0, token)
+    # Nothing that shapes motion changed before the session was written (a change since
+    # ends it: 0x2002, read last, tells).
+    for index, sub_index, wanted in expected:
+        read_back(index, sub_index, wanted)
     read_back(0x2002, 0, token)
     report.session = token
     report.event_timer_ms = timer
@@ -741,8 +780,9 @@ def _configure(
     link.node.nmt.state = "OPERATIONAL"  # python-canopen's NMT start to the node
     log(
         f"device configured: session {token} (0x2002 = {found} before), 0x1016:{sub} = "
-        f"0x{value:08X}, event timer {timer} ms, inhibit time {inhibit / 10:g} ms, feed off; "
-        "NMT start sent"
+        f"0x{value:08X}, event timer {timer} ms, inhibit time {inhibit / 10:g} ms, "
+        + "".join(f"0x{i:04X}:{n} = {v}, " for i, n, v in action.settings)
+        + "all read back after the session; feed off; NMT start sent"
     )
     return report
 

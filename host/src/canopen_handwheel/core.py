@@ -199,6 +199,43 @@ def inhibit_plan(device: int) -> Optional[int]:
     return INHIBIT_SET if device < INHIBIT_MIN else None
 
 
+# TPDO1's transmission type 0x1800:2: the feed record is event-driven (254 or 255: on
+# change, after the inhibit time, and at the event timer). Any other type (synchronous)
+# would send records only at a SYNC, so that neither staleness nor the record's timing would
+# mean what the rule assumes; configuration then sets TRANSMISSION_TYPE_SET.
+EVENT_DRIVEN = (254, 255)
+TRANSMISSION_TYPE_SET = 254
+
+
+def transmission_type_plan(device: int) -> Optional[int]:
+    """What to write to 0x1800:2 at configuration, or None to keep the device's value."""
+    return None if device in EVENT_DRIVEN else TRANSMISSION_TYPE_SET
+
+
+# The wheel's parameters 0x2020:3 (counts per detent) and 0x2020:4 (invert direction)
+# decide the scale and the sign of every detent: the component sets them to its own
+# `--counts-per-detent` and `--invert-direction` at every configuration, whatever the device
+# stored or another master wrote, and reads them back.
+WHEEL = 0x2020
+COUNTS_PER_DETENT_SUB = 3
+INVERT_SUB = 4
+COUNTS_PER_DETENT = (1, 2, 4)
+DEFAULT_COUNTS_PER_DETENT = 4
+
+
+def motion_settings(cfg: "Config") -> Tuple[Tuple[int, int, int], ...]:
+    """(index, sub, value) of the settings a configuration writes that shape motion and do
+    not depend on what the device holds: the wheel's parameters and the feed format
+    (0x2001 = 0, the feed record). With the feed record's mapping, TPDO1's parameters and
+    the 0x1016 entry (which depend on what is read first) they are read back once more
+    after the session is written (`Configure`)."""
+    return (
+        (WHEEL, COUNTS_PER_DETENT_SUB, cfg.counts_per_detent),
+        (WHEEL, INVERT_SUB, int(cfg.invert_direction)),
+        (0x2001, 0, 0),
+    )
+
+
 # Feed stops the component did not ask for (`stop-reason`): why the device stopped the feed.
 STOP_NONE = 0
 STOP_MASTER_LOST = 1
@@ -375,6 +412,8 @@ def make_config(
     velocity_mode: bool = False,
     run_on_budget: float = DEFAULT_RUN_ON_BUDGET,
     override_step: float = DEFAULT_OVERRIDE_STEP,
+    counts_per_detent: int = DEFAULT_COUNTS_PER_DETENT,
+    invert_direction: bool = False,
 ) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
@@ -398,6 +437,8 @@ def make_config(
     low, high = OVERRIDE_STEP_RANGE
     if not (math.isfinite(override_step) and low <= override_step <= high):
         raise ValueError(f"--override-step must be {low}..{high} %")
+    if counts_per_detent not in COUNTS_PER_DETENT:
+        raise ValueError(f"--counts-per-detent must be one of {COUNTS_PER_DETENT}")
     return Config(
         node=node,
         master=resolve_master(node, master),
@@ -412,6 +453,8 @@ def make_config(
         velocity_mode=velocity_mode,
         run_on_budget=run_on_budget,
         override_step=override_step,
+        counts_per_detent=counts_per_detent,
+        invert_direction=invert_direction,
     )
 
 
@@ -471,6 +514,8 @@ class Config:
     override_step: float = (
         DEFAULT_OVERRIDE_STEP  # %, `--override-step`: one detent at an override position
     )
+    counts_per_detent: int = DEFAULT_COUNTS_PER_DETENT  # 0x2020:3, `--counts-per-detent`
+    invert_direction: bool = False  # 0x2020:4, `--invert-direction`
 
     @property
     def axis_letters(self) -> str:
@@ -775,16 +820,24 @@ class Configure:
     after records of another session) the configuration is intact and nothing is written.
     Otherwise: the 0x1016 entry `consumer_plan` gives; the event timer 0x1800:5 as
     `event_timer_plan` says; the inhibit time 0x1800:3 as `inhibit_plan` says (TPDO1 made
-    invalid for the write, valid again after); 0x2001 = 0; 0x2000 = 0 (feed off); 0x2002 =
-    `pick_token(tokens, found)` (the session, last: every write before it ends a session);
-    then NMT start. Its outcome (`Core.done`) carries a `Configured`, also when it failed
-    part way."""
+    invalid for the write, valid again after); the transmission type 0x1800:2 as
+    `transmission_type_plan` says; `settings` (`motion_settings`: the wheel's parameters,
+    0x2001 = 0), each written where it differs; TPDO1's mapping and COB-ID checked; 0x2000 =
+    0 (feed off); 0x2002 = `pick_token(tokens, found)` (the session, last: every write
+    before it ends a session); then everything that shapes motion read back once more (the
+    0x1016 entry, TPDO1's COB-ID, type, inhibit time, event timer and mapping, `settings`)
+    and 0x2002 last: a change of any of them by another master after it was first read back
+    and before the session was written would otherwise be in force in the new session (a
+    change after the session was written ends it, and 0x2002 then reads 0); then NMT
+    start. Its outcome (`Core.done`) carries a `Configured`, also when it failed part
+    way."""
 
     master: int
     timeout_ms: int
     event_timer_ms: Optional[int] = None  # `--event-timer-ms`, if given
     keep: Optional[int] = None  # the session that counts as intact (a check), if any
     tokens: Tuple[int, ...] = ()  # `free_tokens`, best first
+    settings: Tuple[Tuple[int, int, int], ...] = ()  # `motion_settings`: (index, sub, value)
 
 
 @dataclass
@@ -1252,7 +1305,12 @@ class Core:
                 )
             return None
         return Configure(
-            self.cfg.master, self.cfg.consumer_timeout_ms, self.cfg.event_timer_ms, keep, tokens
+            self.cfg.master,
+            self.cfg.consumer_timeout_ms,
+            self.cfg.event_timer_ms,
+            keep,
+            tokens,
+            motion_settings(self.cfg),
         )
 
     def _holding_back(self) -> bool:
