@@ -266,7 +266,7 @@ def test_frames_in_canopen_terms():
 
 
 def test_a_frozen_component_shows_its_backlog_in_the_replay(tmp_path):
-    """Issue 26, finding 3 in a capture: the component stopped (SIGSTOP) while records wait
+    """A frozen component in a capture: the component stopped (SIGSTOP) while records wait
     in its socket. The replay judges them as the component did (baselines from a backlog,
     nothing credited), by the notes of when it last found its receive path empty, and ends on
     the same pins."""

@@ -1,9 +1,9 @@
 """The hostile runs' findings as regression tests of the core: captures the interop suite took
 of the component against the firmware on the emulated board (`tests/interop/test_copies.py`,
-issue 34's findings 1-5 and the trickling bus; `tests/interop/test_host_component.py`, the
-frozen component of issue 26), each with its host notes and the component's pin log
-(fake_hal's), in `captures/`. Replayed through today's core, every one must end on the pins
-the component wrote then, and show what its finding is about.
+its findings 1-5 and the trickling bus; `tests/interop/test_host_component.py`, the frozen
+component), each with its host notes and the component's pin log (fake_hal's), in `captures/`.
+Replayed through today's core, every one must end on the pins the component wrote then, and
+show what its finding is about.
 
 To take them again (after a change of the rule that changes what the pins do), run
 `cargo xtask interop -k "test_copies or test_host_component" --basetemp DIR` and copy each
@@ -19,13 +19,13 @@ from canopen_handwheel import capture, decode
 
 CAPTURES = Path(__file__).resolve().parent / "captures"
 FINDINGS = (
-    "copies_of_any_age",  # issue 34, finding 1
+    "copies_of_any_age",  # test_copies.py, finding 1
     "y_record_255_back",  # finding 2
     "lost_boot_up",  # finding 3
     "quick_power_cycle",  # finding 4
     "blocked_transmit_path",  # finding 5
     "trickling_bus",
-    "frozen_component",  # issue 26, finding 3
+    "frozen_component",  # test_host_component.py
 )
 
 
@@ -120,8 +120,8 @@ def test_a_trickling_bus_credits_nothing_late():
 
 
 def test_a_frozen_components_backlog_moves_nothing():
-    """Issue 26, finding 3: the records that waited while the component was stopped are
-    baselines from a backlog; only the detents turned before and after move X."""
+    """The records that waited while the component was stopped are baselines from a backlog;
+    only the detents turned before and after move X."""
     r, _ = replayed("frozen_component")
     backlog = [v for v in verdicts(r, decode.BASELINE) if "from a backlog" in v.text]
     assert backlog and not any(v.credited for v in backlog)

@@ -1022,9 +1022,7 @@ def test_the_configuration_steps_and_their_read_backs(capfd):
         ((0x1A00, 2), 0x2010_0108),
     ],
 )
-def test_a_change_by_another_master_before_the_session_fails_the_configuration(
-    capfd, where, value
-):
+def test_a_change_by_another_master_before_the_session_fails_the_configuration(capfd, where, value):
     """Another master changes something that shapes motion after the configuration read
     it back and before the session is written (here: with the component's feed-off write;
     its own write ended no session yet, and the session written next would start with the

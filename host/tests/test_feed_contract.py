@@ -1,5 +1,6 @@
-"""The feed record contract (epoch bits, sequence, plausibility) over whole streams: the
-issue-19 scenario, a model of the device against the host's rule, and hostile streams."""
+"""The feed record contract (epoch bits, sequence, plausibility) over whole streams: a
+selection change while the bus is blocked, a model of the device against the host's rule, and
+hostile streams."""
 
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
@@ -37,7 +38,7 @@ def old_rule(frames: List[Tuple[float, bytes]]) -> Dict[str, int]:
     return counts
 
 
-# The issue's scenario: X turned 30, then the bus is blocked (250 ms here, under the
+# The blocked-bus scenario: X turned 30, then the bus is blocked (250 ms here, under the
 # host's staleness time; the record with X at 30 is already in the device's transmit queue),
 # the operator selects Y, turns 7, selects X again and turns 2; then the bus is free.
 
@@ -50,7 +51,7 @@ BEFORE = [
 AFTER = 0.280
 
 
-def test_issue_19_stream_of_a_device_with_epochs():
+def test_blocked_bus_stream_of_a_device_with_epochs():
     """The device closes Y's epoch with a record (Y at 37) before any of the next epoch's, so
     the host gives Y its 7 and X its 30 and the 2 turned after selecting it again."""
     frames = BEFORE + [
@@ -63,7 +64,7 @@ def test_issue_19_stream_of_a_device_with_epochs():
     assert c.pins().frames_bad == 0 and c.pins().records_lost == 0
 
 
-def test_issue_19_stream_with_the_closing_record_dropped():
+def test_blocked_bus_stream_with_the_closing_record_dropped():
     """Y's closing record did not fit the device's store: it counts in the sequence as a
     record lost, so the next record is a baseline and Y's motion goes nowhere."""
     frames = BEFORE + [
@@ -76,7 +77,7 @@ def test_issue_19_stream_with_the_closing_record_dropped():
     assert c.pins().records_lost == 1 and c.pins().frames_bad == 0
 
 
-def test_issue_19_stream_of_todays_device():
+def test_blocked_bus_stream_of_a_device_without_epochs():
     """Today's firmware: bits 5-7 are 0, the Y selection never shows, and the record after
     the outage names X with Y's 7 in its position. The old rule gave Y's turn to X; the host
     now credits nothing to a device that never shows an epoch (and its enable, a change
@@ -95,7 +96,7 @@ def test_issue_19_stream_of_todays_device():
     assert c.pins().frames_bad == 1
 
 
-def test_the_issues_foreign_transmitter_moves_nothing():
+def test_a_foreign_transmitter_on_the_devices_cob_id_moves_nothing():
     """A foreign node on the device's COB-ID: random records in between the device's."""
     frames = BEFORE + [
         (0.031, rec(1_100_000_000, 1, 1, EN, 4, epoch=1)),

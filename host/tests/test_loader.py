@@ -1,6 +1,6 @@
-"""The component with a device in its resident loader (issue 36): the core's decisions, the
-configuration's shell steps, and the component on the virtual bus with a loader that is then
-replaced by the application's boot-up (an update), as after a device reset."""
+"""The component with a device in its resident loader (docs/FIRMWARE-UPDATE.md): the core's
+decisions, the configuration's shell steps, and the component on the virtual bus with a loader
+that is then replaced by the application's boot-up (an update), as after a device reset."""
 
 import time
 

@@ -1,5 +1,5 @@
-"""Records out of order, a backlog, the order of the pin writes and the replay of events
-(issue 26: findings 3 to 6 at the core, and the shell's part of them without a device)."""
+"""Records out of order, a backlog, the order of the pin writes and the replay of events (at the
+core, and the shell's part of them without a device)."""
 
 import gc
 import socket
@@ -63,7 +63,7 @@ class Wheel:
         return self.c.pins()
 
 
-# Finding 4: replayed and duplicated records ------------------------------------------------
+# Replayed and duplicated records ------------------------------------------------------------------
 
 
 def test_a_replayed_record_from_four_numbers_back_moves_nothing():
@@ -188,7 +188,7 @@ def test_a_break_of_eight_numbers_never_continues():
         assert w.pins().records_lost == 7
 
 
-# Finding 3 and 5 at the core: the backlog ----------------------------------------------------
+# A backlog and a flood at the core ----------------------------------------------------------------
 
 
 def test_records_from_a_backlog_move_nothing():
@@ -286,7 +286,7 @@ def test_emcy_frames_keep_no_memory():
     assert grown < 10_000, grown
 
 
-# Finding 6: the order of the pin writes --------------------------------------------------------
+# The order of the pin writes ----------------------------------------------------------------------
 
 
 class Servo:

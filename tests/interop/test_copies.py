@@ -1,11 +1,12 @@
-"""Issue 34, findings 1-5: the host component (`host/src`, LinuxCNC's `hal` replaced by
-host/tests/fake_hal.py, which logs every pin change with its time) against the release image
-on the emulated board, through the SLCAN relay of tools/rig/relay.py, which drops frames,
-re-sends exact copies of genuine feed records and speaks as another node.
+"""Copies of genuine records, a stale Y record, a missed boot-up, a quick power cycle and a
+blocked transmit path (findings 1-5 below): the host component (`host/src`, LinuxCNC's `hal`
+replaced by host/tests/fake_hal.py, which logs every pin change with its time) against the
+release image on the emulated board, through the SLCAN relay of tools/rig/relay.py, which
+drops frames, re-sends exact copies of genuine feed records and speaks as another node.
 
-Each test asserts the feed contract as it must hold once issue 34 is fixed (the README's
-"lost, duplicated and replayed frames never move an axis"), and each failed on the code the
-issue was filed against, with the failure its docstring names:
+Each test asserts the feed contract as feed record v2 and its session rule make it hold (the
+README's "lost, duplicated and replayed frames never move an axis"), and each failed on the
+code before them, with the failure its docstring names:
 
 1. copies of genuine X records of any age (k records back, k around every wrap of the
    sequence byte and beyond it) never move X backwards, never credit more than was turned,
@@ -21,12 +22,12 @@ issue was filed against, with the failure its docstring names:
    frames get out, the component's `feed stopped by the device` log line naming the transmit
    path, its `feed-stops` pin counting 1 and `stop-reason` showing 2.
 
-A later test covers a hole found by the feed checker after the issue: a bus that takes a frame
-now and then, never idle for the stall watch's 100 ms, delivers the records ever later.
+A later test covers a hole the feed checker found after these: a bus that takes a frame now
+and then, never idle for the stall watch's 100 ms, delivers the records ever later.
 
-Names the fix introduces (the `feed-stops` and `stop-reason` pins, the log line, EMCY 0x8100)
-are those of the issue's design. The records are read with the component's own decoder
-(`canopen_handwheel.core.Record`), whatever their layout; the relay decodes none.
+Names the fixes introduced (the `feed-stops` and `stop-reason` pins, the log line, EMCY 0x8100)
+are those of README.md and host/README.md. The records are read with the component's own
+decoder (`canopen_handwheel.core.Record`), whatever their layout; the relay decodes none.
 
 `power` and `hold` are commands of the board's control line; its `turn` turns a detent in
 2.4 ms (four edges 600 us apart), so at the default 2 ms inhibit time every detent of a
@@ -72,7 +73,7 @@ from test_host_component import COMPONENT_RUN
 
 CONSUMER_TIMEOUT = 0.5  # what the component tells the device: 5 x its 100 ms heartbeat
 EMCY_MASTER_LOST = 0x8130
-EMCY_TRANSMIT_BLOCKED = 0x8100  # the issue's design, section 5
+EMCY_TRANSMIT_BLOCKED = 0x8100  # README's Emergency codes
 STOP_TRANSMIT_BLOCKED = 2  # `stop-reason` for it
 
 
@@ -249,7 +250,7 @@ def started(board: Board, tmp: Path, mult: int = 1) -> Iterator[Host]:
         # Shown with a failure (pytest prints a failed test's output).
         tail = "\n".join(host.log().splitlines()[-40:])
         print(f"--- last lines of {host.log_path} ---\n{tail}")
-    # The session's capture replays to the pins the component wrote (issue 37).
+    # The session's capture replays to the pins the component wrote.
     assert capture_problems(host.capture, host.hal) == []
 
 

@@ -1,7 +1,8 @@
-"""The host component against the firmware (issue 26, findings 3 and 5): `canopen-handwheel`
-from host/src in a process of its own, with host/tests/fake_hal.py as LinuxCNC's `hal` (every
-pin change logged with its time), on an SLCAN line relayed to the emulator's CAN port. The
-relay stamps the device's feed records as they pass and can flood the component with EMCYs.
+"""The host component against the firmware, frozen and under an EMCY flood:
+`canopen-handwheel` from host/src in a process of its own, with host/tests/fake_hal.py as
+LinuxCNC's `hal` (every pin change logged with its time), on an SLCAN line relayed to the
+emulator's CAN port. The relay stamps the device's feed records as they pass and can flood the
+component with EMCYs.
 """
 
 from __future__ import annotations
@@ -198,15 +199,15 @@ def host(board: Board, tmp_path):
         yield c
     finally:
         c.close()
-    # The session's capture replays to the pins the component wrote (issue 37).
+    # The session's capture replays to the pins the component wrote.
     assert capture_problems(c.capture, c.hal) == []
 
 
 def test_a_frozen_component_moves_nothing_from_its_backlog(host):
-    """Finding 3: the component stopped (SIGSTOP) for 3 s while 20 detents are turned in the
-    first 0.3 s, then continued: `axis.x.jog-counts` does not move from the records that
-    waited (the device has meanwhile stopped the feed for master loss); afterwards the feed
-    is enabled again and turning moves X exactly."""
+    """The component stopped (SIGSTOP) for 3 s while 20 detents are turned in the first 0.3 s,
+    then continued: `axis.x.jog-counts` does not move from the records that waited (the device
+    has meanwhile stopped the feed for master loss); afterwards the feed is enabled again and
+    turning moves X exactly."""
     start = host.hal.number("axis.x.jog-counts")
     host.stim.turn(2)
     host.wait(lambda: host.hal.number("axis.x.jog-counts") == start + 2, 5, "X +2")
@@ -238,11 +239,11 @@ def test_a_frozen_component_moves_nothing_from_its_backlog(host):
 
 
 def test_an_emcy_flood_neither_delays_motion_nor_grows_memory(host):
-    """Finding 5: EMCYs at 5 000 frames/s to the component while X is turned a detent every
-    0.4 s: every detent reaches `jog-counts`, each within 0.1 s of its record reaching the
-    host (and 0.25 s of the `turn` command: the board's stimulus makes a detent's edges
-    600 us apart and answers 25 ms later), and the component's resident memory stays within
-    2 MB (python-canopen's EMCY consumer kept about 500 B per EMCY: over 10 MB here)."""
+    """EMCYs at 5 000 frames/s to the component while X is turned a detent every 0.4 s: every
+    detent reaches `jog-counts`, each within 0.1 s of its record reaching the host (and 0.25 s
+    of the `turn` command: the board's stimulus makes a detent's edges 600 us apart and answers
+    25 ms later), and the component's resident memory stays within 2 MB (python-canopen's EMCY
+    consumer kept about 500 B per EMCY: over 10 MB here)."""
     rate = 5000
     host.relay.flood(rate)
     time.sleep(1.0)

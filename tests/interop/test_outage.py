@@ -1,5 +1,5 @@
-"""Bus outages against the feed contract (issue 26): what the master receives after the
-node's frames could not reach it, read with the host component's own rule.
+"""Bus outages against the feed contract: what the master receives after the node's frames
+could not reach it, read with the host component's own rule.
 
 The board's `hold` takes the bus with other traffic: the node's frames wait in its transmit
 queue and mailboxes while the master's frames still reach it, so NMT commands and SDO writes
@@ -272,16 +272,16 @@ def fill_transmit_side(rig) -> int:
 SHORT_HOLD_MS = 95
 
 
-# Findings 1 and 2 of issue 26 ---------------------------------------------------------------
+# NMT commands in an outage, as first reported -----------------------------------------------
 
 
 @pytest.mark.parametrize("leave", [NMT_PRE_OPERATIONAL, NMT_STOP], ids=["preop", "stop"])
 def test_nmt_stop_and_start_in_an_outage_never_give_y_turn_to_x(rig, leave):
-    """Issue 26, finding 1, as reported: Operational, feed on X x1, turn 3; the bus held; 25
-    single detents (the transmit queue and mailboxes fill); NMT pre-operational (or stop) and
-    start; a write of 0x2000 = 1 without waiting for its reply; Y, turn 7; then X, Y, X, Y,
-    X (six switch changes in all); turn 2; the bus free. Truth: X 30, Y 7. Before the fix the
-    start closed epochs without taking sequence numbers, so one missing number hid eight
+    """The NMT stop and start as first reported: Operational, feed on X x1, turn 3; the bus
+    held; 25 single detents (the transmit queue and mailboxes fill); NMT pre-operational (or
+    stop) and start; a write of 0x2000 = 1 without waiting for its reply; Y, turn 7; then X, Y,
+    X, Y, X (six switch changes in all); turn 2; the bus free. Truth: X 30, Y 7. Before the fix
+    the start closed epochs without taking sequence numbers, so one missing number hid eight
     epochs and the host credited X 36, Y 0."""
     mark = enabled_at_rest(rig, "x")
     rig.stim.turn(3)
@@ -306,7 +306,7 @@ def test_nmt_stop_and_start_in_an_outage_never_give_y_turn_to_x(rig, leave):
 
 
 def test_reset_node_in_an_outage_never_moves_x_backwards(rig):
-    """Issue 26, finding 2, as reported: the transmit queue full, NMT reset node, arranged
+    """The reset node as first reported: the transmit queue full, NMT reset node, arranged
     so that the last record delivered before it has sequence 255 (the sequence at 239 when
     the bus is held, the heartbeat off: then one feed record waits in a mailbox and 16 in the
     queue); then start, a blind enable and 4 detents. Before the fix the full queue refused
@@ -333,14 +333,14 @@ def test_reset_node_in_an_outage_never_moves_x_backwards(rig):
 
 
 def test_reset_node_within_the_stall_limit_boots_up_first_and_breaks_the_sequence(rig):
-    """Finding 2 inside a hold shorter than the transmit stall limit, so that the reset's own
-    handling is what is tested: the last record before the hold has sequence 255, SDO
-    replies fill the transmit side, then NMT reset node, start, a blind enable and a detent;
-    the hold ends by itself after 95 ms. Before the fix the full queue refused the boot-up
-    and the first record after the reset (sequence 0, the same epoch bits) continued 255: X
-    moved back. The reset must discard what waits, so the boot-up is the first frame after
-    the hold, and nothing after it continues what came before: X never moves back, and the
-    detent after the enable is credited."""
+    """The reset node above inside a hold shorter than the transmit stall limit, so that the
+    reset's own handling is what is tested: the last record before the hold has sequence 255,
+    SDO replies fill the transmit side, then NMT reset node, start, a blind enable and a
+    detent; the hold ends by itself after 95 ms. Before the fix the full queue refused the
+    boot-up and the first record after the reset (sequence 0, the same epoch bits) continued
+    255: X moved back. The reset must discard what waits, so the boot-up is the first frame
+    after the hold, and nothing after it continues what came before: X never moves back, and
+    the detent after the enable is credited."""
     mark = enabled_at_rest(rig, "x")
     rig.write(0x1017, 0, 0, 2)  # no heartbeat: the last frame before the hold is a record
     turned = sequence_to(rig, 0)

@@ -175,11 +175,11 @@ def test_a_store_survives_a_cut_at_every_flash_operation(board, kind, saves, dir
 
 @pytest.mark.parametrize("run", [7, 9])
 def test_moves_cut_in_a_row_inside_their_first_flash_operation_lock_nothing(board, run):
-    """Issue 34, finding 7: the page full, `run` saves in a row each cut inside its first
-    flash operation (the record's first half-word on the other page, then each later move's
-    erase tick, which the next one finishes in place). No erase began, so nothing of the
-    budget is spent: a changed save and then a restore defaults are accepted at once, and
-    each boots. (Before erase ticks, seven such cuts refused both with 0x08000020 for good.)"""
+    """The page full, `run` saves in a row each cut inside its first flash operation (the
+    record's first half-word on the other page, then each later move's erase tick, which the
+    next one finishes in place). No erase began, so nothing of the budget is spent: a changed
+    save and then a restore defaults are accepted at once, and each boots. (Before erase ticks,
+    seven such cuts refused both with 0x08000020 for good.)"""
     with raw_bus(board) as (bus, frames):
         node = Node(board, bus, frames)
         node.booted(0)

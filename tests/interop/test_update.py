@@ -1,4 +1,4 @@
-"""The firmware update over CAN (issue 36, docs/FIRMWARE-UPDATE.md) on the emulated board as
+"""The firmware update over CAN (docs/FIRMWARE-UPDATE.md) on the emulated board as
 a flashed board is: the resident loader and the release application, python-canopen as the
 master through the host's own command, `canopen-handwheel update`, run as a user runs it.
 

@@ -1,5 +1,5 @@
-"""The component and the resident loader (issue 36, docs/FIRMWARE-UPDATE.md) in the real
-LinuxCNC 2.9: a device held in its loader, and reconnecting after an update.
+"""The component and the resident loader (docs/FIRMWARE-UPDATE.md) in the real LinuxCNC 2.9: a
+device held in its loader, and reconnecting after an update.
 
 A machine of its own: before LinuxCNC starts, a master of the test's own on the hub sends
 the device (in Pre-operational after its boot-up, the feed disabled) 0x1F51:1 = 0, so the

@@ -216,12 +216,15 @@ pub const ALL: &[Bounds] = &[
     },
 ];
 
-/// What found issue 34's findings 1, 2, 4 and 6 on the code before feed record v2 (there
-/// with the sequence lowered to 5 bits and copies of any age), with the narrowed v2 sequence,
-/// its pace and copies of the contract's age: no breach now. `cargo xtask feed-check` runs
-/// them after [`ALL`], optimised on two threads (as a test they took over a minute).
-pub const ISSUE34: &[Bounds] = &[
-    // Finding 1: a copy of a record as old as the sequence's wrap read as one a few ahead.
+/// What found old copies and power cycles breaching the contract on the code before feed
+/// record v2 (there with the sequence lowered to 5 bits and copies of any age: an old copy
+/// moving the axis backwards, a Y record seven epochs old moving Y while X was selected, a
+/// dead wheel after a quick power cycle, the first record after an unseen power cycle linked
+/// to the last one before it), with the narrowed v2 sequence, its pace and copies of the
+/// contract's age: no breach now. `cargo xtask feed-check` runs them after [`ALL`], optimised
+/// on two threads (as a test they took over a minute).
+pub const COPIES_AND_POWER_CYCLES: &[Bounds] = &[
+    // Before v2: a copy of a record as old as the sequence's wrap read as one a few ahead.
     // The wheel turned at x100 and back, copies of any record of the contract's age.
     Bounds {
         name: "copies at the wrap",
@@ -232,7 +235,7 @@ pub const ISSUE34: &[Bounds] = &[
         warmups: &[&[Warm::Multiplier, Warm::Multiplier, Warm::Turns(124)]],
         ..NARROW
     },
-    // Finding 2: a Y record seven epochs old, copied while X is selected, read as "the
+    // Before v2: a Y record seven epochs old, copied while X is selected, read as "the
     // previous epoch's final record". The Y records are about as old as the contract allows
     // copies to be when the exploration starts.
     Bounds {
@@ -254,7 +257,7 @@ pub const ISSUE34: &[Bounds] = &[
         ]],
         ..NARROW
     },
-    // Finding 4: a quick power cycle, its boot-up seen: the records after it started at 0
+    // Before v2: a quick power cycle, its boot-up seen: the records after it started at 0
     // again, which read as behind the last one before it, and nothing was credited though
     // no record was missing.
     Bounds {
@@ -269,12 +272,12 @@ pub const ISSUE34: &[Bounds] = &[
         copy_depth: 0,
         ..NARROW
     },
-    // Everything issue 34 added at once, near the wrap: NMT from any node, a power cycle
+    // Copies and power cycles together, near the wrap: NMT from any node, a power cycle
     // (its boot-up lost or not), a lost or doubled frame or a copy, time settling, turns both
     // ways. One FIFO: with bxCAN's mailboxes the boot-up of a power cycle can be overtaken
     // (`UNFILED`, "boot-up overtaken").
     Bounds {
-        name: "issue 34 at once",
+        name: "nmt, power cycle, copies",
         transmit_capacity: 2,
         mailboxes: 0,
         turns: 1,
@@ -302,7 +305,7 @@ pub const ISSUE34: &[Bounds] = &[
         warmups: &[&[Warm::Turns(122)]],
         ..NARROW
     },
-    // Finding 6: a power cycle whose boot-up the host never sees (the channel loses it), an
+    // Before v2: a power cycle whose boot-up the host never sees (the channel loses it), an
     // NMT start from another node and an enable while the transmit path is full: the first
     // record of the new power-up linked to the last one before it.
     Bounds {

@@ -39,9 +39,9 @@
 //! device's position). Every credit the host makes is judged against the truth; the checker
 //! explores every interleaving of the actions within the budgets of each [`model::Bounds`]
 //! breadth first and fails with the shortest path to a breach. [`bounds::ALL`] lists the
-//! settings `cargo xtask test` runs; [`bounds::ISSUE34`] the settings that reached what issue
-//! 34 found on the code before feed record v2, which pass now (the binary runs them after
-//! [`bounds::ALL`]);
+//! settings `cargo xtask test` runs; [`bounds::COPIES_AND_POWER_CYCLES`] the settings that
+//! reached what old copies and power cycles broke on the code before feed record v2, which
+//! pass now (the binary runs them after [`bounds::ALL`]);
 //! [`bounds::UNFILED`] breaches found on today's code that no issue names yet
 //! (`tests/unfiled.rs`). `tests/holes.rs` weakens the host's rule or lets copies be older
 //! than the contract, and `tests/mutants.rs` runs plausible device bugs

@@ -1,7 +1,7 @@
 //! A checker that cannot find a hole proves nothing: with a host rule weakened where the
 //! contract depends on it, the same settings must lead to a breach. (The device's own holes
-//! are in `mutants.rs`; what issue 34 found on the code before feed record v2, in
-//! `bounds::ISSUE34`, which the checker's run passes.)
+//! are in `mutants.rs`; what old copies and power cycles broke on the code before feed record
+//! v2, in `bounds::COPIES_AND_POWER_CYCLES`, which the checker's run passes.)
 
 mod common;
 

@@ -1,5 +1,5 @@
-//! The checker kills the device bugs that nothing caught before issue 34, and a change made
-//! without taking the wheel's motion in first (issue 35's intake points): one plausible bug
+//! The checker kills the device bugs that nothing caught before it, and a change made without
+//! taking the wheel's motion in first (at the round's named intake points): one plausible bug
 //! each, in the real device code, selected at run time (`handwheel_device::mutant`). A
 //! checker that stops seeing any of them fails here. The same settings pass on the real code
 //! (`cargo xtask test` runs them all).

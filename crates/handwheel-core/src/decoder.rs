@@ -651,7 +651,7 @@ mod tests {
         };
         assert_eq!(play(true), TURNS);
         // Without the standstill the rest stays at 00, half a detent off: every reversal
-        // and every single-detent jog loses one, as the issue reports.
+        // and every single-detent jog loses one.
         assert_eq!(play(false), [5, -4, 2, -2, 0, 0]);
     }
 

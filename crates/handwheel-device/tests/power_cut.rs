@@ -5,9 +5,9 @@
 //! bits cleared). After each cut the device boots from what the flash holds, as the firmware
 //! does (`ParameterPage::new`, `node_config::select`, the device over the pages), and must
 //! find the old or the new settings and parameters, a wear debt that covers every erase begun,
-//! answer SDO, and store again. Then runs of up to 20 stores in a row, each cut (issue 34,
-//! finding 7: seven moves cut inside their first operation once locked the store for good):
-//! after any run, stores and restore defaults are accepted again, at once or, when the
+//! answer SDO, and store again. Then runs of up to 20 stores in a row, each cut (with the debt
+//! marks before erase ticks, seven moves cut inside their first operation locked the store for
+//! good): after any run, stores and restore defaults are accepted again, at once or, when the
 //! budget has no erase left, after a day of powered time.
 
 mod flash_bench;
@@ -223,11 +223,12 @@ enum Then {
     NineDays,
 }
 
-/// Issue 34, finding 7: the page full, seven moves in a row each cut inside their first
-/// flash operation (the first inside the record's first half-word on the spare page, each
-/// later one inside what it writes before the spare page's erase). No erase ever began, so
-/// nothing of the budget is spent: after a power-on, a reset node or nine powered days, a
-/// changed save and a restore defaults are accepted and stored.
+/// The run of cut moves that locked the store for good before erase ticks: the page full,
+/// seven moves in a row each cut inside their first flash operation (the first inside the
+/// record's first half-word on the spare page, each later one inside what it writes before
+/// the spare page's erase). No erase ever began, so nothing of the budget is spent: after a
+/// power-on, a reset node or nine powered days, a changed save and a restore defaults are
+/// accepted and stored.
 #[test]
 fn seven_moves_cut_inside_their_first_flash_operation_leave_the_store_usable() {
     let mut flash = prepared(6);

@@ -97,7 +97,7 @@ def test_od_07_application_objects_by_access_type(dut):
         dut.node.sdo.upload(var.index, var.subindex)
 
 
-# Application objects that count on across a reset node (feed contract, issue 26): the record
+# Application objects that count on across a reset node (the feed contract): the record
 # sequence and the selection epoch continue, so that no record after a reset can be taken as
 # continuing one from before it (a host that missed the boot-up would otherwise link them).
 # Their EDS default is the value at power-on only.

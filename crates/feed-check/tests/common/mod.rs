@@ -19,12 +19,13 @@ pub fn breach(bounds: Bounds) -> Option<(String, Vec<Action>)> {
     })
 }
 
-/// The setting of that name in `bounds::ALL`, `bounds::ISSUE34` or `bounds::UNFILED`.
+/// The setting of that name in `bounds::ALL`, `bounds::COPIES_AND_POWER_CYCLES` or
+/// `bounds::UNFILED`.
 #[allow(dead_code, reason = "each test file uses what it needs")]
 pub fn setting(name: &str) -> Bounds {
     *bounds::ALL
         .iter()
-        .chain(bounds::ISSUE34)
+        .chain(bounds::COPIES_AND_POWER_CYCLES)
         .chain(bounds::UNFILED)
         .find(|b| b.name == name)
         .expect("a setting of that name")
