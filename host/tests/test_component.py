@@ -28,7 +28,12 @@ ROOT = Path(__file__).resolve().parents[2]
 NODE = 16
 # Writes that leave the device's session as it is (README "Feed record"): the feed enable,
 # the session itself, store and restore, the error history.
-SESSION_KEEPERS = {0x2000, 0x2002, 0x1010, 0x1011, 0x1003}
+SESSION_KEEPERS = {0x2000, 0x2002, core.PROBE_OBJECT, 0x1010, 0x1011, 0x1003}
+
+
+def probe_value(next_sequence: int, session: int, nonce: int) -> int:
+    """The sequence probe 0x2033 as the device reads it (README "Handwheel objects")."""
+    return (next_sequence % core.SEQUENCE_MODULO) << 16 | session << 13 | nonce & core.NONCE_MASK
 
 
 def test_the_package_eds_is_the_repository_one():
@@ -189,13 +194,22 @@ class Device:
             session.default = 0
             self.node.object_dictionary.add_object(session)
         self.node.add_write_callback(self._written)
+        self.node.add_read_callback(self._read)
         self.network.add_node(self.node)
         self.network.connect()
         self.seq = 0
+        self.nonce = 0
 
     def _written(self, index, subindex, od, data):
+        if index == core.PROBE_OBJECT:
+            self.nonce = int.from_bytes(data, "little") & core.NONCE_MASK
         if index not in SESSION_KEEPERS:
             self.node.sdo[0x2002].raw = 0
+
+    def _read(self, index, subindex, od):
+        if index == core.PROBE_OBJECT:
+            return probe_value(self.seq + 1, self.session, self.nonce)
+        return None
 
     @property
     def session(self) -> int:
@@ -425,6 +439,8 @@ class SlcanDevice:
         self.flood_rate = 0.0
         self.flooded = 0
         self.objects = dict(self.OBJECTS)
+        self.nonce = 0
+        self.last_sequence = 0  # of the records `send` queued: the probe's number follows it
         self.done = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -437,6 +453,12 @@ class SlcanDevice:
         """The answer to an expedited SDO request (an abort for anything else)."""
         index, sub = int.from_bytes(request[1:3], "little"), request[3]
         head = request[1:4]
+        if (index, sub) == (core.PROBE_OBJECT, 0) and request[0] == 0x40:
+            value = probe_value(self.last_sequence + 1, self.session, self.nonce)
+            return bytes([0x43]) + head + value.to_bytes(4, "little")
+        if (index, sub) == (core.PROBE_OBJECT, 0) and request[0] & 0xE3 == 0x23:
+            self.nonce = int.from_bytes(request[4:8], "little") & core.NONCE_MASK
+            return bytes([0x60]) + head + bytes(4)
         if (index, sub) not in self.objects:
             return bytes([0x80]) + head + (0x0602_0000).to_bytes(4, "little")
         value, size = self.objects[(index, sub)]
@@ -495,6 +517,9 @@ class SlcanDevice:
 
     def send(self, lines: bytes) -> None:
         """Queues `encode`d frames to go out at once."""
+        for line in lines.split(b"\r"):
+            if line[:4] == f"t{0x180 + NODE:03X}".encode() and line[4:5] == b"8":
+                self.last_sequence = Record.decode(bytes.fromhex(line[5:21].decode())).sequence
         self.outbox.put(lines)
 
     def seen_at(self, cob_id):

@@ -85,7 +85,7 @@ class Host:
     """The emulated board, the relay on its CAN port, the stimulus line and the component
     on the relay's channel (`enable` true)."""
 
-    def __init__(self, board: Board, tmp: Path) -> None:
+    def __init__(self, board: Board, tmp: Path, args: tuple = ()) -> None:
         self.board = board
         self.relay = Relay(board)
         self.relay.device.wait_id(HEARTBEAT, bytes([BOOTUP]), timeout=START_TIMEOUT)
@@ -100,7 +100,8 @@ class Host:
         self.capture = tmp / "capture.log"
         self.proc = subprocess.Popen(
             [sys.executable, "-c", script, "--interface", "slcan", "--channel"]
-            + [self.relay.channel, "--axes", "xyz", "--capture", str(self.capture)],
+            + [self.relay.channel, "--axes", "xyz", "--capture", str(self.capture)]
+            + list(args),
             env=env,
             stderr=self.err,
         )
@@ -237,9 +238,10 @@ class Host:
 
 
 @contextmanager
-def started(board: Board, tmp: Path, mult: int = 1) -> Iterator[Host]:
-    """The component on X at `mult`, the feed enabled; closed (with the relay) on exit."""
-    host = Host(board, tmp)
+def started(board: Board, tmp: Path, mult: int = 1, args: tuple = ()) -> Iterator[Host]:
+    """The component (with the options `args`) on X at `mult`, the feed enabled; closed
+    (with the relay) on exit."""
+    host = Host(board, tmp, args)
     try:
         host.stim.axis("x")
         host.stim.mult(mult)

@@ -203,6 +203,8 @@ class Relay:
         self._drops: List[Drop] = []
         self._replays: List[Replay] = []
         self._outgoing: List[tuple] = []  # (SlcanFrame, to_device, to_client)
+        self._hold_until = 0.0  # `hold`: the device's frames wait for the client until then
+        self._held: List[bytes] = []
         self._stop = threading.Event()
         self._wake_r, self._wake_w = socket.socketpair()
         self.up = _connect(emulator)
@@ -244,6 +246,15 @@ class Relay:
             self._outgoing.append((SlcanFrame(cob_id, bytes(data)), to_device, to_client))
         self._wake_w.send(b"\0")
 
+    def hold(self, seconds: float) -> None:
+        """Holds every frame of the device for `seconds` from now, then delivers them to the
+        client at once, in order (a gateway or adapter that buffers and bursts): the device
+        and the recorders see them on time, the client late. Frames the client or the test
+        send pass at once."""
+        with self._lock:
+            self._hold_until = time.monotonic() + seconds
+        self._wake_w.send(b"\0")
+
     def record_count(self) -> int:
         with self._lock:
             return len(self.records)
@@ -274,7 +285,9 @@ class Relay:
         from_up, from_client = LineSplitter(), LineSplitter()
         while not self._stop.is_set():
             waiting = [self.up, self._wake_r, client if client is not None else self.server]
-            readable, _, _ = select.select(waiting, [], [], 0.1)
+            with self._lock:
+                held_for = self._hold_until - time.monotonic()
+            readable, _, _ = select.select(waiting, [], [], min(0.1, max(0.0, held_for)))
             to_client, to_up = [], []
             for s in readable:
                 if s is self._wake_r:
@@ -318,6 +331,13 @@ class Relay:
                     to_client.append(line)
             if to_up:
                 self.up.sendall(b"".join(to_up))
+            with self._lock:
+                holding = time.monotonic() < self._hold_until
+            if holding:
+                self._held += to_client
+                to_client = []
+            elif self._held:
+                to_client, self._held = self._held + to_client, []
             if to_client and client is not None:
                 try:
                     client.sendall(b"".join(to_client))

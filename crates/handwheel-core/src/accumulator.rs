@@ -68,7 +68,12 @@ pub struct FeedAccumulator {
     outbox: FeedOutbox,
     /// What a record carries changed since the device last requested one.
     record_due: bool,
+    /// The nonce a master last wrote to the sequence probe (object 0x2033).
+    probe_nonce: u16,
 }
+
+/// The nonce's bits in the sequence probe (object 0x2033).
+pub const PROBE_NONCE_MASK: u32 = 0x1FFF;
 
 impl Default for FeedAccumulator {
     fn default() -> Self {
@@ -96,6 +101,7 @@ impl FeedAccumulator {
             dropped_steps: 0,
             outbox: FeedOutbox::new(),
             record_due: false,
+            probe_nonce: 0,
         }
     }
 
@@ -344,6 +350,23 @@ impl FeedAccumulator {
     /// The sequence number the next feed record carries (object 0x2031).
     pub const fn record_sequence(&self) -> u16 {
         self.outbox.sequence()
+    }
+
+    /// A master's nonce for the sequence probe (object 0x2033): its low 13 bits.
+    pub fn set_probe_nonce(&mut self, nonce: u32) {
+        self.probe_nonce = (nonce & PROBE_NONCE_MASK) as u16;
+    }
+
+    /// The sequence probe (object 0x2033): bits 16-31 the sequence number the next record
+    /// carries, bits 13-15 the session, bits 0-12 the nonce last written. A master that
+    /// writes a nonce of its own and then reads it back here with its session knows that
+    /// every record numbered from bits 16-31 on was made after its write reached the device,
+    /// so after it sent the write: a date for records that a gateway may have held, without
+    /// a clock in the record.
+    pub const fn sequence_probe(&self) -> u32 {
+        (self.outbox.sequence() as u32) << 16
+            | (self.session as u32) << 13
+            | self.probe_nonce as u32
     }
 
     /// The next feed record, one consistent snapshot: what [`FeedAccumulator::record_to_send`]

@@ -9,8 +9,8 @@ use handwheel_core::{
 
 use crate::od::{
     stored_slot, Program, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE,
-    FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, STEP_BYTE, STORED, STORED_BYTES, STORED_LEN,
-    WHEEL_READS, WHEEL_WRITES,
+    FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, SEQUENCE_PROBE, STEP_BYTE, STORED,
+    STORED_BYTES, STORED_LEN, WHEEL_READS, WHEEL_WRITES,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
@@ -269,8 +269,12 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         // The master's session stands for the configuration it made: any write that may
         // change what it relies on ends it (the feed stops, and records carry no session
         // until the master opens one again). Enabling, the session itself, clearing the
-        // error history and the store commands change nothing it relies on.
-        if !matches!(index, FEED_ENABLE | FEED_SESSION | 0x1003 | 0x1010 | 0x1011) {
+        // error history, the store commands and the sequence probe change nothing it relies
+        // on.
+        if !matches!(
+            index,
+            FEED_ENABLE | FEED_SESSION | SEQUENCE_PROBE | 0x1003 | 0x1010 | 0x1011
+        ) {
             self.end_session();
         }
     }

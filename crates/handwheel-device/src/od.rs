@@ -52,6 +52,11 @@ pub const FEED_STATUS: u16 = 0x2030;
 pub const FEED_SEQUENCE: u16 = 0x2031;
 /// The unit-step byte in flight in the paper's format (U8 ro, mappable; TPDO2).
 pub const UNIT_STEP: u16 = 0x2032;
+/// Sequence probe: U32 rw. A write sets the nonce (its low 13 bits); a read gives the
+/// sequence number the next feed record carries in bits 16-31, the session in bits 13-15 and
+/// the nonce in bits 0-12. A write of it keeps the session: a master dates the records it
+/// receives with it while its session runs (README "The contract").
+pub const SEQUENCE_PROBE: u16 = 0x2033;
 /// Feed diagnostics: sub 1 ignored detents (U32 ro), sub 2 dropped unit steps (U32 ro),
 /// sub 3 unit-step backlog bound (U16 rw, 1..1000).
 pub const FEED_DIAGNOSTICS: u16 = 0x2040;
@@ -421,6 +426,11 @@ pub const APP_OBJECTS: &[AppObject] = {
         })
         .mappable(),
         O::new(UNIT_STEP, 0, "Unit step", U8, Behaviour::UnitStep).mappable(),
+        O::wheel(SEQUENCE_PROBE, 0, "Sequence probe", U32, |_, wheel| {
+            wheel.feed.sequence_probe()
+        })
+        .writable()
+        .writes(|w, value| w.feed.set_probe_nonce(value)),
         O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
         O::wheel(FEED_DIAGNOSTICS, 1, "Ignored detents", U32, |_, wheel| {
             wheel.feed.ignored_detents()
@@ -444,7 +454,7 @@ pub const APP_OBJECTS: &[AppObject] = {
 
 /// Notes the EDS carries before an object's section: what a master must know beyond the
 /// object's type and limits.
-pub const EDS_NOTES: [(u16, &str); 7] = [
+pub const EDS_NOTES: [(u16, &str); 8] = [
     (
         PROGRAM_CONTROL,
         "0x1F51:1 program control (CiA 302-3): 0 (stop) resets into the resident loader, which
@@ -475,8 +485,8 @@ other (see 0x1010 above for when it is refused).",
         "A master opens its session by writing 1..7 last in its configuration; every feed record
 carries it (0x2030 bits 5-7). A change of it is a new selection epoch with the feed off. The
 device ends it (0) at power-on, reset node and reset communication, at any successful SDO
-write other than to 0x2000, 0x2002, 0x1003, 0x1010 and 0x1011, and when the feed sequence
-outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".",
+write other than to 0x2000, 0x2002, 0x2033, 0x1003, 0x1010 and 0x1011, and when the feed
+sequence outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".",
     ),
     (
         FEED_SELECTION,
@@ -494,6 +504,14 @@ state the value describes (in TPDO1: the record's own).",
         "+1 per feed record sent, and per loss (a held record dropped, an epoch that ended unseen);
 +8 at a break (start, stop, reset, a blocked transmit path); wraps at 65536: README
 \"Feed record\".",
+    ),
+    (
+        SEQUENCE_PROBE,
+        "A write sets the nonce (the value's low 13 bits; it keeps the session). A read gives the
+sequence number the next feed record carries (0x2031) in bits 16-31, the session (0x2002) in
+bits 13-15 and the nonce last written in bits 0-12. A master that writes a nonce of its own
+and reads it back with its session and the number n knows that every record numbered n or
+later was made after it sent the write: README \"The contract\".",
     ),
 ];
 

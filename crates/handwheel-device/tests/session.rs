@@ -107,6 +107,38 @@ fn enabling_and_clearing_errors_keep_the_session_and_refused_writes_change_nothi
 }
 
 #[test]
+fn the_sequence_probe_keeps_the_session_and_dates_the_next_record() {
+    let mut b = in_session(3);
+    let next = b.read_u32(0x2031, 0);
+    b.sdo_write(0x2033, 0, &0xDEAD_BEEFu32.to_le_bytes())
+        .unwrap();
+    assert_eq!(b.read_u32(0x2002, 0), 3, "a probe keeps the session");
+    assert_eq!(b.read_u32(0x2000, 0), 1, "and the feed");
+    assert_eq!(
+        b.read_u32(0x2033, 0),
+        next << 16 | 3 << 13 | (0xBEEF & 0x1FFF),
+        "the next record's number, the session and the nonce's low 13 bits"
+    );
+    b.turn(1);
+    b.advance_ms(5);
+    let r = last_record(&mut b);
+    assert_eq!(
+        u32::from(r.sequence),
+        next,
+        "the record made after the probe"
+    );
+    assert_eq!(
+        b.read_u32(0x2033, 0),
+        (next + 1) << 16 | 3 << 13 | (0xBEEF & 0x1FFF)
+    );
+    assert_eq!(
+        b.sdo_write(0x2033, 0, &[1, 2]),
+        Err(0x0607_0013),
+        "four bytes: two are too few"
+    );
+}
+
+#[test]
 fn resets_end_the_session_and_stop_and_start_keep_it() {
     for command in [0x81, 0x82] {
         let mut b = in_session(7);

@@ -271,9 +271,11 @@ class Capture:
         fields = {"action": action_name(action), "ok": bool(ok), "abort": abort}
         if result is not None:
             outcome = dataclasses.asdict(result)
-            # A time: kept relative to the note's own, as every time in the notes.
-            reply = outcome.pop("first_reply_at")
-            outcome["first_reply_dt"] = None if reply is None else round(reply - t, 6)
+            # Times (`first_reply_at`, `sent_at`): kept relative to the note's own, as every
+            # time in the notes (`..._dt`).
+            for name in [k for k in outcome if k.endswith("_at")]:
+                at = outcome.pop(name)
+                outcome[name[:-3] + "_dt"] = None if at is None else round(at - t, 6)
             fields["result"] = outcome
         self.note(t, done=fields)
 
@@ -324,6 +326,8 @@ def action_name(action) -> str:
         return "configure" if action.keep is None else "check"
     if isinstance(action, core.WriteFeed):
         return f"feed {action.value}"
+    if isinstance(action, core.Probe):
+        return f"probe {action.nonce}"
     return repr(action)
 
 

@@ -41,8 +41,10 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import os
 import queue
+import random
 import select
 import signal
 import sys
@@ -222,6 +224,10 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.override_step,
             args.counts_per_detent,
             args.invert_direction,
+        )
+        # Probes of one run never repeat those of another (an answer held on its way).
+        args.config = dataclasses.replace(
+            args.config, first_nonce=random.randrange(core.NONCE_MASK + 1)
         )
     except ValueError as e:
         p.error(str(e))
@@ -581,10 +587,17 @@ class Worker:
     """Carries out the core's actions one at a time; reports ("done", action, ok, abort,
     result). `cancel` makes a configuration stop before its next transfer."""
 
-    def __init__(self, link: Link, events: "queue.Queue", node_id: int) -> None:
+    def __init__(
+        self,
+        link: Link,
+        events: "queue.Queue",
+        node_id: int,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.link = link
         self.events = events
         self.node_id = node_id
+        self.clock = clock
         self.jobs: "queue.Queue" = queue.Queue()
         self.cancelled = threading.Event()
         self.thread = threading.Thread(target=self._run, name="sdo-worker", daemon=True)
@@ -611,7 +624,9 @@ class Worker:
             action = self.jobs.get()
             if action is None or self.cancelled.is_set():
                 return
-            ok, abort, result = carry_out(self.link, self.node_id, action, self.cancelled)
+            ok, abort, result = carry_out(
+                self.link, self.node_id, action, self.cancelled, self.clock
+            )
             self.events.put(("done", action, ok, abort, result))
 
 
@@ -620,21 +635,35 @@ class Mismatch(Exception):
     failed (the core retries it)."""
 
 
-def carry_out(link: Link, node_id: int, action, cancelled: Optional[threading.Event] = None):
+def carry_out(
+    link: Link,
+    node_id: int,
+    action,
+    cancelled: Optional[threading.Event] = None,
+    clock: Callable[[], float] = time.monotonic,
+):
     """Carries out one action over `link`: (ok, SDO abort code or None, result). A
-    configuration's result is its `core.Configured`, filled in as far as it got."""
+    configuration's result is its `core.Configured`, filled in as far as it got; a probe's
+    its `core.Probed` (`clock`: the core's, for when the write was sent)."""
     import canopen
 
-    report = core.Configured() if isinstance(action, core.Configure) else None
+    report: object = None
+    if isinstance(action, core.Configure):
+        report = core.Configured()
+    elif isinstance(action, core.Probe):
+        report = core.Probed()
     try:
-        return True, None, _carry_out(link, node_id, action, cancelled, report)
+        return True, None, _carry_out(link, node_id, action, cancelled, report, clock)
     except Cancelled:
         return False, None, report
     except canopen.SdoAbortedError as e:
-        log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
+        if not isinstance(action, core.Probe):
+            log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
         return False, e.code, report
     except Exception as e:  # no answer, bus gone, a read-back that differs: the core retries
-        log(f"{describe(action)}: {e}" if isinstance(e, Mismatch) else f"{describe(action)}: {e!r}")
+        if not isinstance(action, core.Probe):  # one every 50 ms: the core logs what counts
+            why = f"{e}" if isinstance(e, Mismatch) else f"{e!r}"
+            log(f"{describe(action)}: {why}")
         return False, None, report
 
 
@@ -648,7 +677,8 @@ def _carry_out(
     node_id: int,
     action,
     cancelled: Optional[threading.Event],
-    report: Optional[core.Configured] = None,
+    report=None,
+    clock: Callable[[], float] = time.monotonic,
 ):
     sdo = link.node.sdo
 
@@ -676,6 +706,12 @@ def _carry_out(
         write(0x2000, 0, action.value, 1)
         log(f"feed enable 0x2000 = {action.value}")
         return None
+    if isinstance(action, core.Probe):
+        assert isinstance(report, core.Probed)
+        report.sent_at = clock()  # before the write goes out: the answer is later
+        write(core.PROBE_OBJECT, 0, action.nonce, 4)
+        report.value = u32(core.PROBE_OBJECT, 0)
+        return report
     raise TypeError(f"unknown action {action!r}")
 
 
@@ -792,6 +828,8 @@ def describe(action) -> str:
         return "configuring the device"
     if isinstance(action, core.WriteFeed):
         return f"0x2000 = {action.value}"
+    if isinstance(action, core.Probe):
+        return f"sequence probe {action.nonce}"
     return repr(action)
 
 
@@ -860,7 +898,7 @@ def run(
                 if link is None:
                     next_connect = now + 1.0
                 else:
-                    worker = Worker(link, events, args.node)
+                    worker = Worker(link, events, args.node, clock)
                     log("bus open")
                     c.reconnected(now)
             if link is not None and link.failed.is_set():

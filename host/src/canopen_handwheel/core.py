@@ -192,11 +192,14 @@ def tpdo1_cob_id_fault(cob_id: int, node: int) -> Optional[str]:
 # sets INHIBIT_SET (2 ms, the default).
 INHIBIT_MIN = 10
 INHIBIT_SET = 20
+# Above INHIBIT_MAX (20 ms) a detent's record could follow it by more than the dating of
+# records allows for (`RECORD_DELAY`): configuration sets INHIBIT_SET too.
+INHIBIT_MAX = 200
 
 
 def inhibit_plan(device: int) -> Optional[int]:
     """What to write to 0x1800:3 at configuration, or None to keep the device's value."""
-    return INHIBIT_SET if device < INHIBIT_MIN else None
+    return INHIBIT_SET if not INHIBIT_MIN <= device <= INHIBIT_MAX else None
 
 
 # TPDO1's transmission type 0x1800:2: the feed record is event-driven (254 or 255: on
@@ -280,6 +283,64 @@ def stop_reason(master_lost: bool, emcy: Optional[int], left_operational: bool) 
 # flooded component): it is only a baseline. Credits not published to the pins within it
 # (the component stalled between handling a frame and writing the pins) are withdrawn.
 BACKLOG_LIMIT = 0.1
+
+# Dating (README "The contract"): a gateway or an adapter between the device and the host can
+# hold the device's frames and deliver them in a burst, which the host's receive path never
+# sees. The sequence probe 0x2033 dates records instead: the component writes a nonce of its
+# own (`Probe`), reads the object back and notes when it sent the write (`Probed`). An answer
+# that carries the nonce and the host's session, with the number n, says that the device had
+# made no record numbered n or later when the write was sent. The motion a record adds to its
+# reference was turned after the device made the reference's successor, at most
+# RECORD_DELAY before that successor was made (a detent's record waits for the inhibit
+# time, at most INHIBIT_MAX, and the device's round). So a record is credited only while a
+# probe sent at most DATE_LIMIT ago found the reference's successor not yet made: then its
+# motion is at most DATE_LIMIT + RECORD_DELAY old when credited, and a credit reaches the
+# pins within BACKLOG_LIMIT or is withdrawn; with a margin for the host's own delays, within
+# CONTRACT_AGE. What cannot be dated so (a hold of the device's frames, answers that do not
+# come) is a baseline: it moves nothing.
+PROBE_OBJECT = 0x2033
+PROBE_PERIOD = 0.05  # s between probes while the host holds a session
+NONCE_BITS = 13  # bits 0-12 of the probe's value; bits 13-15 the session, 16-31 the number
+NONCE_MASK = (1 << NONCE_BITS) - 1
+CONTRACT_AGE = 0.5  # s: no motion credited later than this after it was turned
+RECORD_DELAY = 0.03  # s: from a detent to its record's making at the longest
+DATE_MARGIN = 0.02  # s: the host's own delays between handling a record and writing pins
+DATE_LIMIT = CONTRACT_AGE - BACKLOG_LIMIT - RECORD_DELAY - DATE_MARGIN
+PROBE_DATES = 32  # dates kept (the newest; at PROBE_PERIOD, more than DATE_LIMIT's worth)
+
+
+def probe_date(
+    action: "Probe", result: "Probed", session: Optional[int]
+) -> Optional[Tuple[int, float]]:
+    """(n, sent_at): the date a probe's answer gives, or None if it gives none: no answer,
+    another nonce (another master's probe, an answer to an earlier probe of the host), not
+    the host's `session`, or a number not beyond what the host had already received when it
+    sent the probe (`Probe.floor`: an answer the device gave before it; only a stale one)."""
+    if result.value is None or result.sent_at is None or session is None:
+        return None
+    value = result.value
+    number = value >> 16
+    if value & NONCE_MASK != action.nonce or (value >> NONCE_BITS) & 0x07 != session:
+        return None
+    if action.floor is not None and not _at_or_after(number, action.floor + 1):
+        return None
+    return number, result.sent_at
+
+
+def _at_or_after(number: int, other: int) -> bool:
+    """`number` is `other` or later in the sequence's order (within half its range)."""
+    return (number - other) % SEQUENCE_MODULO < SEQUENCE_MODULO // 2
+
+
+def dated_at(dates, reference: "Record") -> Optional[float]:
+    """The latest time the device had not yet made the successor of `reference` (by the
+    probe dates (n, sent_at), oldest first), or None if no date tells."""
+    successor = (reference.sequence + 1) % SEQUENCE_MODULO
+    for number, sent_at in reversed(dates):
+        if _at_or_after(successor, number):
+            return sent_at
+    return None
+
 
 # Pin steps (`Core.publish`): consecutive steps are written at least this far apart, so that
 # every servo period of LinuxCNC (1 ms by default; up to 5 ms covered) that sees the counts
@@ -455,6 +516,7 @@ def make_config(
         override_step=override_step,
         counts_per_detent=counts_per_detent,
         invert_direction=invert_direction,
+        dating=True,
     )
 
 
@@ -516,6 +578,12 @@ class Config:
     )
     counts_per_detent: int = DEFAULT_COUNTS_PER_DETENT  # 0x2020:3, `--counts-per-detent`
     invert_direction: bool = False  # 0x2020:4, `--invert-direction`
+    first_nonce: int = 0  # the sequence probe's first nonce (the component draws it)
+    # Records dated by the sequence probe (`DATE_LIMIT`): the component's (`make_config`).
+    # Off, the core credits what its rule links without dating it: the rule as
+    # `crates/feed-check` checks it (its model has no path that holds frames upstream of the
+    # host), and a capture of a component from before the probe.
+    dating: bool = False
 
     @property
     def axis_letters(self) -> str:
@@ -867,7 +935,26 @@ class WriteFeed:
     value: int
 
 
-Action = object  # Configure | WriteFeed
+@dataclass(frozen=True)
+class Probe:
+    """The sequence probe: 0x2033 = `nonce` (the time the write is sent noted), then 0x2033
+    read back (`Probed`). `floor`: the newest record number of the session the host had
+    received when it asked for the probe (an answer must lie beyond it)."""
+
+    nonce: int
+    floor: Optional[int] = None
+
+
+@dataclass
+class Probed:
+    """What a `Probe` found: when the write was sent (the core's clock) and the value read
+    back (None: not read)."""
+
+    sent_at: Optional[float] = None
+    value: Optional[int] = None
+
+
+Action = object  # Configure | WriteFeed | Probe
 
 
 @dataclass
@@ -976,9 +1063,19 @@ class Core:
     feed_due: float = 0.0  # earliest time for the next 0x2000 write
     pending: Optional[Action] = None
     booted_during: Optional[float] = None  # a boot-up while a `Configure` was pending
+    # Dating (`DATE_LIMIT`): the probes' dates (n, sent_at), oldest first, for the session;
+    # the next probe's nonce and time; records not credited for want of a date.
+    dates: Deque[Tuple[int, float]] = field(
+        default_factory=lambda: collections.deque(maxlen=PROBE_DATES)
+    )
+    nonce: int = field(init=False)
+    probe_due: float = 0.0
+    undated: int = 0
+    undated_logged: bool = False
     now: float = 0.0
 
     def __post_init__(self) -> None:
+        self.nonce = self.cfg.first_nonce & NONCE_MASK
         self.counts = {letter: 0 for letter in self.cfg.axes}
         self.event_timer = self.cfg.event_timer
         self.position_mode = self.cfg.position_mode
@@ -1092,6 +1189,10 @@ class Core:
         self.pending = None
         if isinstance(action, Configure):
             self._configure_done(action, ok, result or Configured())
+        elif isinstance(action, Probe):
+            date = probe_date(action, result, self.session) if ok and result else None
+            if date is not None:
+                self.dates.append(date)
         elif isinstance(action, WriteFeed):
             # Success shows in the next records; give them time before trying again.
             self.feed_due = self.now + self.cfg.retry
@@ -1204,6 +1305,8 @@ class Core:
         self.order = None
         self.record = None
         self.record_time = None
+        self.dates.clear()
+        self.probe_due = self.now
         self.baseline = True
         self.suspect = False
         self.epochs_shown = False
@@ -1284,6 +1387,12 @@ class Core:
             elif not self.enable and self.record.enabled:
                 action = WriteFeed(0)
                 self.asked_off = True
+        probing = self.cfg.dating and self.session is not None
+        if action is None and probing and self.now >= self.probe_due:
+            floor = self.order[0].sequence if self.order is not None else None
+            action = Probe(self.nonce, floor)
+            self.nonce = (self.nonce + 1) & NONCE_MASK
+            self.probe_due = self.now + PROBE_PERIOD
         self.pending = action
         return action
 
@@ -1509,6 +1618,8 @@ class Core:
             delta, fault = _link(prev, rec)
             if fault is not None:
                 self._bad()
+            if delta and not self._dated(prev):
+                delta = None  # it may have been held on its way: a baseline
         if delta and not self.allowance.take(abs(delta) // rec.multiplier, self.now):
             self._bad()  # faster than a wheel turns
             delta = None
@@ -1537,6 +1648,26 @@ class Core:
             self.credit_last = self.now
             if self.gate(letter):
                 self.credit_open[letter] = True
+
+    def _dated(self, reference: Record) -> bool:
+        """A probe sent at most DATE_LIMIT ago found the successor of `reference` not yet
+        made (`dated_at`): what a record adds to it is recent. Else counted (`undated`) and
+        logged once until a record is dated again."""
+        if not self.cfg.dating:
+            return True
+        at = dated_at(self.dates, reference)
+        if at is not None and self.now - at <= DATE_LIMIT:
+            self.undated_logged = False
+            return True
+        self.undated = wrap_s32(self.undated + 1)
+        if not self.undated_logged:
+            self.undated_logged = True
+            self.log.append(
+                "a record not dated within "
+                f"{DATE_LIMIT:g} s by the sequence probe (0x2033; held on its way, or the "
+                "probes unanswered): not credited"
+            )
+        return False
 
     def _foreign(self, rec: Record) -> None:
         """A possible record of another session (0: none; another token: another master's,

@@ -413,6 +413,11 @@ def _explain(c: core.Core, data: bytes, now: float) -> Tuple[str, str, int]:
         return baseline(f"epoch {prev.epoch} -> {rec.epoch} ({epochs} on) across a gap of {gap}")
     if delta == 0:
         return AT_REST, "no motion", 0
+    if c.cfg.dating:
+        at = core.dated_at(c.dates, prev)
+        if at is None or now - at > core.DATE_LIMIT:
+            since = "no probe" if at is None else f"the last probe {now - at:.3f} s ago"
+            return baseline(f"not dated within {core.DATE_LIMIT:g} s ({since}): held on its way?")
     letter = letter_of(c.cfg, rec.axis)
     if letter is None:
         return NOT_CREDITED, f"moved {delta}: axis {rec.axis} drives nothing (--axes)", motion
@@ -756,7 +761,8 @@ def _note(run: _Run, note: captures.Note, events, mismatches) -> None:
     elif "action" in n:
         action = c.next_action(t)
         got = captures.action_name(action) if action is not None else "nothing"
-        events.append((t, f"the host asks: {n['action']}"))
+        if not isinstance(action, core.Probe):  # one every 50 ms: not listed
+            events.append((t, f"the host asks: {n['action']}"))
         if got != n["action"]:
             mismatches.append(f"{t:.6f}: the component asked {n['action']}, the replay {got}")
     elif "done" in n:
@@ -794,16 +800,20 @@ def _done(c: core.Core, d: dict, t: float, events, mismatches) -> None:
     result = None
     if d.get("result"):
         outcome = dict(d["result"])
-        reply = outcome.pop("first_reply_dt", None)
-        known = {f.name for f in dataclasses.fields(core.Configured)}
-        result = core.Configured(**{k: v for k, v in outcome.items() if k in known})
-        result.first_reply_at = None if reply is None else t + reply
+        for name in [k for k in outcome if k.endswith("_dt")]:
+            dt = outcome.pop(name)
+            outcome[name[:-3] + "_at"] = None if dt is None else t + dt
+        kind = core.Probed if isinstance(action, core.Probe) else core.Configured
+        known = {f.name for f in dataclasses.fields(kind)}
+        result = kind(**{k: v for k, v in outcome.items() if k in known})
     abort = d.get("abort")
     c.done(action, bool(d.get("ok")), abort, t, result)
+    if isinstance(action, core.Probe):
+        return  # one every 50 ms: not listed
     what = f"{d.get('action')}: {'done' if d.get('ok') else 'failed'}"
     if abort:
         what += f", abort 0x{abort:08X} {abort_meaning(abort)}"
-    if result is not None and result.session is not None:
+    if isinstance(result, core.Configured) and result.session is not None:
         what += f", session {result.session} (0x2002 was {result.found})"
     events.append((t, what))
 
