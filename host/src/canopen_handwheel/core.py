@@ -327,6 +327,19 @@ def probe_date(
     return number, result.sent_at
 
 
+def probe_went_back(action: "Probe", result: "Probed", session: Optional[int]) -> bool:
+    """The answer to the host's own probe (its nonce, its session) shows a number not beyond
+    what the host had already received (`Probe.floor`): the device's sequence went back,
+    which only a new power life does (reset node and reset communication keep it going). Its
+    session then is the host's token written again by another master after a power cycle
+    whose boot-up the host missed; records of the new life must not link to the old one."""
+    if result.value is None or session is None or action.floor is None:
+        return False
+    value = result.value
+    ours = value & NONCE_MASK == action.nonce and (value >> NONCE_BITS) & 0x07 == session
+    return ours and not _at_or_after(value >> 16, action.floor + 1)
+
+
 def _at_or_after(number: int, other: int) -> bool:
     """`number` is `other` or later in the sequence's order (within half its range)."""
     return (number - other) % SEQUENCE_MODULO < SEQUENCE_MODULO // 2
@@ -1193,6 +1206,14 @@ class Core:
             date = probe_date(action, result, self.session) if ok and result else None
             if date is not None:
                 self.dates.append(date)
+            elif ok and result and probe_went_back(action, result, self.session):
+                number = result.value >> 16  # type: ignore[operator]
+                if self.feed_on and not self.asked_off:
+                    self._report_stop(STOP_SESSION_ENDED)
+                self._drop_session(
+                    f"the device's feed sequence went back to {number} after {action.floor}: "
+                    "a new power life"
+                )
         elif isinstance(action, WriteFeed):
             # Success shows in the next records; give them time before trying again.
             self.feed_due = self.now + self.cfg.retry
