@@ -25,9 +25,11 @@ from test_copies import decode, started
 CONTRACT_AGE = 0.5  # s: the latest a detent may be credited after it was turned
 DETENT_PERIOD = 0.05  # one detent per 50 ms, x1
 BEFORE_HOLD = 0.5  # s of turning before the hold starts
-AFTER_HOLD = 1.5  # s of turning after it ends
-# After the hold the wheel is live again this soon: a detent turned then is credited.
-LIVE_AGAIN = 1.0
+AFTER_HOLD = 2.5  # s of turning after it ends
+# After the hold the wheel is live again this soon: a detent turned then is credited. A hold
+# longer than the order window (4 s) ends the session: the component configures the device
+# again first.
+LIVE_AGAIN = 1.5
 
 
 def turned_times(h, since: float) -> List[Tuple[int, float]]:
@@ -68,8 +70,13 @@ def credit_ages(h, start_counts: int, since: float):
 
 @pytest.mark.parametrize(
     "hold, args",
-    [(1.0, ()), (2.5, ("--event-timer-ms", "1000"))],
-    ids=["1 s hold", "2.5 s hold, 1 s event timer"],
+    [
+        (0.5, ()),
+        (1.0, ()),
+        (2.5, ("--event-timer-ms", "1000")),
+        (5.0, ("--event-timer-ms", "1000")),
+    ],
+    ids=["0.5 s hold", "1 s hold", "2.5 s hold, 1 s event timer", "5 s hold, 1 s event timer"],
 )
 def test_a_held_burst_credits_nothing_late(board, tmp_path, hold, args):
     """X at x1 turns a detent every 50 ms for BEFORE_HOLD + `hold` + AFTER_HOLD seconds;

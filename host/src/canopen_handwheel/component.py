@@ -661,7 +661,7 @@ def carry_out(
             log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
         return False, e.code, report
     except Exception as e:  # no answer, bus gone, a read-back that differs: the core retries
-        if not isinstance(action, core.Probe):  # one every 50 ms: the core logs what counts
+        if not isinstance(action, core.Probe):  # one every 0.1 s: the core logs what counts
             why = f"{e}" if isinstance(e, Mismatch) else f"{e!r}"
             log(f"{describe(action)}: {why}")
         return False, None, report

@@ -299,7 +299,7 @@ BACKLOG_LIMIT = 0.1
 # CONTRACT_AGE. What cannot be dated so (a hold of the device's frames, answers that do not
 # come) is a baseline: it moves nothing.
 PROBE_OBJECT = 0x2033
-PROBE_PERIOD = 0.05  # s between probes while the host holds a session
+PROBE_PERIOD = 0.1  # s between probes while the host holds a session
 NONCE_BITS = 13  # bits 0-12 of the probe's value; bits 13-15 the session, 16-31 the number
 NONCE_MASK = (1 << NONCE_BITS) - 1
 CONTRACT_AGE = 0.5  # s: no motion credited later than this after it was turned

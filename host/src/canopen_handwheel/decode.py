@@ -761,7 +761,7 @@ def _note(run: _Run, note: captures.Note, events, mismatches) -> None:
     elif "action" in n:
         action = c.next_action(t)
         got = captures.action_name(action) if action is not None else "nothing"
-        if not isinstance(action, core.Probe):  # one every 50 ms: not listed
+        if not isinstance(action, core.Probe):  # one every 0.1 s: not listed
             events.append((t, f"the host asks: {n['action']}"))
         if got != n["action"]:
             mismatches.append(f"{t:.6f}: the component asked {n['action']}, the replay {got}")
@@ -809,7 +809,7 @@ def _done(c: core.Core, d: dict, t: float, events, mismatches) -> None:
     abort = d.get("abort")
     c.done(action, bool(d.get("ok")), abort, t, result)
     if isinstance(action, core.Probe):
-        return  # one every 50 ms: not listed
+        return  # one every 0.1 s: not listed
     what = f"{d.get('action')}: {'done' if d.get('ok') else 'failed'}"
     if abort:
         what += f", abort 0x{abort:08X} {abort_meaning(abort)}"
