@@ -265,9 +265,10 @@ mod app {
             // is dropped, as by any controller before its reconfiguration.
             if let Some(filter) = out.rx_filter {
                 defmt::debug!(
-                    "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x}",
+                    "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x} and {=u16:#05x}",
                     filter.sync(),
-                    filter.sdo_request()
+                    filter.sdo_request(),
+                    filter.second_sdo_request()
                 );
                 can.set_rx_filter(filter);
             }

@@ -307,6 +307,71 @@ def test_another_masters_sdo_exchange_holds_the_components_requests_back():
     assert isinstance(r.c.next_action(r.at()), Configure)
 
 
+def answer_read(index: int, sub: int, value: int = 0, expedited: bool = True) -> bytes:
+    """The device's answer to an upload of index:sub: expedited (4 bytes), or the initiate of
+    a segmented upload."""
+    head = bytes([0x43 if expedited else 0x41]) + index.to_bytes(2, "little") + bytes([sub])
+    return head + value.to_bytes(4, "little")
+
+
+def test_another_masters_answered_read_ends_the_hold_at_once():
+    """An HMI polling 0x1001 once a second: each expedited read is over with its answer, so
+    the component's configuration (and its probes) never wait 2 s behind it."""
+    r = Run()
+    r.hb(core.PRE_OPERATIONAL, dt=0.05)
+    for _ in range(3):
+        r.frame(SDO_REQUEST, sdo_read(0x1001, 0), dt=1.0)
+        assert r.c.next_action(r.at()) is None, "held while the read is under way"
+        r.frame(SDO_ANSWER, answer_read(0x1001, 0), dt=0.001)
+        assert r.c.next_action(r.at(core.FOREIGN_READ_QUIET - 0.01)) is None, "a short quiet"
+        action = r.c.next_action(r.at(0.02))
+        assert isinstance(action, Configure), "the read answered: free again"
+        r.c.done(action, False, None, r.at())
+    assert not any("another master" in line for line in r.c.take_log()), "not logged"
+
+
+@pytest.mark.parametrize(
+    "request_, answer, why",
+    [
+        (sdo_read(0x1F57, 1), answer_read(0x1F57, 1), "a program download's object"),
+        (sdo_read(0x1018, 1), answer_read(0x1018, 1, expedited=False), "a segmented upload"),
+        (sdo_read(0x1018, 1), answer_read(0x1018, 2), "an answer for another object"),
+        (
+            bytes([0x2F, 0x17, 0x10, 0, 0xE8, 0x03, 0, 0]),
+            bytes([0x60, 0x17, 0x10, 0, 0, 0, 0, 0]),
+            "a write",
+        ),
+    ],
+)
+def test_other_exchanges_keep_the_hold(request_, answer, why):
+    r = Run()
+    r.hb(core.PRE_OPERATIONAL, dt=0.05)
+    r.frame(SDO_REQUEST, request_, dt=1.0)
+    r.frame(SDO_ANSWER, answer, dt=0.001)
+    assert r.c.next_action(r.at(core.FOREIGN_READ_QUIET + 0.01)) is None, why
+    r.c.tick(r.at(core.FOREIGN_SDO_QUIET))
+    assert isinstance(r.c.next_action(r.at()), Configure)
+
+
+def test_an_answer_the_component_may_be_waiting_for_keeps_the_hold():
+    """Another master reads 0x2000 while the component's own 0x2000 write is under way: the
+    answer may be the component's, so the hold stays."""
+    r = Run()
+    r.c.set_enable(True)
+    r.record(0, flags=0)
+    action = r.c.next_action(r.at())
+    assert action == core.WriteFeed(1)
+    r.frame(SDO_REQUEST, sdo_read(0x2000, 0), dt=0.001)
+    r.frame(SDO_ANSWER, answer_read(0x2000, 0), dt=0.001)
+    r.c.done(action, True, None, r.at())
+    r.c.tick(r.at(r.c.cfg.retry))
+    r.record(0, flags=0, dt=0.001)
+    assert r.c.next_action(r.at()) is None
+    r.c.tick(r.at(core.FOREIGN_SDO_QUIET))
+    r.record(0, flags=0, dt=0.001)
+    assert r.c.next_action(r.at()) == core.WriteFeed(1)
+
+
 def test_the_feed_enable_waits_too():
     r = Run()
     r.c.set_enable(True)

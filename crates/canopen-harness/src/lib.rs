@@ -3,7 +3,9 @@
 //! `cargo xtask test` (the `random-frames` binary here, stable).
 //!
 //! It feeds a device arbitrary (time step, frame) sequences, with application activity
-//! (PDO requests, errors raised and cleared, mapped data changing) driven by the same bytes.
+//! (PDO requests, errors raised and cleared, mapped data changing) driven by the same bytes;
+//! an input of odd length starts with the second SDO server (0x1201) configured on
+//! [`SDO2_RX`] / [`SDO2_TX`].
 //! It asserts that nothing panics, that every frame the engine must ignore leaves it (and
 //! the application) untouched and silent, that `poll` leaves no overdue work behind, and
 //! that outgoing frames are well-formed. [`random_input`] makes inputs for the stable loop.
@@ -15,6 +17,10 @@ use canopen_slave::{
 };
 
 const NODE: u8 = 0x22;
+/// The second SDO server's identifiers when a sequence configures it (free ones).
+pub const SDO2_RX: u16 = 0x6A2;
+/// See [`SDO2_RX`].
+pub const SDO2_TX: u16 = 0x6B2;
 
 const IDENTITY: Identity = Identity {
     device_type: 0x196,
@@ -137,10 +143,28 @@ impl FrameSink for Sink {
     }
 }
 
-fn must_ignore(id: u16, dlc: usize) -> bool {
-    let sdo = 0x600 + u16::from(NODE);
-    let known = id == 0 || id == 0x80 || id == sdo || (0x701..=0x77F).contains(&id);
-    !known || (id == 0 && dlc != 2) || (id == sdo && dlc != 8)
+/// `sync`: the SYNC identifier (0x1005, which a write may move, onto an identifier the
+/// second SDO server may have had before); `sdo2`: the second SDO server's request
+/// identifier while 0x1201 makes it valid.
+fn must_ignore(id: u16, dlc: usize, sync: u16, sdo2: Option<u16>) -> bool {
+    let sdo = id == 0x600 + u16::from(NODE) || Some(id) == sdo2;
+    let known = id == 0 || id == sync || sdo || (0x701..=0x77F).contains(&id);
+    !known || (id == 0 && dlc != 2) || (sdo && dlc != 8)
+}
+
+/// COB-ID `index:sub`, read through the device's checked read path.
+fn cob_id(dev: &mut Device<MemoryStorage>, app: &mut App, index: u16, sub: u8) -> u32 {
+    let mut buf = [0; 4];
+    dev.read(index, sub, &mut buf, app)
+        .expect("a COB-ID of the dictionary");
+    u32::from_le_bytes(buf)
+}
+
+/// The second SDO server's (request, reply) identifiers while 0x1201:1 and :2 are both
+/// valid (bit 31 clear).
+fn second_sdo(dev: &mut Device<MemoryStorage>, app: &mut App) -> Option<(u16, u16)> {
+    let (rx, tx) = (cob_id(dev, app, 0x1201, 1), cob_id(dev, app, 0x1201, 2));
+    ((rx | tx) & 0x8000_0000 == 0).then_some(((rx & 0x7FF) as u16, (tx & 0x7FF) as u16))
 }
 
 /// What one run of [`frames`] went through, to tell how deep a generator gets.
@@ -166,6 +190,13 @@ pub fn frames(input: &[u8]) -> Outcome {
     let mut tx = Sink::default();
     let mut now = 0u64;
     dev.start(Instant::ZERO, &mut app, &mut tx);
+    if input.len() % 2 == 1 {
+        for (sub, id) in [(1, SDO2_RX), (2, SDO2_TX)] {
+            let value = u32::from(id).to_le_bytes();
+            dev.write(Instant::ZERO, 0x1201, sub, &value, &mut app)
+                .expect("free identifiers");
+        }
+    }
 
     let mut bytes = input;
     while let [dt, sel, id_lo, len, rest @ ..] = bytes {
@@ -175,6 +206,7 @@ pub fn frames(input: &[u8]) -> Outcome {
             1 => 0x80,
             2 | 3 => 0x600 + u16::from(NODE),
             4 => 0x700 + u16::from(*id_lo & 0x7F),
+            5 => SDO2_RX,
             _ => (u16::from(*sel) << 8 | u16::from(*id_lo)) & 0x7FF,
         };
         let dlc = usize::from(*len % 9).min(rest.len());
@@ -203,7 +235,10 @@ pub fn frames(input: &[u8]) -> Outcome {
         if dev.nmt_state() == NmtState::Operational {
             outcome.operational += 1;
         }
-        if must_ignore(id, dlc) {
+        let sdo2 = second_sdo(&mut dev, &mut app);
+        // Bit 31 means nothing to a SYNC consumer.
+        let sync = (cob_id(&mut dev, &mut app, 0x1005, 0) & 0x7FF) as u16;
+        if must_ignore(id, dlc, sync, sdo2.map(|(rx, _)| rx)) {
             let (dev_before, app_before) = (dev.clone(), app.clone());
             dev.on_frame(t, &frame, &mut app, &mut tx);
             assert_eq!(
@@ -220,9 +255,12 @@ pub fn frames(input: &[u8]) -> Outcome {
         if let Some(deadline) = dev.next_deadline() {
             assert!(deadline > t, "deadline {deadline:?} not after {t:?}");
         }
+        // A reply of the second server may follow a write that gave 0x1201 up.
+        let sdo2_tx = sdo2.or(second_sdo(&mut dev, &mut app)).map(|(_, tx)| tx);
         for f in &tx.0 {
             assert!(f.dlc() <= 8);
-            if f.id() == 0x580 + u16::from(NODE) || f.id() == 0x80 + u16::from(NODE) {
+            let ours = [0x580 + u16::from(NODE), 0x80 + u16::from(NODE)];
+            if ours.contains(&f.id()) || Some(f.id()) == sdo2_tx {
                 assert_eq!(f.dlc(), 8);
             }
         }
@@ -262,14 +300,18 @@ impl Rng {
 pub const MAX_RECORDS: u64 = 40;
 
 /// Objects a shaped SDO request names: the dictionary's, and one that is not there.
-const INDICES: [u16; 21] = [
+const INDICES: [u16; 22] = [
     0x1000, 0x1001, 0x1003, 0x1005, 0x1008, 0x1010, 0x1011, 0x1014, 0x1015, 0x1016, 0x1017, 0x1018,
-    0x1800, 0x1801, 0x1A00, 0x1A01, 0x2000, 0x2001, 0x2002, 0x6004, 0x1234,
+    0x1201, 0x1800, 0x1801, 0x1A00, 0x1A01, 0x2000, 0x2001, 0x2002, 0x6004, 0x1234,
 ];
 
 /// Values a shaped SDO download carries: signatures of 0x1010 / 0x1011, mapping entries,
-/// COB-IDs (valid, invalid, clashing), heartbeat entries, and the edges of the ranges.
-const VALUES: [u32; 16] = [
+/// COB-IDs (valid, invalid, clashing; the second SDO server's), heartbeat entries, and the
+/// edges of the ranges.
+const VALUES: [u32; 19] = [
+    SDO2_RX as u32,
+    SDO2_TX as u32,
+    0x8000_0000 | SDO2_RX as u32,
     0x6576_6173,
     0x6461_6F6C,
     0x6004_0020,
@@ -337,7 +379,7 @@ pub fn random_input(rng: &mut Rng, buf: &mut Vec<u8>) {
                     dlc = 2;
                 }
                 1 => dlc = rng.below(2) as u8,
-                2 | 3 => {
+                2 | 3 | 5 => {
                     let [i0, i1] = rng.pick(&INDICES).to_le_bytes();
                     let sub = rng.below(10) as u8;
                     data[..4].copy_from_slice(&[rng.pick(&SDO_COMMANDS), i0, i1, sub]);

@@ -1,5 +1,5 @@
-//! The COB-ID rules of the objects that name an identifier (SYNC, EMCY, PDOs): the bits
-//! this device supports and the identifiers CiA 301 reserves.
+//! The COB-ID rules of the objects that name an identifier (SYNC, EMCY, PDOs, the second
+//! SDO server): the bits this device supports and the identifiers CiA 301 reserves.
 
 use crate::abort::SdoAbort;
 use crate::frame::MAX_STANDARD_ID;
@@ -18,7 +18,9 @@ pub(crate) const fn is_restricted(can_id: u32) -> bool {
     )
 }
 
-/// Validation of a write to a PDO or EMCY COB-ID (CiA 301 7.5.2.35 / 7.5.2.36).
+/// Validation of a write to a PDO, EMCY or SDO server COB-ID (CiA 301 7.5.2.35 / 7.5.2.36,
+/// and the SDO server parameter's; bit 30 of an SDO COB-ID, "dynamic", is kept as
+/// written).
 pub(crate) fn check_cob_id_write(old: u32, new: u32) -> Result<(), SdoAbort> {
     // Bits 28..11 belong to 29-bit identifiers only.
     if new & COB_EXTENDED != 0 || new & 0x1FFF_F800 != 0 {

@@ -15,9 +15,10 @@ mod pdo;
 mod sdo;
 
 use crate::abort::SdoAbort;
+use crate::cob_id::COB_INVALID;
 use crate::emcy::Emcy;
 use crate::filter::RxFilter;
-use crate::frame::{cob, Frame, FrameSink, NodeId, MAX_STANDARD_ID};
+use crate::frame::{cob, Frame, FrameSink, NodeId};
 use crate::heartbeat::Heartbeat;
 use crate::lss::{self, LssAction, LssAddress, LssSlave};
 use crate::nmt::{NmtCommand, NmtState};
@@ -29,7 +30,7 @@ use crate::time::{earliest, Instant};
 use crate::tpdo::{Tpdo, TPDOS};
 
 use nmt::Boot;
-use objects::Comm;
+use objects::{Comm, SDO2_DEFAULTS};
 
 /// What the engine needs from the application. Objects outside 0x1000-0x1FFF whose table
 /// entry says [`Value::App`] are read and written here; the hooks report engine events.
@@ -168,7 +169,9 @@ pub struct NoSuchPdo;
 /// A CANopen device.
 #[derive(Clone, Debug, PartialEq, Hash)]
 pub struct Device<S> {
-    sdo: SdoServer,
+    /// The SDO servers: the default one (0x600 / 0x580 + node-ID) and the one of 0x1201,
+    /// each with its own transfer and timeout.
+    sdo: [SdoServer; 2],
     /// LSS (CiA 305): it also owns the node-ID the next reset of communication activates.
     lss: LssSlave,
     inner: Inner<S>,
@@ -201,7 +204,10 @@ impl<S: Storage> Device<S> {
             serial: config.serial_number,
         };
         Self {
-            sdo: SdoServer::new(config.sdo_timeout_ms),
+            sdo: [
+                SdoServer::new(config.sdo_timeout_ms),
+                SdoServer::new(config.sdo_timeout_ms),
+            ],
             lss: LssSlave::new(
                 address,
                 config.node_id,
@@ -218,6 +224,7 @@ impl<S: Storage> Device<S> {
                     sync: SyncConsumer::new(),
                     tpdos: [const { Tpdo::new() }; TPDOS],
                     emcy: Emcy::new(),
+                    sdo2: SDO2_DEFAULTS,
                 },
                 storage,
                 tx_refused: 0,
@@ -257,11 +264,13 @@ impl<S: Storage> Device<S> {
             if let Some(cmd) = NmtCommand::parse(frame, node) {
                 self.on_nmt(now, cmd, app, tx);
             }
-        } else if id == node.cob_id(cob::SDO_RX) {
+        } else if let Some(channel) =
+            (0..2).find(|&c| self.inner.comm.sdo_ids(c).is_some_and(|(rx, _)| rx == id))
+        {
             if frame.dlc() != 8 || !state.communicating() {
                 return;
             }
-            self.on_sdo_request(now, node, frame, app, tx);
+            self.on_sdo_request(now, channel, frame, app, tx);
         } else if (cob::HEARTBEAT + 1..=cob::HEARTBEAT + 127).contains(&id) {
             if frame.dlc() == 1 {
                 // The range check above makes this fit 7 bits.
@@ -281,15 +290,14 @@ impl<S: Storage> Device<S> {
     /// Time-driven work: SDO timeout, heartbeat consumers and producer, TPDO event timers
     /// and inhibit times, queued EMCYs. Call it at [`Device::next_deadline`] at the latest.
     pub fn poll(&mut self, now: Instant, app: &mut dyn Application, tx: &mut dyn FrameSink) {
-        let Some(node) = self.inner.comm.node else {
-            return;
-        };
-        if self.inner.comm.state == NmtState::Initialising {
+        if self.inner.comm.node.is_none() || self.inner.comm.state == NmtState::Initialising {
             return;
         }
-        if let Some(abort) = self.sdo.poll(now) {
-            self.inner
-                .emit(tx, Frame::from_parts(node.cob_id(cob::SDO_TX), abort, 8));
+        for (channel, server) in self.sdo.iter_mut().enumerate() {
+            let ids = self.inner.comm.sdo_ids(channel);
+            if let (Some(abort), Some((_, reply))) = (server.poll(now), ids) {
+                self.inner.emit(tx, Frame::from_parts(reply, abort, 8));
+            }
         }
         self.inner.check_heartbeats(now, app);
         if self.inner.comm.heartbeat.beat_due(now) {
@@ -307,7 +315,9 @@ impl<S: Storage> Device<S> {
         if comm.state == NmtState::Initialising {
             return self.lss.deadline();
         }
-        let mut next = earliest(self.sdo.deadline(), comm.heartbeat.deadline());
+        let [sdo, sdo2] = &self.sdo;
+        let mut next = earliest(sdo.deadline(), sdo2.deadline());
+        next = earliest(next, comm.heartbeat.deadline());
         next = earliest(next, self.lss.deadline());
         if comm.state == NmtState::Operational {
             for t in &comm.tpdos {
@@ -354,14 +364,22 @@ impl<S: Storage> Device<S> {
     }
 
     /// The identifiers the device handles now (NMT, SYNC as 0x1005 says, this node's SDO
-    /// requests, heartbeats). The firmware reprograms its acceptance filter whenever this
-    /// changes, e.g. after a write of 0x1005 or a reset of communication.
+    /// requests on both servers, heartbeats). The firmware reprograms its acceptance filter
+    /// whenever this changes, e.g. after a write of 0x1005 or 0x1201 or a reset of
+    /// communication.
     #[must_use]
+    #[inline(always)]
     pub fn rx_filter(&self) -> RxFilter {
-        // 0x1005 is checked to carry an 11-bit identifier; the mask keeps the cast exact.
-        let sync = (self.inner.comm.sync.cob_id() & u32::from(MAX_STANDARD_ID)) as u16;
-        match self.inner.comm.node {
-            Some(node) => RxFilter::with_sync(node, sync),
+        let comm = &self.inner.comm;
+        // 0x1005 and 0x1201 are checked to carry 11-bit identifiers; the filter keeps those.
+        let sync = comm.sync.cob_id() as u16;
+        // Read here, and the function inlined, rather than through `Comm::sdo_ids`: a call
+        // with the device's address makes the firmware's init build the device on its stack
+        // and copy it (1 KiB more stack).
+        let [rx, tx, _] = comm.sdo2;
+        let second = ((rx | tx) & COB_INVALID == 0).then_some(rx as u16);
+        match comm.node {
+            Some(node) => RxFilter::with_sync(node, sync).with_second_sdo(second),
             None => RxFilter::unconfigured(),
         }
     }

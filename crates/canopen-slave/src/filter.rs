@@ -1,7 +1,7 @@
 //! The identifiers the device listens to, for the CAN controller's acceptance filter.
 //!
 //! Which frames the engine wants depends on configuration a master can change (0x1005 moves
-//! SYNC) and on the node-ID, so the filter is derived from the engine, not written into the
+//! SYNC, 0x1201 opens a second SDO server) and on the node-ID, so the filter is derived from the engine, not written into the
 //! driver: the firmware compares [`Device::rx_filter`](crate::Device::rx_filter) after each
 //! round and reprograms the controller when it changed.
 
@@ -10,15 +10,17 @@ use crate::lss::LSS_REQUEST;
 
 /// The set of identifiers the engine handles; every other frame may be dropped in hardware.
 ///
-/// NMT (0x000), SYNC (0x1005, 0x080 by default), this node's SDO requests (0x600 + node-ID),
-/// every heartbeat 0x700..=0x77F (the consumer picks its producers itself, so a change
-/// of 0x1016 needs no new filter) and LSS requests (0x7E5). An unconfigured node
-/// ([`RxFilter::unconfigured`]) has no SYNC and no SDO: NMT, heartbeats and LSS only.
+/// NMT (0x000), SYNC (0x1005, 0x080 by default), this node's SDO requests (0x600 + node-ID,
+/// and 0x1201:1 while the second SDO server is valid), every heartbeat 0x700..=0x77F (the
+/// consumer picks its producers itself, so a change of 0x1016 needs no new filter) and LSS
+/// requests (0x7E5). An unconfigured node ([`RxFilter::unconfigured`]) has no SYNC and no
+/// SDO: NMT, heartbeats and LSS only.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RxFilter {
     sync: u16,
     sdo_request: u16,
+    second_sdo_request: u16,
 }
 
 impl RxFilter {
@@ -34,14 +36,29 @@ impl RxFilter {
         Self {
             sync: cob::NMT,
             sdo_request: LSS_REQUEST,
+            second_sdo_request: LSS_REQUEST,
         }
     }
 
     /// The filter of a node whose SYNC is on `sync` (11 bits; higher bits are ignored).
     pub const fn with_sync(node: NodeId, sync: u16) -> Self {
+        let sdo_request = node.cob_id(cob::SDO_RX);
         Self {
             sync: sync & MAX_STANDARD_ID,
-            sdo_request: node.cob_id(cob::SDO_RX),
+            sdo_request,
+            second_sdo_request: sdo_request,
+        }
+    }
+
+    /// This filter with the second SDO server's request identifier (0x1201:1, 11 bits;
+    /// higher bits are ignored), or without one (`None`: the server is not valid).
+    pub const fn with_second_sdo(self, request: Option<u16>) -> Self {
+        Self {
+            second_sdo_request: match request {
+                Some(id) => id & MAX_STANDARD_ID,
+                None => self.sdo_request,
+            },
+            ..self
         }
     }
 
@@ -53,6 +70,13 @@ impl RxFilter {
     /// This node's SDO request identifier.
     pub const fn sdo_request(&self) -> u16 {
         self.sdo_request
+    }
+
+    /// The second SDO server's request identifier (0x1201:1) while that server is valid;
+    /// otherwise a repeat of [`RxFilter::sdo_request`], so that a port can program the same
+    /// list entries in every case.
+    pub const fn second_sdo_request(&self) -> u16 {
+        self.second_sdo_request
     }
 
     /// The NMT identifier (always 0x000).
@@ -76,6 +100,7 @@ impl RxFilter {
         id == self.nmt()
             || id == self.sync
             || id == self.sdo_request
+            || id == self.second_sdo_request
             || id == LSS_REQUEST
             || id & mask == base
     }
@@ -100,6 +125,20 @@ mod tests {
         assert!(f.accepts(0x081));
         assert!(!f.accepts(0x080));
         assert_eq!((f.sync(), f.sdo_request()), (0x081, 0x601));
+    }
+
+    #[test]
+    fn a_second_sdo_server_adds_its_request_identifier() {
+        let node = NodeId::new(16).unwrap();
+        let f = RxFilter::new(node).with_second_sdo(Some(0x690));
+        for id in 0..=MAX_STANDARD_ID {
+            let expected = matches!(id, 0x000 | 0x080 | 0x610 | 0x690 | 0x700..=0x77F | 0x7E5);
+            assert_eq!(f.accepts(id), expected, "{id:#05x}");
+        }
+        assert_eq!(f.second_sdo_request(), 0x690);
+        let none = f.with_second_sdo(None);
+        assert_eq!(none, RxFilter::new(node));
+        assert_eq!(none.second_sdo_request(), 0x610);
     }
 
     #[test]

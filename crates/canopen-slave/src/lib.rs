@@ -5,8 +5,8 @@
 //! static table ([`Od`]) declared by the application, whose own objects are reached
 //! through the [`Application`] trait.
 //!
-//! Supported: NMT slave, SDO server (expedited and segmented), heartbeat producer and two
-//! consumers, SYNC consumer, two TPDOs (event-driven and synchronous) with dynamic mapping,
+//! Supported: NMT slave, SDO server (expedited and segmented) and a second one configured
+//! through 0x1201, heartbeat producer and two consumers, SYNC consumer, two TPDOs (event-driven and synchronous) with dynamic mapping,
 //! EMCY producer with error history, store/restore of parameters, CiA 303-3 indicators, the
 //! CAN controller's error states as EMCYs and LED codes ([`bus`]), the LSS slave of CiA 305
 //! ([`lss`]: node-ID and bit timing over the bus, fastscan, unconfigured nodes), and helpers to drive the

@@ -308,7 +308,10 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// The identifiers the device handles now; the firmware reprograms its acceptance
-    /// filter when this changes (a write of 0x1005, a reset of communication).
+    /// filter when this changes (a write of 0x1005 or 0x1201, a reset of communication).
+    /// Inlined, as the engine's: a call with the device's address makes the firmware's init
+    /// build the device on its stack and copy it (1 KiB more stack).
+    #[inline(always)]
     pub fn rx_filter(&self) -> RxFilter {
         self.engine.rx_filter()
     }

@@ -225,6 +225,39 @@ fn the_filter_follows_a_write_of_0x1005_and_a_reset_of_communication() {
 }
 
 #[test]
+fn the_filter_takes_the_second_sdo_server_once_0x1201_makes_it_valid() {
+    let mut r = Rig::new(true);
+    r.poll(0);
+    assert_eq!(
+        r.node.rx_filter().second_sdo_request(),
+        0x605,
+        "none: a repeat"
+    );
+    let out = r.receive(10, 0x605, &sdo_write_u32(0x1201, 1, 0x685));
+    assert_eq!(out.rx_filter, None, "0x1201:2 not valid yet");
+    let out = r.receive(20, 0x605, &sdo_write_u32(0x1201, 2, 0x695));
+    let filter = out.rx_filter.expect("the second server is valid");
+    assert_eq!(filter.second_sdo_request(), 0x685);
+    assert!(filter.accepts(0x685) && filter.accepts(0x605));
+    assert_eq!(filter.sync(), 0x080);
+    // The server answers on its own identifier from the same round on.
+    r.port.sent.clear();
+    r.receive(30, 0x685, &[0x40, 0x17, 0x10, 0, 0, 0, 0, 0]);
+    assert_eq!(
+        r.sent_on(0x695),
+        [vec![0x4B, 0x17, 0x10, 0, 0xE8, 0x03, 0, 0]]
+    );
+    assert_eq!(r.sent_on(0x585), Vec::<Vec<u8>>::new());
+    // Given up, and after a reset of communication: the repeat again.
+    let out = r.receive(40, 0x605, &sdo_write_u32(0x1201, 1, 0x8000_0685));
+    assert_eq!(out.rx_filter.map(|f| f.second_sdo_request()), Some(0x605));
+    r.receive(50, 0x605, &sdo_write_u32(0x1201, 1, 0x685));
+    assert_eq!(r.node.rx_filter().second_sdo_request(), 0x685);
+    let out = r.receive(60, 0x000, &[0x82, NODE]);
+    assert_eq!(out.rx_filter.map(|f| f.second_sdo_request()), Some(0x605));
+}
+
+#[test]
 fn the_sleep_is_the_nearest_of_duties_device_and_bit_rate_switch() {
     let mut r = Rig::new(true);
     r.poll(0);

@@ -251,7 +251,10 @@ STOP_REASONS = {
     STOP_TRANSMIT_BLOCKED: "transmit path blocked (EMCY 0x8100)",
     STOP_MASTER_WRITE: "disabled by a master write (0x2000 = 0)",
     STOP_NOT_OPERATIONAL: "the device left Operational",
-    STOP_SESSION_ENDED: "the session ended (reset, power cycle or another master's write)",
+    STOP_SESSION_ENDED: (
+        "the session ended (a reset, a power cycle, another master's write, or the record "
+        "sequence outran its pace)"
+    ),
 }
 EMCY_MASTER_LOST = 0x8130
 EMCY_TRANSMIT_BLOCKED = 0x8100
@@ -401,6 +404,16 @@ LOADER_DEVICE_TYPE = 0x544F_4F42
 # program download (0x1F57 polled every 0.05 s; the boot-up after "start" comes within
 # milliseconds on the board), short against a person's pause.
 FOREIGN_SDO_QUIET = 2.0
+# Except after another master's expedited read (an HMI polling, say 0x1001 once a second),
+# which is over with its answer: the hold then ends FOREIGN_READ_QUIET after the answer, or
+# the component, whose probes date every record, would credit nothing while the HMI polls.
+# The short quiet keeps a master that reads and goes on at once (an update's first steps)
+# undisturbed; a read of the program download objects (0x1F50..0x1F5F: an update under way)
+# keeps the long one. At most PROBE_PERIOD + FOREIGN_READ_QUIET between two probes stays
+# within DATE_LIMIT. Either client's python-canopen refuses an answer for another object
+# than it asked for, so a collision costs a retry.
+FOREIGN_READ_QUIET = 0.15
+PROGRAM_OBJECTS = range(0x1F50, 0x1F60)
 # Program control 0x1F51:1 (CiA 302-3): "stop" resets the application into its loader.
 PROGRAM_CONTROL = b"\x51\x1f\x01"
 PROGRAM_STOP = 0
@@ -1067,6 +1080,8 @@ class Core:
     # its expedited write of 0x1F51:1 waiting for the device's answer; when the device
     # confirmed a "stop": a boot-up soon after it is its loader's.
     foreign_sdo_at: Optional[float] = None
+    foreign_read: Optional[bytes] = None  # index and sub of another master's read under way
+    foreign_quiet: float = FOREIGN_SDO_QUIET  # the hold after `foreign_sdo_at`
     holding_logged: bool = False
     program_request: Optional[int] = None
     program_stopped_at: Optional[float] = None
@@ -1445,11 +1460,13 @@ class Core:
 
     def _holding_back(self) -> bool:
         """Another master's SDO exchange is under way (`FOREIGN_SDO_QUIET`): no request of
-        the component now. Logged once per exchange."""
+        the component now. Logged once per exchange that lasts (not a read answered within
+        `FOREIGN_READ_QUIET`, nor the short quiet after it)."""
         if self.foreign_sdo_at is None:
             return False
-        if self.now - self.foreign_sdo_at < FOREIGN_SDO_QUIET:
-            if not self.holding_logged:
+        if self.now - self.foreign_sdo_at < self.foreign_quiet:
+            quick = self.now - self.foreign_sdo_at < FOREIGN_READ_QUIET
+            if not self.holding_logged and self.foreign_quiet == FOREIGN_SDO_QUIET and not quick:
                 self.holding_logged = True
                 self.log.append(
                     f"another master is exchanging SDO with node {self.cfg.node}: no request "
@@ -1765,6 +1782,10 @@ class Core:
         receives its own frames): another master's exchange (`FOREIGN_SDO_QUIET`). An
         expedited write of 0x1F51:1 is remembered until the device answers it."""
         self.foreign_sdo_at = self.now
+        self.foreign_quiet = FOREIGN_SDO_QUIET
+        read = len(data) == 8 and data[0] & 0xE0 == 0x40  # an upload's initiate
+        index = int.from_bytes(data[1:3], "little") if len(data) >= 3 else None
+        self.foreign_read = bytes(data[1:4]) if read and index not in PROGRAM_OBJECTS else None
         expedited_write = len(data) == 8 and data[0] & 0xE2 == 0x22
         control = expedited_write and data[1:4] == PROGRAM_CONTROL
         self.program_request = data[4] if control else None
@@ -1772,12 +1793,29 @@ class Core:
     def _sdo_response(self, data: bytes) -> None:
         """The device's SDO answer (to the component or another master): a confirmed write
         of 0x1F51:1 = "stop" (the component writes none) means that the boot-up following
-        it is the loader's."""
+        it is the loader's. The expedited answer (or abort) to another master's read that
+        the component is not itself asking for ends the hold on its requests."""
+        answered = len(data) == 8 and (data[0] & 0xE2 == 0x42 or data[0] == 0x80)
+        if answered and self.foreign_read is not None and data[1:4] == self.foreign_read:
+            if not self._asking_for(data[1:4]):
+                self.foreign_sdo_at = self.now
+                self.foreign_quiet = FOREIGN_READ_QUIET
+            self.foreign_read = None
         if self.program_request is None or len(data) != 8 or data[1:4] != PROGRAM_CONTROL:
             return
         if data[0] == 0x60 and self.program_request == PROGRAM_STOP:  # confirmed
             self.program_stopped_at = self.now
         self.program_request = None
+
+    def _asking_for(self, entry: bytes) -> bool:
+        """The component's own action under way may be asking for the object `entry`
+        (index, sub as an SDO frame has them): then an answer for it may be its own."""
+        index, sub = int.from_bytes(entry[0:2], "little"), entry[2]
+        if isinstance(self.pending, Probe):
+            return (index, sub) == (PROBE_OBJECT, 0)
+        if isinstance(self.pending, WriteFeed):
+            return (index, sub) == (0x2000, 0)
+        return self.pending is not None
 
     def _heartbeat(self, data: bytes, now: float) -> None:
         if len(data) != 1:

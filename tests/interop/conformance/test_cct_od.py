@@ -105,12 +105,15 @@ RUN_ON_ACROSS_RESETS = {(0x2010, 3), (0x2031, 0)}
 # The feed selection byte carries the epoch's low three bits in bits 5-7: those follow
 # 0x2010:3, the rest has its default.
 FEED_SELECTION = (0x2011, 0)
+# The sequence probe reads the number the next record carries (0x2031) in bits 16-31.
+SEQUENCE_PROBE = (0x2033, 0)
 
 
 def test_od_08_application_objects_against_eds_defaults(dut):
     """Every application object with an EDS default has it after a reset node, but the
-    counters in `RUN_ON_ACROSS_RESETS` and the epoch's bits of the feed selection byte (which
-    the order the cases ran in decides: one step per reset node)."""
+    counters in `RUN_ON_ACROSS_RESETS`, the epoch's bits of the feed selection byte (which
+    the order the cases ran in decides: one step per reset node) and the sequence probe's
+    copy of the sequence."""
     wrong = []
     for var in variables(dut, 0x2000, 0x9FFF):
         if var.default is None or (var.index, var.subindex) in RUN_ON_ACROSS_RESETS:
@@ -120,6 +123,8 @@ def test_od_08_application_objects_against_eds_defaults(dut):
         if (var.index, var.subindex) == FEED_SELECTION:
             epoch = dut.node.sdo[0x2010][3].raw
             expected = (var.default & 0x1F) | (epoch & 0b111) << 5
+        if (var.index, var.subindex) == SEQUENCE_PROBE:
+            expected = var.default & 0xFFFF | dut.node.sdo[0x2031].raw << 16
         if value != expected:
             wrong.append(f"{var.index:#06x}:{var.subindex} = {value}, expected {expected}")
     assert not wrong, wrong

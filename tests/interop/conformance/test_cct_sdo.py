@@ -3,6 +3,7 @@
 import pytest
 
 from cct import abort_frame, abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
+from rig import BOOTUP, HEARTBEAT, NMT_RESET_COMMUNICATION
 
 DEVICE_NAME = b"CNC handwheel"
 
@@ -186,14 +187,33 @@ def test_sdo_27_block_read_with_wrong_sequence_number(dut):
     )
 
 
-def test_sdo_28_additional_sdo_servers_absent(dut):
-    for index in range(0x1201, 0x1280):
+def test_sdo_28_additional_sdo_servers(dut):
+    # One additional server, 0x1201, not valid until a master configures it; 0x1202..0x127F
+    # absent.
+    assert sdo_raw(dut, req(0x40, 0x1201, 0)) == req(0x4F, 0x1201, 0, bytes([3]))
+    for sub in (1, 2):
+        reply = sdo_raw(dut, req(0x40, 0x1201, sub))
+        assert reply == req(0x43, 0x1201, sub, (0x80000000).to_bytes(4, "little"))
+    assert sdo_raw(dut, req(0x40, 0x1201, 3)) == req(0x4F, 0x1201, 3, bytes([0]))
+    for index in range(0x1202, 0x1280):
         reply = sdo_raw(dut, req(0x40, index, 1))
         assert abort_of(reply) in (0x06020000, 0x08000000), f"{index:#06x}"
 
 
 def test_sdo_29_additional_sdo_servers_after_reset_communication(dut):
-    pytest.skip("no additional SDO server (0x1201..0x127F absent, SDO 28)")
+    rx, tx = 0x680 + dut.node.id, 0x6A0 + dut.node.id
+    dut.write(0x1201, 1, rx, 4)
+    dut.write(0x1201, 2, tx, 4)
+    dut.write(0x1201, 3, 1, 1)
+    mark = dut.frames.mark()
+    dut.network.send_message(rx, req(0x40, 0x1000, 0))
+    assert dut.frames.wait_id(tx, since=mark).data == req(0x43, 0x1000, 0, bytes(4))
+    mark = dut.nmt(NMT_RESET_COMMUNICATION)
+    dut.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
+    assert [dut.read(0x1201, sub) for sub in (1, 2, 3)] == [0x80000000, 0x80000000, 0]
+    mark = dut.frames.mark()
+    dut.network.send_message(rx, req(0x40, 0x1000, 0))
+    dut.frames.assert_none(lambda f: f.id == tx, 0.4, since=mark, what="second SDO replies")
 
 
 def test_sdo_30_sdo_clients_saved_and_reset(dut):

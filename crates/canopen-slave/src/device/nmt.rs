@@ -54,7 +54,9 @@ impl<S: Storage> Device<S> {
         }
         info!("NMT {} -> {}", prev, next);
         comm.state = next;
-        self.sdo.on_nmt_state(next);
+        for server in &mut self.sdo {
+            server.on_nmt_state(next);
+        }
         comm.emcy.on_nmt_state(next);
         tpdo::on_nmt_state(&mut comm.tpdos, next, now);
         app.on_nmt_state(next);
@@ -75,7 +77,9 @@ impl<S: Storage> Device<S> {
     ) {
         self.set_state(now, NmtState::Initialising, app, tx);
         // Also at power-on, when the state was Initialising already.
-        self.sdo.reset();
+        for server in &mut self.sdo {
+            server.reset();
+        }
         // Every initialisation activates the LSS node-ID (at power-on, the configured one).
         self.inner.comm.node = self.lss.pending_node_id();
         let Some(node) = self.inner.comm.node else {

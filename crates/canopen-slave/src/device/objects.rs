@@ -14,7 +14,7 @@ use super::Application;
 use crate::abort::SdoAbort;
 use crate::cob_id::{check_cob_id_write, COB_INVALID};
 use crate::emcy::Emcy;
-use crate::frame::NodeId;
+use crate::frame::{cob, NodeId, MAX_STANDARD_ID};
 use crate::heartbeat::Heartbeat;
 use crate::identity::{CommDefaults, Identity};
 use crate::nmt::NmtState;
@@ -38,7 +38,14 @@ pub(super) struct Comm {
     pub(super) sync: SyncConsumer,
     pub(super) tpdos: [Tpdo; TPDOS],
     pub(super) emcy: Emcy,
+    /// 0x1201:1..3, the second SDO server's parameters: COB-ID client to server, COB-ID
+    /// server to client, node-ID of the client. Not stored: every initialisation sets
+    /// [`SDO2_DEFAULTS`].
+    pub(super) sdo2: [u32; 3],
 }
+
+/// 0x1201's defaults: both COB-IDs not valid (bit 31), no client node-ID.
+pub(super) const SDO2_DEFAULTS: [u32; 3] = [COB_INVALID, COB_INVALID, 0];
 
 /// A stored value the checked write path refused at a restore: the object keeps its
 /// default.
@@ -595,6 +602,50 @@ const OBJECTS: &[CommObject] = {
             write: read_only,
             restore: not_a_parameter,
         },
+        // The second SDO server (CiA 301 allows 0x1201..0x127F; the device has one). Its
+        // COB-IDs follow the rules of the other COB-IDs; not stored.
+        CommObject {
+            first: 0x1201,
+            last: 0x1201,
+            name: "SDO server parameter",
+            code: Record,
+            entries: &[
+                E::highest(3),
+                E::parameter(
+                    1,
+                    "COB-ID client to server",
+                    U32,
+                    Rw,
+                    Source::Fixed(COB_INVALID),
+                )
+                .hex(),
+                E::parameter(
+                    2,
+                    "COB-ID server to client",
+                    U32,
+                    Rw,
+                    Source::Fixed(COB_INVALID),
+                )
+                .hex(),
+                E::parameter(3, "Node-ID of the SDO client", U8, Rw, Source::Fixed(0))
+                    .limits(0, 127),
+            ],
+            // The table has sub-indices 1..=3 only.
+            read: |c, _, sub| {
+                let n = usize::from(sub).wrapping_sub(1);
+                c.sdo2.get(n).copied().ok_or(SdoAbort::NoSubIndex)
+            },
+            write: |c, _, _, sub, v| {
+                match sub {
+                    1 | 2 => c.check_cob_id(CobSlot::Sdo(usize::from(sub - 1)), v)?,
+                    _ if v > 127 => return Err(SdoAbort::ValueTooHigh),
+                    _ => {}
+                }
+                c.set_sdo2(sub, v);
+                Ok(())
+            },
+            restore: |c, _, sub, v, _| c.set_sdo2(sub, v),
+        },
         CommObject {
             first: 0x1800,
             last: 0x19FF,
@@ -705,8 +756,8 @@ pub const STANDARD_OBJECTS: usize = {
 /// The communication profile area (0x1000-0x1FFF) the engine implements, ready to be the
 /// first part of an application's [`Od`]: the entries of the engine's object rows, with the
 /// defaults the device declares: 0x1000, 0x1001, 0x1003 (4 entries), 0x1005, 0x1008-0x100A,
-/// 0x1010, 0x1011, 0x1014, 0x1015, 0x1016 (2 consumers), 0x1017, 0x1018, TPDO1/2
-/// (0x1800/0x1801, 0x1A00/0x1A01).
+/// 0x1010, 0x1011, 0x1014, 0x1015, 0x1016 (2 consumers), 0x1017, 0x1018, 0x1201 (a second
+/// SDO server), TPDO1/2 (0x1800/0x1801, 0x1A00/0x1A01).
 pub const fn standard_objects(id: &Identity, d: &CommDefaults) -> [OdEntry; STANDARD_OBJECTS] {
     let mut pdo = 0;
     while pdo < d.tpdo.len() {
@@ -875,6 +926,8 @@ enum CobSlot {
     Emcy,
     /// TPDO `n` (0-based).
     Tpdo(usize),
+    /// 0x1201 sub-index `n + 1`: 0 client to server, 1 server to client.
+    Sdo(usize),
 }
 
 impl CobSlot {
@@ -883,6 +936,7 @@ impl CobSlot {
             Self::Sync => 0,
             Self::Emcy => 1,
             Self::Tpdo(n) => 2 + n,
+            Self::Sdo(n) => 2 + TPDOS + n,
         }
     }
 }
@@ -1048,6 +1102,7 @@ impl Comm {
         self.tpdos = [const { Tpdo::new() }; TPDOS];
         self.emcy.set(0x1014, COB_INVALID);
         self.emcy.set(0x1015, 0);
+        self.sdo2 = SDO2_DEFAULTS;
         let node = u32::from(self.node.map_or(0, NodeId::get));
         for e in self.od.entries() {
             match e.value() {
@@ -1064,10 +1119,12 @@ impl Comm {
     /// restricted identifiers, no change of CAN-ID while valid: 0x06090030), then that no
     /// other object of this node uses it (0x06040043), so that no frame of ours goes out
     /// where the network expects another kind (feed records read as emergencies, a TPDO
-    /// taken for SYNC). An entry with bit 31 set claims nothing, except SYNC, which is
-    /// always received (bit 31 means nothing to a consumer).
+    /// taken for SYNC, an SDO request of the second server taken for SYNC or answered as
+    /// a PDO). An entry with bit 31 set claims nothing, except SYNC, which is always
+    /// received (bit 31 means nothing to a consumer).
     fn check_cob_id(&self, slot: CobSlot, value: u32) -> Result<(), SdoAbort> {
-        let mut owners = [0; 2 + TPDOS];
+        let [sdo_rx, sdo_tx, _] = self.sdo2;
+        let mut owners = [0; 4 + TPDOS];
         owners[CobSlot::Sync.index()] = self.sync.cob_id() & !COB_INVALID;
         owners[CobSlot::Emcy.index()] = self.emcy.cob_id();
         for (n, t) in self.tpdos.iter().enumerate() {
@@ -1075,6 +1132,8 @@ impl Comm {
                 *owner = t.cob_id();
             }
         }
+        owners[CobSlot::Sdo(0).index()] = sdo_rx;
+        owners[CobSlot::Sdo(1).index()] = sdo_tx;
         let slot = slot.index();
         let value = if slot == CobSlot::Sync.index() {
             SyncConsumer::check(value)?;
@@ -1091,6 +1150,28 @@ impl Comm {
             return Err(SdoAbort::ParameterIncompatible);
         }
         Ok(())
+    }
+
+    /// Sets 0x1201 sub-index `sub` (1..=3), unchecked.
+    fn set_sdo2(&mut self, sub: u8, value: u32) {
+        if let Some(p) = self.sdo2.get_mut(usize::from(sub).wrapping_sub(1)) {
+            *p = value;
+        }
+    }
+
+    /// The (request, reply) identifiers of SDO server `channel`: 0 the default one
+    /// (0x600 / 0x580 + node-ID), 1 the one of 0x1201 while both its COB-IDs are valid.
+    pub(super) fn sdo_ids(&self, channel: usize) -> Option<(u16, u16)> {
+        let node = self.node?;
+        let [rx, tx, _] = self.sdo2;
+        match channel {
+            0 => Some((node.cob_id(cob::SDO_RX), node.cob_id(cob::SDO_TX))),
+            // Checked to be 11-bit identifiers: the casts are exact.
+            _ => ((rx | tx) & COB_INVALID == 0).then_some((
+                (rx & u32::from(MAX_STANDARD_ID)) as u16,
+                (tx & u32::from(MAX_STANDARD_ID)) as u16,
+            )),
+        }
     }
 
     fn tpdo(&self, n: u16) -> Result<&Tpdo, SdoAbort> {

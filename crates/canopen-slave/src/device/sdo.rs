@@ -3,30 +3,44 @@
 
 use super::{Application, Device, Inner};
 use crate::abort::SdoAbort;
-use crate::frame::{cob, Frame, FrameSink, NodeId};
+use crate::frame::{Frame, FrameSink};
 use crate::sdo::ObjectAccess;
 use crate::storage::Storage;
 use crate::time::Instant;
 
 impl<S: Storage> Device<S> {
-    /// An SDO request to this node (8 bytes, in a communicating state): the server runs
-    /// over the objects, and its reply goes out.
+    /// An SDO request to server `channel` (8 bytes, in a communicating state): the server
+    /// runs over the objects, and its reply goes out on the channel's reply identifier as
+    /// it was when the request came (a write of 0x1201 may change it).
     pub(super) fn on_sdo_request(
         &mut self,
         now: Instant,
-        node: NodeId,
+        channel: usize,
         frame: &Frame,
         app: &mut dyn Application,
         tx: &mut dyn FrameSink,
     ) {
+        let (Some((_, reply_id)), Some(server)) =
+            (self.inner.comm.sdo_ids(channel), self.sdo.get_mut(channel))
+        else {
+            return;
+        };
         let mut objects = Objects {
             inner: &mut self.inner,
             app,
             now,
         };
-        if let Some(reply) = self.sdo.on_request(now, frame.raw_data(), &mut objects) {
-            let reply = Frame::from_parts(node.cob_id(cob::SDO_TX), reply, 8);
-            self.inner.emit(tx, reply);
+        if let Some(reply) = server.on_request(now, frame.raw_data(), &mut objects) {
+            self.inner.emit(tx, Frame::from_parts(reply_id, reply, 8));
+        }
+        self.settle_sdo();
+    }
+
+    /// The second server holds no transfer while 0x1201 does not make it valid: a write
+    /// that invalidates it ends its transfer silently.
+    fn settle_sdo(&mut self) {
+        if self.inner.comm.sdo_ids(1).is_none() {
+            self.sdo[1].reset();
         }
     }
 
@@ -61,6 +75,7 @@ impl<S: Storage> Device<S> {
             .comm
             .write_object(now, index, sub, data, app, &mut inner.storage);
         self.inner.settle_heartbeat(app);
+        self.settle_sdo();
         written
     }
 }

@@ -14,6 +14,10 @@ pub const HB: u16 = 0x700 + NODE as u16;
 pub const EMCY: u16 = 0x080 + NODE as u16;
 pub const TPDO1: u16 = 0x180 + NODE as u16;
 pub const TPDO2: u16 = 0x280 + NODE as u16;
+/// The second SDO server's identifiers (0x1201:1 and :2) the tests configure: free ones
+/// (0x680..0x6DF is outside CiA 301's restricted ranges).
+pub const SDO2_RX: u16 = 0x680 + NODE as u16;
+pub const SDO2_TX: u16 = 0x6A0 + NODE as u16;
 
 pub const IDENTITY: Identity = Identity {
     device_type: 0x0002_0196,
@@ -238,6 +242,9 @@ pub struct Bench {
     pub app: TestApp,
     pub tx: Sink,
     pub now: Instant,
+    /// The (request, reply) identifiers [`Bench::sdo`] and the transfers built on it use:
+    /// the default server's unless a test picks the second one.
+    pub sdo_ids: (u16, u16),
 }
 
 impl Bench {
@@ -251,6 +258,7 @@ impl Bench {
             app: TestApp::default(),
             tx: Sink::default(),
             now: Instant::ZERO,
+            sdo_ids: (SDO_RX, SDO_TX),
         }
     }
 
@@ -311,13 +319,15 @@ impl Bench {
         self.rx(frame(0, &[cmd, node]));
     }
 
-    /// One SDO request; returns the reply payload (None if there was no reply).
+    /// One SDO request on [`Bench::sdo_ids`]; returns the reply payload (None if there was
+    /// no reply).
     pub fn sdo(&mut self, request: [u8; 8]) -> Option<[u8; 8]> {
-        self.rx(frame(SDO_RX, &request));
+        let (rx, tx) = self.sdo_ids;
+        self.rx(frame(rx, &request));
         let frames = self.take();
         assert!(frames.len() <= 1, "more than one reply: {frames:?}");
         frames.first().map(|f| {
-            assert_eq!(f.id(), SDO_TX);
+            assert_eq!(f.id(), tx);
             assert_eq!(f.dlc(), 8, "SDO replies have DLC 8");
             *f.raw_data()
         })
@@ -388,6 +398,35 @@ impl Bench {
 
     pub fn download_u32(&mut self, index: u16, sub: u8, v: u32) -> Result<(), u32> {
         self.download(index, sub, &v.to_le_bytes())
+    }
+
+    /// Segmented download of `data` with the size indicated; Err is the abort code.
+    pub fn download_segmented(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), u32> {
+        let size = (data.len() as u32).to_le_bytes();
+        let r = self.sdo(req(0x21, index, sub, size)).expect("reply");
+        let code = |r: [u8; 8]| u32::from_le_bytes([r[4], r[5], r[6], r[7]]);
+        if r[0] == 0x80 {
+            return Err(code(r));
+        }
+        assert_eq!(r, req(0x60, index, sub, [0; 4]));
+        let mut toggle = 0u8;
+        let mut chunks = data.chunks(7).peekable();
+        loop {
+            let chunk = chunks.next().unwrap_or(&[]);
+            let last = chunks.peek().is_none();
+            let mut seg = [0u8; 8];
+            seg[0] = toggle | ((7 - chunk.len() as u8) << 1) | u8::from(last);
+            seg[1..1 + chunk.len()].copy_from_slice(chunk);
+            let r = self.sdo(seg).expect("segment reply");
+            if r[0] == 0x80 {
+                return Err(code(r));
+            }
+            assert_eq!(r, [0x20 | toggle, 0, 0, 0, 0, 0, 0, 0]);
+            if last {
+                return Ok(());
+            }
+            toggle ^= 0x10;
+        }
     }
 
     /// Uploads every readable object of the dictionary: a snapshot of the OD's values.
