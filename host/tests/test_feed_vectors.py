@@ -6,7 +6,10 @@ real device code; this keeps `core.py` the same rule. Since feed record v2 a str
 configurations its host made (("configure", found, t): `core.replay_core`), so that its
 records carry the session the core wrote; the tokens must be the ones `core.free_tokens` and
 `core.pick_token` choose. Besides the model's random walks, the vectors hold streams at each
-limit of the rule, met and missed by one (`crates/feed-check/src/boundaries.rs`)."""
+limit of the rule, met and missed by one (`crates/feed-check/src/boundaries.rs`). The streams
+of a setting whose rule dates records (`"dating": true`: a path that holds the device's frames
+upstream of the host, the sequence probe) hold the core's probes (("probe", nonce, floor, t)
+and ("probed", value, t): `core.replay_core`) and replay with `Config(dating=True)`."""
 
 import json
 import os
@@ -24,14 +27,19 @@ def load():
     return [json.loads(line) for line in lines if line.strip()]
 
 
+def replay(v) -> dict:
+    """The counts `core.replay` credits for vector `v`, with the dating its setting has."""
+    cfg = core.Config(axes="xy", dating=bool(v.get("dating", False)))
+    return core.replay([tuple(e) for e in v["events"]], cfg)
+
+
 @pytest.mark.skipif(not VECTORS, reason="HANDWHEEL_FEED_VECTORS not set (cargo xtask test sets it)")
 def test_core_credits_exactly_what_the_checked_rule_credits():
     vectors = load()
     assert len(vectors) >= 1000, "the checker wrote its vectors"
     moved = 0
     for n, v in enumerate(vectors):
-        events = [tuple(e) for e in v["events"]]
-        counts = core.replay(events, core.Config(axes="xy"))
+        counts = replay(v)
         want = v["counts"]
         assert (counts["x"], counts["y"]) == (want["x"], want["y"]), (n, v["name"])
         moved += bool(want["x"] or want["y"])
@@ -42,11 +50,43 @@ def test_core_credits_exactly_what_the_checked_rule_credits():
     assert len(boundaries) >= 21, boundaries
 
 
+@pytest.mark.skipif(not VECTORS, reason="HANDWHEEL_FEED_VECTORS not set (cargo xtask test sets it)")
+def test_the_dating_vectors_probe_hold_and_credit():
+    """The streams with dating reach what the dating is for: probes answered, frames held
+    and released (a probe's answer arriving after a later one was due), and credits."""
+    dating = [v for v in load() if v.get("dating")]
+    assert len(dating) >= 100, "the checker wrote the dating setting's streams"
+    probed = [v for v in dating if any(e[0] == "probed" for e in v["events"])]
+    moved = [v for v in dating if v["counts"]["x"] or v["counts"]["y"]]
+    assert len(probed) == len(dating), "every stream probes"
+    assert len(moved) >= len(dating) // 4
+
+
+@pytest.mark.skipif(not VECTORS, reason="HANDWHEEL_FEED_VECTORS not set (cargo xtask test sets it)")
+@pytest.mark.parametrize("mutant", ["date limit x10", "sent_at at the answer"])
+def test_the_dating_vectors_notice_a_changed_dating(monkeypatch, mutant):
+    """The dating streams tell the core's dating from changes the checker's mutants make."""
+    dating = [v for v in load() if v.get("dating")]
+    assert _differs(dating) == [], "the rule as shipped agrees"
+    if mutant == "date limit x10":
+        monkeypatch.setattr(core, "DATE_LIMIT", core.DATE_LIMIT * 10)
+    elif mutant == "sent_at at the answer":
+        done = core.Core.done
+
+        def late_done(c, action, ok, abort, now, result=None):
+            if isinstance(result, core.Probed) and result.sent_at is not None:
+                result = core.Probed(now, result.value)
+            done(c, action, ok, abort, now, result)
+
+        monkeypatch.setattr(core.Core, "done", late_done)
+    assert _differs(dating), f"no dating vector notices {mutant}"
+
+
 def _differs(vectors) -> list:
     """The names of the vectors whose replay now credits other counts."""
     differ = []
     for v in vectors:
-        counts = core.replay([tuple(e) for e in v["events"]], core.Config(axes="xy"))
+        counts = replay(v)
         if (counts["x"], counts["y"]) != (v["counts"]["x"], v["counts"]["y"]):
             differ.append(v["name"])
     return differ

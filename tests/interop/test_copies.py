@@ -179,7 +179,8 @@ class Host:
     def busy_host_drop(self, record: Frame) -> Optional[str]:
         """The rule's verdict on `record` if it dropped the record because the component was
         held up, else None: a record from a backlog (its receive path not found empty for
-        over BACKLOG_LIMIT), or one the rule found stale although the device's record before
+        over BACKLOG_LIMIT), one its probes could not date (they came late), or one the rule
+        found stale although the device's record before
         it passed the relay less than the staleness time before it and the rule took that
         one (had it refused it, the staleness could be the rule's own doing)."""
         from canopen_handwheel import decode as rule
@@ -189,6 +190,10 @@ class Host:
         if verdict is None:
             return None
         if "from a backlog" in verdict.text:
+            return verdict.text
+        if "not dated" in verdict.text:
+            # The relay here holds nothing: a record the probes could not date came after
+            # the component's own probes were late (its SDO worker held up).
             return verdict.text
         if verdict.kind == rule.BASELINE and "nothing of the session" in verdict.text:
             before = [f for f in self.relay.records_since(0) if f.t < record.t]

@@ -67,6 +67,7 @@ const BASE: Bounds = Bounds {
     consumer_ms: 250,
     late_ms: 500,
     settles: 0,
+    holds: 0,
     warmups: &[],
     mutant: None,
 };
@@ -212,6 +213,25 @@ pub const ALL: &[Bounds] = &[
         ticks: 7,
         tick_ms: 95,
         warmups: &[&[Warm::Held(6)]],
+        ..BASE
+    },
+    // A path between the bus and the host (a gateway) holds the device's frames, and the
+    // answers to the host's probes, for longer than the bound (six 100 ms ticks) while the
+    // wheel turns, then releases them at once: the host's receive path never backs up, so
+    // only the dating (the sequence probe, one per 100 ms) keeps the motion they carry from
+    // being credited late. A frame lost on its way leaves a gap that the date must not skip.
+    Bounds {
+        name: "gateway hold",
+        rule: RuleConfig {
+            dating: true,
+            ..rule(3)
+        },
+        turns: 3,
+        ticks: 6,
+        tick_ms: 100,
+        channel_faults: 1,
+        holds: 1,
+        event_timer_ms: 0,
         ..BASE
     },
 ];

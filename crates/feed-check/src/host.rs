@@ -19,6 +19,28 @@ const STATUS_MASTER_LOST: u8 = 0x08;
 /// Session tokens the host writes (0 means none).
 pub const TOKENS: u8 = 7;
 
+/// Bits of the sequence probe's value (0x2033) that carry the nonce (`core.py`'s
+/// `NONCE_BITS`); bits 13-15 the session, 16-31 the number the next record carries.
+const NONCE_BITS: u32 = 13;
+const NONCE_MASK: u32 = (1 << NONCE_BITS) - 1;
+/// Probe dates kept, the newest (`core.py`'s `PROBE_DATES`).
+const PROBE_DATES: usize = 32;
+
+/// A change of the host's dating that the checker must notice (`tests/mutants.rs`): each a
+/// plausible slip in porting or changing `core.py`'s dating.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum HostMutant {
+    /// `DATE_LIMIT` ten times too generous.
+    DateLimitTenfold,
+    /// An answer whose number is not beyond the floor still gives a date (and never drops
+    /// the session).
+    NoFloorCheck,
+    /// The record itself dated (`rec.sequence`) instead of its reference's successor.
+    DateTheRecord,
+    /// A probe's `sent_at` taken when its answer arrives instead of when it was sent.
+    SentAtArrival,
+}
+
 /// The rule's settings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct RuleConfig {
@@ -44,6 +66,15 @@ pub struct RuleConfig {
     /// The contract's age of copies, µs; a token is written again only this long after the
     /// host replaced it.
     pub copy_age_us: u64,
+    /// Records dated by the sequence probe (`core.py`'s `Config.dating`): credited only while
+    /// a probe sent at most `date_limit_ms` ago found the reference's successor not yet made.
+    pub dating: bool,
+    /// `DATE_LIMIT`, ms (0.35 s shipped).
+    pub date_limit_ms: u64,
+    /// `PROBE_PERIOD`, ms (0.1 s shipped): a probe this long after the last one.
+    pub probe_period_ms: u64,
+    /// A dating mutant (`tests/mutants.rs`); `None`: the rule as `core.py` has it.
+    pub mutant: Option<HostMutant>,
 }
 
 impl RuleConfig {
@@ -60,7 +91,18 @@ impl RuleConfig {
             clock_ppm: 10_000,
             order_window_us: 4_000_000,
             copy_age_us: 60_000_000,
+            dating: false,
+            date_limit_ms: 350,
+            probe_period_ms: 100,
+            mutant: None,
         }
+    }
+
+    /// `core.py`'s `_at_or_after`: `number` is `other` or later in the sequence's order
+    /// (within half its range).
+    const fn at_or_after(&self, number: u64, other: u64) -> bool {
+        let m = self.sequence_modulo();
+        (number + m - other % m) % m < m / 2
     }
 
     /// The sequence's modulo as the host sees it.
@@ -194,6 +236,24 @@ pub struct HostRule<T> {
     pub records_lost: i32,
     /// Frames that cannot be the device's (impossible, copies).
     pub frames_bad: i32,
+    /// Dating: the probes' dates (n, sent_at ms), oldest first, for the session (`core.py`'s
+    /// `dates`).
+    dates: std::collections::VecDeque<(u64, u64)>,
+    /// The next probe's nonce.
+    nonce: u32,
+    /// When the last probe of the session was sent (ms): the next is due a period after it
+    /// (`core.py`'s `probe_due`); `None`: due now.
+    probed_at: Option<u64>,
+    /// The probe under way (`core.py`'s `pending`): nonce, floor, sent at (ms). No other
+    /// action (a configuration) while it is.
+    probe: Option<(u32, Option<u64>, u64)>,
+}
+
+/// Seconds as `core.py` has them (a vector's time in ms, as the float it reads): the dating's
+/// limits are compared in the same floating point, so that a date exactly at a limit reads
+/// the same in both rules.
+fn seconds(ms: u64) -> f64 {
+    ms as f64 / 1000.0
 }
 
 /// A check runs again at most this long after the last one (ms; `core.py`'s `retry`).
@@ -220,6 +280,10 @@ impl<T: Clone> HostRule<T> {
             counts: [0; AXES],
             records_lost: 0,
             frames_bad: 0,
+            dates: std::collections::VecDeque::new(),
+            nonce: 0,
+            probed_at: None,
+            probe: None,
         }
     }
 
@@ -231,6 +295,9 @@ impl<T: Clone> HostRule<T> {
     /// Whether the host asks for a configuration at `now_ms` (`core.py`'s `next_action`
     /// giving a `Configure`): without a session when a token is free, or a check.
     pub fn configure_due(&self, now_ms: u64) -> bool {
+        if self.probe.is_some() {
+            return false;
+        }
         match self.session {
             None => (1..=TOKENS).any(|t| self.free(t, now_ms)),
             Some(_) => self.check_due && now_ms >= self.check_at,
@@ -290,8 +357,102 @@ impl<T: Clone> HostRule<T> {
         }
         self.busy = [None; TOKENS as usize];
         self.session = Some(token);
-        self.reference = None;
+        self.forget_records();
         self.check_due = false;
+    }
+
+    /// `core.py`'s `_forget_records`, as far as the rule goes: no reference, no dates, a
+    /// probe due at once.
+    fn forget_records(&mut self) {
+        self.reference = None;
+        self.baseline = true;
+        self.dates.clear();
+        self.probed_at = None;
+    }
+
+    /// Whether the host asks for a probe at `now_ms` (`core.py`'s `next_action` giving a
+    /// `Probe`): dating, a session, nothing under way, no configuration due, a period after
+    /// the last probe of the session.
+    pub fn probe_due(&self, now_ms: u64) -> bool {
+        self.config.dating
+            && self.session.is_some()
+            && self.probe.is_none()
+            && !self.configure_due(now_ms)
+            && self.probed_at.is_none_or(|at| {
+                seconds(now_ms) >= seconds(at) + seconds(self.config.probe_period_ms)
+            })
+    }
+
+    /// The host sends a probe at `now_ms`: (the nonce it writes to 0x2033, the floor: the
+    /// newest record number of the session it received).
+    pub fn probe(&mut self, now_ms: u64) -> (u32, Option<u64>) {
+        let nonce = self.nonce;
+        let floor = self.reference.as_ref().map(|r| r.0.sequence);
+        self.nonce = (self.nonce + 1) & NONCE_MASK;
+        self.probed_at = Some(now_ms);
+        self.probe = Some((nonce, floor, now_ms));
+        (nonce, floor)
+    }
+
+    /// The answer to the probe under way (0x2033 read back, `None`: not read) reaches the
+    /// host at `now_ms` (`core.py`'s `done` of a `Probe`, `probe_date` and
+    /// `probe_went_back`).
+    pub fn probed(&mut self, value: Option<u32>, now_ms: u64) {
+        let Some((nonce, floor, sent_at)) = self.probe.take() else {
+            return;
+        };
+        let (Some(value), Some(session)) = (value, self.session) else {
+            return;
+        };
+        let number = u64::from(value >> 16) % self.config.sequence_modulo();
+        let ours =
+            value & NONCE_MASK == nonce && (value >> NONCE_BITS) & 0x07 == u32::from(session);
+        if !ours {
+            return;
+        }
+        let m = self.config.sequence_modulo();
+        let beyond = |f: u64| self.config.at_or_after(number, (f + 1) % m);
+        let floor_checked = self.config.mutant != Some(HostMutant::NoFloorCheck);
+        if floor_checked && floor.is_some_and(|f| !beyond(f)) {
+            // The device's sequence went back: a new power life.
+            self.drop_session(now_ms);
+            return;
+        }
+        let sent_at = if self.config.mutant == Some(HostMutant::SentAtArrival) {
+            now_ms
+        } else {
+            sent_at
+        };
+        if self.dates.len() == PROBE_DATES {
+            self.dates.pop_front();
+        }
+        self.dates.push_back((number, sent_at));
+    }
+
+    /// `core.py`'s `_dated`: a probe sent at most the date limit ago found the successor of
+    /// `reference` not yet made (`dated_at`). Always, without dating.
+    fn dated(&self, reference: &Record, rec: &Record, now_ms: u64) -> bool {
+        if !self.config.dating {
+            return true;
+        }
+        let m = self.config.sequence_modulo();
+        let successor = if self.config.mutant == Some(HostMutant::DateTheRecord) {
+            rec.sequence
+        } else {
+            (reference.sequence + 1) % m
+        };
+        let at = self
+            .dates
+            .iter()
+            .rev()
+            .find(|&&(number, _)| self.config.at_or_after(successor, number))
+            .map(|&(_, sent_at)| sent_at);
+        let limit = if self.config.mutant == Some(HostMutant::DateLimitTenfold) {
+            10 * self.config.date_limit_ms
+        } else {
+            self.config.date_limit_ms
+        };
+        at.is_some_and(|at| seconds(now_ms) - seconds(at) <= seconds(limit))
     }
 
     /// The receive path was found empty at `now` (ms).
@@ -317,8 +478,7 @@ impl<T: Clone> HostRule<T> {
             self.busy[slot(old)] = Some(now);
         }
         self.check_due = false;
-        self.reference = None;
-        self.baseline = true;
+        self.forget_records();
     }
 
     /// A TPDO1 of 8 bytes, handled at `now` (ms). Returns the motion it credits, if any.
@@ -383,8 +543,9 @@ impl<T: Clone> HostRule<T> {
             let delta = self.link(&prev, &rec);
             let letter = usize::from(rec.axis).checked_sub(1).filter(|&a| a < AXES);
             let late = now.saturating_sub(self.last_drained) > self.config.backlog_limit_ms;
-            if let (Some(delta), Some(axis), true, false) =
-                (delta.filter(|&d| d != 0), letter, self.epochs_shown, late)
+            // Dated only what `core.py` dates: a link's motion, not late.
+            let delta = delta.filter(|&d| d != 0 && (late || self.dated(&prev, &rec, now)));
+            if let (Some(delta), Some(axis), true, false) = (delta, letter, self.epochs_shown, late)
             {
                 self.counts[axis] = self.counts[axis].wrapping_add(delta);
                 credit = Some(Credit {

@@ -8,8 +8,10 @@
 //! communication), power cycles of the device (their boot-up seen or lost), time passing,
 //! bus holds of any length (frames wait in a transmit path of the device's real kind: a FIFO
 //! queue feeding mailboxes that the bus empties by identifier), frames lost or duplicated,
-//! exact copies of any earlier feed record up to the contract's age, the host opening
-//! sessions (its configurations, a token in 0x2002 last), stalls of the host and the master's
+//! exact copies of any earlier feed record up to the contract's age, a path between the bus
+//! and the host (a gateway) holding the device's frames and releasing them at once, the host
+//! opening sessions (its configurations, a token in 0x2002 last) and, where its rule dates
+//! records, probing the device's sequence (0x2033), stalls of the host and the master's
 //! heartbeat coming or not:
 //! - every motion the host credits to an axis is motion the operator turned on that axis
 //!   while the feed was enabled, with its sign and multiplier, credited at most once, and
@@ -46,11 +48,13 @@
 //! (`tests/unfiled.rs`). `tests/holes.rs` weakens the host's rule or lets copies be older
 //! than the contract, and `tests/mutants.rs` runs plausible device bugs
 //! (`handwheel_device::mutant`): the checker must find a breach in each, so that a passing run
-//! means something.
+//! means something; it also changes the host's dating (`host::HostMutant`). [`run`] explores
+//! one setting within caps on its states and time.
 
 pub mod boundaries;
 pub mod bounds;
 pub mod host;
 pub mod model;
+pub mod run;
 pub mod truth;
 pub mod vectors;

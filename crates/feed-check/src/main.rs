@@ -6,19 +6,20 @@
 //! A setting stops at its first breach. `--through`: explore on past breaches, to the end (to
 //! measure a setting that breaches today as it will be once it passes). `--mutant NAME`: run the device bug NAME
 //! (`nmt-stop`, `reset`, `snapshot`, `stall-completions`; the mutation tests' bugs) instead of the real code.
-//! `--vectors FILE`: write the test vectors for `core.py` first.
+//! `--vectors FILE`: write the test vectors for `core.py` first. Each setting is capped
+//! (`run::Caps::RUN`, printed first; `--max-states N`, `--max-seconds S` for others): one
+//! that reaches a cap stops there and fails the run.
 
-use std::collections::BTreeSet;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use feed_check::bounds;
-use feed_check::model::{Bounds, FeedModel};
+use feed_check::model::Bounds;
+use feed_check::run::{explore, Caps};
 use handwheel_device::mutant::Mutant;
-use stateright::{Checker, HasDiscoveries, Model};
 
 const USAGE: &str =
-    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot|stall-completions|enable-intake] [setting name parts]";
+    "usage: feed-check [--vectors FILE] [--through] [--mutant nmt-stop|reset|snapshot|stall-completions|enable-intake] [--max-states N] [--max-seconds S] [setting name parts]";
 
 fn main() -> ExitCode {
     let mut failed = false;
@@ -53,6 +54,23 @@ fn main() -> ExitCode {
         at.map(|i| args.remove(i)).is_some()
     };
     let through = flag("--through");
+    let mut caps = Caps::RUN;
+    for (name, slot) in [("--max-states", 0), ("--max-seconds", 1)] {
+        let Some(i) = args.iter().position(|a| a == name) else {
+            continue;
+        };
+        let parsed = args.get(i + 1).and_then(|v| v.parse::<f64>().ok());
+        let Some(v) = parsed.filter(|v| *v > 0.0) else {
+            eprintln!("{USAGE}");
+            return ExitCode::from(2);
+        };
+        args.drain(i..=i + 1);
+        if slot == 0 {
+            caps.states = v as usize;
+        } else {
+            caps.seconds = v;
+        }
+    }
     if through {
         feed_check::model::THROUGH_BREACHES.store(true, std::sync::atomic::Ordering::Relaxed);
     }
@@ -62,6 +80,9 @@ fn main() -> ExitCode {
             if (b.rule.sequence_bits, b.rule.epoch_bits) == (16, 3) {
                 feed_check::vectors::write(b, 400, 30, 0x5EED_0000 + n as u64, &mut out);
             }
+        }
+        if let Some(b) = bounds::ALL.iter().find(|b| b.name == "gateway hold") {
+            feed_check::vectors::write_paths(b, feed_check::vectors::DATING_PATHS, &mut out);
         }
         feed_check::boundaries::write(&mut out);
         if let Err(e) = std::fs::write(&path, out) {
@@ -86,34 +107,29 @@ fn main() -> ExitCode {
             .copied()
             .collect()
     };
+    println!(
+        "feed-check: caps per setting: {} states, {} s",
+        caps.states, caps.seconds
+    );
     for mut bounds in chosen {
         bounds.mutant = mutant.or(bounds.mutant);
-        let t = Instant::now();
-        let model = FeedModel { bounds };
-        let mut checker = model.checker().threads(2);
-        if through {
-            checker = checker.finish_when(HasDiscoveries::AnyOf(BTreeSet::new()));
-        }
-        let checker = checker.spawn_bfs().join();
-        let states = checker.unique_state_count();
-        total += states;
+        let run = explore(bounds, caps, 2, through);
+        total += run.states;
         println!(
             "feed-check: {:<24} {:>9} states, depth {:>3}, {:.1} s",
-            bounds.name,
-            states,
-            checker.max_depth(),
-            t.elapsed().as_secs_f64()
+            bounds.name, run.states, run.depth, run.seconds
         );
-        for property in (FeedModel { bounds }).properties() {
-            if let Some(path) = checker.discovery(property.name) {
-                failed = true;
-                let last = path.last_state().violation.clone().unwrap_or_default();
-                println!("  BREACH: {last}");
-                if let Some(warmup) = bounds.warmups.get(path.last_state().warmup()) {
-                    println!("  from the warm-up {warmup:?}");
-                }
-                println!("  after: {:?}", path.into_actions());
+        if let Some(over) = &run.over {
+            failed = true;
+            println!("  OVER: {over}, unfinished (narrow the setting or raise the cap)");
+        }
+        if let Some((found, warmup, path)) = run.breach {
+            failed = true;
+            println!("  BREACH: {found}");
+            if let Some(warmup) = bounds.warmups.get(warmup) {
+                println!("  from the warm-up {warmup:?}");
             }
+            println!("  after: {path:?}");
         }
     }
     println!(

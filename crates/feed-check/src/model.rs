@@ -12,7 +12,9 @@
 //! 0x2000; the device loses power; time passes; the bus takes a frame (or the channel loses
 //! or doubles it, or delivers a copy of an earlier record); the host configures (when its rule
 //! asks), stalls or resumes; the master's heartbeat comes; or time settles (half a second without faults, so that motion
-//! owed to the host must have come). Not taking a frame is the bus being held. The property
+//! owed to the host must have come); a path between the bus and the host holds what the bus
+//! takes, or releases it. Where the host's rule dates records, it probes the device's
+//! sequence (0x2033) whenever its rule asks, after every action. Not taking a frame is the bus being held. The property
 //! is checked in every state the actions reach, within the budgets of a [`Bounds`].
 //!
 //! What the device must do besides (README "What the device promises") is judged against the
@@ -29,6 +31,7 @@ use std::collections::VecDeque;
 use std::fmt::{self, Write as _};
 use std::hash::{Hash, Hasher};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
 use handwheel_core::{
@@ -48,6 +51,8 @@ const TPDO1: u16 = 0x180 + NODE as u16;
 const HEARTBEAT: u16 = 0x700 + NODE as u16;
 const SDO_RX: u16 = 0x600 + NODE as u16;
 const SDO_TX: u16 = 0x580 + NODE as u16;
+/// An expedited upload's answer with four bytes (the probe's answer).
+const PROBE_ANSWER: u8 = 0x43;
 /// The master's node-ID, whose heartbeat the device watches in settings with master beats.
 const MASTER: u16 = 1;
 /// Axis letters for messages.
@@ -147,6 +152,12 @@ pub enum Action {
     /// The master's heartbeat (node 1) reaches the device; without it for the consumer time
     /// the device counts the master as lost. A stalled host sends none.
     MasterBeat,
+    /// A path between the bus and the host (a gateway) starts holding what the bus takes:
+    /// from now on the device's frames, and the answers to the host's probes, wait there in
+    /// order; the host's receive path stays empty (its backlog rule sees nothing).
+    Hold,
+    /// The holding path delivers what it holds to the host at once, in order, now.
+    Release,
     /// Time passes until every detent owed to the host is older than the bound, the bus
     /// taking every frame, no fault, the master alive: what is owed must have come.
     Settle,
@@ -231,6 +242,8 @@ pub struct Bounds {
     pub late_ms: u64,
     /// [`Action::Settle`] at most.
     pub settles: u8,
+    /// [`Action::Hold`]s of the path between the bus and the host at most.
+    pub holds: u8,
     /// What happens before the exploration starts, one initial state for each: where the
     /// sequence, the epoch and the history of copies stand when the trouble begins.
     pub warmups: &'static [&'static [Warm]],
@@ -416,6 +429,9 @@ pub struct World {
     host: HostRule<Tag>,
     host_stalled: bool,
     host_backlog: VecDeque<Wire>,
+    /// What the path between the bus and the host holds, in order, while it holds
+    /// ([`Action::Hold`]); `None`: it passes everything at once.
+    gateway: Option<VecDeque<Wire>>,
     truth: [AxisTruth; AXES],
     spec: Spec,
     /// A detent that lands at this access to the wheel during the next action's rounds
@@ -429,7 +445,7 @@ pub struct World {
     /// The object (index, value) of the SDO write this action makes, until the device
     /// answers it.
     writing: Option<(u16, u32)>,
-    used: [u8; 13],
+    used: [u8; 14],
     /// Which warm-up this state started from.
     warmup: u8,
     /// The first breach of the property, if any.
@@ -455,6 +471,23 @@ pub enum HostEvent {
     Drained(u64),
     /// The host configured the device, whose 0x2002 read this, at a time (ms).
     Configure(u8, u64),
+    /// The host sent a sequence probe (0x2033 = nonce, then read back) at a time (ms):
+    /// the nonce and the floor its rule gave.
+    Probe {
+        /// Written to 0x2033.
+        nonce: u32,
+        /// The newest record number of the session the host had received.
+        floor: Option<u64>,
+        /// When, ms.
+        at_ms: u64,
+    },
+    /// The answer to the host's probe (0x2033 as read) reached it at a time (ms).
+    Probed {
+        /// 0x2033.
+        value: u32,
+        /// When, ms.
+        at_ms: u64,
+    },
 }
 
 impl World {
@@ -498,6 +531,7 @@ enum Budget {
     MasterBeats,
     Settles,
     Configures,
+    Holds,
 }
 
 /// The CAN port of one round: at most one received frame, the transmit path, a controller
@@ -739,9 +773,20 @@ fn new_node(storage: MemoryStorage, mutant: Option<Mutant>) -> Node<MemoryStorag
 pub struct FeedModel {
     /// Its bounds.
     pub bounds: Bounds,
+    /// No state is explored further after this (the run's time cap, [`crate::run::Caps`]):
+    /// what is pending drains at once.
+    pub deadline: Option<Instant>,
 }
 
 impl FeedModel {
+    /// The model of `bounds`, explored without a time cap.
+    pub const fn new(bounds: Bounds) -> Self {
+        Self {
+            bounds,
+            deadline: None,
+        }
+    }
+
     fn budget(&self, b: Budget) -> u8 {
         let bounds = &self.bounds;
         match b {
@@ -758,6 +803,7 @@ impl FeedModel {
             Budget::MasterBeats => bounds.master_beats,
             Budget::Settles => bounds.settles,
             Budget::Configures => bounds.configures,
+            Budget::Holds => bounds.holds,
         }
     }
 
@@ -786,13 +832,14 @@ impl FeedModel {
             host: HostRule::new(self.bounds.rule),
             host_stalled: false,
             host_backlog: VecDeque::new(),
+            gateway: None,
             truth: Default::default(),
             spec: Spec::default(),
             pending: None,
             untaken: Vec::new(),
             locks: 0,
             writing: None,
-            used: [0; 13],
+            used: [0; 14],
             warmup: 0,
             violation: None,
             log,
@@ -811,6 +858,7 @@ impl FeedModel {
         self.pass_all(&mut w);
         self.feed_write(&mut w, true);
         self.pass_all(&mut w);
+        self.probe_if_due(&mut w);
         assert!(w.spec.enabled, "the initial enable was refused");
         w.locks = 0;
         w
@@ -997,7 +1045,11 @@ impl FeedModel {
         for frame in w.transmit.queue.iter_mut().chain(&mut w.transmit.boxes) {
             frame.tag.stale = true;
         }
-        for frame in &mut w.host_backlog {
+        for frame in w
+            .host_backlog
+            .iter_mut()
+            .chain(w.gateway.iter_mut().flatten())
+        {
             frame.tag.stale = true;
         }
         w.spec.synced = false;
@@ -1132,10 +1184,64 @@ impl FeedModel {
             w.delivered.push_back((frame.clone(), w.now_ms));
         }
         for _ in 0..copies {
-            self.to_host(w, frame.clone());
+            self.to_link(w, frame.clone());
         }
         // The transmit interrupt wakes the device: what it could not queue goes now.
         self.step(w, None);
+    }
+
+    /// A frame on its way from the bus to the host: held in the path between them while it
+    /// holds ([`Action::Hold`]), else at the host now.
+    fn to_link(&self, w: &mut World, frame: Wire) {
+        if let Some(held) = &mut w.gateway {
+            held.push_back(frame);
+        } else {
+            self.to_host(w, frame);
+        }
+    }
+
+    /// The host probes when its rule asks (the component's `Probe`: while it holds a
+    /// session, one per probe period, none while a configuration is due or a probe is under
+    /// way; a stalled host none): it writes its nonce to 0x2033 and reads the object back,
+    /// its send time now. The write reaches the device at once (the host-to-device direction
+    /// is not held); the value is the accumulator's real `sequence_probe()` right after the
+    /// write, the earliest a read can see (a real read follows the write's answer, so its
+    /// number is this or later: this answer dates the most records). The answer goes the way
+    /// of the device's frames from the bus on: at the host now, or held with them (then it
+    /// arrives late with its old send time). Not through the device's transmit path and SDO
+    /// server (fewer states; the mailboxes would send it after every record waiting).
+    fn probe_if_due(&self, w: &mut World) {
+        if w.host_stalled || !w.host.probe_due(w.now_ms) {
+            return;
+        }
+        let now = w.now_ms;
+        let (nonce, floor) = w.host.probe(now);
+        self.log(
+            w,
+            HostEvent::Probe {
+                nonce,
+                floor,
+                at_ms: now,
+            },
+        );
+        let value = w.real.wheel.lock(|h| {
+            h.feed.set_probe_nonce(nonce);
+            h.feed.sequence_probe()
+        });
+        let v = value.to_le_bytes();
+        let tag = Tag {
+            made_ms: now,
+            boot: w.spec.boot,
+            stale: false,
+            copy: false,
+        };
+        let answer = Wire {
+            id: SDO_TX,
+            data: [PROBE_ANSWER, 0x33, 0x20, 0, v[0], v[1], v[2], v[3]],
+            len: 8,
+            tag,
+        };
+        self.to_link(w, answer);
     }
 
     /// A frame reaches the host. A host that reads finds its receive path empty right before
@@ -1160,6 +1266,14 @@ impl FeedModel {
 
     fn host_handles(&self, w: &mut World, frame: &Wire) {
         let now = w.now_ms;
+        if frame.id == SDO_TX && frame.data[..4] == [PROBE_ANSWER, 0x33, 0x20, 0] {
+            // The answer to the host's probe (the model's device answers no other upload).
+            let value =
+                u32::from_le_bytes([frame.data[4], frame.data[5], frame.data[6], frame.data[7]]);
+            self.log(w, HostEvent::Probed { value, at_ms: now });
+            w.host.probed(Some(value), now);
+            return;
+        }
         if let Some(log) = &mut w.log {
             log.push(HostEvent::Frame {
                 id: frame.id,
@@ -1323,6 +1437,7 @@ impl FeedModel {
             } else {
                 self.step(w, None);
             }
+            self.probe_if_due(w);
         }
     }
 
@@ -1337,6 +1452,7 @@ impl FeedModel {
                         // The inhibit time (2 ms) lets the record of the next detent go, and
                         // the pace has a number for it.
                         w.now_ms += (u64::from(self.bounds.pace.us_per_number) / 1000 + 1).max(2);
+                        self.probe_if_due(&mut w);
                         // Credited: the truth keeps only what may still be.
                         for truth in &mut w.truth {
                             truth.forget_credited();
@@ -1462,7 +1578,14 @@ impl Model for FeedModel {
                 .count();
             actions.extend((1..=young as u8).map(Action::Copy));
         }
-        if b(Budget::Configures) && free && !w.host_stalled && w.host.configure_due(w.now_ms) {
+        // Not while the path holds: the configuration's answers would be held, and the
+        // component's SDO client gives up.
+        if b(Budget::Configures)
+            && free
+            && !w.host_stalled
+            && w.gateway.is_none()
+            && w.host.configure_due(w.now_ms)
+        {
             actions.push(Action::Configure);
         }
         if b(Budget::HostStalls) && !w.host_stalled && free {
@@ -1474,6 +1597,11 @@ impl Model for FeedModel {
             }
         } else if b(Budget::MasterBeats) {
             actions.push(Action::MasterBeat);
+        }
+        if w.gateway.is_some() {
+            actions.push(Action::Release);
+        } else if b(Budget::Holds) {
+            actions.push(Action::Hold);
         }
         if b(Budget::Settles)
             && free
@@ -1502,7 +1630,8 @@ impl Model for FeedModel {
             Action::HostStall => self.spend(&mut w, Budget::HostStalls),
             Action::MasterBeat => self.spend(&mut w, Budget::MasterBeats),
             Action::Settle => self.spend(&mut w, Budget::Settles),
-            Action::Pass | Action::HostResume => true,
+            Action::Hold => self.spend(&mut w, Budget::Holds),
+            Action::Pass | Action::HostResume | Action::Release => true,
         };
         if !ok {
             return None;
@@ -1536,7 +1665,7 @@ impl Model for FeedModel {
                 let index = w.delivered.len() - usize::from(back);
                 let mut frame = w.delivered[index].0.clone();
                 frame.tag.copy = true;
-                self.to_host(&mut w, frame);
+                self.to_link(&mut w, frame);
             }
             Action::Configure => self.configure(&mut w),
             Action::HostStall => {
@@ -1553,7 +1682,19 @@ impl Model for FeedModel {
                 self.host_drained(&mut w);
             }
             Action::Settle => self.settle(&mut w),
+            Action::Hold => {
+                w.gateway = Some(VecDeque::new());
+                // What waits there may come later than the bound: nothing is owed until the
+                // host has a record made after it.
+                self.records_missing(&mut w);
+            }
+            Action::Release => {
+                for frame in w.gateway.take().into_iter().flatten() {
+                    self.to_host(&mut w, frame);
+                }
+            }
         }
+        self.probe_if_due(&mut w);
         // A detent meant to land inside this action's rounds that found no such access:
         // that interleaving does not exist.
         if was_pending && w.pending.is_some() {
@@ -1561,6 +1702,11 @@ impl Model for FeedModel {
         }
         self.after(&mut w);
         Some(w)
+    }
+
+    /// Past the deadline nothing is explored further.
+    fn within_boundary(&self, _: &World) -> bool {
+        self.deadline.is_none_or(|at| Instant::now() < at)
     }
 
     fn properties(&self) -> Vec<Property<Self>> {

@@ -6,7 +6,7 @@
 mod common;
 
 use common::{breach, setting};
-use feed_check::model::Warm;
+use feed_check::model::{Action, Warm};
 
 #[test]
 fn without_the_pace_bound_a_copy_is_credited() {
@@ -46,4 +46,17 @@ fn without_the_backlog_rule_a_stalled_host_credits_late() {
     b.ticks = 6;
     let (found, _) = breach(b).expect("the backlog of a stalled host is credited");
     assert!(found.contains("ms after it was turned"), "{found}");
+}
+
+#[test]
+fn without_dating_a_gateways_hold_is_credited_late() {
+    // A path between the bus and the host holds the device's records longer than the bound
+    // and releases them at once: the host's receive path never backed up, so only the dating
+    // by the sequence probe keeps the motion they carry from being credited late.
+    let mut b = setting("gateway hold");
+    b.rule.dating = false;
+    let (found, path) = breach(b).expect("a held record is credited late");
+    eprintln!("{found}\n  after {path:?}");
+    assert!(found.contains("ms after it was turned"), "{found}");
+    assert!(path.contains(&Action::Hold), "{path:?}");
 }

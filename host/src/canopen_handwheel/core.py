@@ -2022,10 +2022,18 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     configuration the core asks for at `t` carried out at once on a device whose 0x2002 reads
     `found` (`configure_outcome`: the session kept if it is the core's, else the token
     `pick_token` gives written), so that the records after it can carry the core's session.
-    Times never go backwards in a real run; the core takes the latest time it was given. A
-    malformed event, or a "configure" when the core asks for none, raises `ValueError` (a
-    vector's mistake, not the bus's)."""
+    With `Config.dating`, a sequence probe in two events, as the shell carries it out:
+    ("probe", nonce, floor, t): the `Probe` the core asks for at `t` (`next_action`; it must
+    be this nonce and floor, None for no floor), its write sent at `t`; ("probed", value, t):
+    its answer (0x2033 as read, None: not read) reached the core at `t` (`done` with a
+    `Probed` of the send time). A `WriteFeed` the core asks for first is reported not carried
+    out (the vectors' host writes no 0x2000: their masters do). Nothing else is asked of the
+    core between the two. Times never go backwards in a real run; the core takes the latest
+    time it was given. A malformed event, a "configure" or "probe" when the core asks for
+    another action, or a "probed" with no probe under way raises `ValueError` (a vector's
+    mistake, not the bus's)."""
     c = Core(cfg or Config())
+    probe_sent: Optional[float] = None  # the probe under way: when its write was sent
     for event in events:
         kind = event[0] if isinstance(event, (tuple, list)) and event else None
         if kind == "configure" and len(event) == 3:
@@ -2035,6 +2043,26 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
                 raise ValueError(f"no configuration due at {t}: {action!r}")
             ok, result = configure_outcome(action, int(found), c.event_timer)
             c.done(action, ok, None, float(t), result)
+            c.publish(float(t))
+        elif kind == "probe" and len(event) == 4:
+            _, nonce, floor, t = event
+            action = c.next_action(float(t))
+            while isinstance(action, WriteFeed):
+                c.done(action, False, None, float(t))
+                action = c.next_action(float(t))
+            want = Probe(int(nonce), None if floor is None else int(floor))
+            if action != want:
+                raise ValueError(f"no {want!r} due at {t}: {action!r}")
+            probe_sent = float(t)
+            c.publish(float(t))
+        elif kind == "probed" and len(event) == 3:
+            _, value, t = event
+            action = c.pending
+            if not isinstance(action, Probe) or probe_sent is None:
+                raise ValueError(f"no probe under way at {t}: {action!r}")
+            read = None if value is None else int(value)
+            c.done(action, read is not None, None, float(t), Probed(probe_sent, read))
+            probe_sent = None
             c.publish(float(t))
         elif kind == "frame" and len(event) == 4:
             _, cob_id, data, t = event

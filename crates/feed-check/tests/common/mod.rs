@@ -5,8 +5,9 @@ use feed_check::model::{Action, Bounds, FeedModel};
 use stateright::{Checker, HasDiscoveries, Model};
 
 /// The first breach BFS finds in `bounds` (so on the shortest path), and that path.
+#[allow(dead_code, reason = "each test file uses what it needs")]
 pub fn breach(bounds: Bounds) -> Option<(String, Vec<Action>)> {
-    let model = FeedModel { bounds };
+    let model = FeedModel::new(bounds);
     let name = model.properties()[0].name;
     let checker = model
         .checker()
