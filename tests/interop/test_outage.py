@@ -404,8 +404,11 @@ def test_a_turn_on_another_axis_in_a_short_hold_reaches_that_axis(rig):
     assert on_y and on_y[-1] == 3, f"Y's final position reached the master: {on_y}"
     answered = [f for f in seen if f.id == SDO_TX and f.data[:4] == UPLOAD_REPLY]
     # The settle's reply among them; a full queue refuses a reply (the master would ask
-    # again), and one refused shows the transmit side was full.
-    assert 16 <= len(answered) - 1 < replies, f"{len(answered) - 1} of {replies} replies"
+    # again), and one refused shows the transmit side was full. The 17 places (a mailbox and
+    # the queue) also hold the frames the device makes in the hold (the turns' records, and
+    # the event timer's or a heartbeat when one falls due while the 18 requests are
+    # answered): 15 to 17 replies fit.
+    assert 15 <= len(answered) - 1 < replies, f"{len(answered) - 1} of {replies} replies"
     assert rig.read(0x2000) == 1, "the feed is still on: no stall"
 
 
