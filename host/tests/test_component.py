@@ -286,6 +286,7 @@ class Running:
 
         args = component.parse_args(
             ["--interface", "virtual", "--channel", channel, "--axes", "xyz", "--name", "hw"]
+            + ["--sdo-channel", "none"]  # the stand-in device serves the default channel only
             + list(options)
         )
         self.stop = threading.Event()
@@ -556,6 +557,8 @@ def start_component(*options: str, hal_log: Optional[Path] = None) -> subprocess
     env = dict(os.environ)
     if hal_log is not None:
         env["FAKE_HAL_LOG"] = str(hal_log)
+    # The stand-in devices here serve the default SDO channel only.
+    options = ("--sdo-channel", "none") + tuple(options)
     return subprocess.Popen(
         [sys.executable, "-c", script] + list(options), stderr=subprocess.PIPE, text=True, env=env
     )

@@ -49,7 +49,7 @@ from typing import Callable, Iterator, List, Optional
 
 import pytest
 
-from canopen_handwheel.core import Record
+from canopen_handwheel.core import Record, own_sdo_ids
 from rig import (
     AXES,
     BOOTUP,
@@ -429,12 +429,17 @@ UPLOAD = 0x40
 DOWNLOAD = 0x20
 
 
+# The component's own SDO channel to the device (the second SDO server, master node 1:
+# `core.own_sdo_ids`), where its feed writes and probes go.
+OWN_SDO_RX = own_sdo_ids(1)[0]
+
+
 def sdo_requests(frames: List[Frame]) -> List[tuple]:
     """(time, "up"/"down", index, sub, data bytes 4-7) of the SDO initiate requests sent to
-    the device."""
+    the device, on the default channel or the component's own."""
     out = []
     for f in frames:
-        if f.id != SDO_RX or len(f.data) != 8:
+        if f.id not in (SDO_RX, OWN_SDO_RX) or len(f.data) != 8:
             continue
         kind = {UPLOAD: "up", DOWNLOAD: "down"}.get(f.data[0] & 0xE0)
         if kind is not None:

@@ -91,7 +91,10 @@ def config_from_fields(fields: dict) -> core.Config:
     """A `core.Config` from the notes' settings (fields it does not know are left out: a
     capture of another version of the component)."""
     known = {f.name for f in dataclasses.fields(core.Config)}
-    return core.Config(**{k: v for k, v in fields.items() if k in known})
+    values = {k: v for k, v in fields.items() if k in known}
+    if isinstance(values.get("own_sdo"), list):  # JSON has no tuples
+        values["own_sdo"] = tuple(values["own_sdo"])
+    return core.Config(**values)
 
 
 class Capture:

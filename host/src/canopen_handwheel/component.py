@@ -174,6 +174,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         "written at every configuration (default 0: as wired)",
     )
     p.add_argument(
+        "--sdo-channel",
+        default="auto",
+        help="the component's own SDO channel on the device's second SDO server (0x1201), "
+        "set up at every configuration, for its probes and feed writes: auto (0x680 + "
+        "(master node-ID - 1) mod 48 to the device, 0x6B0 + the same back), none (the "
+        "default channel only), or RX,TX (COB-IDs in 0x680..0x6DF)",
+    )
+    p.add_argument(
         "--max-detents-per-s",
         type=int,
         default=core.DEFAULT_MAX_DETENTS_PER_S,
@@ -224,6 +232,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.override_step,
             args.counts_per_detent,
             args.invert_direction,
+            args.sdo_channel,
         )
         # Probes of one run never repeat those of another (an answer held on its way).
         args.config = dataclasses.replace(
@@ -507,6 +516,17 @@ class Link:
             self.sdo_request = 0x600 + args.node
             self.node = self.network.add_node(args.node, args.eds or default_eds())
             self.sdo_response = self.node.sdo.tx_cobid
+            # The component's own SDO channel (`core.Config.own_sdo`): a client of its own.
+            self.own_sdo = None
+            self.own_response = None
+            if cfg.own_sdo is not None:
+                from canopen.sdo import SdoClient
+
+                rx, tx = cfg.own_sdo
+                self.own_sdo = SdoClient(rx, tx, self.node.object_dictionary)
+                self.own_sdo.network = self.network
+                self.network.subscribe(tx, self.own_sdo.on_response)
+                self.own_response = tx
             # When (the main loop's clock) the last SDO response was handled: a
             # configuration's first answer, against the device's boot-up (`core.Configured`).
             self.sdo_reply_at: Optional[float] = None
@@ -559,6 +579,8 @@ class Link:
                 c.frame(cob_id, bytes(msg.data), now)  # also answers to another master
             elif data_frame and cob_id == self.sdo_request:
                 c.frame(cob_id, bytes(msg.data), now)  # never the component's own
+            elif data_frame and cob_id == self.own_response:
+                self.network.notify(cob_id, msg.data, msg.timestamp)
             if clock() >= end:
                 return
 
@@ -680,7 +702,8 @@ def _carry_out(
     report=None,
     clock: Callable[[], float] = time.monotonic,
 ):
-    sdo = link.node.sdo
+    own = getattr(action, "own", False) and link.own_sdo is not None
+    sdo = link.own_sdo if own else link.node.sdo
 
     def step() -> None:
         if cancelled is not None and cancelled.is_set():
@@ -784,6 +807,16 @@ def _configure(
         read_back(0x1800, 1, cob & ~PDO_INVALID)
         inhibit = wanted
     expected.append((0x1800, 3, inhibit))
+    if action.own_sdo is not None:
+        rx, tx = action.own_sdo
+        if (u32(core.SDO_SERVER_2, 1), u32(core.SDO_SERVER_2, 2)) != (rx, tx):
+            # CiA 301: a valid entry's identifier changes only through invalid.
+            write(core.SDO_SERVER_2, 1, PDO_INVALID, 4)
+            write(core.SDO_SERVER_2, 2, PDO_INVALID, 4)
+            write(core.SDO_SERVER_2, 2, tx, 4)
+            write(core.SDO_SERVER_2, 1, rx, 4)
+        setting(core.SDO_SERVER_2, 3, action.master, 1)
+        expected += [(core.SDO_SERVER_2, 1, rx), (core.SDO_SERVER_2, 2, tx)]
     kind = u32(0x1800, 2)
     wanted = core.transmission_type_plan(kind)
     setting(0x1800, 2, kind if wanted is None else wanted, 1)
@@ -817,6 +850,11 @@ def _configure(
     log(
         f"device configured: session {token} (0x2002 = {found} before), 0x1016:{sub} = "
         f"0x{value:08X}, event timer {timer} ms, inhibit time {inhibit / 10:g} ms, "
+        + (
+            f"own SDO channel 0x{action.own_sdo[0]:X}/0x{action.own_sdo[1]:X}, "
+            if action.own_sdo is not None
+            else ""
+        )
         + "".join(f"0x{i:04X}:{n} = {v}, " for i, n, v in action.settings)
         + "all read back after the session; feed off; NMT start sent"
     )

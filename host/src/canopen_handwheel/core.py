@@ -414,6 +414,40 @@ FOREIGN_SDO_QUIET = 2.0
 # than it asked for, so a collision costs a retry.
 FOREIGN_READ_QUIET = 0.15
 PROGRAM_OBJECTS = range(0x1F50, 0x1F60)
+# The component's own SDO channel: the device's second SDO server (0x1201), set up by every
+# configuration, so that its probes (ten a second) and feed writes never share the default
+# channel with another master, whose python-canopen would take an answer to a write of the
+# component's for its own (it checks no index in a download's answer). COB-IDs from a range
+# the pre-defined connection set leaves free (0x680..0x6DF): the master node-ID m (1..127)
+# picks 0x680 + (m - 1) mod 48 to the device and 0x6B0 + the same from it; `--sdo-channel`
+# sets others or none (then everything goes on the default channel, held back as above).
+OWN_SDO_RANGE = range(0x680, 0x6E0)
+OWN_SDO_PAIRS = 48
+SDO_SERVER_2 = 0x1201
+
+
+def own_sdo_ids(master: int) -> Tuple[int, int]:
+    """(to the device, from it): the component's own SDO channel for master node-ID `master`."""
+    m = (master - 1) % OWN_SDO_PAIRS
+    return OWN_SDO_RANGE.start + m, OWN_SDO_RANGE.start + OWN_SDO_PAIRS + m
+
+
+def parse_sdo_channel(text: str, master: int) -> Optional[Tuple[int, int]]:
+    """`--sdo-channel`: "auto" (`own_sdo_ids`), "none", or two COB-IDs "RX,TX" (hex or
+    decimal, distinct, in 0x680..0x6DF); `ValueError` otherwise."""
+    if text == "auto":
+        return own_sdo_ids(master)
+    if text == "none":
+        return None
+    try:
+        rx, tx = (int(part, 0) for part in text.split(","))
+    except ValueError:
+        raise ValueError(f"--sdo-channel {text!r}: auto, none or RX,TX") from None
+    if rx == tx or rx not in OWN_SDO_RANGE or tx not in OWN_SDO_RANGE:
+        raise ValueError(f"--sdo-channel {text!r}: two distinct COB-IDs in 0x680..0x6DF")
+    return rx, tx
+
+
 # Program control 0x1F51:1 (CiA 302-3): "stop" resets the application into its loader.
 PROGRAM_CONTROL = b"\x51\x1f\x01"
 PROGRAM_STOP = 0
@@ -501,6 +535,7 @@ def make_config(
     override_step: float = DEFAULT_OVERRIDE_STEP,
     counts_per_detent: int = DEFAULT_COUNTS_PER_DETENT,
     invert_direction: bool = False,
+    sdo_channel: str = "auto",
 ) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
@@ -526,9 +561,10 @@ def make_config(
         raise ValueError(f"--override-step must be {low}..{high} %")
     if counts_per_detent not in COUNTS_PER_DETENT:
         raise ValueError(f"--counts-per-detent must be one of {COUNTS_PER_DETENT}")
+    master_node = resolve_master(node, master)
     return Config(
         node=node,
-        master=resolve_master(node, master),
+        master=master_node,
         axes=parse_axes(axes),
         scale=scale,
         event_timer=(event_timer_ms or DEFAULT_EVENT_TIMER_MS) / 1000,
@@ -543,6 +579,7 @@ def make_config(
         counts_per_detent=counts_per_detent,
         invert_direction=invert_direction,
         dating=True,
+        own_sdo=parse_sdo_channel(sdo_channel, master_node),
     )
 
 
@@ -610,6 +647,8 @@ class Config:
     # `crates/feed-check` checks it (its model has no path that holds frames upstream of the
     # host), and a capture of a component from before the probe.
     dating: bool = False
+    # The component's own SDO channel (`own_sdo_ids`): (to the device, from it), or None.
+    own_sdo: Optional[Tuple[int, int]] = None
 
     @property
     def axis_letters(self) -> str:
@@ -915,7 +954,9 @@ class Configure:
     Otherwise: the 0x1016 entry `consumer_plan` gives; the event timer 0x1800:5 as
     `event_timer_plan` says; the inhibit time 0x1800:3 as `inhibit_plan` says (TPDO1 made
     invalid for the write, valid again after); the transmission type 0x1800:2 as
-    `transmission_type_plan` says; `settings` (`motion_settings`: the wheel's parameters,
+    `transmission_type_plan` says; the second SDO server 0x1201 on `own_sdo` (subs 1, 2, and
+    3 the master's node-ID; made invalid first when it serves another channel); `settings`
+    (`motion_settings`: the wheel's parameters,
     0x2001 = 0), each written where it differs; TPDO1's mapping and COB-ID checked; 0x2000 =
     0 (feed off); 0x2002 = `pick_token(tokens, found)` (the session, last: every write
     before it ends a session); then everything that shapes motion read back once more (the
@@ -932,6 +973,7 @@ class Configure:
     keep: Optional[int] = None  # the session that counts as intact (a check), if any
     tokens: Tuple[int, ...] = ()  # `free_tokens`, best first
     settings: Tuple[Tuple[int, int, int], ...] = ()  # `motion_settings`: (index, sub, value)
+    own_sdo: Optional[Tuple[int, int]] = None  # 0x1201 set to this channel, read back
 
 
 @dataclass
@@ -956,9 +998,10 @@ class Configured:
 
 @dataclass(frozen=True)
 class WriteFeed:
-    """0x2000 = value."""
+    """0x2000 = value (`own`: on the component's own SDO channel)."""
 
     value: int
+    own: bool = False
 
 
 @dataclass(frozen=True)
@@ -969,6 +1012,7 @@ class Probe:
 
     nonce: int
     floor: Optional[int] = None
+    own: bool = False  # on the component's own SDO channel
 
 
 @dataclass
@@ -1098,6 +1142,9 @@ class Core:
     )
     nonce: int = field(init=False)
     probe_due: float = 0.0
+    # The session's configuration set up the component's own SDO channel (`Config.own_sdo`):
+    # probes and feed writes go there, never held back by another master's exchanges.
+    own_channel: bool = False
     undated: int = 0
     undated_logged: bool = False
     now: float = 0.0
@@ -1277,6 +1324,7 @@ class Core:
         ):
             self._new_session(r.session, r.found)
             self._set_event_timer(r.event_timer_ms / 1000)
+            self.own_channel = action.own_sdo is not None
             return
         if self.session is None:
             # It spoke to the device's life before a boot-up seen meanwhile, or checked a
@@ -1343,6 +1391,7 @@ class Core:
         self.record_time = None
         self.dates.clear()
         self.probe_due = self.now
+        self.own_channel = False
         self.baseline = True
         self.suspect = False
         self.epochs_shown = False
@@ -1405,28 +1454,39 @@ class Core:
         session: a configuration; after a record of another session: a check (a
         configuration that keeps the session if the device still has it); else the feed
         enable. 0x2000 = 1 only while the newest record is of the host's session and shows
-        the feed off."""
+        the feed off. Another master's SDO exchange holds everything back
+        (`_holding_back`), but the feed writes and probes of a session whose configuration set
+        up the component's own SDO channel (`own_channel`): those go there."""
         self.tick(now)
-        if self.pending is not None or self._holding_back():
+        if self.pending is not None:
             return None
+        own = self.own_channel
+        if not own and self._holding_back():
+            return None
+        # On the default channel, configurations wait for another master's exchange still.
+        held = (
+            own
+            and self.foreign_sdo_at is not None
+            and self.now - self.foreign_sdo_at < self.foreign_quiet
+        )
         action: Optional[Action] = None
         if self.session is None:
-            if self.now >= self.config_due:
+            if self.now >= self.config_due and not held:
                 action = self._configure(keep=None)
         elif self.check_due:
-            if self.now >= self.check_at:
+            if self.now >= self.check_at and not held:
                 action = self._configure(keep=self.session)
         elif self.operational and self.record is not None and self.now >= self.feed_due:
             if self.enable and not self.record.enabled and not self.foreign_newest:
-                action = WriteFeed(1)
+                action = WriteFeed(1, own)
                 self.asked_off = False
             elif not self.enable and self.record.enabled:
-                action = WriteFeed(0)
+                action = WriteFeed(0, own)
                 self.asked_off = True
         probing = self.cfg.dating and self.session is not None
         if action is None and probing and self.now >= self.probe_due:
             floor = self.order[0].sequence if self.order is not None else None
-            action = Probe(self.nonce, floor)
+            action = Probe(self.nonce, floor, own)
             self.nonce = (self.nonce + 1) & NONCE_MASK
             self.probe_due = self.now + PROBE_PERIOD
         self.pending = action
@@ -1456,6 +1516,7 @@ class Core:
             keep,
             tokens,
             motion_settings(self.cfg),
+            self.cfg.own_sdo,
         )
 
     def _holding_back(self) -> bool:

@@ -702,6 +702,9 @@ def replay(
     lines: List[Line] = []
     describer = Describer(cfg, names)
     device = {0x180 + cfg.node, 0x080 + cfg.node, 0x700 + cfg.node}
+    # The default SDO channel's frames the component read (never its own requests): its core
+    # sees them too (another master's exchanges hold its requests back).
+    sdo_channel = {0x580 + cfg.node, 0x600 + cfg.node}
     run = _Run(cfg, with_notes, events)
     run_id = None
     for f in files:
@@ -729,6 +732,12 @@ def replay(
                     line.verdict = judge(c, frame.id, frame.data, t)
                 else:
                     c.frame(frame.id, frame.data, t)
+            elif (
+                frame.rx
+                and not (frame.error or frame.extended or frame.remote)
+                and (frame.id in sdo_channel)
+            ):
+                c.frame(frame.id, frame.data, t)
             else:
                 c.tick(t)
             line.log = c.take_log()
