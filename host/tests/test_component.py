@@ -1210,3 +1210,76 @@ def test_servo_period_from_linuxcncs_ini_file(tmp_path):
     assert component.linuxcnc_servo_period({"INI_FILE_NAME": str(ini)}) == 0.002
     assert component.linuxcnc_servo_period({}) is None
     assert component.linuxcnc_servo_period({"INI_FILE_NAME": str(tmp_path / "none.ini")}) is None
+
+
+@pytest.mark.parametrize(
+    "text, master, channel",
+    [
+        ("auto", 1, (0x680, 0x6B0)),
+        ("auto", 48, (0x6AF, 0x6DF)),
+        ("auto", 49, (0x680, 0x6B0)),
+        ("none", 1, None),
+        ("0x690,0x6C5", 1, (0x690, 0x6C5)),
+    ],
+)
+def test_the_own_sdo_channel_option(text, master, channel):
+    assert core.parse_sdo_channel(text, master) == channel
+
+
+@pytest.mark.parametrize("text", ["0x690", "0x690,0x690", "0x600,0x6C5", "0x690,0x6E0", "x,y"])
+def test_a_wrong_own_sdo_channel_is_refused(text):
+    with pytest.raises(ValueError, match="--sdo-channel"):
+        core.parse_sdo_channel(text, 1)
+    with pytest.raises(SystemExit):
+        component.parse_args(["--sdo-channel", text])
+
+
+def test_the_configuration_sets_up_the_own_sdo_channel_through_invalid(capfd):
+    """0x1201 serving another channel is made invalid (both subs) before the new
+    identifiers are written (CiA 301 changes a valid entry's identifier only through
+    invalid), the client's node-ID written, and all three read back after the session."""
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[(0x1201, 1)] = (0x690, 4)  # another master's channel
+    objects[(0x1201, 2)] = (0x6C0, 4)
+    objects[(0x1201, 3)] = (9, 1)
+    sdo = FakeSdo(objects)
+    action = core.Configure(1, 500, None, tokens=(1,), settings=SETTINGS, own_sdo=(0x680, 0x6B0))
+    ok, _, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert ok and result.session == 1
+    writes = [e for e in sdo.log if e[0] == "download" and e[1] == 0x1201]
+    assert writes == [
+        ("download", 0x1201, 1, 0x8000_0000),
+        ("download", 0x1201, 2, 0x8000_0000),
+        ("download", 0x1201, 2, 0x6B0),
+        ("download", 0x1201, 1, 0x680),
+        ("download", 0x1201, 3, 1),
+    ]
+    token = sdo.log.index(("download", 0x2002, 0, 1))
+    after = sdo.log[token:]
+    assert all(("upload", 0x1201, sub) in after for sub in (1, 2, 3))
+    assert "own SDO channel 0x680/0x6B0" in capfd.readouterr().err
+
+
+def test_probes_and_feed_writes_take_the_own_channel_and_wait_for_no_other_master():
+    """With the channel set up by the session's configuration, another master's SDO
+    exchange holds back a check (default channel) but not the probes and feed writes."""
+    from records import SESSION, TPDO1, configure, rec
+
+    c = core.Core(core.Config(axes="xy", dating=True, own_sdo=(0x680, 0x6B0)))
+    assert configure(c, 0.0) == SESSION and c.own_channel
+    c.set_enable(True)
+    c.drained(0.01)
+    c.frame(TPDO1, rec(0, 1, 1, 0, 5, 1, SESSION), 0.01)
+    c.frame(0x600 + 16, bytes([0x2F, 0x17, 0x10, 0, 1, 0, 0, 0]), 0.02)  # another master
+    action = c.next_action(0.03)
+    assert action == core.WriteFeed(1, own=True)
+    c.done(action, True, None, 0.04)
+    action = c.next_action(0.05)
+    assert isinstance(action, core.Probe) and action.own
+    c.done(action, False, None, 0.06)
+    c.frame(TPDO1, rec(0, 1, 1, 0, 6, 1, 3), 0.07)  # another session: a check is due
+    action = c.next_action(0.6)
+    assert isinstance(action, core.Probe), "the check waits for the other master; probes go on"
+    c.done(action, False, None, 0.61)
+    action = c.next_action(0.02 + core.FOREIGN_SDO_QUIET + 0.01)
+    assert isinstance(action, core.Configure) and action.keep == SESSION
