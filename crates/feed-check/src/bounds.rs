@@ -68,6 +68,7 @@ const BASE: Bounds = Bounds {
     late_ms: 500,
     settles: 0,
     holds: 0,
+    token_writes: 0,
     warmups: &[],
     mutant: None,
 };
@@ -343,6 +344,28 @@ pub const COPIES_AND_POWER_CYCLES: &[Bounds] = &[
 
 /// Breaches found on the way that no issue names yet (not in [`ALL`]; each breaches today).
 pub const UNFILED: &[Bounds] = &[
+    // Another master writes the host's own token after a power cycle whose boot-up the host
+    // missed, starts the node and enables the feed: a record of the new power life links to
+    // the host's reference from the old one (README "The bus as machines have it", "Open:").
+    // The host's dating on, as the component runs: its went-back drop comes only with its
+    // next probe.
+    Bounds {
+        name: "token written again after an unseen power cycle",
+        rule: RuleConfig {
+            dating: true,
+            ..narrow(3)
+        },
+        transmit_capacity: 2,
+        turns: 1,
+        feed_writes: 1,
+        nmt: 1,
+        power_cycles: 1,
+        channel_faults: 1,
+        token_writes: 1,
+        warmups: &[&[Warm::Turns(125)]],
+        copy_depth: 0,
+        ..NARROW
+    },
     // A reset node or power cycle right after another whose boot-up the host saw: the host
     // configures before the second boot-up reaches it (the bus held for it while bxCAN's mailboxes let
     // the answers, 0x590, and the records, 0x190, overtake it, 0x710). When it arrives the

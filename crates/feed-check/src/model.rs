@@ -126,6 +126,10 @@ pub enum Action {
     Enable,
     /// A master writes 0x2000 = 0.
     Disable,
+    /// Another master writes 0x2002 with the host's session token (the 3-bit token is not
+    /// unique to a master): through the device's SDO server, as [`Action::Enable`] writes
+    /// 0x2000. Only while the host holds a session.
+    WriteToken,
     /// A master (any node) sends an NMT command.
     Nmt(Nmt),
     /// The device loses power and boots again (what waits for the bus is lost with it).
@@ -244,6 +248,8 @@ pub struct Bounds {
     pub settles: u8,
     /// [`Action::Hold`]s of the path between the bus and the host at most.
     pub holds: u8,
+    /// [`Action::WriteToken`]s (another master writing the host's token) at most.
+    pub token_writes: u8,
     /// What happens before the exploration starts, one initial state for each: where the
     /// sequence, the epoch and the history of copies stand when the trouble begins.
     pub warmups: &'static [&'static [Warm]],
@@ -412,6 +418,10 @@ pub struct Spec {
     /// The host received a record the device made since the last of those: detents turned
     /// now are owed.
     synced: bool,
+    /// Another master put the device in the host's session ([`Action::WriteToken`]) since
+    /// the host last wrote it: the records of that session are not the host's to be in step
+    /// with (nothing is owed until the host configures again).
+    foreign: bool,
 }
 
 /// One state of the world.
@@ -445,7 +455,7 @@ pub struct World {
     /// The object (index, value) of the SDO write this action makes, until the device
     /// answers it.
     writing: Option<(u16, u32)>,
-    used: [u8; 14],
+    used: [u8; 15],
     /// Which warm-up this state started from.
     warmup: u8,
     /// The first breach of the property, if any.
@@ -532,6 +542,7 @@ enum Budget {
     Settles,
     Configures,
     Holds,
+    TokenWrites,
 }
 
 /// The CAN port of one round: at most one received frame, the transmit path, a controller
@@ -804,6 +815,7 @@ impl FeedModel {
             Budget::Settles => bounds.settles,
             Budget::Configures => bounds.configures,
             Budget::Holds => bounds.holds,
+            Budget::TokenWrites => bounds.token_writes,
         }
     }
 
@@ -839,7 +851,7 @@ impl FeedModel {
             untaken: Vec::new(),
             locks: 0,
             writing: None,
-            used: [0; 14],
+            used: [0; 15],
             warmup: 0,
             violation: None,
             log,
@@ -910,6 +922,7 @@ impl FeedModel {
         }
         self.sdo_write(w, 0x2000, 0, &[0]);
         self.sdo_write(w, 0x2002, 0, &[token]);
+        w.spec.foreign = false;
         let written = w.real.wheel.lock(|h| h.feed.session()) == token;
         w.host
             .configured(device, written.then_some(token), w.now_ms);
@@ -1289,7 +1302,11 @@ impl FeedModel {
             }
             // A record of the host's session: what is turned from now on must reach it.
             let session = frame.data[5] >> 5;
-            if !frame.tag.copy && !frame.tag.stale && w.host.session() == Some(session) {
+            if !frame.tag.copy
+                && !frame.tag.stale
+                && !w.spec.foreign
+                && w.host.session() == Some(session)
+            {
                 w.spec.synced = true;
             }
         }
@@ -1555,6 +1572,9 @@ impl Model for FeedModel {
         if b(Budget::FeedWrites) {
             actions.extend([Action::Enable, Action::Disable]);
         }
+        if b(Budget::TokenWrites) && w.host.session().is_some() {
+            actions.push(Action::WriteToken);
+        }
         if b(Budget::Nmt) {
             actions.extend(Nmt::ALL.map(Action::Nmt));
         }
@@ -1621,6 +1641,7 @@ impl Model for FeedModel {
             Action::SwitchMultiplier => self.spend(&mut w, Budget::Multipliers),
             Action::Enable | Action::Disable => self.spend(&mut w, Budget::FeedWrites),
             Action::Nmt(_) => self.spend(&mut w, Budget::Nmt),
+            Action::WriteToken => self.spend(&mut w, Budget::TokenWrites),
             Action::PowerCycle => self.spend(&mut w, Budget::PowerCycles),
             Action::Tick => self.spend(&mut w, Budget::Ticks),
             Action::Lose | Action::Duplicate | Action::Copy(_) => {
@@ -1652,6 +1673,18 @@ impl Model for FeedModel {
             }
             Action::Enable => self.feed_write(&mut w, true),
             Action::Disable => self.feed_write(&mut w, false),
+            Action::WriteToken => {
+                let token = w
+                    .host
+                    .session()
+                    .expect("only while the host holds a session");
+                if w.spec.session != token {
+                    // A session the host did not open: what it is owed ends here.
+                    self.records_missing(&mut w);
+                    w.spec.foreign = true;
+                }
+                self.sdo_write(&mut w, 0x2002, 0, &[token]);
+            }
             Action::Nmt(command) => self.nmt(&mut w, command),
             Action::PowerCycle => self.power_cycle(&mut w),
             Action::Tick => {
