@@ -49,7 +49,7 @@ from typing import Callable, Iterator, List, Optional
 
 import pytest
 
-from canopen_handwheel.core import Record, own_sdo_ids
+from canopen_handwheel.core import GATE_HOLD, Record, own_sdo_ids
 from rig import (
     AXES,
     BOOTUP,
@@ -128,6 +128,12 @@ class Host:
 
     def counts(self, axis: str) -> int:
         return self.hal.number(f"axis.{axis}.jog-counts")
+
+    def counts_written(self) -> bool:
+        """X's counts last changed more than a few pin steps ago (`core.GATE_HOLD`: a
+        record's position can show a step before its counts)."""
+        changes = self.hal.history("axis.x.jog-counts")
+        return not changes or time.monotonic() - changes[-1][0] > 4 * GATE_HOLD
 
     def enabled(self, axis: str = "x") -> bool:
         return self.hal.value(f"axis.{axis}.jog-enable") == "True"
@@ -322,6 +328,11 @@ def test_copies_of_any_age_never_move_x_backwards_nor_deaden_the_wheel(host100):
         h.must(h.caught_up, CATCH_UP, "the component at the newest record after the turn")
         copy = relay.replay(k, since=first)
         assert copy.wait(FRAME_TIMEOUT), f"the copy {k} back was never sent"
+        # The copy follows a genuine record: X's counts are read once the component took
+        # that record and wrote its counts, or the detent's +100 would be measured from
+        # counts one record behind (and read +200).
+        h.wait(h.caught_up, CATCH_UP)
+        h.wait(h.counts_written, CATCH_UP)
         before = decode(h.newest()).position
         counts, detent, lively = h.detent_x100(before, "the record of the detent after the copy")
         late = time.monotonic() - detent.t

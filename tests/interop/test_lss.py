@@ -7,11 +7,14 @@ reset, a bit timing when it is activated. The host's side of the bus follows the
 rate (no `rate` set), so the master keeps talking to it after a switch.
 """
 
+import time
+
 import pytest
 from canopen.lss import LssError, LssMaster
 
 from rig import (
     BOOTUP,
+    FRAME_TIMEOUT,
     HEARTBEAT,
     NMT_RESET_COMMUNICATION,
     NMT_RESET_NODE,
@@ -141,6 +144,10 @@ def test_configure_bit_timing_and_store(rig, lss):
     lss.activate_bit_timing(50)
     rig.board.wait_for_log(r"LSS: bit rate now 250 kbit/s", start=start)
     lss.send_switch_state_global(LssMaster.WAITING_STATE)
+    # The board's status follows the controller's switch a moment after the log line.
+    deadline = time.monotonic() + FRAME_TIMEOUT
+    while rig.board.status()["bitrate"] != "250000" and time.monotonic() < deadline:
+        time.sleep(0.01)
     assert rig.board.status()["bitrate"] == "250000"
     assert sdo_answers(rig, NODE_ID)
     # The next power-on starts at the stored rate.
