@@ -25,6 +25,10 @@ const NONCE_BITS: u32 = 13;
 const NONCE_MASK: u32 = (1 << NONCE_BITS) - 1;
 /// Probe dates kept, the newest (`core.py`'s `PROBE_DATES`).
 const PROBE_DATES: usize = 32;
+/// The key the host writes to 0x2034 after its token and carries in its probes (bits
+/// 16-31). `core.py` draws one at random per session; only its being another than 0 (the
+/// key of a session someone else opened) matters to the rule, so the model's is one value.
+pub const SESSION_KEY: u16 = 0x5EC5;
 
 /// A change of the host's dating that the checker must notice (`tests/mutants.rs`): each a
 /// plausible slip in porting or changing `core.py`'s dating.
@@ -383,10 +387,11 @@ impl<T: Clone> HostRule<T> {
             })
     }
 
-    /// The host sends a probe at `now_ms`: (the nonce it writes to 0x2033, the floor: the
-    /// newest record number of the session it received).
+    /// The host sends a probe at `now_ms`: (the value it writes to 0x2033: its session key
+    /// in bits 16-31, the nonce below; the floor: the newest record number of the session it
+    /// received).
     pub fn probe(&mut self, now_ms: u64) -> (u32, Option<u64>) {
-        let nonce = self.nonce;
+        let nonce = u32::from(SESSION_KEY) << 16 | self.nonce;
         let floor = self.reference.as_ref().map(|r| r.0.sequence);
         self.nonce = (self.nonce + 1) & NONCE_MASK;
         self.probed_at = Some(now_ms);
@@ -401,6 +406,7 @@ impl<T: Clone> HostRule<T> {
         let Some((nonce, floor, sent_at)) = self.probe.take() else {
             return;
         };
+        let nonce = nonce & NONCE_MASK;
         let (Some(value), Some(session)) = (value, self.session) else {
             return;
         };
@@ -427,6 +433,15 @@ impl<T: Clone> HostRule<T> {
             self.dates.pop_front();
         }
         self.dates.push_back((number, sent_at));
+    }
+
+    /// The device refused the probe's write (abort 0x08000022: the key is not the session's):
+    /// the session the device has is not the host's, whatever its token (`core.py`'s
+    /// `probe_refused`). It is dropped; a configuration follows.
+    pub fn probe_refused(&mut self, now_ms: u64) {
+        if self.probe.take().is_some() && self.session.is_some() {
+            self.drop_session(now_ms);
+        }
     }
 
     /// `core.py`'s `_dated`: a probe sent at most the date limit ago found the successor of

@@ -39,10 +39,11 @@ use handwheel_core::{
     LinkedWheel, Multiplier, Mutex, SelectorInput, SequencePace, Wheel,
 };
 use handwheel_device::mutant::Mutant;
+use handwheel_device::od::SESSION_DELAY_MS;
 use handwheel_device::{CanIo, HandwheelDevice, Node, Outputs, TransmitState, TRANSMIT_STALL_MS};
 use stateright::{Model, Property};
 
-use crate::host::{Credit, HostRule, RuleConfig, AXES};
+use crate::host::{Credit, HostRule, RuleConfig, AXES, SESSION_KEY};
 use crate::truth::{AxisTruth, Detent, Miss};
 
 /// The device's node-ID in the model.
@@ -455,6 +456,9 @@ pub struct World {
     /// The object (index, value) of the SDO write this action makes, until the device
     /// answers it.
     writing: Option<(u16, u32)>,
+    /// The host's probe write is under way: the device's answer to it is kept here instead
+    /// of going to the bus (`Some(None)` until it answers).
+    probe_answer: Option<Option<[u8; 8]>>,
     used: [u8; 15],
     /// Which warm-up this state started from.
     warmup: u8,
@@ -481,10 +485,10 @@ pub enum HostEvent {
     Drained(u64),
     /// The host configured the device, whose 0x2002 read this, at a time (ms).
     Configure(u8, u64),
-    /// The host sent a sequence probe (0x2033 = nonce, then read back) at a time (ms):
-    /// the nonce and the floor its rule gave.
+    /// The host sent a sequence probe (0x2033 = key and nonce, then read back) at a time
+    /// (ms): the value written and the floor its rule gave.
     Probe {
-        /// Written to 0x2033.
+        /// Written to 0x2033: the session key in bits 16-31, the nonce in bits 0-12.
         nonce: u32,
         /// The newest record number of the session the host had received.
         floor: Option<u64>,
@@ -495,6 +499,18 @@ pub enum HostEvent {
     Probed {
         /// 0x2033.
         value: u32,
+        /// When, ms.
+        at_ms: u64,
+    },
+    /// The device refused the probe's write (abort 0x08000022), the abort reaching the host
+    /// at a time (ms).
+    ProbeRefused {
+        /// When, ms.
+        at_ms: u64,
+    },
+    /// The device did not answer the probe (no SDO in its state): the host's request timed
+    /// out, at a time (ms).
+    Unanswered {
         /// When, ms.
         at_ms: u64,
     },
@@ -556,6 +572,7 @@ struct Port<'a> {
     spec: &'a mut Spec,
     now_ms: u64,
     writing: &'a mut Option<(u16, u32)>,
+    probe_answer: &'a mut Option<Option<[u8; 8]>>,
     /// The path counts as blocked now (the device stops the feed and discards what waits).
     stalled: bool,
     /// The device took 0x2000 = 1 although it must not have: why.
@@ -630,7 +647,7 @@ impl Port<'_> {
                     spec.enabled = false;
                 }
             }
-            0x1003 | 0x1010 | 0x1011 => {}
+            0x1003 | 0x1010 | 0x1011 | 0x2033 | 0x2034 => {}
             _ => {
                 // 0x1016: the master's heartbeat is watched from now on.
                 spec.watching |= index == 0x1016;
@@ -651,6 +668,14 @@ impl FrameSink for Port<'_> {
             let index = u16::from_le_bytes([frame.data()[1], frame.data()[2]]);
             if let Some((_, value)) = self.writing.take_if(|(i, _)| *i == index) {
                 self.written(index, value);
+            }
+        }
+        if frame.id() == SDO_TX {
+            if let Some(answer @ None) = self.probe_answer {
+                let mut data = [0; 8];
+                data[..frame.data().len()].copy_from_slice(frame.data());
+                *answer = Some(data);
+                return Ok(());
             }
         }
         if self.path.queue.len() >= self.capacity - self.mailboxes {
@@ -851,6 +876,7 @@ impl FeedModel {
             untaken: Vec::new(),
             locks: 0,
             writing: None,
+            probe_answer: None,
             used: [0; 15],
             warmup: 0,
             violation: None,
@@ -860,6 +886,10 @@ impl FeedModel {
         self.pace(&mut w);
         self.step(&mut w, None);
         self.select(&mut w);
+        self.pass_all(&mut w);
+        // A session opens only once the device is old enough.
+        w.now_ms += SESSION_DELAY_MS;
+        self.step(&mut w, None);
         self.pass_all(&mut w);
         self.configure(&mut w);
         self.pass_all(&mut w);
@@ -922,8 +952,13 @@ impl FeedModel {
         }
         self.sdo_write(w, 0x2000, 0, &[0]);
         self.sdo_write(w, 0x2002, 0, &[token]);
+        self.sdo_write(w, 0x2034, 0, &SESSION_KEY.to_le_bytes());
         w.spec.foreign = false;
-        let written = w.real.wheel.lock(|h| h.feed.session()) == token;
+        let written = w
+            .real
+            .wheel
+            .lock(|h| (h.feed.session(), h.feed.session_key()))
+            == (token, SESSION_KEY);
         w.host
             .configured(device, written.then_some(token), w.now_ms);
         self.nmt(w, Nmt::Start);
@@ -974,6 +1009,7 @@ impl FeedModel {
             spec: &mut w.spec,
             now_ms: now,
             writing: &mut w.writing,
+            probe_answer: &mut w.probe_answer,
             stalled: false,
             wrongly_enabled: None,
         };
@@ -1237,11 +1273,24 @@ impl FeedModel {
                 at_ms: now,
             },
         );
-        let value = w.real.wheel.lock(|h| {
-            h.feed.set_probe_nonce(nonce);
-            h.feed.sequence_probe()
-        });
-        let v = value.to_le_bytes();
+        // The write goes through the device's SDO server, in a round of its own; its answer
+        // is kept off the bus: the read's answer (or the write's abort) stands for both.
+        w.probe_answer = Some(None);
+        self.sdo_write(w, 0x2033, 0, &nonce.to_le_bytes());
+        let data = match w.probe_answer.take().flatten() {
+            Some(answer) if answer[0] == 0x60 => {
+                let v = w.real.wheel.lock(|h| h.feed.sequence_probe()).to_le_bytes();
+                [PROBE_ANSWER, 0x33, 0x20, 0, v[0], v[1], v[2], v[3]]
+            }
+            // Refused (the key is not the session's): the abort, as the device sent it.
+            Some(abort) => abort,
+            // No SDO in its state (Stopped): the host's request times out.
+            None => {
+                self.log(w, HostEvent::Unanswered { at_ms: now });
+                w.host.probed(None, now);
+                return;
+            }
+        };
         let tag = Tag {
             made_ms: now,
             boot: w.spec.boot,
@@ -1250,7 +1299,7 @@ impl FeedModel {
         };
         let answer = Wire {
             id: SDO_TX,
-            data: [PROBE_ANSWER, 0x33, 0x20, 0, v[0], v[1], v[2], v[3]],
+            data,
             len: 8,
             tag,
         };
@@ -1285,6 +1334,12 @@ impl FeedModel {
                 u32::from_le_bytes([frame.data[4], frame.data[5], frame.data[6], frame.data[7]]);
             self.log(w, HostEvent::Probed { value, at_ms: now });
             w.host.probed(Some(value), now);
+            return;
+        }
+        if frame.id == SDO_TX && frame.data[..4] == [0x80, 0x33, 0x20, 0] {
+            // The device refused the probe's write.
+            self.log(w, HostEvent::ProbeRefused { at_ms: now });
+            w.host.probe_refused(now);
             return;
         }
         if let Some(log) = &mut w.log {

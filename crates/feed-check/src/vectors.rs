@@ -190,6 +190,12 @@ fn line(bounds: &Bounds, name: &str, w: &crate::model::World, out: &mut String) 
                     *at_ms as f64 / 1000.0
                 );
             }
+            HostEvent::ProbeRefused { at_ms } => {
+                let _ = write!(out, "{sep}[\"probe_refused\", {}]", *at_ms as f64 / 1000.0);
+            }
+            HostEvent::Unanswered { at_ms } => {
+                let _ = write!(out, "{sep}[\"probed\", null, {}]", *at_ms as f64 / 1000.0);
+            }
         }
     }
     let _ = writeln!(

@@ -52,6 +52,18 @@ fn a_stall_watch_restarted_by_every_frame_keeps_the_feed_on_a_trickling_bus() {
     assert!(found.contains("after its frames waited 100 ms"), "{found}");
 }
 
+#[test]
+fn an_unguarded_session_lets_another_masters_token_link_a_new_power_life_to_the_old() {
+    // Either guard alone (the delay, the key) closes every path of this setting: the key
+    // refuses the host's first probe of the new life, the delay keeps the new life's session
+    // out until the host's old dates have expired. Without both, the old breach is back.
+    let found = killed(
+        "token written again after an unseen power cycle",
+        Mutant::SessionUnguarded,
+    );
+    assert!(found.contains("backwards"), "{found}");
+}
+
 /// The host's dating changed by `mutant` (`feed_check::host::HostMutant`): the setting
 /// `name`, dating on, must find a breach.
 fn host_killed(name: &str, mutant: HostMutant) -> String {

@@ -19,13 +19,3 @@ fn a_boot_up_overtaken_by_a_configuration_loses_owed_motion() {
     let found = found("boot-up overtaken");
     assert!(found.contains("no record was missing"), "{found}");
 }
-
-/// Another master writes the host's own token after a power cycle whose boot-up the host
-/// missed: a record of the new power life, numbered right after the host's reference from the
-/// old one, links to it before the host's next probe could show the sequence went back, and
-/// the difference of the two lives' positions is credited.
-#[test]
-fn a_token_written_again_after_an_unseen_power_cycle_links_the_new_life_to_the_old() {
-    let found = found("token written again after an unseen power cycle");
-    assert!(found.contains("backwards"), "{found}");
-}

@@ -70,6 +70,21 @@ pub struct FeedAccumulator {
     record_due: bool,
     /// The nonce a master last wrote to the sequence probe (object 0x2033).
     probe_nonce: u16,
+    /// The key the session's master wrote (object 0x2034; 0 = none): it belongs to the
+    /// session and goes with it.
+    session_key: u16,
+}
+
+/// Why a write that belongs to a session was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[must_use]
+pub enum SessionRefusal {
+    /// No session is open: a key has nothing to belong to.
+    NoSession,
+    /// The probe carries a key that is not the session's: its master's session is not the
+    /// one open here (ended, or opened again by someone else, in this power life or a new
+    /// one).
+    WrongKey,
 }
 
 /// The nonce's bits in the sequence probe (object 0x2033).
@@ -102,6 +117,7 @@ impl FeedAccumulator {
             outbox: FeedOutbox::new(),
             record_due: false,
             probe_nonce: 0,
+            session_key: 0,
         }
     }
 
@@ -215,7 +231,21 @@ impl FeedAccumulator {
         let before = self.state();
         self.enabled = false;
         self.session = session;
+        self.session_key = 0;
         self.new_epoch(before);
+    }
+
+    /// The session's key (object 0x2034), written by the master that opened the session
+    /// right after it: the probe's writes must carry it from then on
+    /// ([`FeedAccumulator::write_probe`]). It is 0 again whenever the session changes or
+    /// ends, so a session another master opened (with the same token, after a power cycle
+    /// the first master never saw, say) never has the first master's key.
+    pub fn set_session_key(&mut self, key: u16) -> Result<(), SessionRefusal> {
+        if self.session == 0 {
+            return Err(SessionRefusal::NoSession);
+        }
+        self.session_key = key;
+        Ok(())
     }
 
     /// The master's session (object 0x2002).
@@ -237,6 +267,7 @@ impl FeedAccumulator {
         let before = self.state();
         self.enabled = false;
         self.session = 0;
+        self.session_key = 0;
         self.new_epoch(before);
     }
 
@@ -264,6 +295,7 @@ impl FeedAccumulator {
         // (no record of it was made yet, so no further epoch is needed).
         if self.outbox.take_overdrawn() && self.session != 0 {
             self.session = 0;
+            self.session_key = 0;
             self.enabled = false;
         }
     }
@@ -352,9 +384,22 @@ impl FeedAccumulator {
         self.outbox.sequence()
     }
 
-    /// A master's nonce for the sequence probe (object 0x2033): its low 13 bits.
-    pub fn set_probe_nonce(&mut self, nonce: u32) {
-        self.probe_nonce = (nonce & PROBE_NONCE_MASK) as u16;
+    /// The session's key (object 0x2034, write-only on the bus; 0 = none).
+    pub const fn session_key(&self) -> u16 {
+        self.session_key
+    }
+
+    /// A master's write of the sequence probe (object 0x2033): the nonce in its low 13 bits,
+    /// a session key in bits 16-31 (0: none, as any master may probe). A key that is not the
+    /// open session's key is refused and changes nothing: the master learns that its session
+    /// is gone although the token it reads may be its own.
+    pub fn write_probe(&mut self, value: u32) -> Result<(), SessionRefusal> {
+        let key = (value >> 16) as u16;
+        if key != 0 && key != self.session_key {
+            return Err(SessionRefusal::WrongKey);
+        }
+        self.probe_nonce = (value & PROBE_NONCE_MASK) as u16;
+        Ok(())
     }
 
     /// The sequence probe (object 0x2033): bits 16-31 the sequence number the next record

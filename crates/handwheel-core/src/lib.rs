@@ -31,7 +31,9 @@ pub mod selector;
 pub mod standstill;
 pub mod wheel;
 
-pub use accumulator::{FeedAccumulator, StopReason, DEFAULT_STEP_BACKLOG, PROBE_NONCE_MASK};
+pub use accumulator::{
+    FeedAccumulator, SessionRefusal, StopReason, DEFAULT_STEP_BACKLOG, PROBE_NONCE_MASK,
+};
 pub use bittiming::{btr_table, BitRate, BitTiming, BitTimingError};
 pub use decoder::{
     AbLevels, CountsPerDetent, DecoderConfig, EdgeOutcome, QuadratureDecoder, Transition,

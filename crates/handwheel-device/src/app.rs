@@ -9,7 +9,7 @@ use handwheel_core::{
 
 use crate::od::{
     stored_slot, Program, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE,
-    FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, SEQUENCE_PROBE, STEP_BYTE, STORED,
+    FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, SEQUENCE_PROBE, SESSION_KEY, STEP_BYTE, STORED,
     STORED_BYTES, STORED_LEN, WHEEL_READS, WHEEL_WRITES,
 };
 
@@ -187,6 +187,9 @@ pub struct FeedApp {
     pub(crate) software_id: u32,
     /// 0x1F51:1 = 0 ("stop") was answered: the firmware is to reset into the loader.
     pub(crate) enter_loader: bool,
+    /// The device started less than [`SESSION_DELAY_MS`](crate::od::SESSION_DELAY_MS) ago:
+    /// no session opens yet.
+    pub(crate) young: bool,
     /// The bug the feed checker's mutation tests run, if any.
     #[cfg(feature = "mutants")]
     pub(crate) mutant: Option<crate::mutant::Mutant>,
@@ -205,6 +208,7 @@ impl FeedApp {
             record: None,
             software_id: 0,
             enter_loader: false,
+            young: true,
             #[cfg(feature = "mutants")]
             mutant: None,
         }
@@ -250,14 +254,23 @@ impl<W: Wheel> Application for AppContext<'_, W> {
             if route.enables_feed && value == 1 && !self.feed_may_run() {
                 return Err(SdoAbort::DeviceState);
             }
+            if route.opens_session && value != 0 && self.app.young {
+                return Err(SdoAbort::DeviceState);
+            }
             let write = route.write;
             #[cfg(feature = "mutants")]
+            let value = if index == SEQUENCE_PROBE
+                && self.mutant(crate::mutant::Mutant::SessionUnguarded)
+            {
+                value & 0xFFFF
+            } else {
+                value
+            };
+            #[cfg(feature = "mutants")]
             if route.enables_feed && self.mutant(crate::mutant::Mutant::EnableWithoutIntake) {
-                self.wheel.lock(|w| write(w, value));
-                return Ok(());
+                return self.wheel.lock(|w| write(w, value));
             }
-            self.wheel.change(|w| write(w, value));
-            return Ok(());
+            return self.wheel.change(|w| write(w, value));
         }
         let mut parameters = self.app.parameters;
         parameters.set(index, sub, value)?;
@@ -273,7 +286,7 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         // on.
         if !matches!(
             index,
-            FEED_ENABLE | FEED_SESSION | SEQUENCE_PROBE | 0x1003 | 0x1010 | 0x1011
+            FEED_ENABLE | FEED_SESSION | SEQUENCE_PROBE | SESSION_KEY | 0x1003 | 0x1010 | 0x1011
         ) {
             self.end_session();
         }
@@ -316,9 +329,12 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         let (nmt, master_lost) = (self.app.nmt, self.app.master_lost);
         let transmit_blocked = self.app.transmit_blocked;
         let software_id = self.app.software_id;
+        let young = self.app.young;
         #[cfg(feature = "mutants")]
         let mutant = self.app.mutant;
         *self.app = FeedApp::new();
+        // A reset is no new power life: the age stays the device's.
+        self.app.young = young;
         // Engine and port state, not application state: the engine ends the loss itself, the
         // stall watch the block. The image's CRC is the image's.
         self.app.nmt = nmt;

@@ -8,7 +8,7 @@ use handwheel_core::{BitRate, FeedStatus, Selection, StopReason, Wheel};
 
 use crate::app::{AppContext, FeedApp};
 use crate::node_config::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
-use crate::od::OD;
+use crate::od::{OD, SESSION_DELAY_MS};
 
 /// EMCY code raised while an illegal quadrature transition is latched in the feed status
 /// (CiA 301 "sensor" class). It clears with the epoch, i.e. when the operator re-selects.
@@ -111,6 +111,8 @@ pub struct HandwheelDevice<S> {
     app: FeedApp,
     encoder_error_raised: bool,
     stall: StallWatch,
+    /// From when a session may open ([`SESSION_DELAY_MS`] after [`HandwheelDevice::start`]).
+    sessions_from: Option<Instant>,
 }
 
 impl<S: Storage> HandwheelDevice<S> {
@@ -136,6 +138,7 @@ impl<S: Storage> HandwheelDevice<S> {
             app: FeedApp::new(),
             encoder_error_raised: false,
             stall: StallWatch::default(),
+            sessions_from: None,
         }
     }
 
@@ -156,6 +159,8 @@ impl<S: Storage> HandwheelDevice<S> {
 
     /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
     pub fn start(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
+        self.sessions_from = Some(now.add_millis(SESSION_DELAY_MS));
+        self.age(now);
         let mut ctx = AppContext {
             app: &mut self.app,
             wheel: &mut *wheel,
@@ -176,6 +181,7 @@ impl<S: Storage> HandwheelDevice<S> {
         wheel: &mut impl Wheel,
         tx: &mut dyn FrameSink,
     ) {
+        self.age(now);
         #[cfg(feature = "mutants")]
         if self.app.mutant == Some(crate::mutant::Mutant::ResetKeepsPending) {
             let mut ctx = AppContext {
@@ -223,6 +229,7 @@ impl<S: Storage> HandwheelDevice<S> {
     /// taken in ([`Intake::RoundStart`](handwheel_core::Intake::RoundStart)), and after
     /// [`HandwheelDevice::set_selection`].
     pub fn poll(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
+        self.age(now);
         self.service(now, wheel);
         let mut ctx = AppContext {
             app: &mut self.app,
@@ -230,6 +237,19 @@ impl<S: Storage> HandwheelDevice<S> {
         };
         self.engine.poll(now, &mut ctx, tx);
         self.service(now, wheel);
+    }
+
+    /// Whether a session may open at `now`: not before [`SESSION_DELAY_MS`] after the start
+    /// (a new power life), so that no record of the new life carries a session while a
+    /// host's probe answered before the power cycle still dates records.
+    fn age(&mut self, now: Instant) {
+        self.app.young = self
+            .sessions_from
+            .is_none_or(|from| now.as_micros() < from.as_micros());
+        #[cfg(feature = "mutants")]
+        if self.app.mutant == Some(crate::mutant::Mutant::SessionUnguarded) {
+            self.app.young = false;
+        }
     }
 
     /// The debounced selector changed.

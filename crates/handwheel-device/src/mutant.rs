@@ -22,4 +22,9 @@ pub enum Mutant {
     /// A write of 0x2000 changes the enable without taking the motion so far in first: a
     /// detent that came before the change is taken in after it.
     EnableWithoutIntake,
+    /// The session is not guarded against another master's token: it opens at once after
+    /// the device started (no [`SESSION_DELAY_MS`](crate::od::SESSION_DELAY_MS)) and the
+    /// sequence probe takes any key, so a session someone else opened with the host's token
+    /// in a new power life answers the host's probes as its own.
+    SessionUnguarded,
 }

@@ -12,8 +12,8 @@
 //! wheel (a new stored layout needs a new `BLOB_VERSION`).
 
 use canopen_slave::{
-    standard_objects, Access, CommDefaults, DataType, Identity, Od, OdEntry, TpdoDefaults,
-    STANDARD_OBJECTS,
+    standard_objects, Access, CommDefaults, DataType, Identity, Od, OdEntry, SdoAbort,
+    TpdoDefaults, STANDARD_OBJECTS,
 };
 use handwheel_core::{Axis, FeedRecord, FeedState, FeedStatus, Handwheel, DEFAULT_STEP_BACKLOG};
 
@@ -57,6 +57,14 @@ pub const UNIT_STEP: u16 = 0x2032;
 /// the nonce in bits 0-12. A write of it keeps the session: a master dates the records it
 /// receives with it while its session runs (README "The contract").
 pub const SEQUENCE_PROBE: u16 = 0x2033;
+/// Session key: written by the master that opened the session, carried by its probes.
+pub const SESSION_KEY: u16 = 0x2034;
+
+/// A session opens (0x2002 = 1..7) only this long after the device started: a record of a
+/// new power life never carries a session within this of the life's start, longer than the
+/// time a host's probe dates records for (`DATE_LIMIT`, 0.35 s, in the host's core), so
+/// that no probe answered before a power cycle dates a record made after it.
+pub const SESSION_DELAY_MS: u64 = 500;
 /// Feed diagnostics: sub 1 ignored detents (U32 ro), sub 2 dropped unit steps (U32 ro),
 /// sub 3 unit-step backlog bound (U16 rw, 1..1000).
 pub const FEED_DIAGNOSTICS: u16 = 0x2040;
@@ -135,8 +143,9 @@ const STANDARD: [OdEntry; STANDARD_OBJECTS] = standard_objects(&IDENTITY, &COMM_
 /// record's own while TPDO1 is built, else the present one) or from the wheel: its value as a
 /// raw number (two's complement for signed types).
 pub type ReadFn = fn(&FeedState, &Handwheel) -> u32;
-/// Writes a value the table's limits have checked into the wheel, under its lock.
-pub type WriteFn = fn(&mut Handwheel, u32);
+/// Writes a value the table's limits have checked into the wheel, under its lock; what the
+/// wheel's state refuses is an abort, with nothing changed.
+pub type WriteFn = fn(&mut Handwheel, u32) -> Result<(), SdoAbort>;
 
 /// How an application object is read and written: the part of a row that `app.rs` carries
 /// out, as CANopenNode attaches read and write functions to an object (`OD_extension_t`) and
@@ -162,6 +171,9 @@ pub enum Behaviour {
         write: Option<WriteFn>,
         /// Writing 1 turns the feed on: refused (0x08000022) unless the device allows it now.
         enables_feed: bool,
+        /// Writing other than 0 opens a session: refused (0x08000022) while the device is
+        /// younger than [`SESSION_DELAY_MS`].
+        opens_session: bool,
     },
 }
 
@@ -249,6 +261,7 @@ impl AppObject {
             read,
             write: None,
             enables_feed: false,
+            opens_session: false,
         };
         Self::new(index, sub, name, data_type, behaviour)
     }
@@ -322,6 +335,22 @@ impl AppObject {
         self
     }
 
+    /// Writing other than 0 opens a session ([`Behaviour::Wheel`]'s `opens_session`).
+    const fn opens_session(mut self) -> Self {
+        match &mut self.behaviour {
+            Behaviour::Wheel { opens_session, .. } => *opens_session = true,
+            _ => panic!("only a value of the wheel opens a session"),
+        }
+        self
+    }
+
+    /// Write-only: every value of its type passed to the write; a read is refused
+    /// (0x06010001).
+    const fn write_only(mut self) -> Self {
+        self.access = Access::Wo;
+        self
+    }
+
     /// A record's header row.
     pub const fn is_header(&self) -> bool {
         matches!(self.behaviour, Behaviour::Header)
@@ -376,14 +405,21 @@ pub const APP_OBJECTS: &[AppObject] = {
             state.status.contains(FeedStatus::ENABLED).into()
         })
         .rw(0, 1)
-        .writes(|w, value| w.feed.set_enabled(value == 1))
+        .writes(|w, value| {
+            w.feed.set_enabled(value == 1);
+            Ok(())
+        })
         .enables_feed(),
         O::stored(FEED_FORMAT, 0, "Feed format", U8).rw(0, 1),
         O::wheel(FEED_SESSION, 0, "Feed session", U8, |_, wheel| {
             wheel.feed.session().into()
         })
         .rw(0, 7)
-        .writes(|w, value| w.feed.set_session(value as u8)),
+        .writes(|w, value| {
+            w.feed.set_session(value as u8);
+            Ok(())
+        })
+        .opens_session(),
         O::record(SELECTION, "Selection", 3),
         O::wheel(SELECTION, 1, "Axis", U8, |state, _| {
             Axis::option_value(state.axis).into()
@@ -430,7 +466,14 @@ pub const APP_OBJECTS: &[AppObject] = {
             wheel.feed.sequence_probe()
         })
         .writable()
-        .writes(|w, value| w.feed.set_probe_nonce(value)),
+        .writes(|w, value| w.feed.write_probe(value).map_err(|_| SdoAbort::DeviceState)),
+        O::wheel(SESSION_KEY, 0, "Session key", U16, |_, _| 0)
+            .write_only()
+            .writes(|w, value| {
+                w.feed
+                    .set_session_key(value as u16)
+                    .map_err(|_| SdoAbort::DeviceState)
+            }),
         O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
         O::wheel(FEED_DIAGNOSTICS, 1, "Ignored detents", U32, |_, wheel| {
             wheel.feed.ignored_detents()
@@ -454,7 +497,7 @@ pub const APP_OBJECTS: &[AppObject] = {
 
 /// Notes the EDS carries before an object's section: what a master must know beyond the
 /// object's type and limits.
-pub const EDS_NOTES: [(u16, &str); 8] = [
+pub const EDS_NOTES: [(u16, &str); 9] = [
     (
         PROGRAM_CONTROL,
         "0x1F51:1 program control (CiA 302-3): 0 (stop) resets into the resident loader, which
@@ -485,8 +528,9 @@ other (see 0x1010 above for when it is refused).",
         "A master opens its session by writing 1..7 last in its configuration; every feed record
 carries it (0x2030 bits 5-7). A change of it is a new selection epoch with the feed off. The
 device ends it (0) at power-on, reset node and reset communication, at any successful SDO
-write other than to 0x2000, 0x2002, 0x2033, 0x1003, 0x1010 and 0x1011, and when the feed
-sequence outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".",
+write other than to 0x2000, 0x2002, 0x2033, 0x2034, 0x1003, 0x1010 and 0x1011, and when the
+feed sequence outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".
+A session opens only 0.5 s after the device started (earlier: abort 0x08000022).",
     ),
     (
         FEED_SELECTION,
@@ -507,11 +551,20 @@ state the value describes (in TPDO1: the record's own).",
     ),
     (
         SEQUENCE_PROBE,
-        "A write sets the nonce (the value's low 13 bits; it keeps the session). A read gives the
-sequence number the next feed record carries (0x2031) in bits 16-31, the session (0x2002) in
-bits 13-15 and the nonce last written in bits 0-12. A master that writes a nonce of its own
-and reads it back with its session and the number n knows that every record numbered n or
-later was made after it sent the write: README \"The contract\".",
+        "A write sets the nonce (the value's low 13 bits; it keeps the session); its bits 16-31,
+if not 0, must be the session key (0x2034), else the write is refused (0x08000022). A read
+gives the sequence number the next feed record carries (0x2031) in bits 16-31, the session
+(0x2002) in bits 13-15 and the nonce last written in bits 0-12. A master that writes a nonce
+of its own with its key and reads it back with its session and the number n knows that every
+record numbered n or later was made after it sent the write, in the session it opened:
+README \"The contract\".",
+    ),
+    (
+        SESSION_KEY,
+        "Written by the master that opened the session, right after 0x2002 (refused with
+0x08000022 while no session is open); 0 again whenever the session changes or ends. The
+master's probes (0x2033) carry it, so a session someone else opened with the same token is
+never taken for its own. Write-only, so that no tool saves it.",
     ),
 ];
 
@@ -704,6 +757,8 @@ pub(crate) struct WheelWrite {
     pub sub: u8,
     /// [`Behaviour::Wheel`]'s `enables_feed`.
     pub enables_feed: bool,
+    /// [`Behaviour::Wheel`]'s `opens_session`.
+    pub opens_session: bool,
     /// [`Behaviour::Wheel`]'s `write`.
     pub write: WriteFn,
 }
@@ -714,7 +769,8 @@ pub(crate) static WHEEL_WRITES: [WheelWrite; count(Rows::Written)] = {
         index: 0,
         sub: 0,
         enables_feed: false,
-        write: |_, _| {},
+        opens_session: false,
+        write: |_, _| Ok(()),
     }; count(Rows::Written)];
     let mut k = 0;
     let mut i = 0;
@@ -723,6 +779,7 @@ pub(crate) static WHEEL_WRITES: [WheelWrite; count(Rows::Written)] = {
         if let Behaviour::Wheel {
             write: Some(write),
             enables_feed,
+            opens_session,
             ..
         } = o.behaviour
         {
@@ -730,6 +787,7 @@ pub(crate) static WHEEL_WRITES: [WheelWrite; count(Rows::Written)] = {
                 index: o.index,
                 sub: o.sub,
                 enables_feed,
+                opens_session,
                 write,
             };
             k += 1;

@@ -9,6 +9,7 @@ use handwheel_core::{
     AbLevels, Axis, BitRate, DecoderConfig, EdgeState, FeedRecord, Handwheel, Intake, LinkedWheel,
     Mutex, SelectorInput, Wheel,
 };
+use handwheel_device::od::SESSION_DELAY_MS;
 use handwheel_device::{CanIo, HandwheelDevice, Node, TransmitState};
 
 const NODE: u8 = 5;
@@ -179,9 +180,18 @@ impl Rig {
         self.receive(&request, 0x600 + u16::from(NODE))
     }
 
+    /// Opens session `token`, once the device is old enough to take one.
     fn write_session(&mut self, token: u8) {
+        self.ms = self.ms.max(SESSION_DELAY_MS as u32);
         let request = [0x2F, 0x02, 0x20, 0, token, 0, 0, 0];
         self.receive(&request, 0x600 + u16::from(NODE));
+        let answer = self
+            .port
+            .sent
+            .iter()
+            .rev()
+            .find(|f| f.id() == 0x580 + u16::from(NODE));
+        assert_eq!(answer.map(|f| f.data()[0]), Some(0x60), "0x2002 = {token}");
     }
 
     /// TPDO1 without its inhibit time (it may change only while the PDO is invalid).

@@ -26,7 +26,7 @@ fn upload(index: u16, sub: u8) -> [u8; 8] {
 fn writes_of_0x1201_end_the_session_and_reads_on_it_keep_it() {
     let mut b = Bench::new();
     b.select(Some(Axis::X), Multiplier::X1);
-    b.sdo_write(0x2002, 0, &[4]).unwrap();
+    b.open_session(4);
     b.sdo_write(0x1201, 1, &u32::from(SDO2_RX).to_le_bytes())
         .unwrap();
     assert_eq!(
@@ -37,7 +37,7 @@ fn writes_of_0x1201_end_the_session_and_reads_on_it_keep_it() {
     b.sdo_write(0x1201, 2, &u32::from(SDO2_TX).to_le_bytes())
         .unwrap();
     // The session opened again, the feed enabled.
-    b.sdo_write(0x2002, 0, &[5]).unwrap();
+    b.open_session(5);
     b.nmt(0x01);
     b.sdo_write(0x2000, 0, &[1]).unwrap();
     b.take();

@@ -5,12 +5,13 @@ mod common;
 
 use common::*;
 use handwheel_core::{Axis, FeedStatus, Multiplier, SEQUENCE_BURST};
+use handwheel_device::od::SESSION_DELAY_MS;
 
 /// Operational, X at x1, the session `token` opened, the feed enabled.
 fn in_session(token: u8) -> Bench {
     let mut b = Bench::new();
     b.select(Some(Axis::X), Multiplier::X1);
-    b.sdo_write(0x2002, 0, &[token]).unwrap();
+    b.open_session(token);
     b.nmt(0x01);
     b.sdo_write(0x2000, 0, &[1]).unwrap();
     b.advance_ms(5);
@@ -41,13 +42,13 @@ fn every_record_carries_the_session_a_master_opened() {
 fn a_new_session_is_a_new_epoch_with_the_feed_off() {
     let mut b = in_session(2);
     let epoch = b.read_u32(0x2010, 3);
-    b.sdo_write(0x2002, 0, &[2]).unwrap();
+    b.open_session(2);
     assert_eq!(
         b.read_u32(0x2000, 0),
         1,
         "the same session again changes nothing"
     );
-    b.sdo_write(0x2002, 0, &[3]).unwrap();
+    b.open_session(3);
     assert_eq!(
         b.read_u32(0x2000, 0),
         0,
@@ -110,7 +111,8 @@ fn enabling_and_clearing_errors_keep_the_session_and_refused_writes_change_nothi
 fn the_sequence_probe_keeps_the_session_and_dates_the_next_record() {
     let mut b = in_session(3);
     let next = b.read_u32(0x2031, 0);
-    b.sdo_write(0x2033, 0, &0xDEAD_BEEFu32.to_le_bytes())
+    // Bits 13-15 of a write are not the nonce's; bits 16-31 (0: no key) are the key's.
+    b.sdo_write(0x2033, 0, &0x0000_BEEFu32.to_le_bytes())
         .unwrap();
     assert_eq!(b.read_u32(0x2002, 0), 3, "a probe keeps the session");
     assert_eq!(b.read_u32(0x2000, 0), 1, "and the feed");
@@ -188,4 +190,84 @@ fn a_fast_wheel_at_the_default_inhibit_time_keeps_the_session() {
     }
     assert_eq!(b.read_u32(0x2002, 0), 3);
     assert_eq!(b.read_u32(0x6004, 0), 2000);
+}
+
+#[test]
+fn a_session_opens_only_half_a_second_after_the_start() {
+    let mut b = Bench::new();
+    b.nmt(0x01);
+    b.advance_ms(SESSION_DELAY_MS - 1);
+    assert_eq!(
+        b.sdo_write(0x2002, 0, &[1]),
+        Err(0x0800_0022),
+        "a young device opens no session"
+    );
+    assert_eq!(b.read_u32(0x2002, 0), 0);
+    assert_eq!(b.sdo_write(0x2002, 0, &[0]), Ok(()), "0 is always taken");
+    b.advance_ms(1);
+    assert_eq!(b.sdo_write(0x2002, 0, &[1]), Ok(()));
+    assert_eq!(b.read_u32(0x2002, 0), 1);
+    b.nmt(0x81);
+    assert_eq!(
+        b.sdo_write(0x2002, 0, &[2]),
+        Ok(()),
+        "a reset node is no new power life: no delay after it"
+    );
+}
+
+#[test]
+fn the_session_key_belongs_to_the_session_and_guards_the_probe() {
+    let mut b = Bench::new();
+    assert_eq!(
+        b.sdo_write(0x2034, 0, &0x1234u16.to_le_bytes()),
+        Err(0x0800_0022),
+        "no session, no key"
+    );
+    assert_eq!(b.sdo_upload(0x2034, 0), Err(0x0601_0001), "write-only");
+    let mut b = in_session(3);
+    b.sdo_write(0x2034, 0, &0x1234u16.to_le_bytes()).unwrap();
+    assert_eq!(b.read_u32(0x2002, 0), 3, "the key keeps the session");
+    assert_eq!(b.read_u32(0x2000, 0), 1, "and the feed");
+    let probe = |key: u32, nonce: u32| (key << 16 | nonce).to_le_bytes();
+    b.sdo_write(0x2033, 0, &probe(0x1234, 7)).unwrap();
+    assert_eq!(b.read_u32(0x2033, 0) & 0xFFFF, 3 << 13 | 7);
+    assert_eq!(
+        b.sdo_write(0x2033, 0, &probe(0x1235, 8)),
+        Err(0x0800_0022),
+        "another key"
+    );
+    assert_eq!(
+        b.read_u32(0x2033, 0) & 0x1FFF,
+        7,
+        "a refused probe changes nothing"
+    );
+    b.sdo_write(0x2033, 0, &probe(0, 9)).unwrap();
+    assert_eq!(
+        b.read_u32(0x2033, 0) & 0x1FFF,
+        9,
+        "anyone may probe without a key"
+    );
+    // The same token written again is the same session, with its key.
+    b.sdo_write(0x2002, 0, &[3]).unwrap();
+    b.sdo_write(0x2033, 0, &probe(0x1234, 10)).unwrap();
+    // Ended and opened again (by anyone, with the same token): the key is gone.
+    b.sdo_write(0x2002, 0, &[0]).unwrap();
+    b.sdo_write(0x2002, 0, &[3]).unwrap();
+    assert_eq!(
+        b.sdo_write(0x2033, 0, &probe(0x1234, 11)),
+        Err(0x0800_0022),
+        "the token is the host's, the session is not"
+    );
+    for end in [0x81u8, 0x82] {
+        let mut b = in_session(3);
+        b.sdo_write(0x2034, 0, &0x1234u16.to_le_bytes()).unwrap();
+        b.nmt(end);
+        b.nmt(0x01);
+        b.open_session(3);
+        assert_eq!(
+            b.sdo_write(0x2033, 0, &probe(0x1234, 1)),
+            Err(0x0800_0022),
+            "NMT {end:#04x} ended the key with the session"
+        );
+    }
 }

@@ -46,7 +46,8 @@ def test_sdo_03_write_1000_is_refused(dut):
 
 
 def test_sdo_04_read_write_only_object(dut):
-    pytest.skip("no write-only object in the dictionary (as for CANopenNode's demo)")
+    # The session key (0x2034) is write-only: a read is "attempt to read a write only object".
+    assert abort_of(sdo_raw(dut, req(0x40, 0x2034, 0))) == 0x06010001
 
 
 def test_sdo_05_read_nonexistent_sub_1000_01(dut):

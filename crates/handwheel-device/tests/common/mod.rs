@@ -6,6 +6,7 @@ use handwheel_core::{
     AbLevels, Axis, DecoderConfig, EdgeState, FeedRecord, Intake, LinkedWheel, Multiplier,
     Selection, Wheel,
 };
+use handwheel_device::od::SESSION_DELAY_MS;
 use handwheel_device::HandwheelDevice;
 
 pub const NODE: u8 = 16;
@@ -145,6 +146,21 @@ impl Bench {
             self.now_us += 100;
             self.poll();
         }
+    }
+
+    /// Opens session `token` (0x2002), first letting the device grow as old as a session
+    /// needs ([`SESSION_DELAY_MS`] after its start) if it is younger.
+    pub fn open_session(&mut self, token: u8) {
+        let from = SESSION_DELAY_MS * 1000;
+        if self.now_us < from {
+            self.now_us = from;
+            self.poll();
+        }
+        assert_eq!(
+            self.sdo_write(0x2002, 0, &[token]),
+            Ok(()),
+            "0x2002 = {token}"
+        );
     }
 
     /// A round without a frame: the wheel's motion taken in, then the device polled.
