@@ -252,7 +252,7 @@ mod app {
         #[cfg(feature = "stack-overflow-test")]
         handwheel_firmware::overflow::run();
         let local = cx.local;
-        let mut can = CanSide::new(local.rx_consumer, cx.shared.can);
+        let mut can = CanSide::new(local.rx_consumer, cx.shared.can, || Mono::now().ticks());
         let wheel = &mut LinkedWheel::new(cx.shared.wheel, DecoderConfig::default());
         loop {
             local.watchdog.feed();

@@ -66,19 +66,24 @@ pub struct CanStats {
 ///
 /// The lock raises the running priority to the CAN interrupts' level for a queue insert, a
 /// few mailbox writes or a register read, never for the device's own processing.
-pub struct CanSide<'a, M> {
+pub struct CanSide<'a, M, C> {
     rx: &'a mut RxConsumer,
     port: M,
+    /// The millisecond tick (the monotonic's), which dates the transmit path's state.
+    clock: C,
     /// The error counters as last read with the bus state, for the log.
     pub counters: bus::ErrorCounters,
 }
 
-impl<'a, M> CanSide<'a, M> {
-    /// The task's end of the receive queue and its proxy of the port.
-    pub fn new(rx: &'a mut RxConsumer, port: M) -> Self {
+impl<'a, M, C> CanSide<'a, M, C> {
+    /// The task's end of the receive queue, its proxy of the port and the tick that dates
+    /// what the port reports (`CanIo::dated_transmit_state`; callable at the CAN interrupts'
+    /// priority).
+    pub fn new(rx: &'a mut RxConsumer, port: M, clock: C) -> Self {
         Self {
             rx,
             port,
+            clock,
             counters: bus::ErrorCounters::default(),
         }
     }
@@ -92,7 +97,7 @@ impl<'a, M> CanSide<'a, M> {
     }
 }
 
-impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> FrameSink for CanSide<'_, M> {
+impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>, C> FrameSink for CanSide<'_, M, C> {
     /// Queues `frame`; a full queue refuses it (the engine counts and, for TPDOs and EMCYs,
     /// retries).
     fn send(&mut self, frame: Frame) -> Result<(), SinkFull> {
@@ -107,7 +112,7 @@ impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> FrameSink for CanSide<'_,
     }
 }
 
-impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> CanIo for CanSide<'_, M> {
+impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>, C: Fn() -> u32> CanIo for CanSide<'_, M, C> {
     fn receive(&mut self) -> Option<Frame> {
         self.rx.dequeue()
     }
@@ -124,6 +129,13 @@ impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>> CanIo for CanSide<'_, M> 
 
     fn transmit_state(&mut self) -> TransmitState {
         self.port.lock(|port| port.transmit_state())
+    }
+
+    /// The state and the tick under the one lock: the interrupts that could hold the task up
+    /// between the two (the CAN ones, and whatever shares their priority) are masked there.
+    fn dated_transmit_state(&mut self, _now_ms: u32) -> (TransmitState, u32) {
+        let clock = &self.clock;
+        self.port.lock(|port| (port.transmit_state(), clock()))
     }
 
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool {

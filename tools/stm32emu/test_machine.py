@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from stm32emu import machine, periph
+from stm32emu import cortex, machine, periph
 
 ROOT = Path(__file__).resolve().parents[2]
 ELF = Path(
@@ -107,6 +107,32 @@ def test_the_watchdog_resets_a_starved_loop_and_rcc_csr_says_so():
     assert m.boot_cause == "IndependentWatchdog"
     m.run_ms(5)
     assert m.rcc.csr_flags == 0, "the firmware read the cause and cleared the flags (RMVF)"
+
+
+def test_a_stall_that_holds_a_round_up_is_no_transmit_stall():
+    """The board's `stall` (TIM2's vector kept pending: tests/interop/test_hostile.py's
+    receive overrun) landing inside the round that takes the NMT start: that round goes on
+    200 ms later, after the transmit interrupt drained the path, and queues EMCY 0x8110.
+    What waits then waits since then, not since the round's tick: the next round finds it
+    still on its way and raises no EMCY 0x8100 (transmit path blocked). The stall starts a
+    slice further on in each run, so that some land inside the round."""
+    dispatcher = cortex.IRQ_BASE + 29  # TIM3, RTIC's dispatcher of the `canopen` task
+    held_up = 0
+    for slices in range(12):
+        m = machine.Machine(str(ELF))
+        m.run_ms(2)
+        m.deliver(periph.Frame(0x000, bytes([0x01, 0x10])))  # NMT start, node 16
+        for _ in range(slices):
+            m.step()
+        held_up += dispatcher in m.nvic.active_stack
+        mark = len(m.transmitted)
+        m.storm_until = m.now + 200 * 72_000
+        for _ in range(40):
+            m.deliver(periph.Frame(0x77F, b"\x05"))  # accepted, more than the queues hold
+        m.run_ms(300)
+        emcy = [d[:2] for _, d in after(m, mark, 0x090)]
+        assert emcy == [b"\x10\x81", b"\x00\x00"], f"stall {slices} slices in: {emcy}"
+    assert held_up, "no stall landed inside a round"
 
 
 def test_a_wheel_edge_raises_exti9_5():

@@ -22,7 +22,9 @@
 //! old one), the bus state, lost frames and illegal quadrature transitions (the engine decides
 //! the EMCYs), the device's time-driven work, the transmit path's stall watch, an LSS
 //! bit-rate switch (one step per round), the acceptance filter (when a write of 0x1005 or a
-//! reset of communication moved SYNC), the LEDs.
+//! reset of communication moved SYNC), the LEDs. The round runs at its `now_ms`, except the
+//! stall watch, which dates the transmit path's state when the port read it
+//! ([`CanIo::dated_transmit_state`]).
 
 use canopen_slave::{BusEvent, BusState, Frame, FrameSink, RxFilter, Storage, WideClock};
 use handwheel_core::{BitRate, Intake, Selection, SelectorInput, Wheel};
@@ -41,6 +43,17 @@ pub trait CanIo: FrameSink {
     fn rx_overruns(&mut self) -> u32;
     /// Whether frames wait for the bus, and how many left the transmit path.
     fn transmit_state(&mut self) -> TransmitState;
+    /// [`CanIo::transmit_state`] with the millisecond tick (as [`Node::poll`]'s `now_ms`) at
+    /// which it was read, for the stall watch. A round is held up by whatever preempts it (an
+    /// interrupt storm), while the transmit interrupt keeps draining the path: the state
+    /// read after that is newer than the round's `now_ms`, and dated with it a path that ran
+    /// empty and was refilled at the end of the round would count as waiting since its
+    /// start. The firmware reads its tick together with the state (under the one lock, so
+    /// that nothing comes between them); the default, a port without a clock, dates it
+    /// `now_ms` (rounds that take no time).
+    fn dated_transmit_state(&mut self, now_ms: u32) -> (TransmitState, u32) {
+        (self.transmit_state(), now_ms)
+    }
     /// One step of the controller's switch to `rate`, never a wait: `true` once it is on the
     /// bus at `rate`.
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool;
@@ -273,8 +286,14 @@ impl<S: Storage> Node<S> {
         self.illegal_transitions = illegal;
         out.log.illegal_transitions = (new_illegal != 0).then_some((new_illegal, illegal));
         device.poll(now, wheel, io);
-        let transmit = io.transmit_state();
-        device.watch_transmit(now, transmit, wheel, io);
+        // The stall watch dates the state when it was read, which a held-up round reads later
+        // than `now_ms` (never earlier: a tick behind it counts as `now_ms`).
+        let (transmit, read_ms) = io.dated_transmit_state(now_ms);
+        let late_ms = match read_ms.wrapping_sub(now_ms) {
+            behind if behind >= 1 << 31 => 0,
+            late => late,
+        };
+        device.watch_transmit(now.add_millis(u64::from(late_ms)), transmit, wheel, io);
         if let Some(rate) = device.take_bit_rate_switch(now) {
             out.log.bit_rate = Some(rate);
             self.rate_switch.start(rate, now_ms);

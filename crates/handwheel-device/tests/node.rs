@@ -27,6 +27,9 @@ struct Port {
     blocked: bool,
     /// The path ran empty between two rounds (reported once).
     ran_empty: bool,
+    /// The round is held up this long before the port reads the transmit path's state (an
+    /// interrupt storm preempts it; the transmit interrupt keeps draining the path).
+    held_up_ms: u32,
     discards: usize,
 }
 
@@ -59,6 +62,10 @@ impl CanIo for Port {
             waiting: self.blocked,
             ran_empty: std::mem::take(&mut self.ran_empty),
         }
+    }
+
+    fn dated_transmit_state(&mut self, now_ms: u32) -> (TransmitState, u32) {
+        (self.transmit_state(), now_ms + self.held_up_ms)
     }
 
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
@@ -439,6 +446,35 @@ fn a_path_that_ran_empty_between_two_rounds_counts_afresh() {
     assert_eq!(r.port.discards, 0, "waiting since 90 ms, not since 2 ms");
     r.poll(190);
     assert_eq!(r.port.discards, 1, "100 ms after the path last ran empty");
+}
+
+#[test]
+fn a_round_held_up_after_its_tick_dates_the_path_when_it_read_it() {
+    // tests/interop/test_hostile.py's receive overrun: the board's `stall` preempts the round
+    // that began at 2 ms for 200 ms, the transmit interrupt drains the path meanwhile and
+    // the receive interrupt loses frames. At 202 ms the round goes on: EMCY 0x8110 is queued
+    // behind the path that ran empty, and the state is read. Frames wait since 202 ms, not
+    // since the round's tick: the next round, at 202 ms, finds them still on their way.
+    let mut r = Rig::new(true);
+    r.poll(0);
+    r.receive(1, 0x000, &[0x01, NODE]);
+    r.port.rx_overruns = 25;
+    r.port.ran_empty = true;
+    r.port.blocked = true;
+    r.port.held_up_ms = 200;
+    assert_eq!(r.poll(2).log.rx_lost, 25);
+    r.port.held_up_ms = 0;
+    r.poll(202);
+    assert_eq!(r.port.discards, 0, "frames waiting since 202 ms, not 2 ms");
+    let emcys = r.sent_on(0x085);
+    assert!(
+        emcys.iter().all(|e| e[..2] != [0x00, 0x81]),
+        "no EMCY 0x8100: {emcys:x?}"
+    );
+    r.poll(301);
+    assert_eq!(r.port.discards, 0);
+    r.poll(302);
+    assert_eq!(r.port.discards, 1, "100 ms after the state was read");
 }
 
 #[test]
