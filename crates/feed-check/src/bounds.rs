@@ -69,6 +69,8 @@ const BASE: Bounds = Bounds {
     settles: 0,
     holds: 0,
     token_writes: 0,
+    foreign_writes: 0,
+    foreign: &[],
     warmups: &[],
     mutant: None,
 };
@@ -233,6 +235,35 @@ pub const ALL: &[Bounds] = &[
         channel_faults: 1,
         holds: 1,
         event_timer_ms: 0,
+        ..BASE
+    },
+    // Another master writes an object the host's session stands for (a heartbeat consumer
+    // entry, TPDO1's event timer, the encoder's direction or counts per detent) while the
+    // host holds it: the session must end, or the host credits motion under the other
+    // master's settings. The host configures again after it.
+    Bounds {
+        name: "foreign writes",
+        turns: 2,
+        backward: true,
+        foreign_writes: 1,
+        configures: 1,
+        ..BASE
+    },
+    // The pace narrowed to 10 numbers at once (a break of 8 and its record fit), one per 50 ms: thirteen detents in quick
+    // succession outrun it, which must end the session.
+    Bounds {
+        name: "pace outrun",
+        rule: RuleConfig {
+            burst: 10,
+            us_per_number: 50_000,
+            ..rule(3)
+        },
+        pace: SequencePace {
+            burst: 10,
+            us_per_number: 50_000,
+        },
+        transmit_capacity: 2,
+        turns: 13,
         ..BASE
     },
 ];

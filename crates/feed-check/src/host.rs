@@ -43,6 +43,12 @@ pub enum HostMutant {
     DateTheRecord,
     /// A probe's `sent_at` taken when its answer arrives instead of when it was sent.
     SentAtArrival,
+    /// `max_ahead` ten times too generous: a record that far ahead of the reference is taken
+    /// as the session's (an old copy read as a new record).
+    MaxAheadTenfold,
+    /// A record two epochs on with one number missing links too (as if the missing number
+    /// were the epoch in between's, with no motion).
+    LinkEpochStepTwo,
 }
 
 /// The rule's settings.
@@ -537,7 +543,12 @@ impl<T: Clone> HostRule<T> {
                 }
                 return None;
             }
-            if ahead > self.config.max_ahead(dt) {
+            let max_ahead = if self.config.mutant == Some(HostMutant::MaxAheadTenfold) {
+                10 * self.config.max_ahead(dt)
+            } else {
+                self.config.max_ahead(dt)
+            };
+            if ahead > max_ahead {
                 self.frames_bad += 1;
                 return None;
             }
@@ -586,7 +597,8 @@ impl<T: Clone> HostRule<T> {
         let d = (rec.epoch + self.config.epoch_modulo() - prev.epoch) % self.config.epoch_modulo();
         let delta = rec.position.wrapping_sub(prev.position);
         let same = d == 0 && gap <= self.config.same_epoch_max_gap();
-        let next = d == 1 && gap == 0;
+        let next = (d == 1 && gap == 0)
+            || (d == 2 && gap <= 1 && self.config.mutant == Some(HostMutant::LinkEpochStepTwo));
         if !same && !next {
             return None;
         }

@@ -34,6 +34,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use canopen_slave::{BusState, Frame, FrameSink, MemoryStorage, NodeId, SinkFull};
+use handwheel_core::outbox::PaceMutant;
 use handwheel_core::{
     AbLevels, Axis, BitRate, DecoderConfig, EdgeState, FeedAccumulator, Handwheel, Intake,
     LinkedWheel, Multiplier, Mutex, SelectorInput, SequencePace, Wheel,
@@ -107,6 +108,33 @@ impl Nmt {
     }
 }
 
+/// An object another master writes while the host holds a session ([`Action::ForeignWrite`]):
+/// each one the session stands for, so the write ends it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Foreign {
+    /// 0x1016:2, a heartbeat consumer entry for another node (2, the consumer time of the
+    /// bounds): which heartbeats the device watches.
+    Consumer,
+    /// 0x1800:5, TPDO1's event timer, with the value the host wrote.
+    EventTimer,
+    /// 0x2020:4 = 1, the encoder's direction inverted: a session that survived it would
+    /// credit every detent with the wrong sign.
+    Invert,
+    /// 0x2020:3 = 2, counts per detent: a session that survived it would credit the wrong
+    /// amount.
+    CountsPerDetent,
+}
+
+impl Foreign {
+    /// Every object.
+    pub const ALL: [Self; 4] = [
+        Self::Consumer,
+        Self::EventTimer,
+        Self::Invert,
+        Self::CountsPerDetent,
+    ];
+}
+
 /// One thing the world does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Action {
@@ -131,6 +159,9 @@ pub enum Action {
     /// unique to a master): through the device's SDO server, as [`Action::Enable`] writes
     /// 0x2000. Only while the host holds a session.
     WriteToken,
+    /// Another master writes an object the host's session stands for, through the device's
+    /// SDO server. Only while the host holds a session.
+    ForeignWrite(Foreign),
     /// A master (any node) sends an NMT command.
     Nmt(Nmt),
     /// The device loses power and boots again (what waits for the bus is lost with it).
@@ -251,6 +282,11 @@ pub struct Bounds {
     pub holds: u8,
     /// [`Action::WriteToken`]s (another master writing the host's token) at most.
     pub token_writes: u8,
+    /// [`Action::ForeignWrite`]s at most, and which objects they may write (none: every one
+    /// of [`Foreign::ALL`]).
+    pub foreign_writes: u8,
+    /// The objects of [`Action::ForeignWrite`]; empty: all.
+    pub foreign: &'static [Foreign],
     /// What happens before the exploration starts, one initial state for each: where the
     /// sequence, the epoch and the history of copies stand when the trouble begins.
     pub warmups: &'static [&'static [Warm]],
@@ -419,10 +455,49 @@ pub struct Spec {
     /// The host received a record the device made since the last of those: detents turned
     /// now are owed.
     synced: bool,
+    /// The device's pace as the model keeps it from the numbers the device took
+    /// ([`Bounds::pace`]): a number beyond it must end the session within the round.
+    pace: PaceSpec,
     /// Another master put the device in the host's session ([`Action::WriteToken`]) since
     /// the host last wrote it: the records of that session are not the host's to be in step
     /// with (nothing is owed until the host configures again).
     foreign: bool,
+}
+
+/// The pace's bucket (README "Feed record"): `burst` numbers at once, one more per period,
+/// a number taken from the empty bucket overdraws it.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Hash)]
+struct PaceSpec {
+    allowance: u16,
+    refilled_us: u64,
+    overdrawn: bool,
+}
+
+impl PaceSpec {
+    fn full(pace: SequencePace) -> Self {
+        Self {
+            allowance: pace.burst,
+            refilled_us: 0,
+            overdrawn: false,
+        }
+    }
+
+    /// The device took `numbers` in a round at `now_us`. The device refills once in a round,
+    /// before or after it takes numbers there: the spec grants the numbers refilled since the
+    /// last refill whichever the order (never less than the device has).
+    fn take(&mut self, pace: SequencePace, now_us: u64, numbers: u16) {
+        let period = u64::from(pace.us_per_number);
+        let credit = (now_us.saturating_sub(self.refilled_us) / period).min(u64::from(pace.burst));
+        let credit = credit as u16;
+        let available = self.allowance + credit;
+        self.overdrawn |= numbers > available;
+        self.allowance = available.saturating_sub(numbers).min(pace.burst);
+        self.refilled_us = if self.allowance >= pace.burst {
+            self.refilled_us.max(now_us)
+        } else {
+            self.refilled_us + u64::from(credit) * period
+        };
+    }
 }
 
 /// One state of the world.
@@ -459,7 +534,7 @@ pub struct World {
     /// The host's probe write is under way: the device's answer to it is kept here instead
     /// of going to the bus (`Some(None)` until it answers).
     probe_answer: Option<Option<[u8; 8]>>,
-    used: [u8; 15],
+    used: [u8; 16],
     /// Which warm-up this state started from.
     warmup: u8,
     /// The first breach of the property, if any.
@@ -559,6 +634,7 @@ enum Budget {
     Configures,
     Holds,
     TokenWrites,
+    ForeignWrites,
 }
 
 /// The CAN port of one round: at most one received frame, the transmit path, a controller
@@ -649,8 +725,8 @@ impl Port<'_> {
             }
             0x1003 | 0x1010 | 0x1011 | 0x2033 | 0x2034 => {}
             _ => {
-                // 0x1016: the master's heartbeat is watched from now on.
-                spec.watching |= index == 0x1016;
+                // 0x1016 naming the master: its heartbeat is watched from now on.
+                spec.watching |= index == 0x1016 && (value >> 16) & 0xFF == u32::from(MASTER);
                 if spec.session != 0 {
                     spec.session = 0;
                     spec.enabled = false;
@@ -841,6 +917,7 @@ impl FeedModel {
             Budget::Configures => bounds.configures,
             Budget::Holds => bounds.holds,
             Budget::TokenWrites => bounds.token_writes,
+            Budget::ForeignWrites => bounds.foreign_writes,
         }
     }
 
@@ -877,7 +954,7 @@ impl FeedModel {
             locks: 0,
             writing: None,
             probe_answer: None,
-            used: [0; 15],
+            used: [0; 16],
             warmup: 0,
             violation: None,
             log,
@@ -910,6 +987,14 @@ impl FeedModel {
     fn pace(&self, w: &mut World) {
         let pace = self.bounds.pace;
         w.real.wheel.lock(|h| h.feed.set_sequence_pace(pace));
+        w.spec.pace = PaceSpec::full(pace);
+        let mutant = match self.bounds.mutant {
+            Some(Mutant::PaceBurstPlusOne) => Some(PaceMutant::BurstPlusOne),
+            Some(Mutant::PaceRefillEarly) => Some(PaceMutant::RefillEarly),
+            Some(Mutant::PaceNotEnforced) => Some(PaceMutant::NotEnforced),
+            _ => None,
+        };
+        w.real.wheel.lock(|h| h.feed.mutant_set_pace(mutant));
     }
 
     /// The host's configuration (the component's `Configure`): the device's 0x2002 read
@@ -1028,6 +1113,7 @@ impl FeedModel {
             .node
             .device_mut()
             .mutant_transmit_completed(port.path.completed);
+        let sequence = wheel.inner.feed().outbox().sequence();
         // The model's time stays far below the tick count's wrap.
         let out = w.real.node.poll(
             now as u32,
@@ -1035,6 +1121,12 @@ impl FeedModel {
             &mut Lines(w.axis, w.multiplier),
             &mut wheel,
         );
+        let taken_numbers = wheel
+            .inner
+            .feed()
+            .outbox()
+            .sequence()
+            .wrapping_sub(sequence);
         let (taken, misplaced) = (wheel.taken, wheel.misplaced);
         let (stalled, wrongly) = (port.stalled, port.wrongly_enabled);
         if let Some(why) = wrongly {
@@ -1049,6 +1141,19 @@ impl FeedModel {
         }
         for (back, enabled) in taken {
             self.turned(w, back, enabled);
+        }
+        // The pace: a number beyond it ends the session in the round that took it.
+        w.spec
+            .pace
+            .take(self.bounds.pace, now * 1000, taken_numbers);
+        if std::mem::take(&mut w.spec.pace.overdrawn) {
+            let session = w.real.wheel.feed().session();
+            if session != 0 {
+                self.breach(
+                    w,
+                    format!("device: a number beyond its pace kept session {session}"),
+                );
+            }
         }
         if stalled {
             self.records_missing(w);
@@ -1166,6 +1271,22 @@ impl FeedModel {
         w.writing = Some((index, u32::from_le_bytes(bytes)));
         self.receive(w, SDO_RX, &data);
         w.writing = None;
+    }
+
+    /// Another master's write of `object` ([`Action::ForeignWrite`]).
+    fn foreign_write(&self, w: &mut World, object: Foreign) {
+        match object {
+            Foreign::Consumer => {
+                let entry = ((2u32 << 16) | u32::from(self.bounds.consumer_ms)).to_le_bytes();
+                self.sdo_write(w, 0x1016, 2, &entry);
+            }
+            Foreign::EventTimer => {
+                let timer = self.bounds.event_timer_ms.to_le_bytes();
+                self.sdo_write(w, 0x1800, 5, &timer);
+            }
+            Foreign::Invert => self.sdo_write(w, 0x2020, 4, &[1]),
+            Foreign::CountsPerDetent => self.sdo_write(w, 0x2020, 3, &[2]),
+        }
     }
 
     /// A write of 0x2000.
@@ -1630,6 +1751,14 @@ impl Model for FeedModel {
         if b(Budget::TokenWrites) && w.host.session().is_some() {
             actions.push(Action::WriteToken);
         }
+        if b(Budget::ForeignWrites) && w.host.session().is_some() {
+            let objects = if self.bounds.foreign.is_empty() {
+                &Foreign::ALL[..]
+            } else {
+                self.bounds.foreign
+            };
+            actions.extend(objects.iter().map(|&o| Action::ForeignWrite(o)));
+        }
         if b(Budget::Nmt) {
             actions.extend(Nmt::ALL.map(Action::Nmt));
         }
@@ -1697,6 +1826,7 @@ impl Model for FeedModel {
             Action::Enable | Action::Disable => self.spend(&mut w, Budget::FeedWrites),
             Action::Nmt(_) => self.spend(&mut w, Budget::Nmt),
             Action::WriteToken => self.spend(&mut w, Budget::TokenWrites),
+            Action::ForeignWrite(_) => self.spend(&mut w, Budget::ForeignWrites),
             Action::PowerCycle => self.spend(&mut w, Budget::PowerCycles),
             Action::Tick => self.spend(&mut w, Budget::Ticks),
             Action::Lose | Action::Duplicate | Action::Copy(_) => {
@@ -1740,6 +1870,7 @@ impl Model for FeedModel {
                 }
                 self.sdo_write(&mut w, 0x2002, 0, &[token]);
             }
+            Action::ForeignWrite(object) => self.foreign_write(&mut w, object),
             Action::Nmt(command) => self.nmt(&mut w, command),
             Action::PowerCycle => self.power_cycle(&mut w),
             Action::Tick => {

@@ -109,3 +109,58 @@ fn a_probe_answer_taken_without_the_floor_check_keeps_a_session_of_an_old_power_
     let found = host_killed("gateway hold", HostMutant::NoFloorCheck);
     assert!(!found.is_empty(), "{found}");
 }
+
+#[test]
+fn a_heartbeat_consumer_write_that_keeps_the_session_lets_another_master_reconfigure_unseen() {
+    let found = killed("foreign writes", Mutant::ConsumerWriteKeepsSession);
+    assert!(found.contains("not the 0 written last"), "{found}");
+}
+
+#[test]
+fn a_tpdo_parameter_write_that_keeps_the_session_lets_another_master_reconfigure_unseen() {
+    let found = killed("foreign writes", Mutant::TpdoWriteKeepsSession);
+    assert!(found.contains("not the 0 written last"), "{found}");
+}
+
+#[test]
+#[ignore = "survives 'pace outrun' (13 detents): not yet diagnosed; the model's pace spec grants the numbers refilled since the last round in either order, which may hide one number"]
+fn a_pace_one_number_too_generous_at_once_keeps_the_session_beyond_it() {
+    let found = killed("pace outrun", Mutant::PaceBurstPlusOne);
+    assert!(found.contains("beyond its pace kept session"), "{found}");
+}
+
+#[test]
+#[ignore = "survives 'pace outrun' (13 detents): not yet diagnosed; the model's pace spec grants the numbers refilled since the last round in either order, which may hide one number"]
+fn a_pace_refilled_one_number_early_keeps_the_session_beyond_it() {
+    let found = killed("pace outrun", Mutant::PaceRefillEarly);
+    assert!(found.contains("beyond its pace kept session"), "{found}");
+}
+
+#[test]
+fn a_pace_not_enforced_keeps_the_session_beyond_it() {
+    let found = killed("pace outrun", Mutant::PaceNotEnforced);
+    assert!(found.contains("beyond its pace kept session"), "{found}");
+}
+
+/// The host's rule changed by `mutant`, without dating: the setting `name` must find a
+/// breach.
+fn rule_killed(name: &str, mutant: HostMutant) -> String {
+    let mut b = setting(name);
+    b.rule.mutant = Some(mutant);
+    let (found, path) = breach(b).unwrap_or_else(|| panic!("{mutant:?} survives {name:?}"));
+    eprintln!("{mutant:?} in {name:?}: {found}\n  after {path:?}");
+    found
+}
+
+#[test]
+fn a_max_ahead_ten_times_too_generous_takes_an_old_copy_as_new() {
+    let found = rule_killed("copies of any age", HostMutant::MaxAheadTenfold);
+    assert!(!found.is_empty(), "{found}");
+}
+
+#[test]
+#[ignore = "survives 'copies of any age': no setting tried yet loses the one record of an epoch between two others"]
+fn linking_across_two_epochs_credits_motion_of_another_state() {
+    let found = rule_killed("copies of any age", HostMutant::LinkEpochStepTwo);
+    assert!(!found.is_empty(), "{found}");
+}

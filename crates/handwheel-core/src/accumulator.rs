@@ -492,6 +492,14 @@ impl FeedAccumulator {
         self.outbox.set_pace(pace);
     }
 
+    /// Runs the pace bug `mutant` from now on ([`FeedOutbox::set_pace_mutant`]), for the feed
+    /// checker's mutation tests.
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn mutant_set_pace(&mut self, mutant: Option<crate::outbox::PaceMutant>) {
+        self.outbox.set_pace_mutant(mutant);
+    }
+
     /// Signed unit steps waiting to be sent.
     pub const fn pending_steps(&self) -> i32 {
         self.pending_steps

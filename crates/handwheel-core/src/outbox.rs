@@ -75,6 +75,20 @@ impl SequencePace {
     };
 }
 
+/// A plausible bug in the pace, for the feed checker's mutation tests
+/// (`crates/feed-check/tests/mutants.rs`). Compiled only with the hidden `mutants` feature.
+#[cfg(feature = "mutants")]
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PaceMutant {
+    /// One number more at once than the burst.
+    BurstPlusOne,
+    /// A number refilled as soon as the bucket is refilled up to now, a period early.
+    RefillEarly,
+    /// A number taken beyond the pace is never reported ([`FeedOutbox::take_overdrawn`]).
+    NotEnforced,
+}
+
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
 #[derive(Clone, Debug, Hash)]
 pub struct FeedOutbox {
@@ -94,6 +108,8 @@ pub struct FeedOutbox {
     /// A number was taken from an empty bucket since the last [`FeedOutbox::take_overdrawn`].
     overdrawn: bool,
     pace: SequencePace,
+    #[cfg(feature = "mutants")]
+    mutant: Option<PaceMutant>,
 }
 
 impl Default for FeedOutbox {
@@ -118,7 +134,16 @@ impl FeedOutbox {
             refilled_us: 0,
             overdrawn: false,
             pace: SequencePace::SHIPPED,
+            #[cfg(feature = "mutants")]
+            mutant: None,
         }
+    }
+
+    /// Runs the pace bug `mutant` from now on (`None`: the real pace).
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn set_pace_mutant(&mut self, mutant: Option<PaceMutant>) {
+        self.mutant = mutant;
     }
 
     /// Another pace than [`SequencePace::SHIPPED`], for a checker that narrows the sequence
@@ -132,13 +157,20 @@ impl FeedOutbox {
     /// the pace since the last refill, up to its burst. (A loop of at most a burst of steps
     /// rather than a 64-bit division, which the firmware would have to link for this alone.)
     pub fn refill(&mut self, now_us: u64) {
+        #[allow(unused_mut, reason = "only the mutants change them")]
+        let (mut burst, mut due) = (self.pace.burst, u64::from(self.pace.us_per_number));
+        #[cfg(feature = "mutants")]
+        match self.mutant {
+            Some(PaceMutant::BurstPlusOne) => burst += 1,
+            Some(PaceMutant::RefillEarly) => due = 0,
+            _ => {}
+        }
         let period = u64::from(self.pace.us_per_number);
-        while self.allowance < self.pace.burst && now_us >= self.refilled_us.saturating_add(period)
-        {
+        while self.allowance < burst && now_us >= self.refilled_us.saturating_add(due) {
             self.allowance += 1;
             self.refilled_us += period;
         }
-        if self.allowance >= self.pace.burst {
+        if self.allowance >= burst {
             self.refilled_us = self.refilled_us.max(now_us);
         }
     }
@@ -150,6 +182,10 @@ impl FeedOutbox {
 
     /// Whether a number was taken from an empty bucket since the last call; clears it.
     pub fn take_overdrawn(&mut self) -> bool {
+        #[cfg(feature = "mutants")]
+        if self.mutant == Some(PaceMutant::NotEnforced) {
+            self.overdrawn = false;
+        }
         core::mem::take(&mut self.overdrawn)
     }
 

@@ -284,6 +284,13 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         // until the master opens one again). Enabling, the session itself, clearing the
         // error history, the store commands and the sequence probe change nothing it relies
         // on.
+        #[cfg(feature = "mutants")]
+        if (index == 0x1016 && self.mutant(crate::mutant::Mutant::ConsumerWriteKeepsSession))
+            || (matches!(index, 0x1800 | 0x1A00)
+                && self.mutant(crate::mutant::Mutant::TpdoWriteKeepsSession))
+        {
+            return;
+        }
         if !matches!(
             index,
             FEED_ENABLE | FEED_SESSION | SEQUENCE_PROBE | SESSION_KEY | 0x1003 | 0x1010 | 0x1011

@@ -27,4 +27,18 @@ pub enum Mutant {
     /// sequence probe takes any key, so a session someone else opened with the host's token
     /// in a new power life answers the host's probes as its own.
     SessionUnguarded,
+    /// A write of the heartbeat consumer (0x1016) keeps the master's session: another master
+    /// changing whose heartbeat the device watches goes unnoticed by the host.
+    ConsumerWriteKeepsSession,
+    /// A write of TPDO1's communication parameters (0x1800) or mapping (0x1A00) keeps the
+    /// master's session: another master changing what or when the feed record carries goes
+    /// unnoticed by the host.
+    TpdoWriteKeepsSession,
+    /// The pace allows one number more at once than its burst.
+    PaceBurstPlusOne,
+    /// The pace refills one number early: a number comes back as soon as the bucket is
+    /// refilled up to now, not a whole period later.
+    PaceRefillEarly,
+    /// The pace is not enforced: a number taken beyond it never ends the session.
+    PaceNotEnforced,
 }
