@@ -64,10 +64,7 @@ pub const SESSION_KEY: u16 = 0x2034;
 /// new power life never carries a session within this of the life's start, longer than the
 /// time a host's probe dates records for (`DATE_LIMIT`, 0.35 s, in the host's core), so
 /// that no probe answered before a power cycle dates a record made after it.
-///
-/// 0 in this release: the component does not yet wait for the delay (its configuration after
-/// a boot-up would be refused and retried late), so the guard is built and checked but off.
-pub const SESSION_DELAY_MS: u64 = 0;
+pub const SESSION_DELAY_MS: u64 = 500;
 /// Feed diagnostics: sub 1 ignored detents (U32 ro), sub 2 dropped unit steps (U32 ro),
 /// sub 3 unit-step backlog bound (U16 rw, 1..1000).
 pub const FEED_DIAGNOSTICS: u16 = 0x2040;
@@ -533,7 +530,7 @@ carries it (0x2030 bits 5-7). A change of it is a new selection epoch with the f
 device ends it (0) at power-on, reset node and reset communication, at any successful SDO
 write other than to 0x2000, 0x2002, 0x2033, 0x2034, 0x1003, 0x1010 and 0x1011, and when the
 feed sequence outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".
-A session opens only SESSION_DELAY_MS after the device started (0 in this release).",
+A session opens only 0.5 s after the device started (earlier: abort 0x08000022).",
     ),
     (
         FEED_SELECTION,
