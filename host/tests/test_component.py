@@ -27,8 +27,23 @@ from canopen_handwheel.core import Record
 ROOT = Path(__file__).resolve().parents[2]
 NODE = 16
 # Writes that leave the device's session as it is (README "Feed record"): the feed enable,
-# the session itself, store and restore, the error history.
-SESSION_KEEPERS = {0x2000, 0x2002, core.PROBE_OBJECT, 0x1010, 0x1011, 0x1003}
+# the session itself, the probe, the session key, store and restore, the error history.
+SESSION_KEEPERS = {
+    0x2000,
+    0x2002,
+    core.PROBE_OBJECT,
+    core.SESSION_KEY_OBJECT,
+    0x1010,
+    0x1011,
+    0x1003,
+}
+REFUSED = core.ABORT_DEVICE_STATE  # the device's abort for a key that is not the session's
+
+
+def key_refused(key_bits: int, session_key: int) -> bool:
+    """The device refuses a probe write whose key bits (16-31) are neither 0 nor the key of
+    its session (README "Handwheel objects", 0x2033)."""
+    return key_bits != 0 and key_bits != session_key
 
 
 def probe_value(next_sequence: int, session: int, nonce: int) -> int:
@@ -193,6 +208,13 @@ class Device:
             session.access_type = "rw"
             session.default = 0
             self.node.object_dictionary.add_object(session)
+        if core.SESSION_KEY_OBJECT not in self.node.object_dictionary:
+            key = canopen.objectdictionary.ODVariable("Session key", core.SESSION_KEY_OBJECT)
+            key.data_type = canopen.objectdictionary.UNSIGNED16
+            key.access_type = "wo"
+            key.default = 0
+            self.node.object_dictionary.add_object(key)
+        self.key = 0  # the session key, kept with the session only
         self.node.add_write_callback(self._written)
         self.node.add_read_callback(self._read)
         self.network.add_node(self.node)
@@ -201,8 +223,17 @@ class Device:
         self.nonce = 0
 
     def _written(self, index, subindex, od, data):
+        value = int.from_bytes(data, "little")
+        if index == core.SESSION_KEY_OBJECT:
+            if self.session == 0:
+                raise canopen.SdoAbortedError(REFUSED)
+            self.key = value
         if index == core.PROBE_OBJECT:
-            self.nonce = int.from_bytes(data, "little") & core.NONCE_MASK
+            if key_refused(value >> 16, self.key):
+                raise canopen.SdoAbortedError(REFUSED)
+            self.nonce = value & core.NONCE_MASK
+        if index == 0x2002:
+            self.key = 0  # a change of the session (or the same token again) drops the key
         if index not in SESSION_KEEPERS:
             self.node.sdo[0x2002].raw = 0
 
@@ -221,6 +252,7 @@ class Device:
         self.node.sdo[0x2002].raw = 0
         self.node.sdo[0x1016][1].raw = 0
         self.node.sdo[0x2000].raw = 0
+        self.key = 0
         self.seq = 0
 
     def sdo_requests(self, since: int = 0):
@@ -423,6 +455,7 @@ class SlcanDevice:
         (0x2000, 0): (0, 1),
         (0x2001, 0): (0, 1),
         (0x2002, 0): (0, 1),
+        (core.SESSION_KEY_OBJECT, 0): (0, 2),
         (0x2020, 3): (4, 1),
         (0x2020, 4): (0, 1),
         (0x1A00, 0): (len(core.FEED_RECORD_MAPPING), 1),
@@ -458,10 +491,17 @@ class SlcanDevice:
             value = probe_value(self.last_sequence + 1, self.session, self.nonce)
             return bytes([0x43]) + head + value.to_bytes(4, "little")
         if (index, sub) == (core.PROBE_OBJECT, 0) and request[0] & 0xE3 == 0x23:
-            self.nonce = int.from_bytes(request[4:8], "little") & core.NONCE_MASK
+            value = int.from_bytes(request[4:8], "little")
+            if key_refused(value >> 16, self.objects[(core.SESSION_KEY_OBJECT, 0)][0]):
+                return bytes([0x80]) + head + REFUSED.to_bytes(4, "little")
+            self.nonce = value & core.NONCE_MASK
             return bytes([0x60]) + head + bytes(4)
         if (index, sub) not in self.objects:
             return bytes([0x80]) + head + (0x0602_0000).to_bytes(4, "little")
+        if (index, sub) == (core.SESSION_KEY_OBJECT, 0) and request[0] == 0x40:
+            return bytes([0x80]) + head + (0x0601_0001).to_bytes(4, "little")  # write-only
+        if (index, sub) == (core.SESSION_KEY_OBJECT, 0) and self.session == 0:
+            return bytes([0x80]) + head + REFUSED.to_bytes(4, "little")
         value, size = self.objects[(index, sub)]
         if request[0] == 0x40:
             return bytes([0x43 | (4 - size) << 2]) + head + value.to_bytes(4, "little")
@@ -470,6 +510,8 @@ class SlcanDevice:
             self.objects[(index, sub)] = (int.from_bytes(request[4 : 4 + n], "little"), size)
             if index not in SESSION_KEEPERS:
                 self.objects[(0x2002, 0)] = (0, 1)
+            if index == 0x2002 or index not in SESSION_KEEPERS:
+                self.objects[(core.SESSION_KEY_OBJECT, 0)] = (0, 2)
             return bytes([0x60]) + head + bytes(4)
         return bytes([0x80]) + head + (0x0504_0001).to_bytes(4, "little")
 
@@ -980,7 +1022,7 @@ def test_the_configuration_steps_and_their_read_backs(capfd):
     objects[(0x2002, 0)] = (4, 1)  # another master's session
     objects[(0x2020, 4)] = (1, 1)  # another master inverted the wheel
     sdo = FakeSdo(objects)
-    action = core.Configure(1, 500, None, keep=2, tokens=(4, 5), settings=SETTINGS)
+    action = core.Configure(1, 500, None, keep=2, tokens=(4, 5), settings=SETTINGS, key=0x1234)
     ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
     assert ok and abort is None
     cob = 0x4000_0180 + NODE
@@ -1014,6 +1056,7 @@ def test_the_configuration_steps_and_their_read_backs(capfd):
         ("upload", 0x1800, 1),
         ("download", 0x2000, 0, 0),
         ("download", 0x2002, 0, 5),
+        ("download", core.SESSION_KEY_OBJECT, 0, 0x1234),
         ("upload", 0x2002, 0),
         ("upload", 0x1016, 1),
         ("upload", 0x1800, 5),
@@ -1028,11 +1071,19 @@ def test_the_configuration_steps_and_their_read_backs(capfd):
     ]
     assert sdo.objects[(0x2020, 4)] == (0, 1) and sdo.objects[(0x1800, 2)] == (254, 1)
     assert result == core.Configured(
-        event_timer_ms=50, first_reply_at=1.5, found=4, intact=False, tried=5, session=5
+        event_timer_ms=50,
+        first_reply_at=1.5,
+        found=4,
+        intact=False,
+        tried=5,
+        session=5,
+        keyed=True,
     )
+    assert sdo.objects[(core.SESSION_KEY_OBJECT, 0)] == (0x1234, 2)
     line = (
-        "canopen-handwheel: device configured: session 5 (0x2002 = 4 before), 0x1016:1 = "
-        "0x000101F4, event timer 50 ms, inhibit time 2 ms, 0x2020:3 = 4, 0x2020:4 = 0, "
+        "canopen-handwheel: device configured: session 5 (0x2002 = 4 before) with its key, "
+        "0x1016:1 = 0x000101F4, event timer 50 ms, inhibit time 2 ms, 0x2020:3 = 4, "
+        "0x2020:4 = 0, "
         "0x2001:0 = 0, all read back after the session; feed off; NMT start sent\n"
     )
     assert capfd.readouterr().err == line
@@ -1096,6 +1147,120 @@ def test_other_counts_per_detent_are_refused(counts):
         component.parse_args(["--counts-per-detent", str(counts)])
     with pytest.raises(ValueError, match="counts-per-detent"):
         core.make_config(16, None, "xyz", 0.001, None, 100, counts_per_detent=counts)
+
+
+class Refusing(FakeSdo):
+    """A device that refuses writes of `refused` (index) with abort `code`."""
+
+    def __init__(self, objects, refused: int, code: int):
+        super().__init__(objects)
+        self.refused, self.code = refused, code
+
+    def download(self, index, sub, data):
+        if index == self.refused:
+            self.log.append(("refused", index, sub, int.from_bytes(data, "little")))
+            raise canopen.SdoAbortedError(self.code)
+        super().download(index, sub, data)
+
+
+def test_a_young_device_refuses_the_token_and_the_configuration_says_so(capfd):
+    """A device started less than SESSION_DELAY ago refuses 0x2002 = token with abort
+    0x08000022: the configuration stops there (no key, no read-back, no NMT start) and
+    reports `young`, with the abort code, for the core to ask again soon."""
+    sdo = Refusing(dict(SlcanDevice.OBJECTS), 0x2002, core.ABORT_DEVICE_STATE)
+    action = core.Configure(1, 500, None, tokens=(1,), settings=SETTINGS, key=0x2345)
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert (ok, abort) == (False, 0x0800_0022)
+    assert result.young and not result.keyed and result.tried == 1 and result.session is None
+    assert sdo.log[-1] == ("refused", 0x2002, 0, 1)
+    assert ("download", core.SESSION_KEY_OBJECT, 0, 0x2345) not in sdo.log
+    assert capfd.readouterr().err == (
+        "canopen-handwheel: configuring the device: the device refused session 1 (SDO abort "
+        "0x08000022): it started less than 0.5 s ago; again in 0.1 s\n"
+    )
+    # Another abort of the token is no youth: it fails as any abort does.
+    sdo = Refusing(dict(SlcanDevice.OBJECTS), 0x2002, 0x0609_0030)
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert (ok, abort, result.young) == (False, 0x0609_0030, False)
+    assert "SDO abort 0x06090030" in capfd.readouterr().err
+
+
+def test_a_configuration_whose_key_write_fails_is_not_keyed():
+    """The token was written; the key's write is refused: the configuration fails, not keyed
+    (the core does not take the token as its session)."""
+    sdo = Refusing(dict(SlcanDevice.OBJECTS), core.SESSION_KEY_OBJECT, 0x0800_0020)
+    action = core.Configure(1, 500, None, tokens=(1,), settings=SETTINGS, key=0x2345)
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    assert (ok, abort) == (False, 0x0800_0020)
+    assert result.tried == 1 and not result.keyed and not result.young
+    assert result.session is None
+    assert sdo.log[-2:] == [
+        ("download", 0x2002, 0, 1),
+        ("refused", core.SESSION_KEY_OBJECT, 0, 0x2345),
+    ]
+
+
+def test_the_probe_writes_its_key_above_the_nonce():
+    """0x2033 = key << 16 | nonce, then read back; a refusal of the write is reported with
+    its abort code, nothing read."""
+    objects = dict(SlcanDevice.OBJECTS)
+    objects[(core.PROBE_OBJECT, 0)] = (0, 4)
+    sdo = FakeSdo(objects)
+    probe = core.Probe(nonce=0x0ABC, floor=None, key=0x5EC5)
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, probe, clock=lambda: 7.5)
+    assert ok and abort is None and result.sent_at == 7.5
+    assert sdo.log == [
+        ("download", core.PROBE_OBJECT, 0, 0x5EC5_0ABC),
+        ("upload", core.PROBE_OBJECT, 0),
+    ]
+    assert result.value == 0x5EC5_0ABC  # this stand-in reads back what was written
+    sdo = Refusing(objects, core.PROBE_OBJECT, core.ABORT_DEVICE_STATE)
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, probe, clock=lambda: 7.5)
+    assert (ok, abort, result.value) == (False, 0x0800_0022, None)
+    assert sdo.log == [("refused", core.PROBE_OBJECT, 0, 0x5EC5_0ABC)]
+
+
+def test_a_session_reopened_by_another_master_refuses_the_probe_and_is_configured_again(capfd):
+    """The component holds session 1 with its key and its probes are answered. Another master
+    writes 0x2002 = 1 again (as after a power cycle the component did not see: the device's
+    session is the component's token, but opened by someone else, with no key): the
+    component's next probe is refused, it drops the session, logs why, and configures the
+    device again with token 2 and a new key; its probes are answered again."""
+    channel = f"hw-{time.monotonic_ns()}"
+    dev = Device(channel)
+    running = Running(channel)
+    comp = running.comp
+    try:
+        wait(lambda: dev.seen(0x000, bytes([1, NODE])), what="NMT start")
+        assert dev.session == 1 and dev.key != 0
+        first_key = dev.key
+        comp["enable"] = True
+        wait(lambda: dev.record(0, status=1, epoch=1) or comp["feed-enabled"], what="feed on")
+        # Probes with the key, answered.
+        mark = dev.mark()
+        wait(lambda: any(r[1] == core.PROBE_OBJECT for r in dev.sdo_requests(mark)), what="probe")
+        probes = [r for r in dev.sdo_requests(mark) if r[:2] == ("download", core.PROBE_OBJECT)]
+        assert probes and all(r[3] >> 16 == first_key for r in probes)
+        # Another master writes the token again: the key is gone with it.
+        mark = dev.mark()
+        dev.node.sdo[0x2002].raw = 1
+        assert dev.key == 0
+        wait(lambda: dev.record(0, status=1, epoch=2) or dev.session == 2, what="session 2")
+        requests = dev.sdo_requests(mark)
+        refused = requests.index(next(r for r in requests if r[:2] == ("download", 0x2033)))
+        assert requests[refused][3] >> 16 == first_key
+        assert requests[refused + 1] == ("upload", 0x2002, 0), "configured at once"
+        wait(lambda: dev.key != 0, what="the new key")
+        assert dev.key == core.next_key(first_key)
+        assert comp["feed-stops"] == 1 and comp["stop-reason"] == core.STOP_SESSION_ENDED
+    finally:
+        running.end()
+        dev.close()
+    err = capfd.readouterr().err
+    assert (
+        "session 1 dropped (the device refused the session key: its session is not this "
+        "component's (another master opened it, or a new power life)); configuring the device"
+    ) in err
 
 
 def test_an_intact_configuration_writes_nothing():

@@ -10,9 +10,12 @@ T = 0.1  # event timer
 
 
 def result(action: Configure, event_timer_ms=100, first_reply_at=None) -> Configured:
-    """What a configuration that wrote the first token `action` offers reports."""
+    """What a configuration that wrote the first token `action` offers (and its key)
+    reports."""
     token = core.pick_token(action.tokens, 0)
-    return Configured(event_timer_ms, first_reply_at, found=0, tried=token, session=token)
+    return Configured(
+        event_timer_ms, first_reply_at, found=0, tried=token, session=token, keyed=True
+    )
 
 
 class Run:

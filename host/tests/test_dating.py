@@ -20,9 +20,9 @@ class Dated:
     numbers from `seq`, probes carried out when the core asks for them, answered by a device
     whose next record number is `next_number`."""
 
-    def __init__(self, seq: int = 100) -> None:
+    def __init__(self, seq: int = 100, own_sdo=None) -> None:
         self.t = 0.0
-        self.c = Core(Config(axes="xy", dating=True, first_nonce=5))
+        self.c = Core(Config(axes="xy", dating=True, first_nonce=5, own_sdo=own_sdo))
         assert configure(self.c, self.t) == SESSION
         self.c.set_enable(True)
         self.seq = seq
@@ -174,3 +174,246 @@ def test_the_sequence_going_back_in_the_hosts_own_probe_drops_the_session():
 @pytest.mark.parametrize("device, wanted", [(5, 20), (10, None), (200, None), (201, 20)])
 def test_the_inhibit_time_stays_within_what_dating_allows(device, wanted):
     assert core.inhibit_plan(device) == wanted
+
+
+# The session key (0x2034) --------------------------------------------------------------------
+
+ABORT_REFUSED = 0x08000022
+
+
+def test_the_probe_carries_the_session_key_of_the_configuration():
+    """The configuration's key (`Configure.key`, the run's drawn start) is the session's: its
+    probes carry it in bits 16-31 of the value written, the nonce below; the next
+    configuration has the next key, 0 never."""
+    c = Core(Config(axes="xy", dating=True, first_nonce=0x1ABC, first_key=0x5EC5))
+    a = c.next_action(0.0)
+    assert isinstance(a, core.Configure) and a.key == 0x5EC5
+    ok, result = core.configure_outcome(a, 0, c.event_timer)
+    assert result.keyed
+    c.done(a, ok, None, 0.0, result)
+    assert (c.session, c.session_key) == (SESSION, 0x5EC5)
+    probe = c.next_action(0.0)
+    assert probe == Probe(nonce=0x1ABC, floor=None, own=False, key=0x5EC5)
+    assert probe.value == 0x5EC5_1ABC
+    assert core.SESSION_KEY_OBJECT == 0x2034 and core.SESSION_KEY_SHIFT == 16
+    # Only the nonce's 13 bits go below the key.
+    assert Probe(nonce=0x3FFF, key=1).value == 0x0001_1FFF
+    # Keys step per configuration and wrap from 0xFFFF to 1.
+    assert core.next_key(0x5EC5) == 0x5EC6 and core.next_key(0xFFFF) == 1
+    assert core.next_key(0) == 1 and Core(Config(first_key=0)).key == 0xFFFF
+    assert Core(Config(first_key=0xFFFF)).key == 0xFFFF
+
+
+def test_an_answer_dates_only_by_the_nonce_bits_whatever_the_key():
+    """The key goes out in the write; the read-back's bits 16-31 are the number. A probe of
+    any key is judged by its nonce alone."""
+    keyed = Probe(nonce=77, floor=10, key=0xBEEF)
+    assert core.probe_date(keyed, Probed(2.5, answer(11, 77)), SESSION) == (11, 2.5)
+    assert core.probe_went_back(keyed, Probed(2.5, answer(9, 77)), SESSION)
+
+
+def test_a_refused_probe_drops_the_session_and_asks_for_a_configuration():
+    """The device refuses the probe's key (abort 0x08000022): the session it is in is not the
+    host's although its token is (another master wrote it after a power cycle the host did
+    not see). The session is dropped at once, the stop reported as the session's end, the
+    log says why, a configuration with another token and the next key follows at once, and
+    records of the old token credit nothing."""
+    d = Dated()
+    d.record()
+    d.probe()
+    d.record(3)
+    assert d.x == 3 and d.c.feed_on
+    d.c.take_log()
+    probe = d.c.next_action(d.t + core.PROBE_PERIOD)
+    assert isinstance(probe, Probe) and probe.key == d.c.session_key == 1
+    d.t += core.PROBE_PERIOD + 0.005
+    d.c.done(probe, False, ABORT_REFUSED, d.t, Probed(sent_at=d.t - 0.005))
+    assert d.c.session is None and d.c.session_key is None
+    assert (d.c.feed_stops, d.c.stop_reason) == (1, core.STOP_SESSION_ENDED)
+    log = d.c.take_log()
+    assert log == [
+        "feed stopped by the device: " + core.STOP_REASONS[core.STOP_SESSION_ENDED],
+        "session 1 dropped (the device refused the session key: its session is not this "
+        "component's (another master opened it, or a new power life)); configuring the device",
+    ]
+    again = d.c.next_action(d.t)
+    assert isinstance(again, core.Configure) and again.keep is None
+    assert again.tokens[0] == 2 and SESSION not in again.tokens and again.key == 2
+    # Records of the session it dropped (its token, now another master's) move nothing.
+    d.record(5)
+    d.record(5)
+    assert d.x == 3
+
+
+def test_a_probe_that_timed_out_keeps_the_session():
+    """Only the device's refusal tells: a probe without an answer (a timeout, another abort)
+    changes nothing but the date it did not give (on the default channel; on the component's
+    own, three in a row without an answer do: below)."""
+    d = Dated()
+    for abort in (None, 0x0504_0000, 0x0800_0020):
+        d.probe(dt=core.PROBE_PERIOD)  # answered, then the next one fails
+        probe = d.c.next_action(d.t + core.PROBE_PERIOD)
+        assert isinstance(probe, Probe)
+        d.t += core.PROBE_PERIOD
+        d.c.done(probe, False, abort, d.t, Probed(sent_at=d.t))
+        assert d.c.session == SESSION and d.c.session_key == 1, abort
+    assert not any("refused" in line for line in d.c.take_log())
+
+
+def test_replay_core_takes_the_vectors_probe_values_and_refusals():
+    """The checker's vectors write ("probe", key << 16 | nonce, floor, t) with the model's
+    own key: the core's probe matches by its nonce bits and floor; ("probe_refused", t) is
+    the device's abort of the write, which drops the session."""
+    cfg = Config(axes="xy", dating=True)
+    model_key = 0x5EC5 << 16
+    events = [
+        ("configure", 0, 0.516),
+        ("probe", model_key | 0, None, 0.52),
+        ("probed", answer(3, 0), 0.521),
+        ("probe", model_key | 1, None, 0.62),
+        ("probe_refused", 0.621),
+    ]
+    c = core.replay_core(events, cfg)
+    assert c.session is None and c.busy == {SESSION: 0.621}
+    assert isinstance(c.next_action(0.621), core.Configure)
+    with pytest.raises(ValueError, match="nonce 2"):
+        core.replay_core(events[:3] + [("probe", model_key | 2, None, 0.62)], cfg)
+    with pytest.raises(ValueError, match="no probe under way"):
+        core.replay_core(events[:3] + [("probe_refused", 0.62)], cfg)
+
+
+# Probes unanswered on the component's own SDO channel ------------------------------------------
+
+OWN_SDO = core.own_sdo_ids(1)
+UNANSWERED = (
+    "session 1 dropped (3 probes unanswered on the component's own SDO channel (0x1201)); "
+    "configuring the device"
+)
+
+
+def unanswered(d: Dated, abort=None) -> Probe:
+    """The core's next probe, a period on, carried out without an answer (`abort` None: a
+    timeout) or refused with `abort`."""
+    d.t += core.PROBE_PERIOD
+    probe = d.c.next_action(d.t)
+    assert isinstance(probe, Probe), probe
+    d.c.done(probe, False, abort, d.t + 0.3, Probed(sent_at=d.t))
+    d.t += 0.3
+    return probe
+
+
+def jogging_on_the_own_channel() -> Dated:
+    """A `Dated` core whose configuration set up the own channel, the feed on, 3 detents
+    credited."""
+    d = Dated(own_sdo=OWN_SDO)
+    assert d.c.own_channel
+    d.record()
+    d.probe()
+    d.record(3)
+    assert d.x == 3 and d.c.feed_on
+    d.c.take_log()
+    return d
+
+
+def test_three_probes_unanswered_on_the_own_channel_drop_the_session():
+    """After a power cycle (or a reset) the host did not see, or another master's write of
+    0x1201, the own channel is gone: every probe on it times out. The third in a row drops
+    the session (the feed it had on stopped: the session ended), the log says why, and a
+    full configuration follows at once (on the default channel; it sets 0x1201 up again),
+    with another token and the next key. Records of the old token credit nothing."""
+    assert core.PROBE_TIMEOUTS_BEFORE_CONFIGURING == 3
+    d = jogging_on_the_own_channel()
+    for n in range(2):
+        probe = unanswered(d)
+        assert probe.own and probe.key == d.c.session_key == 1
+        assert d.c.session == SESSION and d.c.probes_unanswered == n + 1
+        assert d.c.take_log() == []
+    unanswered(d)
+    assert d.c.session is None and d.c.session_key is None and not d.c.own_channel
+    assert (d.c.feed_stops, d.c.stop_reason) == (1, core.STOP_SESSION_ENDED)
+    assert d.c.take_log() == [
+        "feed stopped by the device: " + core.STOP_REASONS[core.STOP_SESSION_ENDED],
+        UNANSWERED,
+    ]
+    again = d.c.next_action(d.t)
+    assert isinstance(again, core.Configure) and again.keep is None
+    assert again.own_sdo == OWN_SDO and SESSION not in again.tokens and again.key == 2
+    d.record(5)
+    d.record(5)
+    assert d.x == 3
+    # The new session counts afresh.
+    ok, result = core.configure_outcome(again, 0, d.c.event_timer)
+    d.c.done(again, ok, None, d.t, result)
+    assert d.c.session == 2 and d.c.probes_unanswered == 0 and d.c.own_channel
+
+
+def test_two_probes_unanswered_then_an_answer_keep_the_session():
+    """A successful probe ends the count: two unanswered ones, an answer, two more keep the
+    session; an abort other than 0x08000022 is an answer too (the channel works)."""
+    d = jogging_on_the_own_channel()
+    for _ in range(2):
+        unanswered(d)
+    d.record()
+    d.probe(dt=core.PROBE_PERIOD)
+    assert d.c.probes_unanswered == 0
+    for _ in range(2):
+        unanswered(d)
+    unanswered(d, abort=0x0504_0000)  # the device's abort: an answer
+    assert d.c.probes_unanswered == 0
+    for _ in range(2):
+        unanswered(d)
+    assert d.c.session == SESSION and d.c.session_key == 1 and d.c.feed_on
+    assert d.c.feed_stops == 0
+    assert not any("unanswered" in line for line in d.c.take_log())
+    assert isinstance(d.c.next_action(d.t + core.PROBE_PERIOD), Probe)
+
+
+def test_the_feed_already_off_is_not_reported_again():
+    """A feed the device showed off before (reported then, or asked off by the component) is
+    not reported stopped a second time when the session is dropped."""
+    d = jogging_on_the_own_channel()
+    d.c.set_enable(False)
+    off = d.c.next_action(d.t)
+    assert off == WriteFeed(0, True)
+    d.c.done(off, True, None, d.t)
+    for _ in range(3):
+        unanswered(d)
+    assert d.c.session is None and d.c.feed_stops == 0
+    assert d.c.take_log() == [UNANSWERED]
+
+
+def test_unanswered_probes_keep_the_session_on_the_default_channel_or_a_stopped_device():
+    """On the default channel an unanswered probe keeps the session, as before (that channel
+    does not go away). Nor do probes count while the device shows itself Stopped: it answers
+    no SDO then, on any channel, and a configuration would fail too."""
+    d = Dated()
+    d.record()
+    d.probe()
+    for _ in range(5):
+        assert not unanswered(d).own
+    assert d.c.session == SESSION and d.c.probes_unanswered == 0
+    d = jogging_on_the_own_channel()
+    d.c.frame(0x700 + d.c.cfg.node, bytes([core.STOPPED]), d.t)
+    for _ in range(5):
+        unanswered(d)
+    assert d.c.session == SESSION and d.c.probes_unanswered == 0
+    d.c.frame(0x700 + d.c.cfg.node, bytes([core.OPERATIONAL]), d.t)
+    for _ in range(3):
+        unanswered(d)
+    assert d.c.session is None
+
+
+def test_an_unanswered_probe_of_a_session_already_dropped_counts_for_nothing():
+    """A probe under way when the session was dropped (a boot-up) neither drops anything
+    nor logs, nor counts against the next session."""
+    d = jogging_on_the_own_channel()
+    for _ in range(2):
+        unanswered(d)
+    d.t += core.PROBE_PERIOD
+    stale = d.c.next_action(d.t)
+    assert isinstance(stale, Probe)
+    d.c.frame(0x700 + d.c.cfg.node, bytes([core.BOOTUP]), d.t)  # drops the session
+    assert d.c.session is None
+    d.c.take_log()
+    d.c.done(stale, False, None, d.t + 0.3, Probed(sent_at=d.t))
+    assert d.c.probes_unanswered == 0 and d.c.take_log() == []

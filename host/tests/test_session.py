@@ -337,7 +337,10 @@ def test_a_record_of_another_session_is_foreign():
         assert not any(p.jog_enable.values())
     a = d.c.next_action(d.at())
     wanted = core.motion_settings(d.c.cfg)
-    assert a == Configure(1, 500, None, keep=SESSION, tokens=(3, 4, 5, 6, 7), settings=wanted)
+    # The second configuration: the next session key (the first one's was 1).
+    assert a == Configure(
+        1, 500, None, keep=SESSION, tokens=(3, 4, 5, 6, 7), settings=wanted, key=2
+    )
     ok, result = core.configure_outcome(a, SESSION, d.c.event_timer)
     assert result.intact and result.tried is None
     d.c.done(a, ok, None, d.at(), result)
@@ -486,6 +489,58 @@ def test_a_token_written_without_its_read_back_waits_like_a_superseded_one():
     ok, result = core.configure_outcome(a, 1, c.event_timer)  # the device is in 1
     c.done(a, ok, None, 1.1, result)
     assert c.session == 2 and c.superseded == {1: 1.1} and c.busy == {}
+
+
+def test_a_young_device_is_asked_again_after_a_tenth_of_a_second():
+    """The device refuses the token (abort 0x08000022) while it is younger than
+    SESSION_DELAY: the configuration failed, but the token was never the device's, so it is
+    offered again first, and the next configuration comes YOUNG_RETRY later, not after the
+    retry time: the component has its session within about a second of a boot-up."""
+    assert core.YOUNG_RETRY == 0.1 and Config().retry == 0.5
+    c = Core(Config())
+    a = c.next_action(0.0)
+    assert a.tokens[0] == SESSION and a.key == 1
+    young = Configured(found=0, tried=SESSION, young=True, first_reply_at=0.01)
+    c.done(a, False, core.ABORT_DEVICE_STATE, 0.05, young)
+    assert c.session is None and c.busy == {} and c.config_due == pytest.approx(0.15)
+    assert c.next_action(0.149) is None
+    b = c.next_action(c.config_due)
+    assert isinstance(b, Configure) and b.tokens[0] == SESSION and b.key == 2
+    ok, result = core.configure_outcome(b, 0, c.event_timer)
+    c.done(b, ok, None, 0.6, result)
+    assert (c.session, c.session_key) == (SESSION, 2)
+    # Another failure is retried after the retry time, as before.
+    c = Core(Config())
+    a = c.next_action(0.0)
+    c.done(a, False, None, 0.05, Configured(found=0))
+    assert c.config_due == pytest.approx(0.55)
+
+
+def test_the_session_delay_outlasts_every_date():
+    """No probe answered before a power cycle dates a record of the new life: the device
+    opens no session within SESSION_DELAY of its start, and a date counts for DATE_LIMIT."""
+    assert core.DATE_LIMIT == pytest.approx(0.35) and core.SESSION_DELAY == 0.5
+    assert core.DATE_LIMIT < core.SESSION_DELAY
+
+
+@pytest.mark.parametrize("ok", [False, True])
+def test_a_configuration_without_its_key_is_not_taken(ok):
+    """The token was written and read back but its key was not written (`keyed` false: the
+    write of 0x2034 failed, or a shell that skipped it): the core has no session, its probes
+    could not tell its session from another master's; the token counts as possibly the
+    device's (busy), and the configuration is retried after the retry time."""
+    c = Core(Config())
+    a = c.next_action(0.0)
+    ok_, result = core.configure_outcome(a, 0, c.event_timer)
+    assert ok_ and result.keyed and result.session == SESSION
+    unkeyed = Configured(
+        event_timer_ms=result.event_timer_ms, found=0, tried=SESSION, session=SESSION
+    )
+    c.done(a, ok, None, 0.1, unkeyed)
+    assert c.session is None and c.session_key is None
+    assert c.busy == {SESSION: 0.1} and c.config_due == pytest.approx(0.6)
+    b = c.next_action(0.6)
+    assert isinstance(b, Configure) and SESSION not in b.tokens and b.key == 2
 
 
 def test_another_masters_token_is_not_taken():

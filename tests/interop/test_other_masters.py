@@ -9,6 +9,12 @@ device's promise), and the component's next session sets them again and reads th
 before it enables the feed. Before that, the component opened its new session without
 setting or reading the wheel's parameters: an HMI's write of 0x2020:4 = 1 (invert) made ten
 detents forward move X by -10, a write of 0x2020:3 = 1 (one count per detent) by -40.
+
+Nor may the component take a session someone else opened for its own because it carries the
+component's token: after a power cycle whose boot-up the component missed, another master that
+writes token 1 (every fresh component's first) opens a session of its own. The session key
+(0x2034), which the component writes after its token and its probes carry, tells them apart:
+the device refuses the component's probe, and the component configures the device again.
 """
 
 from __future__ import annotations
@@ -16,8 +22,23 @@ from __future__ import annotations
 import threading
 import time
 from contextlib import contextmanager
+from typing import List, Optional
 
-from rig import FRAME_TIMEOUT, NODE_ID, SDO_RX, SDO_TX, TPDO1
+import pytest
+
+from canopen_handwheel.core import own_sdo_ids
+from rig import (
+    FRAME_TIMEOUT,
+    HEARTBEAT,
+    NMT,
+    NMT_START,
+    NODE_ID,
+    PRE_OPERATIONAL,
+    SDO_RX,
+    SDO_TX,
+    TPDO1,
+)
+from rig.relay import is_bootup
 from test_copies import decode, started
 
 # An expedited SDO download of one byte: command specifier 0x2F.
@@ -177,3 +198,286 @@ def test_a_polling_master_neither_starves_the_configuration_nor_the_wheel(board,
         assert turned == DETENTS and len(polls) >= 3, (turned, len(polls))
         assert moved == DETENTS, f"{moved} of {DETENTS} detents credited, an HMI polling"
         assert all(decode(f).session for f in h.relay.device.frames(TPDO1, mark)[-3:])
+
+
+# A power cycle the component missed, and another master in the component's session -------------
+
+SESSION_DELAY = 0.5  # the device opens no session this soon after its start
+YOUNG_RETRY = 0.05  # the other master's retry of a token the device found too young
+ABORT_DEVICE_STATE = 0x08000022
+SDO_ABORT = 0x80
+TURNING = 5.0  # s of turning forward after the other master enabled the feed
+TURN_PERIOD = 0.05  # one detent per 50 ms
+# From the power cycle to the component's feed on again in a session of its own: it holds its
+# requests back while the other master's SDO is under way (2 s), then configures.
+JOGGING_AGAIN = 15.0
+
+
+def download(h, index: int, sub: int, value: int, size: int) -> Optional[int]:
+    """The other master's expedited SDO download of `value` (`size` bytes) to `index`:`sub`
+    on the default channel, on the relay's bus (the device and the component see it): the
+    device's abort code, or None when it confirmed the write."""
+    mark = h.relay.device.mark()
+    command = 0x23 | (4 - size) << 2
+    request = bytes([command, index & 0xFF, index >> 8, sub]) + value.to_bytes(4, "little")
+    h.relay.send(SDO_RX, request)
+    answer = h.relay.device.wait_for(
+        lambda f: f.id == SDO_TX and f.data[1:4] == request[1:4],
+        since=mark,
+        what=f"the device's answer to 0x{index:04X}:{sub} = 0x{value:X}",
+    )
+    if answer.data[0] == SDO_ABORT:
+        return int.from_bytes(answer.data[4:8], "little")
+    assert answer.data[0] == DOWNLOAD_ANSWER, bytes(answer.data).hex()
+    return None
+
+
+def another_master_opens(h, booted: float, token: int, own_sdo: Optional[tuple]) -> float:
+    """Another master, once the device is old enough (SESSION_DELAY after its power-up at
+    `booted`), configures it as another component with the same master node-ID would that
+    was told to invert the wheel (a tool, or one from before the session key: it writes no
+    key to 0x2034): its SDO channel on the device's second server (`own_sdo`: the
+    component's own, if given), 0x2020:4 = 1, the session `token` (the component's: every
+    fresh component writes token 1 first), NMT start, 0x2000 = 1. Returns when it enabled
+    the feed."""
+    time.sleep(max(0.0, booted + SESSION_DELAY - time.monotonic()))
+    if own_sdo is not None:
+        rx, tx = own_sdo
+        assert download(h, 0x1201, 2, tx, 4) is None
+        assert download(h, 0x1201, 1, rx, 4) is None
+    assert download(h, WHEEL, INVERT, 1, 1) is None
+    deadline = time.monotonic() + 2.0
+    while (abort := download(h, 0x2002, 0, token, 1)) == ABORT_DEVICE_STATE:
+        # The board's clock may run behind the host's: still too young.
+        assert time.monotonic() < deadline, "the device never opened a session"
+        time.sleep(YOUNG_RETRY)
+    assert abort is None, f"0x2002 = {token}: abort 0x{abort:08X}"
+    h.relay.send(NMT, bytes([NMT_START, NODE_ID]))
+    assert download(h, 0x2000, 0, 1, 1) is None
+    return time.monotonic()
+
+
+@pytest.mark.parametrize("channel", ["own", "none"], ids=["own SDO channel", "default channel"])
+def test_another_master_in_the_components_session_after_a_missed_power_cycle(
+    board, tmp_path, channel
+):
+    """The component jogs X in session 1 (on its own SDO channel, or with `--sdo-channel
+    none` on the default one). The board is power cycled and the relay drops the device's
+    boot-up (and any Pre-operational heartbeat before the device is started again): the
+    component never sees the new power life begin. 0.5 s after the power-up another master
+    configures the device as another component with the same master node-ID would (the
+    component's SDO channel, when it has one), but with the wheel inverted and no session
+    key, writes the component's own token 1, starts the node and enables the feed; the wheel
+    turns a detent forward every 50 ms for 5 s. X never moves backwards, and never by more
+    than the detents turned after the component's first configuration after the power
+    cycle; the component logs that the device refused its session key, and jogs again in a
+    session of its own: 10 detents turned then are credited exactly.
+
+    Without the key in its probes (the component writing key bits 0, which the device takes
+    from any master) the device's new life answered them as the component's session (its
+    token, its nonce, numbers beyond what it had received): with either channel the
+    component took the other master's inverted session for its own, credited the detents
+    backwards (X -94 and -59 of 100 turned) and never configured the device again."""
+    args = ("--sdo-channel", "none") if channel == "none" else ()
+    own_sdo = own_sdo_ids(1) if channel == "own" else None  # the component's: master 1
+    with started(board, tmp_path, args=args) as h:
+        relay = h.relay
+        h.must(h.caught_up, 3.0, "the component at the newest record")
+        token = decode(h.newest()).session
+        assert token == 1, f"the component's first session is {token}"
+        sequence = decode(h.newest()).sequence
+        log_start = len(h.log())
+        counts_before = h.counts("x")
+        opened = threading.Event()
+        boot = relay.drop(is_bootup())
+        relay.drop(
+            lambda f: (
+                not opened.is_set()
+                and f.id == HEARTBEAT
+                and bytes(f.data) == bytes([PRE_OPERATIONAL])
+            ),
+            count=5,
+        )
+        host_mark = relay.host.mark()
+        records = relay.record_count()
+        cycled = time.monotonic()
+        board.control("power")
+        assert boot.wait(FRAME_TIMEOUT), "no boot-up after the power cycle"
+        booted = boot.frames[0].t
+        enabled = another_master_opens(h, booted, token, own_sdo)
+        opened.set()
+        turned: List[float] = []
+        while time.monotonic() < enabled + TURNING:
+            h.stim.turn(1)
+            turned.append(time.monotonic())
+            time.sleep(max(0.0, enabled + TURN_PERIOD * len(turned) - time.monotonic()))
+        # The component jogs again, in a session of its own (not the other master's token).
+        jogging = h.wait(
+            lambda: (
+                h.enabled()
+                and decode(h.newest()).session not in (0, token)
+                and decode(h.newest()).enabled
+                and h.caught_up()
+            ),
+            JOGGING_AGAIN,
+        )
+        starts = [
+            f
+            for f in relay.host.frames(NMT, since=host_mark)
+            if f.data[:1] == bytes([NMT_START]) and f.t > booted
+        ]
+        configured = starts[0].t if starts else float("inf")
+        time.sleep(0.2)
+        h.wait(h.counts_written, 3.0)
+        history = [counts_before] + [int(v) for _, v in h.hal.history("axis.x.jog-counts", cycled)]
+        backwards = [b - a for a, b in zip(history, history[1:]) if b < a]
+        credited = history[-1] - counts_before
+        due = sum(1 for t in turned if t > configured)
+        moved = turned_then = 0
+        if jogging:
+            # Then 10 detents, credited exactly.
+            counts, position = h.counts("x"), decode(h.newest()).position
+            for _ in range(DETENTS):
+                h.stim.turn(1)
+                time.sleep(0.03)
+            h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
+            h.wait(h.caught_up, 3.0)
+            time.sleep(0.2)  # the last credits to the pins
+            moved = h.counts("x") - counts
+            turned_then = decode(h.newest()).position - position
+        log = h.log()[log_start:]
+        news = [decode(f) for f in relay.records_since(records)]
+        print(
+            f"{channel} channel: sequence {sequence} before the power cycle; the other master "
+            f"enabled the feed {enabled - booted:.2f} s after the boot-up, the component "
+            f"configured {configured - booted:.2f} s after it; {len(turned)} detents turned, "
+            f"{due} after that, X {credited:+d}; then {moved:+d} for {turned_then} turned; "
+            f"sessions seen {sorted({r.session for r in news})}"
+        )
+        problems = []
+        if backwards:
+            problems.append(f"X stepped back {len(backwards)} times, {sum(backwards)} in all")
+        if credited > due:
+            problems.append(
+                f"X moved {credited:+d}, {due} detents turned after the component configured "
+                "the device"
+            )
+        if "the device refused the session key" not in log:
+            problems.append("the component's log says nothing of its session key refused")
+        if not starts:
+            problems.append("no configuration by the component after the power cycle")
+        if not jogging:
+            problems.append(
+                f"no jog-enable of X in a session of the component's own within "
+                f"{JOGGING_AGAIN} s of the turning's end"
+            )
+        elif (moved, turned_then) != (DETENTS, DETENTS):
+            problems.append(f"{moved:+d} of {DETENTS} detents credited ({turned_then} turned)")
+        assert not problems, "; ".join(problems) + f"\n{log[-3000:]}"
+
+
+# A power cycle the component missed, and its own SDO channel gone with it ---------------------
+
+# From the node's start (by another master, 0.5 s after the power-up) to the component's own
+# session with the feed on: its probes on its own SDO channel (0x1201, not stored: invalid
+# again after the power cycle) go unanswered, and after three it configures the device again.
+OWN_CHANNEL_BACK = 3.0
+STARTED_AFTER = 0.5  # s after the power-up another master starts the node (NMT)
+# After another master's SDO write the component holds its configuration back this long
+# (`core.FOREIGN_SDO_QUIET`): with token 1 restored just before the start, on top.
+FOREIGN_HOLD = 2.0
+
+
+@pytest.mark.parametrize("restored", [False, True], ids=["node started", "token 1 restored"])
+def test_the_component_configures_again_when_its_own_channel_is_gone(board, tmp_path, restored):
+    """The component jogs X in session 1 on its own SDO channel (the device's second SDO
+    server 0x1201, which each configuration sets up and the device does not store). The board
+    is power cycled and the relay drops the device's boot-up and its Pre-operational
+    heartbeats: the component never sees the new power life begin. Nobody configures the
+    device: another master only starts the node (NMT) 0.5 s after the power-up, having
+    (`restored`) written the component's token 1 to 0x2002 first, as a tool that restores the
+    device's settings would (no session key, no 0x1201). The component's probes on its own
+    channel go unanswered: within OWN_CHANNEL_BACK of the start (plus the 2 s it holds back
+    after another master's SDO write, when token 1 was restored) it configures the device
+    again (a record of a session of its own, the feed on), and 10 detents turned then are
+    credited exactly; X never moves backwards.
+
+    Before, unanswered probes kept the session. With the node only started, the records of
+    session 0 still made the component check its configuration and configure again; with
+    token 1 restored the records carried the component's token, nothing was credited (no
+    probe dated a record) and the component configured again only when it took no record
+    of its session for 4 s (`ORDER_WINDOW`), if ever: the new life's sequence can run past
+    the old reference within it and be taken for the session's."""
+    with started(board, tmp_path) as h:
+        relay = h.relay
+        h.must(h.caught_up, 3.0, "the component at the newest record")
+        token = decode(h.newest()).session
+        assert token == 1, f"the component's first session is {token}"
+        log_start = len(h.log())
+        counts_before = h.counts("x")
+        node_started = threading.Event()
+        boot = relay.drop(is_bootup())
+        relay.drop(
+            lambda f: (
+                not node_started.is_set()
+                and f.id == HEARTBEAT
+                and bytes(f.data) == bytes([PRE_OPERATIONAL])
+            ),
+            count=50,
+        )
+        records = relay.record_count()
+        cycled = time.monotonic()
+        board.control("power")
+        assert boot.wait(FRAME_TIMEOUT), "no boot-up after the power cycle"
+        booted = boot.frames[0].t
+        time.sleep(max(0.0, booted + STARTED_AFTER - time.monotonic()))
+        if restored:
+            deadline = time.monotonic() + 2.0
+            while (abort := download(h, 0x2002, 0, token, 1)) == ABORT_DEVICE_STATE:
+                assert time.monotonic() < deadline, "the device never opened a session"
+                time.sleep(YOUNG_RETRY)
+            assert abort is None, f"0x2002 = {token}: abort 0x{abort:08X}"
+        relay.send(NMT, bytes([NMT_START, NODE_ID]))
+        started_at = time.monotonic()
+        node_started.set()
+
+        def own_session_on() -> bool:
+            news = relay.records_since(records)
+            newest = decode(news[-1]) if news else None
+            return (
+                newest is not None
+                and newest.session not in (0, token if restored else 0)
+                and newest.enabled
+                and h.enabled()
+                and h.caught_up()
+            )
+
+        back = h.wait(own_session_on, OWN_CHANNEL_BACK + 10.0)
+        took = time.monotonic() - started_at
+        log = h.log()[log_start:]
+        print(
+            f"token restored: {restored}; the component jogs again {took:.2f} s after the node "
+            f"was started (back: {back}); sessions seen "
+            f"{sorted({decode(f).session for f in relay.records_since(records)})}"
+        )
+        assert back, f"no session of the component's own with the feed on:\n{log[-3000:]}"
+        bound = OWN_CHANNEL_BACK + (FOREIGN_HOLD if restored else 0.0)
+        assert took <= bound, f"{took:.2f} s after the node was started:\n{log[-3000:]}"
+        if restored:
+            assert "probes unanswered on the component's own SDO channel (0x1201)" in log, log
+        counts, position = h.counts("x"), decode(h.newest()).position
+        for _ in range(DETENTS):
+            h.stim.turn(1)
+            time.sleep(0.03)
+        h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
+        h.wait(h.caught_up, 3.0)
+        time.sleep(0.2)  # the last credits to the pins
+        h.wait(h.counts_written, 3.0)
+        moved = h.counts("x") - counts
+        turned = decode(h.newest()).position - position
+        history = [counts_before] + [int(v) for _, v in h.hal.history("axis.x.jog-counts", cycled)]
+        backwards = [b - a for a, b in zip(history, history[1:]) if b < a]
+        assert not backwards, f"X stepped back {len(backwards)} times, {sum(backwards)} in all"
+        assert (moved, turned) == (DETENTS, DETENTS), (
+            f"{moved:+d} of {DETENTS} detents credited ({turned} turned)\n{log[-3000:]}"
+        )

@@ -234,9 +234,13 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.invert_direction,
             args.sdo_channel,
         )
-        # Probes of one run never repeat those of another (an answer held on its way).
+        # Probes of one run never repeat those of another (an answer held on its way), and
+        # its session keys are not another run's (another component that wrote the same
+        # token, say after a power cycle this one missed, has keys of its own).
         args.config = dataclasses.replace(
-            args.config, first_nonce=random.randrange(core.NONCE_MASK + 1)
+            args.config,
+            first_nonce=random.randrange(core.NONCE_MASK + 1),
+            first_key=random.randrange(1, core.KEY_MODULO + 1),
         )
     except ValueError as e:
         p.error(str(e))
@@ -679,7 +683,13 @@ def carry_out(
     except Cancelled:
         return False, None, report
     except canopen.SdoAbortedError as e:
-        if not isinstance(action, core.Probe):
+        if isinstance(report, core.Configured) and report.young:
+            log(
+                f"{describe(action)}: the device refused session {report.tried} (SDO abort "
+                f"0x{e.code:08X}): it started less than {core.SESSION_DELAY:g} s ago; again "
+                f"in {core.YOUNG_RETRY:g} s"
+            )
+        elif not isinstance(action, core.Probe):
             log(f"{describe(action)}: SDO abort 0x{e.code:08X}")
         return False, e.code, report
     except Exception as e:  # no answer, bus gone, a read-back that differs: the core retries
@@ -732,7 +742,8 @@ def _carry_out(
     if isinstance(action, core.Probe):
         assert isinstance(report, core.Probed)
         report.sent_at = clock()  # before the write goes out: the answer is later
-        write(core.PROBE_OBJECT, 0, action.nonce, 4)
+        # The session key in bits 16-31: a device in a session of another key refuses it.
+        write(core.PROBE_OBJECT, 0, action.value, 4)
         report.value = u32(core.PROBE_OBJECT, 0)
         return report
     raise TypeError(f"unknown action {action!r}")
@@ -836,7 +847,16 @@ def _configure(
     write(0x2000, 0, 0, 1)
     # The session last: every write before it ended whatever session the device had.
     report.tried = token
-    write(0x2002, 0, token, 1)
+    try:
+        write(0x2002, 0, token, 1)
+    except canopen.SdoAbortedError as refused:
+        # The device started less than `core.SESSION_DELAY` ago: no session opens yet.
+        report.young = refused.code == core.ABORT_DEVICE_STATE
+        raise
+    # Its key at once: the device keeps it with this session only, and refuses the probes
+    # of a session that does not have it.
+    write(core.SESSION_KEY_OBJECT, 0, action.key, 2)
+    report.keyed = True
     read_back(0x2002, 0, token)
     # Nothing that shapes motion changed before the session was written (a change since
     # ends it: 0x2002, read last, tells).
@@ -848,7 +868,8 @@ def _configure(
     step()
     link.node.nmt.state = "OPERATIONAL"  # python-canopen's NMT start to the node
     log(
-        f"device configured: session {token} (0x2002 = {found} before), 0x1016:{sub} = "
+        f"device configured: session {token} (0x2002 = {found} before) with its key, "
+        f"0x1016:{sub} = "
         f"0x{value:08X}, event timer {timer} ms, inhibit time {inhibit / 10:g} ms, "
         + (
             f"own SDO channel 0x{action.own_sdo[0]:X}/0x{action.own_sdo[1]:X}, "

@@ -20,8 +20,11 @@ The event API (stable; `replay` runs a list of these events through a `Core`):
   motion (teleop mode);
 - `reconnected(now)`: the shell opened the bus again (what the device did meanwhile is
   unknown);
-- `next_action(now)` -> the `Action` to carry out (`Configure`, `WriteFeed`) or None, and
-  `done(action, ok, abort, now, result)`: its outcome (a `Configure`'s: a `Configured`);
+- `next_action(now)` -> the `Action` to carry out (`Configure`, `WriteFeed`, `Probe`) or
+  None, and `done(action, ok, abort, now, result)`: its outcome (a `Configure`'s: a
+  `Configured`; a `Probe`'s: a `Probed`, and its write refused with abort 0x08000022 ends
+  the core's session, as do `PROBE_TIMEOUTS_BEFORE_CONFIGURING` probes in a row on the
+  component's own SDO channel without an answer: `done(probe, False, None, ...)`);
 - `take_log()` -> the lines the core wants logged (a feed stop and its reason, a session
   dropped, a configuration waiting for a token), for the shell to print;
 - `publish(now, motion)` -> the list of `Pins` snapshots to write now, in order, at least
@@ -311,6 +314,37 @@ DATE_MARGIN = 0.02  # s: the host's own delays between handling a record and wri
 DATE_LIMIT = CONTRACT_AGE - BACKLOG_LIMIT - RECORD_DELAY - DATE_MARGIN
 PROBE_DATES = 32  # dates kept (the newest; at PROBE_PERIOD, more than DATE_LIMIT's worth)
 
+# The session key (0x2034, U16, write-only): a configuration writes a key of its own
+# (`Configure.key`, 1..0xFFFF, a new one per configuration from a random start per run) right
+# after its token, and every probe carries it in bits 16-31 of the value written to 0x2033
+# (`Probe.key`). The device keeps a key only with the session it was written in (0 again at
+# every change or end of the session, and at power-on) and refuses a probe whose key bits are
+# neither 0 nor its session's key (abort 0x08000022, nothing changed). The token and the
+# nonce alone cannot tell the host's session from one another master opened with the same
+# token (every fresh component writes token 1 first), say after a power cycle whose boot-up
+# the host missed: that session's device would answer the host's probes as its own and date
+# records of a session the host never configured. Its refusal of the key tells: the host
+# drops its session (`Core.done`) and configures again.
+SESSION_KEY_OBJECT = 0x2034
+SESSION_KEY_SHIFT = 16  # the key's place in the probe's value
+KEY_MODULO = 0xFFFF  # keys 1..0xFFFF (0 is no key): the next key is key % KEY_MODULO + 1
+# The device's session open delay (s): a write of 0x2002 = 1..7 less than this after the
+# device started (power-on, any reset of its MCU; not NMT's reset node or communication) is
+# refused with abort 0x08000022. Longer than DATE_LIMIT: a probe answered before a power cycle
+# dates records for DATE_LIMIT at most, and no record of the new power life carries a session
+# before SESSION_DELAY, so no date of the old life ever dates a record of the new one.
+SESSION_DELAY = 0.5
+assert DATE_LIMIT < SESSION_DELAY, "a probe's date must run out before a new life's session"
+# A configuration refused because the device is younger than SESSION_DELAY
+# (`Configured.young`) is asked for again this soon (not `Config.retry` later), so that the
+# host has its session within about a second of the device's boot-up.
+YOUNG_RETRY = 0.1
+
+
+def next_key(key: int) -> int:
+    """The session key after `key`: 1..0xFFFF, never 0 (any int maps into the range)."""
+    return key % KEY_MODULO + 1
+
 
 def probe_date(
     action: "Probe", result: "Probed", session: Optional[int]
@@ -424,6 +458,18 @@ PROGRAM_OBJECTS = range(0x1F50, 0x1F60)
 OWN_SDO_RANGE = range(0x680, 0x6E0)
 OWN_SDO_PAIRS = 48
 SDO_SERVER_2 = 0x1201
+# The device does not store 0x1201: a power cycle or a reset of communication the host did not
+# see, or another master's write of it, leaves the component's own channel unanswered, so that
+# every probe on it times out. Nothing is then credited (no probe dates a record), but
+# unanswered probes alone would keep the session (and the wheel dead) for good when the
+# device's records still carry the component's token. So after this many probes in a row on
+# the own channel without any answer (no reply at all; an abort is an answer) the host drops
+# its session and configures the device again on the default channel, which sets 0x1201 up
+# again. Three: one or two can be lost to a busy bus without costing the session, and at
+# PROBE_PERIOD plus python-canopen's SDO timeout (0.3 s) each, the wheel is dead about 1 s at
+# most before the configuration starts. (Not a check that keeps an intact session: the
+# configuration writes 0x1201 by construction, whatever else made the channel silent.)
+PROBE_TIMEOUTS_BEFORE_CONFIGURING = 3
 
 
 def own_sdo_ids(master: int) -> Tuple[int, int]:
@@ -642,6 +688,9 @@ class Config:
     counts_per_detent: int = DEFAULT_COUNTS_PER_DETENT  # 0x2020:3, `--counts-per-detent`
     invert_direction: bool = False  # 0x2020:4, `--invert-direction`
     first_nonce: int = 0  # the sequence probe's first nonce (the component draws it)
+    # The first configuration's session key (`next_key` after it for each further one; the
+    # component draws it, 1..0xFFFF), so that no run's keys follow another's.
+    first_key: int = 1
     # Records dated by the sequence probe (`DATE_LIMIT`): the component's (`make_config`).
     # Off, the core credits what its rule links without dating it: the rule as
     # `crates/feed-check` checks it (its model has no path that holds frames upstream of the
@@ -959,13 +1008,15 @@ class Configure:
     (`motion_settings`: the wheel's parameters,
     0x2001 = 0), each written where it differs; TPDO1's mapping and COB-ID checked; 0x2000 =
     0 (feed off); 0x2002 = `pick_token(tokens, found)` (the session, last: every write
-    before it ends a session); then everything that shapes motion read back once more (the
-    0x1016 entry, TPDO1's COB-ID, type, inhibit time, event timer and mapping, `settings`)
-    and 0x2002 last: a change of any of them by another master after it was first read back
-    and before the session was written would otherwise be in force in the new session (a
-    change after the session was written ends it, and 0x2002 then reads 0); then NMT
-    start. Its outcome (`Core.done`) carries a `Configured`, also when it failed part
-    way."""
+    before it ends a session; a device younger than `SESSION_DELAY` refuses it with abort
+    0x08000022: `Configured.young`, nothing further); 0x2034 = `key` (the session key,
+    `Configured.keyed`; the device keeps it with this session only); then everything that
+    shapes motion read back once more (the 0x1016 entry, TPDO1's COB-ID, type, inhibit time,
+    event timer and mapping, `settings`) and 0x2002 last: a change of any of them by
+    another master after it was first read back and before the session was written would
+    otherwise be in force in the new session (a change after the session was written ends
+    it, and 0x2002 then reads 0); then NMT start. Its outcome (`Core.done`) carries a
+    `Configured`, also when it failed part way."""
 
     master: int
     timeout_ms: int
@@ -974,6 +1025,7 @@ class Configure:
     tokens: Tuple[int, ...] = ()  # `free_tokens`, best first
     settings: Tuple[Tuple[int, int, int], ...] = ()  # `motion_settings`: (index, sub, value)
     own_sdo: Optional[Tuple[int, int]] = None  # 0x1201 set to this channel, read back
+    key: int = 1  # the session key written to 0x2034 after the token (1..0xFFFF)
 
 
 @dataclass
@@ -985,7 +1037,10 @@ class Configured:
     core's clock) the shell handled the device's answer to its first transfer: a
     configuration answered only after a boot-up the core saw while it ran was made in the
     device's new life and stands; `loader`, the device refused 0x2002 and its 0x1000 is the
-    loader's (nothing else was done)."""
+    loader's (nothing else was done); `keyed`, the session key 0x2034 was written after the
+    token (a configuration counts only with it); `young`, the device refused the token with
+    abort 0x08000022 (started less than `SESSION_DELAY` ago: the device is in no session of
+    it)."""
 
     event_timer_ms: Optional[int] = None
     first_reply_at: Optional[float] = None
@@ -994,6 +1049,8 @@ class Configured:
     tried: Optional[int] = None
     session: Optional[int] = None
     loader: bool = False
+    keyed: bool = False
+    young: bool = False
 
 
 @dataclass(frozen=True)
@@ -1006,13 +1063,21 @@ class WriteFeed:
 
 @dataclass(frozen=True)
 class Probe:
-    """The sequence probe: 0x2033 = `nonce` (the time the write is sent noted), then 0x2033
-    read back (`Probed`). `floor`: the newest record number of the session the host had
-    received when it asked for the probe (an answer must lie beyond it)."""
+    """The sequence probe: 0x2033 = `value` (the session key `key` in bits 16-31, `nonce`
+    in bits 0-12; the time the write is sent noted), then 0x2033 read back (`Probed`).
+    `floor`: the newest record number of the session the host had received when it asked for
+    the probe (an answer must lie beyond it). A device whose session has another key refuses
+    the write (abort 0x08000022): the host's session is gone (`Core.done`)."""
 
     nonce: int
     floor: Optional[int] = None
     own: bool = False  # on the component's own SDO channel
+    key: int = 0  # the host's session key (0: none)
+
+    @property
+    def value(self) -> int:
+        """What the shell writes to 0x2033."""
+        return (self.key & 0xFFFF) << SESSION_KEY_SHIFT | self.nonce & NONCE_MASK
 
 
 @dataclass
@@ -1091,8 +1156,11 @@ class Core:
     # Per axis: the jog target LinuxCNC has after the component's last metered counts, and
     # when they were written (`IN_FLIGHT`).
     sent_target: Dict[str, Tuple[float, float]] = field(default_factory=dict)
-    # The session (`Configure`): the token the host wrote and read back, None without one.
+    # The session (`Configure`): the token the host wrote and read back, None without one,
+    # and the key it wrote after it (`SESSION_KEY_OBJECT`; its probes carry it).
     session: Optional[int] = None
+    session_key: Optional[int] = None
+    key: int = field(init=False)  # the next configuration's key
     superseded: Dict[int, float] = field(default_factory=dict)  # token -> when replaced
     # Tokens the device may have been in since the last successful configuration, and when
     # that was last known: the host's session once it dropped it, a token written without
@@ -1145,12 +1213,16 @@ class Core:
     # The session's configuration set up the component's own SDO channel (`Config.own_sdo`):
     # probes and feed writes go there, never held back by another master's exchanges.
     own_channel: bool = False
+    # Probes of the session on the own channel in a row that got no answer at all
+    # (`PROBE_TIMEOUTS_BEFORE_CONFIGURING`).
+    probes_unanswered: int = 0
     undated: int = 0
     undated_logged: bool = False
     now: float = 0.0
 
     def __post_init__(self) -> None:
         self.nonce = self.cfg.first_nonce & NONCE_MASK
+        self.key = next_key(self.cfg.first_key - 1)
         self.counts = {letter: 0 for letter in self.cfg.axes}
         self.event_timer = self.cfg.event_timer
         self.position_mode = self.cfg.position_mode
@@ -1265,6 +1337,13 @@ class Core:
         if isinstance(action, Configure):
             self._configure_done(action, ok, result or Configured())
         elif isinstance(action, Probe):
+            if not ok and abort == ABORT_DEVICE_STATE:
+                self._probe_refused(action)
+                return
+            if not ok and abort is None:
+                self._probe_unanswered(action)
+                return
+            self.probes_unanswered = 0  # the channel answers
             date = probe_date(action, result, self.session) if ok and result else None
             if date is not None:
                 self.dates.append(date)
@@ -1280,12 +1359,51 @@ class Core:
             # Success shows in the next records; give them time before trying again.
             self.feed_due = self.now + self.cfg.retry
 
+    def _probe_refused(self, action: Probe) -> None:
+        """The device refused the probe's write (abort 0x08000022): the key it carried is not
+        the key of the session the device is in, so that session is not the host's, whatever
+        its token (another master wrote it, in this power life or a new one whose boot-up the
+        host missed). The host drops its session at once (a feed it had on stopped: the
+        session ended) and configures again."""
+        if self.session is None or action.key != self.session_key:
+            return  # a probe of a session already dropped
+        if self.feed_on and not self.asked_off:
+            self._report_stop(STOP_SESSION_ENDED)
+        self._drop_session(
+            "the device refused the session key: its session is not this component's "
+            "(another master opened it, or a new power life)"
+        )
+
+    def _probe_unanswered(self, action: Probe) -> None:
+        """The probe got no answer (timed out, or the bus failed). On the component's own
+        channel, the `PROBE_TIMEOUTS_BEFORE_CONFIGURING`-th in a row drops the session (a
+        feed it had on stopped: the session ended, as a power cycle, a reset or another
+        master's write of 0x1201 that silenced the channel ends it on the device) and the
+        device is configured again, which sets up the channel again. Not while the device
+        shows itself Stopped (it answers no SDO then, on any channel), nor on the default
+        channel: there an unanswered probe keeps the session."""
+        if self.session is None or action.key != self.session_key or not action.own:
+            return  # a probe of a session already dropped, or on the default channel
+        if self.state == STOPPED:
+            return
+        self.probes_unanswered += 1
+        if self.probes_unanswered < PROBE_TIMEOUTS_BEFORE_CONFIGURING:
+            return
+        if self.feed_on and not self.asked_off:
+            self._report_stop(STOP_SESSION_ENDED)
+        self._drop_session(
+            f"{self.probes_unanswered} probes unanswered on the component's own SDO channel "
+            f"(0x{SDO_SERVER_2:04X})"
+        )
+
     def _configure_done(self, action: Configure, ok: bool, r: Configured) -> None:
         """A configuration's outcome. It stands if every step succeeded and was read back,
-        the token is one the core offered (or the kept session, still the core's), the event
-        timer is one the component can judge staleness by, and the device answered it in
-        the life the core knows (not before a boot-up seen meanwhile). A device found in
-        another session than the core's ended it: a feed it had on stopped."""
+        the token is one the core offered (or the kept session, still the core's), its
+        session key was written after it (`Configured.keyed`), the event timer is one the
+        component can judge staleness by, and the device answered it in the life the core
+        knows (not before a boot-up seen meanwhile). A device found in another session than
+        the core's ended it: a feed it had on stopped. A device too young for a session
+        (`Configured.young`) is asked again after `YOUNG_RETRY`."""
         booted, self.booted_during = self.booted_during, None
         before_boot = booted is not None and (
             r.first_reply_at is None or r.first_reply_at <= booted
@@ -1300,7 +1418,8 @@ class Core:
             # It answered 0x2002: an application runs.
             self.in_loader = False
             self.log.append("the device runs its application again (it left its loader)")
-        for token in (r.found, r.tried):
+        # A token the device refused as too young was not written: it never was in it.
+        for token in (r.found, None if r.young else r.tried):
             if token and token != self.session:
                 self.busy[token] = self.now
         if r.found is not None and self.session is not None and r.found != self.session:
@@ -1319,18 +1438,26 @@ class Core:
             and r.session is not None
             and r.session == r.tried
             and r.session in action.tokens
+            and r.keyed
             and r.event_timer_ms is not None
             and low <= r.event_timer_ms <= high
         ):
             self._new_session(r.session, r.found)
+            self.session_key = action.key
             self._set_event_timer(r.event_timer_ms / 1000)
             self.own_channel = action.own_sdo is not None
             return
         if self.session is None:
             # It spoke to the device's life before a boot-up seen meanwhile, or checked a
-            # session dropped meanwhile: again at once; a failure: after the retry time.
+            # session dropped meanwhile: again at once; a device too young for a session:
+            # again soon; a failure: after the retry time.
             again = ok and (before_boot or r.intact)
-            self.config_due = self.now if again else self.now + self.cfg.retry
+            if again:
+                self.config_due = self.now
+            elif r.young:
+                self.config_due = self.now + YOUNG_RETRY
+            else:
+                self.config_due = self.now + self.cfg.retry
         else:
             self.check_at = self.now + self.cfg.retry
 
@@ -1377,6 +1504,7 @@ class Core:
             self.busy[self.session] = self.now
             self.log.append(f"session {self.session} dropped ({why}); configuring the device")
         self.session = None
+        self.session_key = None
         self.check_due = False
         self.config_due = self.now
         self._forget_records()
@@ -1392,6 +1520,7 @@ class Core:
         self.dates.clear()
         self.probe_due = self.now
         self.own_channel = False
+        self.probes_unanswered = 0
         self.baseline = True
         self.suspect = False
         self.epochs_shown = False
@@ -1486,14 +1615,15 @@ class Core:
         probing = self.cfg.dating and self.session is not None
         if action is None and probing and self.now >= self.probe_due:
             floor = self.order[0].sequence if self.order is not None else None
-            action = Probe(self.nonce, floor, own)
+            action = Probe(self.nonce, floor, own, self.session_key or 0)
             self.nonce = (self.nonce + 1) & NONCE_MASK
             self.probe_due = self.now + PROBE_PERIOD
         self.pending = action
         return action
 
     def _configure(self, keep: Optional[int]) -> Optional[Configure]:
-        """A `Configure` with the tokens free now; without any (every token used less than
+        """A `Configure` with the tokens free now and the next session key (`next_key`:
+        every configuration writes another); without any token (every one used less than
         COPY_AGE ago) a configuration waits until one is free (a check still runs: it
         writes nothing if the device is in the session)."""
         last_use = dict(self.superseded)
@@ -1509,6 +1639,7 @@ class Core:
                     f"configuring in {self.config_due - self.now:.1f} s"
                 )
             return None
+        key, self.key = self.key, next_key(self.key)
         return Configure(
             self.cfg.master,
             self.cfg.consumer_timeout_ms,
@@ -1517,6 +1648,7 @@ class Core:
             tokens,
             motion_settings(self.cfg),
             self.cfg.own_sdo,
+            key,
         )
 
     def _holding_back(self) -> bool:
@@ -2061,15 +2193,15 @@ def pin_table(axes: str) -> List[Tuple[str, str, str]]:
 def configure_outcome(action: Configure, found: int, event_timer: float):
     """(ok, `Configured`): what carrying out `action` on a device whose 0x2002 reads `found`
     and whose every write succeeds reports: intact when `found` is the session to keep,
-    else the token `pick_token` gives written and read back (none: failed), the event timer
-    `event_timer` (s) read back."""
+    else the token `pick_token` gives written and read back (none: failed) with the session
+    key after it, the event timer `event_timer` (s) read back."""
     if action.keep is not None and found == action.keep:
         return True, Configured(found=found, intact=True, session=found)
     token = pick_token(action.tokens, found)
     if token is None:
         return False, Configured(found=found)
     ms = round(event_timer * 1000)
-    return True, Configured(event_timer_ms=ms, found=found, tried=token, session=token)
+    return True, Configured(event_timer_ms=ms, found=found, tried=token, session=token, keyed=True)
 
 
 Event = tuple  # ("frame", cob_id, data, t) | ("drained", t) | ("tick", t) | ("enable", bool)
@@ -2084,15 +2216,17 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     `found` (`configure_outcome`: the session kept if it is the core's, else the token
     `pick_token` gives written), so that the records after it can carry the core's session.
     With `Config.dating`, a sequence probe in two events, as the shell carries it out:
-    ("probe", nonce, floor, t): the `Probe` the core asks for at `t` (`next_action`; it must
-    be this nonce and floor, None for no floor), its write sent at `t`; ("probed", value, t):
-    its answer (0x2033 as read, None: not read) reached the core at `t` (`done` with a
-    `Probed` of the send time). A `WriteFeed` the core asks for first is reported not carried
-    out (the vectors' host writes no 0x2000: their masters do). Nothing else is asked of the
-    core between the two. Times never go backwards in a real run; the core takes the latest
-    time it was given. A malformed event, a "configure" or "probe" when the core asks for
-    another action, or a "probed" with no probe under way raises `ValueError` (a vector's
-    mistake, not the bus's)."""
+    ("probe", value, floor, t): the `Probe` the core asks for at `t` (`next_action`; its
+    nonce must be `value`'s bits 0-12 and its floor `floor`, None for no floor; `value`'s
+    key bits are the writer's own, not the core's draw), its write sent at `t`; then
+    ("probed", value, t): its answer (0x2033 as read, None: not read) reached the core at
+    `t` (`done` with a `Probed` of the send time), or ("probe_refused", t): the device
+    refused the write (abort 0x08000022: `done` with that abort). A `WriteFeed` the core asks
+    for first is reported not carried out (the vectors' host writes no 0x2000: their masters
+    do). Nothing else is asked of the core between the two. Times never go backwards in a
+    real run; the core takes the latest time it was given. A malformed event, a "configure"
+    or "probe" when the core asks for another action, or a "probed" or "probe_refused" with
+    no probe under way raises `ValueError` (a vector's mistake, not the bus's)."""
     c = Core(cfg or Config())
     probe_sent: Optional[float] = None  # the probe under way: when its write was sent
     for event in events:
@@ -2106,15 +2240,23 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
             c.done(action, ok, None, float(t), result)
             c.publish(float(t))
         elif kind == "probe" and len(event) == 4:
-            _, nonce, floor, t = event
+            _, value, floor, t = event
             action = c.next_action(float(t))
             while isinstance(action, WriteFeed):
                 c.done(action, False, None, float(t))
                 action = c.next_action(float(t))
-            want = Probe(int(nonce), None if floor is None else int(floor))
-            if action != want:
-                raise ValueError(f"no {want!r} due at {t}: {action!r}")
+            nonce, floor = int(value) & NONCE_MASK, None if floor is None else int(floor)
+            if not (isinstance(action, Probe) and (action.nonce, action.floor) == (nonce, floor)):
+                raise ValueError(f"no probe of nonce {nonce}, floor {floor} due at {t}: {action!r}")
             probe_sent = float(t)
+            c.publish(float(t))
+        elif kind == "probe_refused" and len(event) == 2:
+            t = event[1]
+            action = c.pending
+            if not isinstance(action, Probe) or probe_sent is None:
+                raise ValueError(f"no probe under way at {t}: {action!r}")
+            c.done(action, False, ABORT_DEVICE_STATE, float(t))
+            probe_sent = None
             c.publish(float(t))
         elif kind == "probed" and len(event) == 3:
             _, value, t = event

@@ -651,6 +651,7 @@ class _Inference:
                 found=self.found or 0,
                 tried=token,
                 session=token,
+                keyed=True,  # the bus shows no key: a component before it wrote none
             )
         c.done(action, True, None, t, result)
         self.configured = True
@@ -813,6 +814,8 @@ def _done(c: core.Core, d: dict, t: float, events, mismatches) -> None:
             dt = outcome.pop(name)
             outcome[name[:-3] + "_at"] = None if dt is None else t + dt
         kind = core.Probed if isinstance(action, core.Probe) else core.Configured
+        if kind is core.Configured and "keyed" not in outcome:
+            outcome["keyed"] = True  # a component before the session key: none to write
         known = {f.name for f in dataclasses.fields(kind)}
         result = kind(**{k: v for k, v in outcome.items() if k in known})
     abort = d.get("abort")
