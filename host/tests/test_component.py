@@ -1185,6 +1185,37 @@ def test_a_young_device_refuses_the_token_and_the_configuration_says_so(capfd):
     assert "SDO abort 0x06090030" in capfd.readouterr().err
 
 
+class YoungFor(FakeSdo):
+    """A device that refuses 0x2002 as too young (0x08000022) `times` times, then takes it."""
+
+    def __init__(self, objects, times: int):
+        super().__init__(objects)
+        self.times = times
+
+    def download(self, index, sub, data):
+        if index == 0x2002 and self.times > 0:
+            self.times -= 1
+            self.log.append(("refused", index, sub, int.from_bytes(data, "little")))
+            raise canopen.SdoAbortedError(core.ABORT_DEVICE_STATE)
+        super().download(index, sub, data)
+
+
+def test_a_device_young_for_a_moment_gets_the_token_in_the_same_configuration():
+    """A configuration started at the boot-up reaches the token before the device is old
+    enough: the token alone is written again (every YOUNG_TOKEN_PERIOD) until it is taken,
+    and the configuration goes on (key, read-back, NMT start): not begun again."""
+    sdo = YoungFor(dict(SlcanDevice.OBJECTS), times=3)
+    action = core.Configure(1, 500, None, tokens=(1,), settings=SETTINGS, key=0x2345)
+    begun = time.monotonic()
+    ok, abort, result = component.carry_out(FakeLink(sdo), NODE, action)
+    took = time.monotonic() - begun
+    assert (ok, abort) == (True, None), result
+    assert result.session == 1 and result.keyed and not result.young
+    tokens = [e for e in sdo.log if e[1] == 0x2002 and e[0] in ("refused", "download")]
+    assert tokens[:4] == [("refused", 0x2002, 0, 1)] * 3 + [("download", 0x2002, 0, 1)]
+    assert 3 * component.YOUNG_TOKEN_PERIOD <= took < 3 * component.YOUNG_TOKEN_PERIOD + 0.5
+
+
 def test_a_configuration_whose_key_write_fails_is_not_keyed():
     """The token was written; the key's write is refused: the configuration fails, not keyed
     (the core does not take the token as its session)."""

@@ -347,6 +347,56 @@ def test_three_probes_unanswered_on_the_own_channel_drop_the_session():
     assert d.c.session == 2 and d.c.probes_unanswered == 0 and d.c.own_channel
 
 
+def test_a_channel_unanswered_in_two_sessions_in_a_row_gives_way_to_the_default_one():
+    """A bus or gateway that does not carry the own channel's identifiers: the session that
+    set it up again loses its probes too. After the second drop in a row the core logs why
+    and configures on the default channel (no 0x1201), where its probes then count; an
+    answer on the own channel in between would have reset the count."""
+    assert core.OWN_CHANNEL_DROPS_BEFORE_DEFAULT == 2
+    d = jogging_on_the_own_channel()
+    for _ in range(3):
+        unanswered(d)
+    again = d.c.next_action(d.t)
+    assert isinstance(again, core.Configure) and again.own_sdo == OWN_SDO
+    ok, result = core.configure_outcome(again, 0, d.c.event_timer)
+    d.c.done(again, ok, None, d.t, result)
+    assert d.c.own_channel and d.c.own_channel_drops == 1
+    d.c.take_log()
+    for _ in range(3):
+        unanswered(d)
+    assert d.c.session is None and d.c.own_channel_drops == 2
+    assert d.c.take_log()[-1] == (
+        "the component's own SDO channel (0x1201) went unanswered in 2 sessions in a row: the "
+        "bus or a gateway may not carry its identifiers; configuring on the default channel "
+        "from now on"
+    )
+    third = d.c.next_action(d.t)
+    assert isinstance(third, core.Configure) and third.own_sdo is None
+    ok, result = core.configure_outcome(third, 0, d.c.event_timer)
+    d.c.done(third, ok, None, d.t, result)
+    assert d.c.session is not None and not d.c.own_channel
+    d.t += core.PROBE_PERIOD
+    probe = d.c.next_action(d.t)
+    assert isinstance(probe, Probe) and not probe.own
+    # An answer on the own channel in between resets the count.
+    d = jogging_on_the_own_channel()
+    for _ in range(3):
+        unanswered(d)
+    again = d.c.next_action(d.t)
+    ok, result = core.configure_outcome(again, 0, d.c.event_timer)
+    d.c.done(again, ok, None, d.t, result)
+    assert d.c.own_channel_drops == 1
+    d.t += core.PROBE_PERIOD
+    probe = d.c.next_action(d.t)
+    while isinstance(probe, WriteFeed):
+        d.c.done(probe, True, None, d.t)
+        probe = d.c.next_action(d.t)
+    assert isinstance(probe, Probe) and probe.own
+    value = answer(d.next_number, probe.nonce, d.c.session)
+    d.c.done(probe, True, None, d.t, Probed(sent_at=d.t, value=value))
+    assert d.c.own_channel_drops == 0
+
+
 def test_two_probes_unanswered_then_an_answer_keep_the_session():
     """A successful probe ends the count: two unanswered ones, an answer, two more keep the
     session; an abort other than 0x08000022 is an answer too (the channel works)."""

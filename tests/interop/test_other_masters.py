@@ -39,7 +39,7 @@ from rig import (
     TPDO1,
 )
 from rig.relay import is_bootup
-from test_copies import decode, started
+from test_copies import Host, decode, started
 
 # An expedited SDO download of one byte: command specifier 0x2F.
 DOWNLOAD_1 = 0x2F
@@ -100,9 +100,11 @@ def forward_detents_after_a_write(h, sub: int, value: int) -> tuple:
     for _ in range(DETENTS):
         h.stim.turn(1)
         time.sleep(0.03)
-    h.wait(lambda: h.caught_up() and h.counts("x") != counts, 3.0)
+    # Every detent's record taken and its credit on the pins (a loaded machine is slow).
+    h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
     h.wait(h.caught_up, 3.0)
     time.sleep(0.2)  # the last credits to the pins
+    h.wait(h.counts_written, 3.0)
     return h.counts("x") - counts, decode(h.newest()).position - position
 
 
@@ -284,7 +286,9 @@ def test_another_master_in_the_components_session_after_a_missed_power_cycle(
         relay = h.relay
         h.must(h.caught_up, 3.0, "the component at the newest record")
         token = decode(h.newest()).session
-        assert token == 1, f"the component's first session is {token}"
+        # Token 1 as a fresh component writes it first, unless a configuration on a loaded
+        # machine failed after its write: the other master writes the component's token.
+        assert token, "the component's session"
         sequence = decode(h.newest()).sequence
         log_start = len(h.log())
         counts_before = h.counts("x")
@@ -362,8 +366,15 @@ def test_another_master_in_the_components_session_after_a_missed_power_cycle(
                 f"X moved {credited:+d}, {due} detents turned after the component configured "
                 "the device"
             )
-        if "the device refused the session key" not in log:
-            problems.append("the component's log says nothing of its session key refused")
+        # Its probes are refused (the other master's session has no key), or, on its own
+        # channel before the other master set that up again, go unanswered: either drops the
+        # session.
+        dropped = (
+            "the device refused the session key",
+            "probes unanswered on the component's own SDO channel",
+        )
+        if not any(reason in log for reason in dropped):
+            problems.append("the component's log says nothing of its session dropped")
         if not starts:
             problems.append("no configuration by the component after the power cycle")
         if not jogging:
@@ -380,8 +391,9 @@ def test_another_master_in_the_components_session_after_a_missed_power_cycle(
 
 # From the node's start (by another master, 0.5 s after the power-up) to the component's own
 # session with the feed on: its probes on its own SDO channel (0x1201, not stored: invalid
-# again after the power cycle) go unanswered, and after three it configures the device again.
-OWN_CHANNEL_BACK = 3.0
+# again after the power cycle) go unanswered, and after three it configures the device again:
+# about 1.5 s idle, up to 3.2 s seen with two boards on a loaded 2-core machine.
+OWN_CHANNEL_BACK = 4.0
 STARTED_AFTER = 0.5  # s after the power-up another master starts the node (NMT)
 # After another master's SDO write the component holds its configuration back this long
 # (`core.FOREIGN_SDO_QUIET`): with token 1 restored just before the start, on top.
@@ -412,7 +424,9 @@ def test_the_component_configures_again_when_its_own_channel_is_gone(board, tmp_
         relay = h.relay
         h.must(h.caught_up, 3.0, "the component at the newest record")
         token = decode(h.newest()).session
-        assert token == 1, f"the component's first session is {token}"
+        # Token 1 as a fresh component writes it first, unless a configuration on a loaded
+        # machine failed after its write: the other master writes the component's token.
+        assert token, "the component's session"
         log_start = len(h.log())
         counts_before = h.counts("x")
         node_started = threading.Event()
@@ -481,3 +495,52 @@ def test_the_component_configures_again_when_its_own_channel_is_gone(board, tmp_
         assert (moved, turned) == (DETENTS, DETENTS), (
             f"{moved:+d} of {DETENTS} detents credited ({turned} turned)\n{log[-3000:]}"
         )
+
+
+# A path that does not carry the component's own channel -----------------------------------------
+
+# From the start to the component's feed on in a session on the default channel: two sessions
+# whose probes go unanswered (3 probes of 0.1 s and python-canopen's timeout each) before it.
+DEFAULT_CHANNEL_BACK = 6.0
+
+
+def test_a_path_without_the_own_channel_leaves_the_component_on_the_default_one(board, tmp_path):
+    """A gateway that does not pass the device's answers on the component's own SDO channel
+    (0x1201's transmit COB-ID): the component configures the channel, its probes there go
+    unanswered, it configures again, the same, and after the second session in a row it logs
+    why and configures on the default channel, where it jogs: within DEFAULT_CHANNEL_BACK of
+    the start, 10 detents turned then credited exactly. Before, it would configure the channel
+    again once a second (each time a session token kept out for 60 s after), and the wheel
+    stayed dead."""
+    _, own_tx = own_sdo_ids(1)  # the component's: master 1
+    h = Host(board, tmp_path)  # the component starts; it probes only once configured
+    h.relay.drop(lambda f: f.id == own_tx, count=1_000_000)
+    begun = time.monotonic()
+    try:
+        h.stim.axis("x")
+        h.stim.mult(1)
+        # (Its first sessions enable the feed too, on the own channel: the device takes the
+        # writes, only its answers are dropped; nothing is credited there, no probe dates.)
+        fallback = "configuring on the default channel from now on"
+        gave_way = h.wait(lambda: fallback in h.log(), DEFAULT_CHANNEL_BACK + 10.0)
+        assert gave_way, f"no fallback to the default channel:\n{h.log()[-3000:]}"
+        h.wait(lambda: "device configured" in h.log().split(fallback, 1)[1], 5.0)
+        on = h.wait(lambda: h.enabled() and h.caught_up(), 5.0)
+        took = time.monotonic() - begun
+        log = h.log()
+        assert on, f"the component never jogged:\n{log[-3000:]}"
+        assert took <= DEFAULT_CHANNEL_BACK, f"{took:.2f} s:\n{log[-3000:]}"
+        counts, position = h.counts("x"), decode(h.newest()).position
+        for _ in range(DETENTS):
+            h.stim.turn(1)
+            time.sleep(0.03)
+        h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
+        time.sleep(0.2)  # the last credits to the pins
+        h.wait(h.counts_written, 3.0)
+        moved = h.counts("x") - counts
+        turned = decode(h.newest()).position - position
+        assert (moved, turned) == (DETENTS, DETENTS), f"{moved:+d} of {DETENTS}\n{log[-3000:]}"
+    finally:
+        h.close()
+        tail = "\n".join(h.log().splitlines()[-40:])
+        print(f"--- last lines of {h.log_path} ---\n{tail}")

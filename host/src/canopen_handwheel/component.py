@@ -749,6 +749,12 @@ def _carry_out(
     raise TypeError(f"unknown action {action!r}")
 
 
+# The token written again this often while the device is too young for a session, for at
+# most `core.SESSION_DELAY` and this margin (the device's clock and ours, the write's time).
+YOUNG_TOKEN_PERIOD = 0.05
+YOUNG_TOKEN_MARGIN = 0.1
+
+
 def _configure(
     link: Link,
     node_id: int,
@@ -847,12 +853,21 @@ def _configure(
     write(0x2000, 0, 0, 1)
     # The session last: every write before it ended whatever session the device had.
     report.tried = token
-    try:
-        write(0x2002, 0, token, 1)
-    except canopen.SdoAbortedError as refused:
-        # The device started less than `core.SESSION_DELAY` ago: no session opens yet.
-        report.young = refused.code == core.ABORT_DEVICE_STATE
-        raise
+    # A device that started less than `core.SESSION_DELAY` ago refuses the token (0x08000022)
+    # and changes nothing: the token alone is written again until it is old enough, so a
+    # configuration started at the boot-up is not begun again (and meanwhile held back by
+    # another master's SDO exchanges); past that, the core asks again (`Configured.young`).
+    young_until = time.monotonic() + core.SESSION_DELAY + YOUNG_TOKEN_MARGIN
+    while True:
+        try:
+            write(0x2002, 0, token, 1)
+            break
+        except canopen.SdoAbortedError as refused:
+            young = refused.code == core.ABORT_DEVICE_STATE
+            if not young or time.monotonic() >= young_until:
+                report.young = young
+                raise
+            time.sleep(YOUNG_TOKEN_PERIOD)
     # Its key at once: the device keeps it with this session only, and refuses the probes
     # of a session that does not have it.
     write(core.SESSION_KEY_OBJECT, 0, action.key, 2)

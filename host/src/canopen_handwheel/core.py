@@ -470,6 +470,12 @@ SDO_SERVER_2 = 0x1201
 # most before the configuration starts. (Not a check that keeps an intact session: the
 # configuration writes 0x1201 by construction, whatever else made the channel silent.)
 PROBE_TIMEOUTS_BEFORE_CONFIGURING = 3
+# Sessions in a row dropped that way, no probe on the own channel answered in between, before
+# the core configures without it (the default channel): the first drop sets the channel up
+# again (a power cycle or another master's write silenced it); a second says the bus or a
+# gateway does not carry the channel's identifiers, and configuring it again would only burn
+# a session token a second (each kept out for `COPY_AGE` after).
+OWN_CHANNEL_DROPS_BEFORE_DEFAULT = 2
 
 
 def own_sdo_ids(master: int) -> Tuple[int, int]:
@@ -1216,6 +1222,10 @@ class Core:
     # Probes of the session on the own channel in a row that got no answer at all
     # (`PROBE_TIMEOUTS_BEFORE_CONFIGURING`).
     probes_unanswered: int = 0
+    # Sessions dropped in a row for unanswered probes on the own channel
+    # (`OWN_CHANNEL_DROPS_BEFORE_DEFAULT`); at the limit the core stays on the default channel
+    # for the rest of the run.
+    own_channel_drops: int = 0
     undated: int = 0
     undated_logged: bool = False
     now: float = 0.0
@@ -1344,6 +1354,8 @@ class Core:
                 self._probe_unanswered(action)
                 return
             self.probes_unanswered = 0  # the channel answers
+            if action.own:
+                self.own_channel_drops = 0
             date = probe_date(action, result, self.session) if ok and result else None
             if date is not None:
                 self.dates.append(date)
@@ -1395,6 +1407,13 @@ class Core:
             f"{self.probes_unanswered} probes unanswered on the component's own SDO channel "
             f"(0x{SDO_SERVER_2:04X})"
         )
+        self.own_channel_drops += 1
+        if self.own_channel_drops == OWN_CHANNEL_DROPS_BEFORE_DEFAULT:
+            self.log.append(
+                f"the component's own SDO channel (0x{SDO_SERVER_2:04X}) went unanswered in "
+                f"{self.own_channel_drops} sessions in a row: the bus or a gateway may not "
+                "carry its identifiers; configuring on the default channel from now on"
+            )
 
     def _configure_done(self, action: Configure, ok: bool, r: Configured) -> None:
         """A configuration's outcome. It stands if every step succeeded and was read back,
@@ -1647,7 +1666,9 @@ class Core:
             keep,
             tokens,
             motion_settings(self.cfg),
-            self.cfg.own_sdo,
+            None
+            if self.own_channel_drops >= OWN_CHANNEL_DROPS_BEFORE_DEFAULT
+            else self.cfg.own_sdo,
             key,
         )
 
