@@ -455,8 +455,9 @@ pub struct Spec {
     /// The host received a record the device made since the last of those: detents turned
     /// now are owed.
     synced: bool,
-    /// The device's pace as the model keeps it from the numbers the device took
-    /// ([`Bounds::pace`]): a number beyond it must end the session within the round.
+    /// The device's pace as the model keeps it from the numbers the device took and the
+    /// times it refilled at ([`Bounds::pace`]): a number beyond it must end the session
+    /// within the round.
     pace: PaceSpec,
     /// Another master put the device in the host's session ([`Action::WriteToken`]) since
     /// the host last wrote it: the records of that session are not the host's to be in step
@@ -482,21 +483,38 @@ impl PaceSpec {
         }
     }
 
-    /// The device took `numbers` in a round at `now_us`. The device refills once in a round,
-    /// before or after it takes numbers there: the spec grants the numbers refilled since the
-    /// last refill whichever the order (never less than the device has).
-    fn take(&mut self, pace: SequencePace, now_us: u64, numbers: u16) {
+    /// The device took `numbers` from the bucket: beyond what it holds overdraws it.
+    fn take(&mut self, numbers: u16) {
+        self.overdrawn |= numbers > self.allowance;
+        self.allowance = self.allowance.saturating_sub(numbers);
+    }
+
+    /// The device refilled at `now_us`: one number per whole period since the bucket was
+    /// last refilled up to, up to the burst; a full bucket is refilled up to now. (Again at
+    /// the same time, with numbers taken in between, it adds nothing.)
+    fn refill(&mut self, pace: SequencePace, now_us: u64) {
         let period = u64::from(pace.us_per_number);
-        let credit = (now_us.saturating_sub(self.refilled_us) / period).min(u64::from(pace.burst));
-        let credit = credit as u16;
-        let available = self.allowance + credit;
-        self.overdrawn |= numbers > available;
-        self.allowance = available.saturating_sub(numbers).min(pace.burst);
-        self.refilled_us = if self.allowance >= pace.burst {
-            self.refilled_us.max(now_us)
-        } else {
-            self.refilled_us + u64::from(credit) * period
-        };
+        let due = now_us.saturating_sub(self.refilled_us) / period;
+        let room = pace.burst.saturating_sub(self.allowance);
+        let credit = due.min(u64::from(room)) as u16;
+        self.allowance += credit;
+        self.refilled_us += u64::from(credit) * period;
+        if self.allowance >= pace.burst {
+            self.refilled_us = self.refilled_us.max(now_us);
+        }
+    }
+
+    /// A round that took `before` numbers, refilled at `refilled_us` (if it did), then took
+    /// `after`. The device refills at every service of the round (`tick`), all at the
+    /// round's time: only the first refill of a round adds numbers, and the numbers taken
+    /// before it (a received frame's, ahead of its service) come from the bucket as the
+    /// last round left it.
+    fn round(&mut self, pace: SequencePace, before: u16, refilled_us: Option<u64>, after: u16) {
+        self.take(before);
+        if let Some(now_us) = refilled_us {
+            self.refill(pace, now_us);
+        }
+        self.take(after);
     }
 }
 
@@ -1114,6 +1132,7 @@ impl FeedModel {
             .device_mut()
             .mutant_transmit_completed(port.path.completed);
         let sequence = wheel.inner.feed().outbox().sequence();
+        let mark = wheel.inner.feed().outbox().mutant_refill_mark();
         // The model's time stays far below the tick count's wrap.
         let out = w.real.node.poll(
             now as u32,
@@ -1121,12 +1140,17 @@ impl FeedModel {
             &mut Lines(w.axis, w.multiplier),
             &mut wheel,
         );
-        let taken_numbers = wheel
-            .inner
-            .feed()
-            .outbox()
-            .sequence()
-            .wrapping_sub(sequence);
+        // Where the round refilled the pace: the device's first refill at a new time, with
+        // the sequence then (a refill at a time the bucket was refilled at already adds
+        // nothing).
+        let outbox = wheel.inner.feed().outbox();
+        let (end, refill) = (outbox.sequence(), outbox.mutant_refill_mark());
+        let (before, refilled_us, after) = match refill {
+            Some((at_us, at)) if refill != mark => {
+                (at.wrapping_sub(sequence), Some(at_us), end.wrapping_sub(at))
+            }
+            _ => (end.wrapping_sub(sequence), None, 0),
+        };
         let (taken, misplaced) = (wheel.taken, wheel.misplaced);
         let (stalled, wrongly) = (port.stalled, port.wrongly_enabled);
         if let Some(why) = wrongly {
@@ -1145,7 +1169,7 @@ impl FeedModel {
         // The pace: a number beyond it ends the session in the round that took it.
         w.spec
             .pace
-            .take(self.bounds.pace, now * 1000, taken_numbers);
+            .round(self.bounds.pace, before, refilled_us, after);
         if std::mem::take(&mut w.spec.pace.overdrawn) {
             let session = w.real.wheel.feed().session();
             if session != 0 {

@@ -89,6 +89,22 @@ pub enum PaceMutant {
     NotEnforced,
 }
 
+/// Where the pace was refilled: the device's time (µs) of the last refill, and the sequence
+/// at the first refill at that time. The feed checker reads it to keep its own bucket in
+/// step with the order of refill and numbers in a round. Not part of the outbox's state (it
+/// hashes to nothing): it only tells where the round the checker is running refilled.
+#[cfg(feature = "mutants")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct RefillMark {
+    now_us: u64,
+    sequence: u16,
+}
+
+#[cfg(feature = "mutants")]
+impl core::hash::Hash for RefillMark {
+    fn hash<H: core::hash::Hasher>(&self, _: &mut H) {}
+}
+
 /// The closed epochs' final states waiting for the bus, and the record sequence number.
 #[derive(Clone, Debug, Hash)]
 pub struct FeedOutbox {
@@ -110,6 +126,8 @@ pub struct FeedOutbox {
     pace: SequencePace,
     #[cfg(feature = "mutants")]
     mutant: Option<PaceMutant>,
+    #[cfg(feature = "mutants")]
+    refill_mark: Option<RefillMark>,
 }
 
 impl Default for FeedOutbox {
@@ -136,6 +154,8 @@ impl FeedOutbox {
             pace: SequencePace::SHIPPED,
             #[cfg(feature = "mutants")]
             mutant: None,
+            #[cfg(feature = "mutants")]
+            refill_mark: None,
         }
     }
 
@@ -144,6 +164,14 @@ impl FeedOutbox {
     #[doc(hidden)]
     pub fn set_pace_mutant(&mut self, mutant: Option<PaceMutant>) {
         self.mutant = mutant;
+    }
+
+    /// The device's time (µs) of the last refill, and the sequence when the pace was first
+    /// refilled at that time (`None`: never refilled), for the feed checker's pace.
+    #[cfg(feature = "mutants")]
+    #[doc(hidden)]
+    pub fn mutant_refill_mark(&self) -> Option<(u64, u16)> {
+        self.refill_mark.map(|mark| (mark.now_us, mark.sequence))
     }
 
     /// Another pace than [`SequencePace::SHIPPED`], for a checker that narrows the sequence
@@ -157,6 +185,13 @@ impl FeedOutbox {
     /// the pace since the last refill, up to its burst. (A loop of at most a burst of steps
     /// rather than a 64-bit division, which the firmware would have to link for this alone.)
     pub fn refill(&mut self, now_us: u64) {
+        #[cfg(feature = "mutants")]
+        if self.refill_mark.is_none_or(|mark| mark.now_us != now_us) {
+            self.refill_mark = Some(RefillMark {
+                now_us,
+                sequence: self.sequence,
+            });
+        }
         #[allow(unused_mut, reason = "only the mutants change them")]
         let (mut burst, mut due) = (self.pace.burst, u64::from(self.pace.us_per_number));
         #[cfg(feature = "mutants")]
