@@ -96,11 +96,17 @@ def forward_detents_after_a_write(h, sub: int, value: int) -> tuple:
     # The stop is reported with its true reason: the session ended, not a 0x2000 write.
     assert h.hal.number("stop-reason") == STOP_SESSION_ENDED, h.log()[-2000:]
     assert "feed stopped by the device: the session ended" in h.log()
+    return turn_forward(h)
+
+
+def turn_forward(h) -> tuple:
+    """DETENTS detents forward on X, 30 ms apart: (X's counts credited for them, what the
+    device's records say the position moved), once every detent's record is taken and its
+    credit on the pins (a loaded machine is slow)."""
     counts, position = h.counts("x"), decode(h.newest()).position
     for _ in range(DETENTS):
         h.stim.turn(1)
         time.sleep(0.03)
-    # Every detent's record taken and its credit on the pins (a loaded machine is slow).
     h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
     h.wait(h.caught_up, 3.0)
     time.sleep(0.2)  # the last credits to the pins
@@ -234,6 +240,32 @@ def download(h, index: int, sub: int, value: int, size: int) -> Optional[int]:
     return None
 
 
+def power_cycle_unseen(board, relay, started: threading.Event) -> float:
+    """Power cycles the board while the relay drops the device's boot-up and its
+    Pre-operational heartbeats until `started` is set: the component never sees the new power
+    life begin. Returns when (the relay's clock) the boot-up came."""
+    boot = relay.drop(is_bootup())
+    relay.drop(
+        lambda f: (
+            not started.is_set() and f.id == HEARTBEAT and bytes(f.data) == bytes([PRE_OPERATIONAL])
+        ),
+        count=50,
+    )
+    board.control("power")
+    assert boot.wait(FRAME_TIMEOUT), "no boot-up after the power cycle"
+    return boot.frames[0].t
+
+
+def write_token(h, token: int) -> None:
+    """The other master writes `token` to 0x2002, again while the device refuses it as too
+    young (the board's clock may run behind the host's), for at most 2 s."""
+    deadline = time.monotonic() + 2.0
+    while (abort := download(h, 0x2002, 0, token, 1)) == ABORT_DEVICE_STATE:
+        assert time.monotonic() < deadline, "the device never opened a session"
+        time.sleep(YOUNG_RETRY)
+    assert abort is None, f"0x2002 = {token}: abort 0x{abort:08X}"
+
+
 def another_master_opens(h, booted: float, token: int, own_sdo: Optional[tuple]) -> float:
     """Another master, once the device is old enough (SESSION_DELAY after its power-up at
     `booted`), configures it as another component with the same master node-ID would that
@@ -248,12 +280,7 @@ def another_master_opens(h, booted: float, token: int, own_sdo: Optional[tuple])
         assert download(h, 0x1201, 2, tx, 4) is None
         assert download(h, 0x1201, 1, rx, 4) is None
     assert download(h, WHEEL, INVERT, 1, 1) is None
-    deadline = time.monotonic() + 2.0
-    while (abort := download(h, 0x2002, 0, token, 1)) == ABORT_DEVICE_STATE:
-        # The board's clock may run behind the host's: still too young.
-        assert time.monotonic() < deadline, "the device never opened a session"
-        time.sleep(YOUNG_RETRY)
-    assert abort is None, f"0x2002 = {token}: abort 0x{abort:08X}"
+    write_token(h, token)
     h.relay.send(NMT, bytes([NMT_START, NODE_ID]))
     assert download(h, 0x2000, 0, 1, 1) is None
     return time.monotonic()
@@ -293,21 +320,10 @@ def test_another_master_in_the_components_session_after_a_missed_power_cycle(
         log_start = len(h.log())
         counts_before = h.counts("x")
         opened = threading.Event()
-        boot = relay.drop(is_bootup())
-        relay.drop(
-            lambda f: (
-                not opened.is_set()
-                and f.id == HEARTBEAT
-                and bytes(f.data) == bytes([PRE_OPERATIONAL])
-            ),
-            count=5,
-        )
         host_mark = relay.host.mark()
         records = relay.record_count()
         cycled = time.monotonic()
-        board.control("power")
-        assert boot.wait(FRAME_TIMEOUT), "no boot-up after the power cycle"
-        booted = boot.frames[0].t
+        booted = power_cycle_unseen(board, relay, opened)
         enabled = another_master_opens(h, booted, token, own_sdo)
         opened.set()
         turned: List[float] = []
@@ -340,15 +356,7 @@ def test_another_master_in_the_components_session_after_a_missed_power_cycle(
         moved = turned_then = 0
         if jogging:
             # Then 10 detents, credited exactly.
-            counts, position = h.counts("x"), decode(h.newest()).position
-            for _ in range(DETENTS):
-                h.stim.turn(1)
-                time.sleep(0.03)
-            h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
-            h.wait(h.caught_up, 3.0)
-            time.sleep(0.2)  # the last credits to the pins
-            moved = h.counts("x") - counts
-            turned_then = decode(h.newest()).position - position
+            moved, turned_then = turn_forward(h)
         log = h.log()[log_start:]
         news = [decode(f) for f in relay.records_since(records)]
         print(
@@ -430,27 +438,12 @@ def test_the_component_configures_again_when_its_own_channel_is_gone(board, tmp_
         log_start = len(h.log())
         counts_before = h.counts("x")
         node_started = threading.Event()
-        boot = relay.drop(is_bootup())
-        relay.drop(
-            lambda f: (
-                not node_started.is_set()
-                and f.id == HEARTBEAT
-                and bytes(f.data) == bytes([PRE_OPERATIONAL])
-            ),
-            count=50,
-        )
         records = relay.record_count()
         cycled = time.monotonic()
-        board.control("power")
-        assert boot.wait(FRAME_TIMEOUT), "no boot-up after the power cycle"
-        booted = boot.frames[0].t
+        booted = power_cycle_unseen(board, relay, node_started)
         time.sleep(max(0.0, booted + STARTED_AFTER - time.monotonic()))
         if restored:
-            deadline = time.monotonic() + 2.0
-            while (abort := download(h, 0x2002, 0, token, 1)) == ABORT_DEVICE_STATE:
-                assert time.monotonic() < deadline, "the device never opened a session"
-                time.sleep(YOUNG_RETRY)
-            assert abort is None, f"0x2002 = {token}: abort 0x{abort:08X}"
+            write_token(h, token)
         relay.send(NMT, bytes([NMT_START, NODE_ID]))
         started_at = time.monotonic()
         node_started.set()
@@ -479,16 +472,7 @@ def test_the_component_configures_again_when_its_own_channel_is_gone(board, tmp_
         assert took <= bound, f"{took:.2f} s after the node was started:\n{log[-3000:]}"
         if restored:
             assert "probes unanswered on the component's own SDO channel (0x1201)" in log, log
-        counts, position = h.counts("x"), decode(h.newest()).position
-        for _ in range(DETENTS):
-            h.stim.turn(1)
-            time.sleep(0.03)
-        h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
-        h.wait(h.caught_up, 3.0)
-        time.sleep(0.2)  # the last credits to the pins
-        h.wait(h.counts_written, 3.0)
-        moved = h.counts("x") - counts
-        turned = decode(h.newest()).position - position
+        moved, turned = turn_forward(h)
         history = [counts_before] + [int(v) for _, v in h.hal.history("axis.x.jog-counts", cycled)]
         backwards = [b - a for a, b in zip(history, history[1:]) if b < a]
         assert not backwards, f"X stepped back {len(backwards)} times, {sum(backwards)} in all"
@@ -530,15 +514,7 @@ def test_a_path_without_the_own_channel_leaves_the_component_on_the_default_one(
         log = h.log()
         assert on, f"the component never jogged:\n{log[-3000:]}"
         assert took <= DEFAULT_CHANNEL_BACK, f"{took:.2f} s:\n{log[-3000:]}"
-        counts, position = h.counts("x"), decode(h.newest()).position
-        for _ in range(DETENTS):
-            h.stim.turn(1)
-            time.sleep(0.03)
-        h.wait(lambda: h.caught_up() and h.counts("x") - counts >= DETENTS, 3.0)
-        time.sleep(0.2)  # the last credits to the pins
-        h.wait(h.counts_written, 3.0)
-        moved = h.counts("x") - counts
-        turned = decode(h.newest()).position - position
+        moved, turned = turn_forward(h)
         assert (moved, turned) == (DETENTS, DETENTS), f"{moved:+d} of {DETENTS}\n{log[-3000:]}"
     finally:
         h.close()

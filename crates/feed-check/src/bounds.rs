@@ -88,6 +88,26 @@ const NARROW: Bounds = Bounds {
     ..BASE
 };
 
+/// Another master writes the host's own token after a power cycle whose boot-up the host
+/// missed (in [`COPIES_AND_POWER_CYCLES`]).
+const TOKEN_WRITTEN_AGAIN: Bounds = Bounds {
+    name: "token written again after an unseen power cycle",
+    rule: RuleConfig {
+        dating: true,
+        ..narrow(3)
+    },
+    transmit_capacity: 2,
+    turns: 1,
+    feed_writes: 1,
+    nmt: 1,
+    power_cycles: 1,
+    channel_faults: 1,
+    token_writes: 1,
+    warmups: &[&[Warm::Turns(125)]],
+    copy_depth: 0,
+    ..NARROW
+};
+
 /// What `cargo xtask test` explores.
 pub const ALL: &[Bounds] = &[
     // Stops, starts and selection changes while the transmit path is full: the epoch field
@@ -375,44 +395,15 @@ pub const COPIES_AND_POWER_CYCLES: &[Bounds] = &[
     // power cycle whose boot-up the host missed, starts the node and enables the feed, and a
     // record of the new power life linked to the host's reference from the old one. The
     // host's dating on, as the component runs.
-    Bounds {
-        name: "token written again after an unseen power cycle",
-        rule: RuleConfig {
-            dating: true,
-            ..narrow(3)
-        },
-        transmit_capacity: 2,
-        turns: 1,
-        feed_writes: 1,
-        nmt: 1,
-        power_cycles: 1,
-        channel_faults: 1,
-        token_writes: 1,
-        warmups: &[&[Warm::Turns(125)]],
-        copy_depth: 0,
-        ..NARROW
-    },
+    TOKEN_WRITTEN_AGAIN,
     // The same, the device grown past the delay before a session opens (a tick of 0.5 s):
     // another master's token in the new life, with the host's dates from the old one
     // expired, still never makes the host's probes date the new life (the key).
     Bounds {
         name: "token written again, the device grown up",
-        rule: RuleConfig {
-            dating: true,
-            ..narrow(3)
-        },
-        transmit_capacity: 2,
-        turns: 1,
-        feed_writes: 1,
-        nmt: 1,
-        power_cycles: 1,
-        channel_faults: 1,
-        token_writes: 1,
         ticks: 1,
         tick_ms: 500,
-        warmups: &[&[Warm::Turns(125)]],
-        copy_depth: 0,
-        ..NARROW
+        ..TOKEN_WRITTEN_AGAIN
     },
 ];
 
