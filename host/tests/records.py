@@ -31,16 +31,19 @@ def rec(*args, **kwargs) -> bytes:
     return record(*args, **kwargs).encode()
 
 
-def configure(c: Core, now: float, found: int = 0, due: bool = True) -> Optional[int]:
+def configure(
+    c: Core, now: float, found: int = 0, due: bool = True, uptime_ms: Optional[int] = None
+) -> Optional[int]:
     """Carries out the configuration `c` asks for at `now` on a device whose 0x2002 reads
-    `found`, every step succeeding (`core.configure_outcome`); the session `c` then has.
-    `due`: `c` must ask for one (else: nothing if it does not, as when it waits for a
-    token)."""
+    `found` and whose uptime 0x2035 reads `uptime_ms` (None: not read), every step
+    succeeding (`core.configure_outcome`); the session `c` then has. `due`: `c` must ask for
+    one (else: nothing if it does not, as when it waits for a token)."""
     action = c.next_action(now)
     if not due and not isinstance(action, Configure):
         return c.session
     assert isinstance(action, Configure), action
-    ok, result = core.configure_outcome(action, found, c.event_timer)
+    uptime = None if uptime_ms is None else (uptime_ms, now)
+    ok, result = core.configure_outcome(action, found, c.event_timer, uptime)
     c.done(action, ok, None, now, result)
     return c.session
 

@@ -137,7 +137,9 @@ def test_without_notes_the_host_side_is_inferred_from_the_bus(tmp_path, monkeypa
     r = decode.replay([capture.read(path, notes=None)])
     assert not r.notes
     assert r.pins["axis.x.jog-counts"] == -7 and r.pins["axis.y.jog-counts"] == 2
-    assert any("configuration: session 1 (0x2002 written), taken" in e for _, e in r.events)
+    assert any("configuration: session 1 (0x2002 written), taken" in e for _, e in r.events), (
+        r.events
+    )
 
 
 def test_a_capture_that_starts_inside_a_session_adopts_it(tmp_path):

@@ -726,3 +726,20 @@ def test_a_boot_up_during_a_configuration_it_then_answered_configures_once():
     r.hb(core.BOOTUP)
     r.c.done(a, True, None, r.at(0.02), result(a))  # no time: not known to be after
     assert not r.c.configured and isinstance(r.c.next_action(r.at()), Configure)
+
+
+def test_a_configuration_that_fails_while_the_device_boots_is_asked_again_at_once():
+    """A reset cuts a configuration short (an answer lost, a read-back of the reset value):
+    with its boot-up seen while it ran, the failure is the reset's, and the next
+    configuration is asked for at once, not after the retry time; a failure without a
+    boot-up waits for it."""
+    r = Run(configured=False)
+    a = r.c.next_action(r.at())
+    r.hb(core.BOOTUP)
+    r.c.done(a, False, None, r.at(0.02), Configured(found=0, first_reply_at=r.t - 0.01))
+    assert isinstance(r.c.next_action(r.at()), Configure)
+    r = Run(configured=False)
+    a = r.c.next_action(r.at())
+    r.c.done(a, False, None, r.at(0.02), Configured(found=0))
+    assert r.c.next_action(r.at()) is None
+    assert isinstance(r.c.next_action(r.at(r.c.cfg.retry)), Configure)

@@ -445,25 +445,69 @@ def test_copies_across_a_power_cycle_move_nothing(bootup_seen):
     assert d.x == 20 and d.c.session == 2
 
 
-def test_tokens_are_reused_only_after_copy_age():
-    """Eight boot-ups in a minute: the first seven get the seven tokens; the eighth waits
-    (logged) until COPY_AGE after the first was superseded, and gets that one."""
+def seven_boot_ups_in_seven_seconds() -> Dev:
+    """Seven boot-ups a second apart (resets of the node, or power cycles: the host cannot
+    tell), the first six configured with the next free token: every token used by the
+    seventh."""
     d = Dev()
     used = [d.c.session]
     for _ in range(6):
         d.hb(core.BOOTUP, dt=1.0)
         used.append(d.configure())
     assert used == [1, 2, 3, 4, 5, 6, 7]
-    superseded = dict(d.c.superseded)
-    assert sorted(superseded) == [1, 2, 3, 4, 5, 6]
+    assert sorted(d.c.superseded) == [1, 2, 3, 4, 5, 6]
     d.hb(core.BOOTUP, dt=1.0)
-    assert d.c.next_action(d.at()) is None
-    assert any("no session token free" in line for line in d.c.take_log())
-    free_at = superseded[1] + core.COPY_AGE
+    return d
+
+
+def test_a_token_is_reused_at_once_when_the_uptime_shows_no_power_cycle_since():
+    """After seven boot-ups in seven seconds no token is free; the configuration offers the
+    host's own tokens, least recently used first, each with its chain's start, and writes the
+    first one the device's uptime proves: a device up for 60 s has run since token 1 was first
+    written (t = 0), one up for 6.5 s since token 2 (t = 1), not token 1."""
+    d = seven_boot_ups_in_seven_seconds()
+    t = d.at()
+    a = d.c.next_action(t)
+    assert isinstance(a, Configure) and a.tokens == ()
+    assert [token for token, _ in a.reusable] == [1, 2, 3, 4, 5, 6, 7]
+    assert dict(a.reusable)[1] == 0.0 and dict(a.reusable)[2] == pytest.approx(1.0)
+    assert core.pick_token((), 0, a.reusable, core.life_began_by(60_000, t)) == 1
+    # Up 6.5 s on a clock up to 1 % fast: begun after t = 0.56 at the latest.
+    assert core.pick_token((), 0, a.reusable, core.life_began_by(6_500, t)) == 2
+    assert core.pick_token((), 1, a.reusable, core.life_began_by(60_000, t)) == 2
+    ok, result = core.configure_outcome(a, 0, d.c.event_timer, (60_000, t))
+    d.c.done(a, ok, None, t, result)
+    assert d.c.session == 1
+    # Its chain goes on from t = 0: the next reuse needs a life begun before it, still.
+    assert d.c.chains[1] == 0.0
+
+
+def test_a_token_waits_copy_age_when_the_uptime_shows_a_young_life():
+    """The same, the device up for less than the seconds since any token's chain began (a
+    power cycle since): nothing is written, the wait is logged, and the first token free
+    after COPY_AGE is written then."""
+    d = seven_boot_ups_in_seven_seconds()
+    t = d.at()
+    assert configure(d.c, t, uptime_ms=900) is None
+    assert any("does not show it running" in line for line in d.c.take_log())
+    free_at = d.c.superseded[1] + core.COPY_AGE
     assert d.c.config_due == pytest.approx(free_at)
     assert d.c.next_action(free_at - 1e-6) is None
     a = d.c.next_action(free_at)
     assert isinstance(a, Configure) and a.tokens == (1,)
+
+
+def test_a_token_picked_free_starts_a_chain_and_a_reused_one_keeps_its_own():
+    """The chain of a token starts when a configuration that writes it free is asked for,
+    even if its read-back fails (the device may be in it); a young device's refusal writes
+    nothing and starts none."""
+    c = Core(Config())
+    a = c.next_action(0.0)
+    c.done(a, False, None, 0.1, Configured(found=0, tried=1))
+    assert c.chains == {1: 0.0}
+    a = c.next_action(1.0)
+    c.done(a, False, core.ABORT_DEVICE_STATE, 1.1, Configured(found=0, tried=2, young=True))
+    assert c.chains == {1: 0.0}
 
 
 def test_free_tokens_boundaries():

@@ -1,5 +1,7 @@
 """NMT: boot-up, state changes addressed and broadcast, resets, Stopped."""
 
+import time
+
 import can
 import canopen
 import pytest
@@ -142,3 +144,34 @@ def test_29_bit_and_remote_frames_are_ignored(rig):
     assert rig.read(0x1000) == 0
     hb = rig.frames.wait_id(HEARTBEAT, since=mark, timeout=3)
     assert hb.data == bytes([PRE_OPERATIONAL])
+
+
+def test_the_uptime_counts_through_resets_and_starts_again_at_a_power_cycle(rig):
+    """0x2035 counts the board's milliseconds (on the emulator's clock: never more than it
+    advanced between the two reads), goes on through NMT reset node and reset communication,
+    and starts again from 0 at a power cycle: how a master tells a reset from a new power
+    life."""
+
+    def uptime() -> int:
+        return rig.read(0x2035, 0)
+
+    def emulated_ms() -> float:
+        return float(rig.board.status()["ms"])
+
+    started = emulated_ms()  # before the first read's sample, after the second's below
+    before = uptime()
+    time.sleep(0.5)
+    after = uptime()
+    elapsed = emulated_ms() - started
+    assert 0 < after - before <= elapsed + 1, (before, after, elapsed)
+    for command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+        mark = rig.nmt(command)
+        rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
+        now = uptime()
+        assert now > after, f"0x{command:02X}: {now} ms after {after} ms"
+        after = now
+    mark, cycled = rig.frames.mark(), emulated_ms()
+    rig.board.control("power")
+    rig.frames.wait_id(HEARTBEAT, bytes([BOOTUP]), since=mark)
+    young = uptime()
+    assert young <= emulated_ms() - cycled + 1 < after, (young, after)

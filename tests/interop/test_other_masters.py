@@ -31,6 +31,8 @@ from rig import (
     FRAME_TIMEOUT,
     HEARTBEAT,
     NMT,
+    NMT_RESET_COMMUNICATION,
+    NMT_RESET_NODE,
     NMT_START,
     NODE_ID,
     PRE_OPERATIONAL,
@@ -520,3 +522,70 @@ def test_a_path_without_the_own_channel_leaves_the_component_on_the_default_one(
         h.close()
         tail = "\n".join(h.log().splitlines()[-40:])
         print(f"--- last lines of {h.log_path} ---\n{tail}")
+
+
+# Session churn: another master resetting the node again and again -----------------------------
+
+# From the boot-up of the last reset to the component's feed on in a session of its own.
+LIVE_AFTER_READY = 1.0
+
+
+@pytest.mark.parametrize(
+    "command, resets, gap",
+    [(NMT_RESET_COMMUNICATION, 10, 0.15), (NMT_RESET_NODE, 8, 1.5)],
+    ids=["10 resets of communication 0.15 s apart", "8 resets of the node 1.5 s apart"],
+)
+def test_session_churn_never_leaves_the_wheel_dead(board, tmp_path, command, resets, gap):
+    """Another master (a PLC starting up, a tool) sends NMT reset communication ten times
+    0.15 s apart, or reset node eight times 1.5 s apart, while the component jogs X: every
+    reset ends the component's session, and the component configures the device again after
+    each one it has time for. Within LIVE_AFTER_READY of the last reset's boot-up the feed is
+    on again in a session of the component's, and ten detents turned then are credited
+    exactly. Before, every configuration took one of the seven session tokens, each kept out
+    for 60 s after its use: the wheel stayed dead for 58.7 s after the ten resets of
+    communication, and 39 s after seven resets of the node in a minute."""
+    with started(board, tmp_path) as h:
+        relay = h.relay
+        h.must(h.caught_up, 3.0, "the component at the newest record")
+        log_start = len(h.log())
+        for n in range(resets):
+            if n:
+                time.sleep(gap)
+            mark, records = relay.device.mark(), relay.record_count()
+            relay.send(NMT, bytes([command, NODE_ID]))
+        boot = relay.device.wait_for(
+            lambda f: f.id == HEARTBEAT and bytes(f.data) == b"\x00",
+            since=mark,
+            what="the boot-up after the last reset",
+        )
+        live = h.wait(
+            lambda: (
+                h.enabled()
+                and any(
+                    decode(f).enabled and decode(f).session and f.t > boot.t
+                    for f in relay.records_since(records)
+                )
+            ),
+            LIVE_AFTER_READY + 60.0,
+        )
+        log = h.log()[log_start:]
+        assert live, f"the feed never came on again after the resets:\n{log[-3000:]}"
+        on = next(
+            f
+            for f in relay.records_since(records)
+            if decode(f).enabled and decode(f).session and f.t > boot.t
+        )
+        sessions = sorted({decode(f).session for f in relay.records_since(0)})
+        asked = relay.host.frames(SDO_RX, since=0) + relay.host.frames(own_sdo_ids(1)[0], since=0)
+        first = min((f.t for f in asked if f.t > boot.t), default=float("nan"))
+        starts = [f.t for f in relay.host.frames(NMT, since=0) if f.t > boot.t]
+        print(
+            f"feed on {on.t - boot.t:.2f} s after the last boot-up (first request "
+            f"{first - boot.t:.2f} s, NMT start {starts[0] - boot.t if starts else 0:.2f} s, "
+            f"{len([f for f in asked if f.t > boot.t])} requests); sessions seen {sessions}"
+        )
+        assert on.t - boot.t <= LIVE_AFTER_READY, f"{on.t - boot.t:.2f} s\n{log[-3000:]}"
+        assert "reset" in log, f"no reset named as the reason:\n{log[-3000:]}"
+        h.must(h.caught_up, 3.0, "the component at the newest record")
+        moved, turned = turn_forward(h)
+        assert (moved, turned) == (DETENTS, DETENTS), f"{moved:+d} of {DETENTS}\n{log[-3000:]}"

@@ -12,6 +12,7 @@ from rig import HEARTBEAT, NMT_START, OPERATIONAL, SDO_TX
 RUNTIME_VALUES = {
     (0x1018, 4),  # serial number: derived from the MCU's unique ID by the firmware
     (0x1F56, 1),  # the running image's CRC-32, sealed into its header at link time
+    (0x2035, 0),  # the device's uptime
 }
 
 

@@ -136,7 +136,7 @@ fn counts(events: &[Event]) -> [i32; 2] {
         match event {
             Event::Configure(found, at) => {
                 assert!(host.configure_due(at), "a configuration the host asks for");
-                let token = host.next_token(at, found);
+                let token = host.next_token(at, found, None);
                 host.configured(found, token, at);
             }
             Event::Drained(at) => host.drained(at),

@@ -269,6 +269,32 @@ pub const ALL: &[Bounds] = &[
         configures: 1,
         ..BASE
     },
+    // The host's tokens used up: one token only, so that every configuration after its
+    // session ended (a reset of the node: the same power life; a power cycle: a new one, its
+    // boot-up seen or lost) must write it again within the contract's age, proven by the
+    // device's uptime (0x2035) or not at all; copies of any record, the old life's included,
+    // with the narrowed sequence near its wrap, so that the new life's first numbers follow
+    // the old life's last ones. A tick of half a second lets the new life grow old enough
+    // for a session within the copy age.
+    Bounds {
+        name: "tokens reused",
+        rule: RuleConfig {
+            dating: true,
+            tokens: 1,
+            ..narrow(3)
+        },
+        transmit_capacity: 2,
+        turns: 1,
+        feed_writes: 1,
+        nmt: 1,
+        power_cycles: 1,
+        channel_faults: 1,
+        configures: 2,
+        ticks: 1,
+        tick_ms: 500,
+        warmups: &[&[Warm::Turns(124)], &[Warm::Turns(125)]],
+        ..NARROW
+    },
     // The pace narrowed to 10 numbers at once (a break of 8 and its record fit), one per 50 ms: thirteen detents in quick
     // succession outrun it, which must end the session.
     Bounds {

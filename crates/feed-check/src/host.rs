@@ -49,6 +49,9 @@ pub enum HostMutant {
     /// A record two epochs on with one number missing links too (as if the missing number
     /// were the epoch in between's, with no motion).
     LinkEpochStepTwo,
+    /// A token in use less than the copy age ago written again without the device's uptime
+    /// proving no power cycle since its chain began.
+    ReuseUnproven,
 }
 
 /// The rule's settings.
@@ -83,6 +86,9 @@ pub struct RuleConfig {
     pub date_limit_ms: u64,
     /// `PROBE_PERIOD`, ms (0.1 s shipped): a probe this long after the last one.
     pub probe_period_ms: u64,
+    /// The session tokens the host uses, 1..=`tokens` (7 shipped: all the 3-bit field
+    /// has); fewer run out in fewer configurations.
+    pub tokens: u8,
     /// A dating mutant (`tests/mutants.rs`); `None`: the rule as `core.py` has it.
     pub mutant: Option<HostMutant>,
 }
@@ -104,6 +110,7 @@ impl RuleConfig {
             dating: false,
             date_limit_ms: 350,
             probe_period_ms: 100,
+            tokens: TOKENS,
             mutant: None,
         }
     }
@@ -240,6 +247,9 @@ pub struct HostRule<T> {
     /// Per token, when the host last knew the device could be in it without having replaced
     /// it (`core.py`'s `busy`).
     busy: [Option<u64>; TOKENS as usize],
+    /// Per token the host wrote, when the configuration that first wrote it after it was
+    /// last free did (ms; `core.py`'s `chains`).
+    chains: [Option<u64>; TOKENS as usize],
     /// Per axis, wrapping sums of the credited deltas (`jog-counts`).
     pub counts: [i32; AXES],
     /// Records the host missed (sequence gaps).
@@ -287,6 +297,7 @@ impl<T: Clone> HostRule<T> {
             check_at: 0,
             superseded: [None; TOKENS as usize],
             busy: [None; TOKENS as usize],
+            chains: [None; TOKENS as usize],
             counts: [0; AXES],
             records_lost: 0,
             frames_bad: 0,
@@ -309,7 +320,7 @@ impl<T: Clone> HostRule<T> {
             return false;
         }
         match self.session {
-            None => (1..=TOKENS).any(|t| self.free(t, now_ms)),
+            None => (1..=self.config.tokens).any(|t| self.free(t, now_ms) || self.reusable(t)),
             Some(_) => self.check_due && now_ms >= self.check_at,
         }
     }
@@ -325,19 +336,54 @@ impl<T: Clone> HostRule<T> {
                 .is_none_or(|at| now_ms >= at + self.config.copy_age_us / 1000)
     }
 
+    /// A token the host wrote itself and does not hold now: written again before it is free
+    /// if the device's uptime proves it (`core.py`'s `Configure.reusable`).
+    fn reusable(&self, token: u8) -> bool {
+        Some(token) != self.session && self.chains[slot(token)].is_some()
+    }
+
     /// The token a configuration writes at `now_ms` on a device whose 0x2002 reads
     /// `device` (`core.py`'s `free_tokens` and `pick_token`): not the host's own, none the
     /// host or the device used less than the contract's age ago, never used ones first,
-    /// lowest first, then the least recently used; never the device's. `None`: none.
-    pub fn next_token(&self, now_ms: u64, device: u8) -> Option<u8> {
-        let mut free: Vec<u8> = (1..=TOKENS).filter(|&t| self.free(t, now_ms)).collect();
+    /// lowest first, then the least recently used; never the device's. Else, with the
+    /// device's uptime `uptime_ms` (0x2035) read at `now_ms`, the least recently used token
+    /// the host wrote whose chain began after the device's present life began at the latest
+    /// (`core.py`'s `life_began_by`, in its floating point). `None`: none.
+    pub fn next_token(&self, now_ms: u64, device: u8, uptime_ms: Option<u32>) -> Option<u8> {
+        let tokens = 1..=self.config.tokens;
+        let mut free: Vec<u8> = tokens.clone().filter(|&t| self.free(t, now_ms)).collect();
         free.sort_by_key(|&t| (self.last_use(t), t));
-        free.into_iter().find(|&t| t != device)
+        if let Some(t) = free.into_iter().find(|&t| t != device) {
+            return Some(t);
+        }
+        let uptime = f64::from(uptime_ms?);
+        let tolerance = 1.0 + self.config.clock_ppm as f64 / 1e6;
+        let began_by = seconds(now_ms) - uptime / 1000.0 / tolerance;
+        let mut reusable: Vec<u8> = tokens
+            .filter(|&t| !self.free(t, now_ms) && self.reusable(t))
+            .collect();
+        reusable.sort_by_key(|&t| (self.last_use(t), t));
+        reusable.into_iter().find(|&t| {
+            let chain = self.chains[slot(t)].map_or(f64::NEG_INFINITY, seconds);
+            t != device
+                && (self.config.mutant == Some(HostMutant::ReuseUnproven) || began_by < chain)
+        })
+    }
+
+    /// Whether a configuration at `now_ms` on a device in `device` needs the device's uptime
+    /// to pick a token: none is free, one the host wrote may be reused.
+    pub fn needs_uptime(&self, now_ms: u64, device: u8) -> bool {
+        self.next_token(now_ms, device, None).is_none()
+            && (1..=self.config.tokens).any(|t| t != device && self.reusable(t))
     }
 
     /// A configuration at `now_ms` found the device in `found`: still the host's session
     /// (nothing written), or the host wrote and read back `token`.
     pub fn configured(&mut self, found: u8, token: Option<u8>, now_ms: u64) {
+        if let Some(t) = token.filter(|&t| self.free(t, now_ms)) {
+            // Written when free: a new chain (a reused token's goes on).
+            self.chains[slot(t)] = Some(now_ms);
+        }
         for t in [Some(found), token].into_iter().flatten() {
             if t != 0 && Some(t) != self.session {
                 self.busy[slot(t)] = Some(now_ms);
@@ -630,20 +676,48 @@ mod tests {
     #[test]
     fn tokens_wait_the_copy_age_after_their_last_use() {
         let mut h: HostRule<()> = HostRule::new(RuleConfig::shipped(100));
-        assert_eq!(h.next_token(0, 0), Some(1));
-        assert_eq!(h.next_token(0, 1), Some(2), "never the device's");
+        assert_eq!(h.next_token(0, 0, None), Some(1));
+        assert_eq!(h.next_token(0, 1, None), Some(2), "never the device's");
         h.configured(0, Some(1), 0);
-        assert_eq!(h.next_token(10, 0), Some(2));
+        assert_eq!(h.next_token(10, 0, None), Some(2));
         h.configured(1, Some(2), 10);
-        assert_eq!(h.next_token(20, 0), Some(3), "1 was replaced 10 ms ago");
+        assert_eq!(
+            h.next_token(20, 0, None),
+            Some(3),
+            "1 was replaced 10 ms ago"
+        );
         for t in 3..=7 {
             h.configured(t - 1, Some(t), 20);
         }
         assert_eq!(
-            h.next_token(30, 0),
+            h.next_token(30, 0, None),
             None,
             "every other token replaced within 60 s"
         );
-        assert_eq!(h.next_token(60_010, 0), Some(1));
+        assert!(h.needs_uptime(30, 0));
+        assert_eq!(h.next_token(60_010, 0, None), Some(1));
+    }
+
+    #[test]
+    fn a_token_is_reused_early_only_when_the_uptime_proves_it() {
+        let mut h: HostRule<()> = HostRule::new(RuleConfig::shipped(100));
+        h.configured(0, Some(1), 1_000);
+        for t in 2..=7 {
+            h.configured(t - 1, Some(t), 1_000 + u64::from(t));
+        }
+        // Up since before t = 1 s (on a clock up to 1 % fast): token 1's chain, the least
+        // recently used.
+        assert_eq!(h.next_token(3_000, 0, Some(2_100)), Some(1));
+        assert_eq!(
+            h.next_token(3_000, 1, Some(2_100)),
+            Some(2),
+            "never the device's"
+        );
+        // Up 1.5 s: begun at 3 - 1.5 / 1.01 = 1.51 s at the latest, after every chain.
+        assert_eq!(h.next_token(3_000, 0, Some(1_500)), None);
+        assert_eq!(h.next_token(3_000, 0, None), None, "no uptime, no reuse");
+        h.configured(7, h.next_token(3_000, 0, Some(2_100)), 3_000);
+        assert_eq!(h.session(), Some(1));
+        assert_eq!(h.chains[0], Some(1_000), "a reused token's chain goes on");
     }
 }

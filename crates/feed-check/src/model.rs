@@ -576,8 +576,9 @@ pub enum HostEvent {
     },
     /// The host found its receive path empty (ms).
     Drained(u64),
-    /// The host configured the device, whose 0x2002 read this, at a time (ms).
-    Configure(u8, u64),
+    /// The host configured the device, whose 0x2002 read this, at a time (ms), and read its
+    /// uptime (0x2035, ms) if its rule needed it to pick a token.
+    Configure(u8, u64, Option<u32>),
     /// The host sent a sequence probe (0x2033 = key and nonce, then read back) at a time
     /// (ms): the value written and the floor its rule gave.
     Probe {
@@ -1024,12 +1025,19 @@ impl FeedModel {
     /// reads it back).
     fn configure(&self, w: &mut World) {
         let device = w.real.wheel.lock(|h| h.feed.session());
-        self.log(w, HostEvent::Configure(device, w.now_ms));
-        if w.host.session().is_some_and(|own| own == device) {
+        let own = w.host.session().is_some_and(|own| own == device);
+        // The device's uptime through its SDO server, when only a token the host used less
+        // than the copy age ago is left (the reads before and after the session is written
+        // see the same: no time passes within the configuration).
+        let uptime = (!own && w.host.needs_uptime(w.now_ms, device))
+            .then(|| self.sdo_read_u32(w, 0x2035, 0))
+            .flatten();
+        self.log(w, HostEvent::Configure(device, w.now_ms, uptime));
+        if own {
             w.host.configured(device, None, w.now_ms);
             return;
         }
-        let Some(token) = w.host.next_token(w.now_ms, device) else {
+        let Some(token) = w.host.next_token(w.now_ms, device, uptime) else {
             w.host.configured(device, None, w.now_ms);
             return;
         };
@@ -1282,6 +1290,20 @@ impl FeedModel {
         spec.watching = false;
         spec.master_lost = false;
         spec.last_beat = None;
+    }
+
+    /// An SDO read (expedited upload) of a U32 through the device's server, its answer kept
+    /// off the bus (as a probe's); `None`: refused or unanswered.
+    fn sdo_read_u32(&self, w: &mut World, index: u16, sub: u8) -> Option<u32> {
+        w.probe_answer = Some(None);
+        self.receive(
+            w,
+            SDO_RX,
+            &[0x40, index as u8, (index >> 8) as u8, sub, 0, 0, 0, 0],
+        );
+        let answer = w.probe_answer.take().flatten()?;
+        (answer[0] == 0x43)
+            .then(|| u32::from_le_bytes([answer[4], answer[5], answer[6], answer[7]]))
     }
 
     /// An SDO write (expedited download); the device's answer says whether it took it (see

@@ -164,10 +164,11 @@ fn line(bounds: &Bounds, name: &str, w: &crate::model::World, out: &mut String) 
             HostEvent::Drained(at_ms) => {
                 let _ = write!(out, "{sep}[\"drained\", {}]", *at_ms as f64 / 1000.0);
             }
-            HostEvent::Configure(found, at_ms) => {
+            HostEvent::Configure(found, at_ms, uptime) => {
+                let uptime = uptime.map_or(String::new(), |ms| format!(", {ms}"));
                 let _ = write!(
                     out,
-                    "{sep}[\"configure\", {found}, {}]",
+                    "{sep}[\"configure\", {found}, {}{uptime}]",
                     *at_ms as f64 / 1000.0
                 );
             }

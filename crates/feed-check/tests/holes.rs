@@ -60,3 +60,31 @@ fn without_dating_a_gateways_hold_is_credited_late() {
     assert!(found.contains("ms after it was turned"), "{found}");
     assert!(path.contains(&Action::Hold), "{path:?}");
 }
+
+/// "tokens reused" passes only if it reaches both answers of the uptime's proof: the host's
+/// one token written again at once after a reset of the node (the same power life), and not
+/// written after a power cycle until the copy age has passed.
+#[test]
+fn the_tokens_reused_setting_reaches_a_proven_reuse_and_a_refused_one() {
+    use feed_check::model::{FeedModel, Nmt};
+    use stateright::Model;
+    let model = FeedModel::new(setting("tokens reused"));
+    let start = model.init_states().remove(0);
+    assert_eq!(start.host_session(), Some(1));
+    let run = |actions: &[Action]| {
+        actions.iter().fold(start.clone(), |w, &a| {
+            model
+                .next_state(&w, a)
+                .unwrap_or_else(|| panic!("{a:?} not taken"))
+        })
+    };
+    let reset = [Action::Nmt(Nmt::ResetNode), Action::Pass, Action::Configure];
+    assert_eq!(run(&reset).host_session(), Some(1), "reused at once");
+    let cycled = [
+        Action::PowerCycle,
+        Action::Pass,
+        Action::Tick,
+        Action::Configure,
+    ];
+    assert_eq!(run(&cycled).host_session(), None, "not after a power cycle");
+}

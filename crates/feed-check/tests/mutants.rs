@@ -169,3 +169,12 @@ fn linking_across_two_epochs_credits_motion_of_another_state() {
     let found = rule_killed("copies of any age", HostMutant::LinkEpochStepTwo);
     assert!(!found.is_empty(), "{found}");
 }
+
+/// A token written again within the contract's age without the uptime's proof: after a power
+/// cycle, a copy of a record of the old life carrying it becomes the new session's baseline,
+/// and the new life's records link to it.
+#[test]
+fn a_token_reused_without_the_uptime_proof_links_a_new_power_life_to_an_old_copy() {
+    let found = host_killed("tokens reused", HostMutant::ReuseUnproven);
+    assert!(!found.is_empty(), "{found}");
+}

@@ -10,7 +10,7 @@ use handwheel_core::{
 use crate::od::{
     stored_slot, Program, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE,
     FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, SEQUENCE_PROBE, SESSION_KEY, STEP_BYTE, STORED,
-    STORED_BYTES, STORED_LEN, WHEEL_READS, WHEEL_WRITES,
+    STORED_BYTES, STORED_LEN, UPTIME, WHEEL_READS, WHEEL_WRITES,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
@@ -190,6 +190,8 @@ pub struct FeedApp {
     /// The device started less than [`SESSION_DELAY_MS`](crate::od::SESSION_DELAY_MS) ago:
     /// no session opens yet.
     pub(crate) young: bool,
+    /// 0x2035: milliseconds since the device started (wrapping).
+    pub(crate) uptime_ms: u32,
     /// The bug the feed checker's mutation tests run, if any.
     #[cfg(feature = "mutants")]
     pub(crate) mutant: Option<crate::mutant::Mutant>,
@@ -209,6 +211,7 @@ impl FeedApp {
             software_id: 0,
             enter_loader: false,
             young: true,
+            uptime_ms: 0,
             #[cfg(feature = "mutants")]
             mutant: None,
         }
@@ -336,12 +339,13 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         let (nmt, master_lost) = (self.app.nmt, self.app.master_lost);
         let transmit_blocked = self.app.transmit_blocked;
         let software_id = self.app.software_id;
-        let young = self.app.young;
+        let (young, uptime_ms) = (self.app.young, self.app.uptime_ms);
         #[cfg(feature = "mutants")]
         let mutant = self.app.mutant;
         *self.app = FeedApp::new();
         // A reset is no new power life: the age stays the device's.
         self.app.young = young;
+        self.app.uptime_ms = uptime_ms;
         // Engine and port state, not application state: the engine ends the loss itself, the
         // stall watch the block. The image's CRC is the image's.
         self.app.nmt = nmt;
@@ -449,6 +453,7 @@ impl<W: Wheel> AppContext<'_, W> {
         let (value, size) = match app.parameters.get(index, sub) {
             Some(parameter) => parameter,
             None if (index, sub) == STEP_BYTE => (app.step_byte.into(), 1),
+            None if (index, sub) == UPTIME => (app.uptime_ms, 4),
             None if index & 0xFFF0 == 0x1F50 => {
                 let &(.., program) = PROGRAM_OBJECTS
                     .iter()

@@ -111,8 +111,11 @@ pub struct HandwheelDevice<S> {
     app: FeedApp,
     encoder_error_raised: bool,
     stall: StallWatch,
-    /// From when a session may open ([`SESSION_DELAY_MS`] after [`HandwheelDevice::start`]).
-    sessions_from: Option<Instant>,
+    /// When [`HandwheelDevice::start`] ran: a session opens only [`SESSION_DELAY_MS`] after
+    /// it.
+    started: Option<Instant>,
+    /// Up to when (µs) the device's age (0x2035) has counted its milliseconds.
+    aged_to_us: u64,
 }
 
 impl<S: Storage> HandwheelDevice<S> {
@@ -138,7 +141,8 @@ impl<S: Storage> HandwheelDevice<S> {
             app: FeedApp::new(),
             encoder_error_raised: false,
             stall: StallWatch::default(),
-            sessions_from: None,
+            started: None,
+            aged_to_us: 0,
         }
     }
 
@@ -159,7 +163,8 @@ impl<S: Storage> HandwheelDevice<S> {
 
     /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
     pub fn start(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
-        self.sessions_from = Some(now.add_millis(SESSION_DELAY_MS));
+        self.started = Some(now);
+        self.aged_to_us = now.as_micros();
         self.age(now);
         let mut ctx = AppContext {
             app: &mut self.app,
@@ -239,13 +244,24 @@ impl<S: Storage> HandwheelDevice<S> {
         self.service(now, wheel);
     }
 
-    /// Whether a session may open at `now`: not before [`SESSION_DELAY_MS`] after the start
-    /// (a new power life), so that no record of the new life carries a session while a
-    /// host's probe answered before the power cycle still dates records.
+    /// The device's age at `now` (0x2035), and whether a session may open: not before
+    /// [`SESSION_DELAY_MS`] after the start (a new power life), so that no record of the new
+    /// life carries a session while a host's probe answered before the power cycle still
+    /// dates records.
     fn age(&mut self, now: Instant) {
-        self.app.young = self
-            .sessions_from
-            .is_none_or(|from| now.as_micros() < from.as_micros());
+        if self.started.is_some() {
+            // Whole milliseconds since the last count, by the MCU's 32-bit divide (a 64-bit
+            // one costs about 1 KiB of flash). The device polls far more often than every
+            // 71 minutes; a longer gap would only count short. Wrapping after 49.7 days: a
+            // master's check errs towards "a new life" then.
+            let since = now.as_micros().saturating_sub(self.aged_to_us);
+            let ms = since.min(u64::from(u32::MAX)) as u32 / 1000;
+            self.app.uptime_ms = self.app.uptime_ms.wrapping_add(ms);
+            self.aged_to_us += u64::from(ms) * 1000;
+        }
+        self.app.young = self.started.is_none_or(|started| {
+            now.as_micros().saturating_sub(started.as_micros()) < SESSION_DELAY_MS * 1000
+        });
         #[cfg(feature = "mutants")]
         if self.app.mutant == Some(crate::mutant::Mutant::SessionUnguarded) {
             self.app.young = false;

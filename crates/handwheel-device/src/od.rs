@@ -59,6 +59,11 @@ pub const UNIT_STEP: u16 = 0x2032;
 pub const SEQUENCE_PROBE: u16 = 0x2033;
 /// Session key: written by the master that opened the session, carried by its probes.
 pub const SESSION_KEY: u16 = 0x2034;
+/// Device uptime: U32 ro, milliseconds since the device started (power-on or any reset of
+/// its MCU; NMT's reset node and reset communication keep it counting), wrapping after
+/// 49.7 days. A master that read it before can tell that no power cycle came since: a new
+/// life's uptime is never more than the time since.
+pub const DEVICE_UPTIME: u16 = 0x2035;
 
 /// A session opens (0x2002 = 1..7) only this long after the device started: a record of a
 /// new power life never carries a session within this of the life's start, longer than the
@@ -163,6 +168,8 @@ pub enum Behaviour {
     /// One of CiA 302-3's program download objects, which the application answers for the
     /// loader ([`Program`]).
     Program(Program),
+    /// The device's uptime, which the device keeps from its start.
+    Uptime,
     /// Read from the wheel under its lock and, if writable, written there.
     Wheel {
         /// The value.
@@ -474,6 +481,7 @@ pub const APP_OBJECTS: &[AppObject] = {
                     .set_session_key(value as u16)
                     .map_err(|_| SdoAbort::DeviceState)
             }),
+        O::new(DEVICE_UPTIME, 0, "Device uptime", U32, Behaviour::Uptime),
         O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
         O::wheel(FEED_DIAGNOSTICS, 1, "Ignored detents", U32, |_, wheel| {
             wheel.feed.ignored_detents()
@@ -590,7 +598,9 @@ const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
         let written = match o.behaviour {
             Behaviour::Stored | Behaviour::Program(Program::Control) => true,
             Behaviour::Wheel { write, .. } => write.is_some(),
-            Behaviour::Header | Behaviour::UnitStep | Behaviour::Program(_) => false,
+            Behaviour::Header | Behaviour::UnitStep | Behaviour::Program(_) | Behaviour::Uptime => {
+                false
+            }
         };
         assert!(
             written == o.access.writable(),
@@ -813,6 +823,25 @@ pub(crate) const STEP_BYTE: (u16, u8) = {
     match found {
         Some(key) => key,
         None => panic!("no unit-step byte"),
+    }
+};
+
+/// The device's uptime: the one row of [`Behaviour::Uptime`].
+pub(crate) const UPTIME: (u16, u8) = {
+    let mut found = None;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if let Behaviour::Uptime = o.behaviour {
+            assert!(found.is_none(), "one uptime");
+            assert!(size(o) == 4, "the uptime is four bytes");
+            found = Some((o.index, o.sub));
+        }
+        i += 1;
+    }
+    match found {
+        Some(key) => key,
+        None => panic!("no uptime"),
     }
 };
 

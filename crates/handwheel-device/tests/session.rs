@@ -271,3 +271,26 @@ fn the_session_key_belongs_to_the_session_and_guards_the_probe() {
         );
     }
 }
+
+#[test]
+fn the_uptime_counts_from_the_start_through_every_reset_of_the_node() {
+    let mut b = Bench::new();
+    assert_eq!(b.read_u32(0x2035, 0), 0);
+    b.advance_ms(1234);
+    assert_eq!(b.read_u32(0x2035, 0), 1234);
+    b.nmt(0x81);
+    b.advance_ms(10);
+    assert_eq!(
+        b.read_u32(0x2035, 0),
+        1244,
+        "a reset node is no new power life"
+    );
+    b.nmt(0x82);
+    b.advance_ms(1);
+    assert_eq!(b.read_u32(0x2035, 0), 1245, "nor a reset of communication");
+    assert_eq!(
+        b.sdo_write(0x2035, 0, &[0, 0, 0, 0]),
+        Err(0x0601_0002),
+        "read-only"
+    );
+}

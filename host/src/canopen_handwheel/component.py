@@ -769,6 +769,12 @@ def _configure(
     `core.event_timer_plan`, `core.inhibit_plan`, `core.pick_token`)."""
     import canopen
 
+    def began_by() -> float:
+        """When the device's present life began at the latest (`core.life_began_by`)."""
+        uptime = u32(core.UPTIME_OBJECT, 0)
+        report.uptime = (uptime, link.sdo_reply_at)
+        return core.life_began_by(uptime, link.sdo_reply_at)
+
     try:
         found = u32(0x2002, 0)
     except canopen.SdoAbortedError as refused:
@@ -789,6 +795,9 @@ def _configure(
         report.session = found
         return report
     token = core.pick_token(action.tokens, found)
+    if token is None and action.reusable:
+        token = core.pick_token((), found, action.reusable, began_by())
+        report.unproven = token is None
     if token is None:
         raise Mismatch(f"no session token to write (0x2002 reads {found})")
     # What shapes motion, as written or checked: read back once more after the session.
@@ -878,6 +887,13 @@ def _configure(
     for index, sub_index, wanted in expected:
         read_back(index, sub_index, wanted)
     read_back(0x2002, 0, token)
+    if token not in action.tokens:
+        # Reused: the life that took the session is the one the uptime showed (a power cycle
+        # since the first reading would show a young life now).
+        chain = dict(action.reusable)[token]
+        if core.pick_token((), 0, ((token, chain),), began_by()) != token:
+            report.unproven = True
+            raise Mismatch(f"the device's uptime after session {token} was written is too short")
     report.session = token
     report.event_timer_ms = timer
     step()

@@ -163,12 +163,43 @@ def token_free_at(last_use: Dict[int, float], own: Optional[int] = None) -> floa
     return min(last_use.get(t, -math.inf) + COPY_AGE for t in TOKENS if t != own)
 
 
-def pick_token(candidates: Tuple[int, ...], device_session: int) -> Optional[int]:
+# The device's uptime (0x2035, U32 ms since the device started; reset node and reset
+# communication keep it counting). A token the host wrote less than COPY_AGE ago may be
+# written again at once if the device's uptime shows that it has run since before the host
+# first wrote that token, after the token was last free (its `chain` start): every record of
+# the token within the contract's age is then of the device's present power life, whose
+# sequence never goes back, so that a copy of one is older than every number the new
+# session's probes answer and dates nothing (a reset storm no longer uses up the tokens).
+UPTIME_OBJECT = 0x2035
+
+
+def life_began_by(uptime_ms: int, answered_at: float) -> float:
+    """The latest time (the host's clock) at which the device's present power life can have
+    begun, from its uptime `uptime_ms` in an answer the host handled at `answered_at`: the
+    device's clock may run up to CLOCK_TOLERANCE fast. (A wrapped uptime, after 49.7 days,
+    reads as a young life: the proof fails safe.)"""
+    return answered_at - uptime_ms / 1000 / (1 + CLOCK_TOLERANCE)
+
+
+def pick_token(
+    candidates: Tuple[int, ...],
+    device_session: int,
+    reusable: Tuple[Tuple[int, float], ...] = (),
+    began_by: Optional[float] = None,
+) -> Optional[int]:
     """The token a configuration writes: the first of `candidates` (`free_tokens`) that is
     not the session the device holds (another master's, or one the host may have written
-    without seeing it read back). None: no candidate; the configuration fails."""
+    without seeing it read back); else the first of `reusable` ((token, chain start), see
+    `UPTIME_OBJECT`) that is not either and whose chain began after the device's present
+    life began (`began_by`, `life_began_by`; None: no uptime read, nothing reusable).
+    None: no candidate; the configuration fails."""
     for token in candidates:
         if token != device_session:
+            return token
+    if began_by is None:
+        return None
+    for token, chain_start in reusable:
+        if token != device_session and began_by < chain_start:
             return token
     return None
 
@@ -1032,6 +1063,10 @@ class Configure:
     settings: Tuple[Tuple[int, int, int], ...] = ()  # `motion_settings`: (index, sub, value)
     own_sdo: Optional[Tuple[int, int]] = None  # 0x1201 set to this channel, read back
     key: int = 1  # the session key written to 0x2034 after the token (1..0xFFFF)
+    # Tokens in use less than COPY_AGE ago that the host wrote itself, with their chain
+    # start, least recently used first: written only when no token is free and the device's
+    # uptime (read before and after the session is written) proves them (`pick_token`).
+    reusable: Tuple[Tuple[int, float], ...] = ()
 
 
 @dataclass
@@ -1046,7 +1081,9 @@ class Configured:
     loader's (nothing else was done); `keyed`, the session key 0x2034 was written after the
     token (a configuration counts only with it); `young`, the device refused the token with
     abort 0x08000022 (started less than `SESSION_DELAY` ago: the device is in no session of
-    it)."""
+    it); `uptime`, the device's uptime (ms) and when the host handled its answer, read when
+    only a reusable token was left (`UPTIME_OBJECT`); `unproven`, it did not show the device
+    running since the chain of any (nothing was written)."""
 
     event_timer_ms: Optional[int] = None
     first_reply_at: Optional[float] = None
@@ -1057,6 +1094,8 @@ class Configured:
     loader: bool = False
     keyed: bool = False
     young: bool = False
+    uptime: Optional[Tuple[int, float]] = None
+    unproven: bool = False
 
 
 @dataclass(frozen=True)
@@ -1173,6 +1212,10 @@ class Core:
     # its read-back, a session the device reported or showed that the host never used. The
     # next successful configuration ends them all: it supersedes them.
     busy: Dict[int, float] = field(default_factory=dict)
+    # Per token the host wrote: when the configuration that first wrote it after it was last
+    # free (`free_tokens`) was asked for (`UPTIME_OBJECT`); the core's clock.
+    chains: Dict[int, float] = field(default_factory=dict)
+    configure_asked_at: float = 0.0  # when the configuration under way was asked for
     check_due: bool = False  # a record of another session came: check the configuration
     check_at: float = 0.0  # not before this (one check per `retry` at most)
     check_logged: bool = False  # a check was logged in this session
@@ -1441,6 +1484,9 @@ class Core:
         for token in (r.found, None if r.young else r.tried):
             if token and token != self.session:
                 self.busy[token] = self.now
+        if r.tried and not r.young and r.tried in action.tokens:
+            # Written when free: a new chain (a reusable token's goes on).
+            self.chains[r.tried] = self.configure_asked_at
         if r.found is not None and self.session is not None and r.found != self.session:
             if self.feed_on and not self.asked_off:
                 self._report_stop(STOP_SESSION_ENDED)
@@ -1456,7 +1502,7 @@ class Core:
             and not before_boot
             and r.session is not None
             and r.session == r.tried
-            and r.session in action.tokens
+            and (r.session in action.tokens or r.session in dict(action.reusable))
             and r.keyed
             and r.event_timer_ms is not None
             and low <= r.event_timer_ms <= high
@@ -1468,13 +1514,23 @@ class Core:
             return
         if self.session is None:
             # It spoke to the device's life before a boot-up seen meanwhile, or checked a
-            # session dropped meanwhile: again at once; a device too young for a session:
-            # again soon; a failure: after the retry time.
-            again = ok and (before_boot or r.intact)
+            # session dropped meanwhile, or failed while the device booted (a reset cuts a
+            # transfer short): again at once; a device too young for a session: again soon;
+            # another failure: after the retry time.
+            again = (ok and (before_boot or r.intact)) or (not ok and booted is not None)
             if again:
                 self.config_due = self.now
             elif r.young:
                 self.config_due = self.now + YOUNG_RETRY
+            elif r.unproven:
+                # No token free, and the device may have been power cycled since each
+                # reusable one was first written: wait for the first free one.
+                self.config_due = token_free_at(self._last_use(), self.session)
+                self.log.append(
+                    "the device's uptime does not show it running since the session tokens "
+                    f"in use less than {COPY_AGE:g} s ago were written (a power cycle): "
+                    f"configuring in {self.config_due - self.now:.1f} s"
+                )
             else:
                 self.config_due = self.now + self.cfg.retry
         else:
@@ -1645,11 +1701,15 @@ class Core:
         every configuration writes another); without any token (every one used less than
         COPY_AGE ago) a configuration waits until one is free (a check still runs: it
         writes nothing if the device is in the session)."""
-        last_use = dict(self.superseded)
-        for token, t in self.busy.items():
-            last_use[token] = max(t, last_use.get(token, -math.inf))
+        last_use = self._last_use()
         tokens = free_tokens(last_use, self.now, self.session)
-        if not tokens and keep is None:
+        reusable = tuple(
+            (t, self.chains[t])
+            for t in sorted(last_use, key=lambda t: (last_use[t], t))
+            if t not in tokens and t != self.session and t in self.chains
+        )
+        self.configure_asked_at = self.now
+        if not tokens and not reusable and keep is None:
             self.config_due = token_free_at(last_use, self.session)
             if not self.waiting_logged:
                 self.waiting_logged = True
@@ -1670,7 +1730,16 @@ class Core:
             if self.own_channel_drops >= OWN_CHANNEL_DROPS_BEFORE_DEFAULT
             else self.cfg.own_sdo,
             key,
+            reusable,
         )
+
+    def _last_use(self) -> Dict[int, float]:
+        """Per token, when the host last knew the device could be in it (`superseded`,
+        `busy`)."""
+        last_use = dict(self.superseded)
+        for token, t in self.busy.items():
+            last_use[token] = max(t, last_use.get(token, -math.inf))
+        return last_use
 
     def _holding_back(self) -> bool:
         """Another master's SDO exchange is under way (`FOREIGN_SDO_QUIET`): no request of
@@ -2211,18 +2280,31 @@ def pin_table(axes: str) -> List[Tuple[str, str, str]]:
 # Replaying events ----------------------------------------------------------------------------
 
 
-def configure_outcome(action: Configure, found: int, event_timer: float):
+def configure_outcome(
+    action: Configure,
+    found: int,
+    event_timer: float,
+    uptime: Optional[Tuple[int, float]] = None,
+):
     """(ok, `Configured`): what carrying out `action` on a device whose 0x2002 reads `found`
     and whose every write succeeds reports: intact when `found` is the session to keep,
     else the token `pick_token` gives written and read back (none: failed) with the session
-    key after it, the event timer `event_timer` (s) read back."""
+    key after it, the event timer `event_timer` (s) read back. `uptime`: the device's
+    uptime (ms) and when its answer was handled, both times it is read (`UPTIME_OBJECT`;
+    None: the device has no 0x2035, as a device before it: nothing reusable is written)."""
     if action.keep is not None and found == action.keep:
         return True, Configured(found=found, intact=True, session=found)
     token = pick_token(action.tokens, found)
+    unproven = False
+    if token is None and action.reusable and uptime is not None:
+        token = pick_token((), found, action.reusable, life_began_by(*uptime))
+        unproven = token is None
     if token is None:
-        return False, Configured(found=found)
+        return False, Configured(found=found, uptime=uptime, unproven=unproven)
     ms = round(event_timer * 1000)
-    return True, Configured(event_timer_ms=ms, found=found, tried=token, session=token, keyed=True)
+    return True, Configured(
+        event_timer_ms=ms, found=found, tried=token, session=token, keyed=True, uptime=uptime
+    )
 
 
 Event = tuple  # ("frame", cob_id, data, t) | ("drained", t) | ("tick", t) | ("enable", bool)
@@ -2232,10 +2314,11 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     """A `Core` (of `cfg`, default `Config()`) after `events`, each handled as the shell
     does in a round of its own: the event, then `publish` at its time. Events:
     ("frame", cob_id, data, t), ("drained", t), ("tick", t), ("enable", bool),
-    ("position-mode", bool), ("velocity-mode", bool), and ("configure", found, t): the
-    configuration the core asks for at `t` carried out at once on a device whose 0x2002 reads
-    `found` (`configure_outcome`: the session kept if it is the core's, else the token
-    `pick_token` gives written), so that the records after it can carry the core's session.
+    ("position-mode", bool), ("velocity-mode", bool), and ("configure", found, t) or
+    ("configure", found, t, uptime_ms): the configuration the core asks for at `t` carried out
+    at once on a device whose 0x2002 reads `found` and whose uptime 0x2035 reads `uptime_ms`
+    (`configure_outcome`: the session kept if it is the core's, else the token `pick_token`
+    gives written), so that the records after it can carry the core's session.
     With `Config.dating`, a sequence probe in two events, as the shell carries it out:
     ("probe", value, floor, t): the `Probe` the core asks for at `t` (`next_action`; its
     nonce must be `value`'s bits 0-12 and its floor `floor`, None for no floor; `value`'s
@@ -2252,12 +2335,13 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     probe_sent: Optional[float] = None  # the probe under way: when its write was sent
     for event in events:
         kind = event[0] if isinstance(event, (tuple, list)) and event else None
-        if kind == "configure" and len(event) == 3:
-            _, found, t = event
+        if kind == "configure" and len(event) in (3, 4):
+            _, found, t, *uptime_ms = event
             action = c.next_action(float(t))
             if not isinstance(action, Configure):
                 raise ValueError(f"no configuration due at {t}: {action!r}")
-            ok, result = configure_outcome(action, int(found), c.event_timer)
+            uptime = (int(uptime_ms[0]), float(t)) if uptime_ms else None
+            ok, result = configure_outcome(action, int(found), c.event_timer, uptime)
             c.done(action, ok, None, float(t), result)
             c.publish(float(t))
         elif kind == "probe" and len(event) == 4:

@@ -5,8 +5,9 @@ from canopen.objectdictionary import ODVariable
 
 from cct import abort_of, dut, req, sdo_raw, shared_rig  # noqa: F401
 
-# The serial number (from the MCU) and the running image's CRC-32 (sealed at link time).
-RUNTIME_VALUES = {(0x1018, 4), (0x1F56, 1)}
+# The serial number (from the MCU), the running image's CRC-32 (sealed at link time) and the
+# device's uptime.
+RUNTIME_VALUES = {(0x1018, 4), (0x1F56, 1), (0x2035, 0)}
 
 
 def variables(rig, low, high):
@@ -106,7 +107,7 @@ def test_od_07_application_objects_by_access_type(dut):
 # sequence and the selection epoch continue, so that no record after a reset can be taken as
 # continuing one from before it (a host that missed the boot-up would otherwise link them).
 # Their EDS default is the value at power-on only.
-RUN_ON_ACROSS_RESETS = {(0x2010, 3), (0x2031, 0)}
+RUN_ON_ACROSS_RESETS = {(0x2010, 3), (0x2031, 0), (0x2035, 0)}
 # The feed selection byte carries the epoch's low three bits in bits 5-7: those follow
 # 0x2010:3, the rest has its default.
 FEED_SELECTION = (0x2011, 0)
