@@ -16,12 +16,14 @@ mod docs;
 mod eds;
 mod footprint;
 mod fw;
+mod go_master;
 mod host;
 mod interactive;
 mod linker;
 mod lint;
 mod linuxcnc;
 mod machine_bench;
+mod node_master;
 mod pyenv;
 mod shell;
 mod suites;
@@ -94,7 +96,12 @@ tasks:
                                         worst-case stack, with their headroom, 4. detent to
                                         motion in LinuxCNC 2.9 (emulated board) and the run-on
                                         after a fast spin (`linuxcnc`: only that), 5. the update
-                                        over CAN at 1 Mbit/s and 125 kbit/s (`update`: only that)";
+                                        over CAN at 1 Mbit/s and 125 kbit/s (`update`: only that)
+  go-master                             gocanopen (Go) as the master of the release image on
+                                        the emulated board (tests/go-master; needs Go 1.22+)
+  node-master                           node-canopen (npm canopen) as the master of the release
+                                        image on the emulated board (tests/node-master; needs
+                                        Node.js 20.15+ and npm)";
 
 fn main() -> ExitCode {
     let args: Vec<String> = env::args().skip(1).collect();
@@ -120,6 +127,8 @@ fn main() -> ExitCode {
         Some("docs") => docs(rest),
         Some("eds") => eds::run(&workspace_root(), &target_dir(), rest),
         Some("dbc") => dbc::run(&workspace_root(), rest),
+        Some("go-master") => go_master::run(),
+        Some("node-master") => node_master::run(),
         _ => {
             eprintln!("{USAGE}");
             return ExitCode::from(2);
