@@ -108,6 +108,22 @@ const TOKEN_WRITTEN_AGAIN: Bounds = Bounds {
     ..NARROW
 };
 
+/// `bounds` at the shipped widths, pace, event timer, copy age and token count, its dating as
+/// it has it: the component's rule exactly as `core.py` runs it, for the vectors' random
+/// walks through the narrowed settings (power cycles, copies, resets, reconfigurations).
+pub const fn at_shipped_widths(bounds: &Bounds) -> Bounds {
+    Bounds {
+        rule: RuleConfig {
+            dating: bounds.rule.dating,
+            ..RuleConfig::shipped(100)
+        },
+        pace: SequencePace::SHIPPED,
+        event_timer_ms: 100,
+        copy_age_ms: 60_000,
+        ..*bounds
+    }
+}
+
 /// What `cargo xtask test` explores.
 pub const ALL: &[Bounds] = &[
     // Stops, starts and selection changes while the transmit path is full: the epoch field

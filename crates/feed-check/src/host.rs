@@ -250,6 +250,9 @@ pub struct HostRule<T> {
     /// Per token the host wrote, when the configuration that first wrote it after it was
     /// last free did (ms; `core.py`'s `chains`).
     chains: [Option<u64>; TOKENS as usize],
+    /// No configuration without a session before this (ms; `core.py`'s `config_due` after a
+    /// token refused as too young, or a reuse not proven).
+    configure_at: u64,
     /// Per axis, wrapping sums of the credited deltas (`jog-counts`).
     pub counts: [i32; AXES],
     /// Records the host missed (sequence gaps).
@@ -278,6 +281,9 @@ fn seconds(ms: u64) -> f64 {
 
 /// A check runs again at most this long after the last one (ms; `core.py`'s `retry`).
 const CHECK_RETRY_MS: u64 = 500;
+/// A token refused as too young is written again this long after (ms; `core.py`'s
+/// `YOUNG_RETRY`).
+const YOUNG_RETRY_MS: u64 = 100;
 
 fn slot(token: u8) -> usize {
     usize::from(token - 1)
@@ -298,6 +304,7 @@ impl<T: Clone> HostRule<T> {
             superseded: [None; TOKENS as usize],
             busy: [None; TOKENS as usize],
             chains: [None; TOKENS as usize],
+            configure_at: 0,
             counts: [0; AXES],
             records_lost: 0,
             frames_bad: 0,
@@ -320,7 +327,10 @@ impl<T: Clone> HostRule<T> {
             return false;
         }
         match self.session {
-            None => (1..=self.config.tokens).any(|t| self.free(t, now_ms) || self.reusable(t)),
+            None => {
+                now_ms >= self.configure_at
+                    && (1..=self.config.tokens).any(|t| self.free(t, now_ms) || self.reusable(t))
+            }
             Some(_) => self.check_due && now_ms >= self.check_at,
         }
     }
@@ -368,6 +378,23 @@ impl<T: Clone> HostRule<T> {
             t != device
                 && (self.config.mutant == Some(HostMutant::ReuseUnproven) || began_by < chain)
         })
+    }
+
+    /// The device refused the token as too young for a session (`core.py`'s
+    /// `Configured.young`): the next configuration `YOUNG_RETRY` (100 ms) later.
+    pub fn young(&mut self, now_ms: u64) {
+        self.configure_at = now_ms + YOUNG_RETRY_MS;
+    }
+
+    /// The device's uptime did not prove any reusable token (`core.py`'s
+    /// `Configured.unproven`): the next configuration when the first token is free.
+    pub fn unproven(&mut self, now_ms: u64) {
+        let copy_age_ms = self.config.copy_age_us / 1000;
+        self.configure_at = (1..=self.config.tokens)
+            .filter(|&t| Some(t) != self.session)
+            .map(|t| self.last_use(t).map_or(now_ms, |at| at + copy_age_ms))
+            .min()
+            .unwrap_or(now_ms);
     }
 
     /// Whether a configuration at `now_ms` on a device in `device` needs the device's uptime

@@ -81,6 +81,23 @@ fn main() -> ExitCode {
                 feed_check::vectors::write(b, 400, 30, 0x5EED_0000 + n as u64, &mut out);
             }
         }
+        // The narrowed settings' walks (power cycles, copies, reconfigurations, the host's
+        // tokens used up) at the shipped widths, which `core.py` runs.
+        let narrowed = bounds::ALL
+            .iter()
+            .chain(bounds::COPIES_AND_POWER_CYCLES)
+            .filter(|b| {
+                b.rule != bounds::at_shipped_widths(b).rule
+                    || b.pace != handwheel_core::SequencePace::SHIPPED
+            });
+        for (n, b) in narrowed.enumerate() {
+            let name = format!("{} at the shipped widths", b.name);
+            let shipped = Bounds {
+                name: Box::leak(name.into_boxed_str()),
+                ..bounds::at_shipped_widths(b)
+            };
+            feed_check::vectors::write(&shipped, 50, 30, 0x5EED_1000 + n as u64, &mut out);
+        }
         if let Some(b) = bounds::ALL.iter().find(|b| b.name == "gateway hold") {
             feed_check::vectors::write_paths(b, feed_check::vectors::DATING_PATHS, &mut out);
         }

@@ -438,6 +438,8 @@ pub struct Spec {
     enabled: bool,
     /// Resets of the node or communication and power cycles so far.
     boot: u8,
+    /// When the device last powered up (ms): no session opens for `SESSION_DELAY_MS`.
+    powered_ms: u64,
     /// The master's session (0x2002) the device must be in: the token last written, 0 after
     /// a reset or a write of anything the session stands for.
     session: u8,
@@ -577,8 +579,9 @@ pub enum HostEvent {
     /// The host found its receive path empty (ms).
     Drained(u64),
     /// The host configured the device, whose 0x2002 read this, at a time (ms), and read its
-    /// uptime (0x2035, ms) if its rule needed it to pick a token.
-    Configure(u8, u64, Option<u32>),
+    /// uptime (0x2035, ms) if its rule needed it to pick a token; `true`: the device refused
+    /// the token it wrote (too young for a session).
+    Configure(u8, u64, Option<u32>, bool),
     /// The host sent a sequence probe (0x2033 = key and nonce, then read back) at a time
     /// (ms): the value written and the floor its rule gave.
     Probe {
@@ -1032,13 +1035,18 @@ impl FeedModel {
         let uptime = (!own && w.host.needs_uptime(w.now_ms, device))
             .then(|| self.sdo_read_u32(w, 0x2035, 0))
             .flatten();
-        self.log(w, HostEvent::Configure(device, w.now_ms, uptime));
+        let logged = w.log.as_ref().map_or(0, Vec::len);
+        self.log(w, HostEvent::Configure(device, w.now_ms, uptime, false));
         if own {
             w.host.configured(device, None, w.now_ms);
             return;
         }
         let Some(token) = w.host.next_token(w.now_ms, device, uptime) else {
             w.host.configured(device, None, w.now_ms);
+            if uptime.is_some() {
+                // Not proven: the host waits for a free token.
+                w.host.unproven(w.now_ms);
+            }
             return;
         };
         let timer = self.bounds.event_timer_ms.to_le_bytes();
@@ -1070,8 +1078,18 @@ impl FeedModel {
             .wheel
             .lock(|h| (h.feed.session(), h.feed.session_key()))
             == (token, SESSION_KEY);
+        let young = w.now_ms < w.spec.powered_ms + SESSION_DELAY_MS;
+        if let Some(HostEvent::Configure(.., refused)) =
+            w.log.as_mut().and_then(|log| log.get_mut(logged))
+        {
+            *refused = !written && young;
+        }
         w.host
             .configured(device, written.then_some(token), w.now_ms);
+        if !written && young {
+            // The device refused the token: asked again a little later.
+            w.host.young(w.now_ms);
+        }
         self.nmt(w, Nmt::Start);
     }
 
@@ -1361,6 +1379,7 @@ impl FeedModel {
         let storage = w.real.node.device_mut().engine().storage().clone();
         self.records_missing(w);
         self.reset(w);
+        w.spec.powered_ms = w.now_ms;
         w.transmit.clear();
         w.spec.stall_since = None;
         w.spec.transmit_blocked = false;

@@ -3,7 +3,7 @@
 //!
 //! The exhaustive search keeps no paths, so the vectors come from seeded random walks through
 //! the same model (every kind of action, the shipped widths only, since `core.py` has no
-//! other): each walk's host input and the per-axis counts the Rust rule ends with. A
+//! other: the narrowed settings run at them, `bounds::at_shipped_widths`): each walk's host input and the per-axis counts the Rust rule ends with. A
 //! difference between the two rules on any of them fails the host tests.
 
 use std::fmt::Write as _;
@@ -26,7 +26,8 @@ impl Walk {
 
 /// `walks` random walks of up to `steps` actions through `bounds`, as JSON lines:
 /// `{"name": .., "events": [["frame", id, [bytes..], t_s] | ["drained", t_s] |
-/// ["configure", found, t_s] | ["probe", nonce, floor | null, t_s] | ["probed", value, t_s],
+/// ["configure", found, t_s(, uptime_ms | null(, "refused"))] | ["probe", nonce, floor | null,
+/// t_s] | ["probed", value, t_s],
 /// ..], "dating": bool, "counts": {"x": .., "y": ..}}` (`dating`: replay with the core's
 /// dating on).
 pub fn write(bounds: &Bounds, walks: usize, steps: usize, seed: u64, out: &mut String) {
@@ -164,8 +165,15 @@ fn line(bounds: &Bounds, name: &str, w: &crate::model::World, out: &mut String) 
             HostEvent::Drained(at_ms) => {
                 let _ = write!(out, "{sep}[\"drained\", {}]", *at_ms as f64 / 1000.0);
             }
-            HostEvent::Configure(found, at_ms, uptime) => {
-                let uptime = uptime.map_or(String::new(), |ms| format!(", {ms}"));
+            HostEvent::Configure(found, at_ms, uptime, refused) => {
+                let uptime = match (uptime, refused) {
+                    (_, true) => format!(
+                        ", {}, \"refused\"",
+                        uptime.map_or("null".into(), |ms| ms.to_string())
+                    ),
+                    (Some(ms), false) => format!(", {ms}"),
+                    (None, false) => String::new(),
+                };
                 let _ = write!(
                     out,
                     "{sep}[\"configure\", {found}, {}{uptime}]",

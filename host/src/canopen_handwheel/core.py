@@ -2314,11 +2314,13 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     """A `Core` (of `cfg`, default `Config()`) after `events`, each handled as the shell
     does in a round of its own: the event, then `publish` at its time. Events:
     ("frame", cob_id, data, t), ("drained", t), ("tick", t), ("enable", bool),
-    ("position-mode", bool), ("velocity-mode", bool), and ("configure", found, t) or
-    ("configure", found, t, uptime_ms): the configuration the core asks for at `t` carried out
-    at once on a device whose 0x2002 reads `found` and whose uptime 0x2035 reads `uptime_ms`
-    (`configure_outcome`: the session kept if it is the core's, else the token `pick_token`
-    gives written), so that the records after it can carry the core's session.
+    ("position-mode", bool), ("velocity-mode", bool), and ("configure", found, t),
+    ("configure", found, t, uptime_ms) or ("configure", found, t, uptime_ms, "refused"): the
+    configuration the core asks for at `t` carried out at once on a device whose 0x2002 reads
+    `found` and whose uptime 0x2035 reads `uptime_ms` (None: not read) (`configure_outcome`:
+    the session kept if it is the core's, else the token `pick_token` gives written), so
+    that the records after it can carry the core's session; "refused": the device refused
+    the token as too young (`Configured.young`).
     With `Config.dating`, a sequence probe in two events, as the shell carries it out:
     ("probe", value, floor, t): the `Probe` the core asks for at `t` (`next_action`; its
     nonce must be `value`'s bits 0-12 and its floor `floor`, None for no floor; `value`'s
@@ -2335,14 +2337,21 @@ def replay_core(events, cfg: Optional[Config] = None) -> Core:
     probe_sent: Optional[float] = None  # the probe under way: when its write was sent
     for event in events:
         kind = event[0] if isinstance(event, (tuple, list)) and event else None
-        if kind == "configure" and len(event) in (3, 4):
-            _, found, t, *uptime_ms = event
+        if kind == "configure" and len(event) in (3, 4, 5):
+            _, found, t, *more = event
             action = c.next_action(float(t))
             if not isinstance(action, Configure):
                 raise ValueError(f"no configuration due at {t}: {action!r}")
-            uptime = (int(uptime_ms[0]), float(t)) if uptime_ms else None
+            uptime = (int(more[0]), float(t)) if more and more[0] is not None else None
             ok, result = configure_outcome(action, int(found), c.event_timer, uptime)
-            c.done(action, ok, None, float(t), result)
+            abort = None
+            if more[1:] == ["refused"] and result.tried is not None:
+                # The device refused the token: too young for a session.
+                ok, abort = False, ABORT_DEVICE_STATE
+                result = Configured(found=int(found), tried=result.tried, young=True)
+            elif more[1:]:
+                raise ValueError(f"not a configure event: {event!r}")
+            c.done(action, ok, abort, float(t), result)
             c.publish(float(t))
         elif kind == "probe" and len(event) == 4:
             _, value, floor, t = event
