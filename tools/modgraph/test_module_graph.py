@@ -1,224 +1,22 @@
-"""The import graph of the firmware crate and of the no_std crates has no circle: a module
-that uses another never ends up used by it, directly or through others.
+"""The import graphs of the firmware crate, the no_std crates and xtask, and of the Python
+modules of host/ and tools/, have no circle (`modgraph.py` says how they are read), and the
+check finds one in each kind of graph."""
 
-A module and its descendants count as one: among the children of each module, a child
-stands for its whole subtree, so `a::b` using `c` while `c` uses `a` is the circle
-`a <-> c`, and within `a` its own children are checked the same way. A module reaching its
-own ancestor or descendant is the nesting, not a circle (a child using its parent with
-`super::`). Unit-test modules (`#[cfg(test)]` to the end of a file, or a `#[cfg(test)]`
-module file) are left out, as they are no part of the structure.
-
-The modules are the files the crate root reaches through `mod name;` declarations (a module
-written inline in its file counts as part of that file's). The firmware package has two
-roots: its library (`lib.rs`, the board glue) and its binary (`main.rs`, the RTIC
-application), which reaches the library only as the external crate `handwheel_firmware`, so
-each root is a graph of its own. The edges are read from the sources: every `crate::`,
-`super::` and `self::` path, in `use` trees (braces expanded) and in code, taken to the
-deepest module it names."""
-
-import re
-from pathlib import Path
-from typing import Dict, List, Optional, Set, Tuple
-
-ROOT = Path(__file__).resolve().parents[2]
-# The firmware package (the workspace root) and the no_std crates it is built from.
-CRATES = [".", "crates/canopen-slave", "crates/handwheel-core", "crates/handwheel-device"]
-
-Module = Tuple[str, ...]
-
-# A `mod name;` declaration (any visibility), with the attributes right before it.
-MOD_DECLARATION = re.compile(r"((?:#\[[^\]]*\]\s*)*)(?:pub(?:\([^)]*\))?\s+)?mod\s+(\w+)\s*;")
+from modgraph import (
+    CRATES,
+    PYTHON_FOLDERS,
+    ROOT,
+    circles,
+    crate_roots,
+    graph_of,
+    named,
+    python_graph,
+    python_modules,
+    strongly_connected,
+)
 
 
-def crate_roots(src: Path) -> List[Path]:
-    """The crate roots in a package's `src`: its library, its binary, or both."""
-    roots = [src / name for name in ("lib.rs", "main.rs") if (src / name).exists()]
-    assert roots, f"{src}: neither lib.rs nor main.rs"
-    return roots
-
-
-def modules_of(root: Path) -> Dict[Module, Path]:
-    """Each module the crate root `root` declares, directly or through its modules, with its
-    file; test-only module files are left out."""
-    found: Dict[Module, Path] = {(): root}
-    todo = [((), root)]
-    while todo:
-        module, path = todo.pop()
-        is_folder_root = path.name == "mod.rs" or path == root
-        folder = path.parent if is_folder_root else path.with_suffix("")
-        for attributes, name in MOD_DECLARATION.findall(code_of(path)):
-            if "cfg(test)" in re.sub(r"\s+", "", attributes):
-                continue
-            files = [folder / f"{name}.rs", folder / name / "mod.rs"]
-            child = next((f for f in files if f.exists()), None)
-            assert child, f"{path}: `mod {name};` has no file"
-            found[module + (name,)] = child
-            todo.append((module + (name,), child))
-    return found
-
-
-def code_of(path: Path) -> str:
-    """The file without comments and without its unit tests."""
-    text = re.sub(r"//[^\n]*", "", path.read_text())
-    text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
-    cut = re.search(r"#\[cfg\(test\)\]\s*mod\s+\w+\s*\{", text)
-    return text[: cut.start()] if cut else text
-
-
-def expand_use(tree: str) -> List[str]:
-    """The paths a `use` tree names: `a::{b, c::{d, e}}` -> a::b, a::c::d, a::c::e."""
-    tree = re.sub(r"\s+", "", re.sub(r"\s+as\s+\w+", "", tree))
-    brace = tree.find("{")
-    if brace < 0:
-        return [tree]
-    prefix, inner = tree[:brace], tree[brace + 1 : tree.rindex("}")]
-    items, depth, start = [], 0, 0
-    for i, ch in enumerate(inner):
-        depth += ch == "{"
-        depth -= ch == "}"
-        if ch == "," and depth == 0:
-            items.append(inner[start:i])
-            start = i + 1
-    items.append(inner[start:])
-    return [p for item in items if item for p in expand_use(prefix + item)]
-
-
-def paths_in(code: str) -> Set[str]:
-    """Every crate-relative path the code names."""
-    paths = set()
-    for tree in re.findall(r"\buse\s+((?:crate|super|self)\b[^;]*);", code, flags=re.S):
-        paths.update(expand_use(tree))
-    paths.update(re.findall(r"\b(?:crate|super|self)(?:::\w+)+", code))
-    return paths
-
-
-def reexports(root_code: str, known: Set[Module]) -> Dict[str, Module]:
-    """The names the crate root re-exports (`pub use a::b::Name;`), with the module each
-    comes from, so that `crate::Name` counts as a use of that module."""
-    names = {}
-    for tree in re.findall(r"\bpub\s+use\s+([^;]*);", root_code, flags=re.S):
-        for path in expand_use(tree):
-            parts = path.split("::")
-            module: Module = ()
-            for part in parts[:-1]:
-                if module + (part,) not in known:
-                    break
-                module += (part,)
-            if module:
-                names[parts[-1]] = module
-    return names
-
-
-def resolve(path: str, current: Module, known: Set[Module], names: Dict[str, Module]) -> Module:
-    """The deepest module `path`, written in module `current`, names."""
-    parts = [p for p in path.split("::") if p]
-    if parts[0] == "crate":
-        base: List[str] = []
-        parts = parts[1:]
-    else:
-        base = list(current)
-        while parts and parts[0] in ("self", "super"):
-            if parts[0] == "super":
-                base = base[:-1]
-            parts = parts[1:]
-    target = tuple(base)
-    for part in parts:
-        if target + (part,) in known:
-            target += (part,)
-        else:
-            break
-    else:
-        return target
-    if not target and part in names:
-        return names[part]
-    return target
-
-
-def nested(a: Module, b: Module) -> bool:
-    return a[: len(b)] == b or b[: len(a)] == a
-
-
-def graph_of(root: Path) -> Dict[Module, Set[Module]]:
-    """Each module of the crate whose root file is `root`, with the modules it uses (its
-    ancestors and descendants left out)."""
-    mods = modules_of(root)
-    known = set(mods)
-    names = reexports(code_of(root), known)
-    edges: Dict[Module, Set[Module]] = {m: set() for m in mods}
-    for module, path in mods.items():
-        for p in paths_in(code_of(path)):
-            target = resolve(p, module, known, names)
-            if not nested(module, target):
-                edges[module].add(target)
-    return edges
-
-
-def strongly_connected(edges: Dict[Module, Set[Module]]) -> List[List[Module]]:
-    """The strongly connected components with more than one node (Tarjan)."""
-    index: Dict[Module, int] = {}
-    low: Dict[Module, int] = {}
-    stack: List[Module] = []
-    on_stack: Set[Module] = set()
-    found: List[List[Module]] = []
-
-    def visit(v: Module) -> None:
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on_stack.add(v)
-        for w in sorted(edges.get(v, ())):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            component = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                component.append(w)
-                if w == v:
-                    break
-            if len(component) > 1:
-                found.append(sorted(component))
-
-    for v in sorted(edges):
-        if v not in index:
-            visit(v)
-    return found
-
-
-def child_towards(parent: Module, module: Module) -> Optional[Module]:
-    """The child of `parent` whose subtree holds `module`; None for `parent` itself and for
-    a module outside its subtree."""
-    inside = len(module) > len(parent) and module[: len(parent)] == parent
-    return module[: len(parent) + 1] if inside else None
-
-
-def circles(edges: Dict[Module, Set[Module]]) -> List[List[Module]]:
-    """The circles among the children of each module, each child merged with its
-    descendants, outermost first."""
-    found: List[List[Module]] = []
-    for parent in sorted(edges, key=lambda m: (len(m), m)):
-        merged: Dict[Module, Set[Module]] = {}
-        for module, targets in edges.items():
-            child = child_towards(parent, module)
-            if child is None:
-                continue
-            uses = merged.setdefault(child, set())
-            for target in targets:
-                other = child_towards(parent, target)
-                if other is not None and other != child:
-                    uses.add(other)
-        found += strongly_connected(merged)
-    return found
-
-
-def named(component: List[Module]) -> str:
-    return " <-> ".join("::".join(m) or "crate" for m in component)
-
-
-def test_the_firmware_and_no_std_crates_have_no_module_circle():
+def test_the_rust_crates_have_no_module_circle():
     for crate in CRATES:
         for root in crate_roots(ROOT / crate / "src"):
             found = circles(graph_of(root))
@@ -226,15 +24,20 @@ def test_the_firmware_and_no_std_crates_have_no_module_circle():
 
 
 def test_the_check_reads_every_crate():
-    """A check that read nothing would pass: each library has modules, and their uses are
-    found (the firmware's CAN glue uses the board's bxCAN instance)."""
+    """A check that read nothing would pass: each crate's first root (its library, else its
+    binary) has modules, and their uses are found (the firmware's CAN glue uses the board's
+    bxCAN instance; xtask's linker finds flip-link with the machine's helpers, and its footprint
+    and update file read the one ELF reader)."""
     for crate in CRATES:
-        edges = graph_of(ROOT / crate / "src" / "lib.rs")
+        edges = graph_of(crate_roots(ROOT / crate / "src")[0])
         assert len(edges) > 3, crate
         assert any(edges.values()), crate
     firmware = graph_of(ROOT / "src" / "lib.rs")
     assert ("board",) in firmware[("can", "bxcan_port")]
     assert ("can", "bus") in firmware[("round_log",)]
+    xtask = graph_of(ROOT / "xtask" / "src" / "main.rs")
+    assert ("host",) in xtask[("linker",)]
+    assert ("elf",) in xtask[("footprint",)] and ("elf",) in xtask[("update",)]
 
 
 def test_the_check_finds_a_circle_through_use_trees_and_paths(tmp_path):
@@ -293,3 +96,84 @@ def test_the_check_finds_a_circle_through_a_descendant(tmp_path):
     assert circles(graph_of(src / "lib.rs")) == [[("can", "port"), ("can", "queue")]]
     # The binary is a crate of its own: `super::` from its inline module is its root.
     assert graph_of(src / "main.rs") == {(): set()}
+
+
+def test_the_check_finds_a_circle_between_two_files_of_a_binary(tmp_path):
+    """xtask's shape: a binary whose root declares every module, `linker` using `host` in a
+    `use` and `host` using `linker` back by a path in code (xtask had this circle, with
+    cargo's `bin` folder in `linker`)."""
+    src = tmp_path / "src"
+    src.mkdir()
+    (src / "main.rs").write_text("mod host;\nmod linker;\nmod fw;\nuse fw::build;\n")
+    (src / "linker.rs").write_text("use crate::host;\npub fn flip_link() { host::find(); }\n")
+    (src / "host.rs").write_text("pub fn root() { crate::linker::cargo_bin_dir(); }\n")
+    (src / "fw.rs").write_text("use crate::{linker, host::find};\n")
+    edges = graph_of(src / "main.rs")
+    assert edges[("fw",)] == {("host",), ("linker",)}
+    assert circles(edges) == [[("host",), ("linker",)]]
+
+
+def test_the_python_modules_have_no_import_circle():
+    found = circles(python_graph([ROOT / folder for folder in PYTHON_FOLDERS]))
+    assert not found, "; ".join(named(c, ".") for c in found)
+
+
+def test_the_check_reads_every_python_folder():
+    """Packages and the script folders' modules are found under the names they are imported
+    by, and their imports across the folders too; tests and build output are not modules."""
+    edges = python_graph([ROOT / folder for folder in PYTHON_FOLDERS])
+    assert ("canopen_handwheel", "core") in edges[("canopen_handwheel", "capture")]
+    assert ("canopen_handwheel", "core") in edges[("rig", "frames")]
+    assert ("stm32emu", "image") in edges[("stm32emu", "machine")]
+    assert ("cycles",) in edges[("bench",)]
+    assert {("demo",), ("rig",)} <= edges[("console",)]
+    assert ("seal", "seal") in edges
+    assert not any(m and (m[-1].startswith("test_") or m[-1] == "conftest") for m in edges)
+    assert ("fake_hal",) not in edges  # a helper of host/tests
+
+
+def test_the_check_finds_python_import_circles(tmp_path):
+    """Relative and absolute imports, an import inside a function and one of a package's
+    name: `a.b` imports `c` at a call while `c` imports `a` is the circle `a <-> c`; inside
+    `a`, `b` and `d` import each other. A package importing its own modules, a module
+    importing its package, modules from elsewhere and tests make no edge."""
+    tools = tmp_path / "tools"
+    (tools / "a").mkdir(parents=True)
+    (tools / "script").mkdir()
+    (tools / "a" / "__init__.py").write_text("from .b import run\nfrom . import d\n")
+    (tools / "a" / "b.py").write_text(
+        "import os\nfrom a import d\n\ndef run():\n    import c\n    return c\n"
+    )
+    (tools / "a" / "d.py").write_text("from .b import run as again\nimport a\n")
+    (tools / "c.py").write_text("from a.d import again\n")
+    (tools / "script" / "tool.py").write_text("import c\nimport helper\n")
+    (tools / "script" / "helper.py").write_text("X = 1\n")
+    (tools / "script" / "test_tool.py").write_text("import tool\n")
+
+    edges = python_graph([tools])
+    assert edges == {
+        (): set(),
+        ("a",): set(),
+        ("a", "b"): {("a", "d"), ("c",)},
+        ("a", "d"): {("a", "b")},
+        ("c",): {("a", "d")},
+        ("tool",): {("c",), ("helper",)},
+        ("helper",): set(),
+    }
+    assert circles(edges) == [[("a",), ("c",)], [("a", "b"), ("a", "d")]]
+    # Without the deferred import the outer circle is gone; the inner one stays.
+    (tools / "a" / "b.py").write_text("from a import d\n")
+    assert circles(python_graph([tools])) == [[("a", "b"), ("a", "d")]]
+    assert strongly_connected(python_graph([tools])) == [[("a", "b"), ("a", "d")]]
+
+
+def test_two_python_modules_of_one_name_are_refused(tmp_path):
+    for folder in ("one", "two"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "server.py").write_text("")
+    try:
+        python_modules([tmp_path])
+    except AssertionError as error:
+        assert "server" in str(error)
+    else:
+        raise AssertionError("two modules `server` were taken as one")

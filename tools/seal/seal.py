@@ -14,7 +14,11 @@ slot is the `.image_header` section (it fills memory.x's HEADER region). Sealing
 ELF again writes the same values.
 
 Python's standard library only: it runs at every firmware link, also where no project venv
-exists.
+exists. It reads the ELF itself rather than through xtask's reader (xtask/src/elf.rs):
+`cargo fw` and `cargo embed` link without xtask, which nothing builds for them (a fresh clone
+has no xtask binary), and building it from here would nest a cargo build of xtask and its
+dependencies inside the firmware's link. xtask checks what the seal wrote against its own
+reading (xtask/src/update.rs).
 
     python3 tools/seal/seal.py ELF                 # seal ELF in place
     python3 tools/seal/seal.py --link-args ARGS... # seal the output (-o) of a linker command

@@ -27,8 +27,8 @@ pub fn docs(args: &[String]) -> Result<(), String> {
 /// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; every
 /// relative link in the Markdown files (`tools/doclinks/test_doclinks.py`); and the marks of
 /// the documents' code blocks with the checks that need no emulator
-/// (`tools/snippets/test_marks.py`); and the import graph of the firmware crate and the
-/// no_std crates (`tools/modgraph`).
+/// (`tools/snippets/test_marks.py`); and the import graphs of the firmware crate, the no_std
+/// crates and xtask, and of host/'s and tools/' Python modules (`tools/modgraph`).
 pub fn wiring_check() -> Result<(), String> {
     let root = workspace_root();
     let python = wiring::python(&root, &target_dir())?;

@@ -13,13 +13,12 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use crate::elf;
+
 /// Where the STM32F103C8's memories sit (see `memory.x`): an image's flash is whatever it puts
 /// there (the application's header slot and image, or the loader).
 const FLASH: std::ops::Range<u32> = 0x0800_0000..0x0801_0000;
 const RAM: std::ops::Range<u32> = 0x2000_0000..0x2000_5000;
-
-const SHF_ALLOC: u32 = 0x2;
-const SHT_NOBITS: u32 = 8;
 
 /// Limits an image must stay within.
 #[derive(Clone, Copy, Debug)]
@@ -28,19 +27,6 @@ pub struct Budget {
     pub flash: u32,
     /// Static RAM bytes.
     pub ram: u32,
-}
-
-/// One allocated section.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Section {
-    /// Its name.
-    pub name: String,
-    /// Its address.
-    pub addr: u32,
-    /// Its size in bytes.
-    pub size: u32,
-    /// No bytes in the file (`.bss`, `.uninit`).
-    pub nobits: bool,
 }
 
 /// What an image uses.
@@ -163,9 +149,9 @@ pub fn check_readme(readme: &str, footprint: &Footprint) -> Result<(), String> {
 }
 
 /// Sums the allocated sections of an ELF32 little-endian image by where they live.
-pub fn measure(elf: &[u8]) -> Result<Footprint, String> {
+pub fn measure(image: &[u8]) -> Result<Footprint, String> {
     let mut footprint = Footprint::default();
-    for section in elf_sections(elf)? {
+    for section in elf::allocated_sections(image)? {
         let in_flash = FLASH.contains(&section.addr);
         let in_ram = RAM.contains(&section.addr);
         let flash = if in_flash || (in_ram && !section.nobits) {
@@ -184,139 +170,30 @@ pub fn measure(elf: &[u8]) -> Result<Footprint, String> {
     Ok(footprint)
 }
 
-/// The allocated sections of an ELF32 little-endian image.
-pub fn elf_sections(elf: &[u8]) -> Result<Vec<Section>, String> {
-    if elf.get(..4) != Some(b"\x7fELF".as_slice()) {
-        return Err("not an ELF file".into());
-    }
-    if elf.get(4) != Some(&1) || elf.get(5) != Some(&1) {
-        return Err("not a 32-bit little-endian ELF".into());
-    }
-    let shoff = u32_at(elf, 0x20)? as usize;
-    let shentsize = usize::from(u16_at(elf, 0x2E)?);
-    let shnum = usize::from(u16_at(elf, 0x30)?);
-    let shstrndx = usize::from(u16_at(elf, 0x32)?);
-    if shentsize < 40 {
-        return Err("section header entries too small".into());
-    }
-    let header = |i: usize| shoff + i * shentsize;
-    let names_offset = u32_at(elf, header(shstrndx) + 16)? as usize;
-
-    let mut out = Vec::new();
-    for i in 0..shnum {
-        let h = header(i);
-        let flags = u32_at(elf, h + 8)?;
-        if flags & SHF_ALLOC == 0 {
-            continue;
-        }
-        let name_offset = names_offset + u32_at(elf, h)? as usize;
-        let name = elf
-            .get(name_offset..)
-            .and_then(|rest| rest.split(|&b| b == 0).next())
-            .map(|name| String::from_utf8_lossy(name).into_owned())
-            .ok_or("section name out of bounds")?;
-        out.push(Section {
-            name,
-            addr: u32_at(elf, h + 12)?,
-            size: u32_at(elf, h + 20)?,
-            nobits: u32_at(elf, h + 4)? == SHT_NOBITS,
-        });
-    }
-    Ok(out)
-}
-
-pub fn u32_at(bytes: &[u8], at: usize) -> Result<u32, String> {
-    bytes
-        .get(at..at + 4)
-        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .ok_or_else(|| format!("truncated ELF (offset {at:#x})"))
-}
-
-pub fn u16_at(bytes: &[u8], at: usize) -> Result<u16, String> {
-    bytes
-        .get(at..at + 2)
-        .map(|b| u16::from_le_bytes([b[0], b[1]]))
-        .ok_or_else(|| format!("truncated ELF (offset {at:#x})"))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A minimal ELF32 LE image: a null section, the given sections, and the name table.
-    fn elf(sections: &[(&str, u32, u32, u32, u32)]) -> Vec<u8> {
-        // (name, type, flags, addr, size)
-        let mut names = vec![0u8];
-        let mut name_offsets = Vec::new();
-        for (name, ..) in sections {
-            name_offsets.push(names.len() as u32);
-            names.extend_from_slice(name.as_bytes());
-            names.push(0);
-        }
-        let shstrtab_name = names.len() as u32;
-        names.extend_from_slice(b".shstrtab\0");
-
-        let mut image = vec![0u8; 0x34];
-        image[..4].copy_from_slice(b"\x7fELF");
-        image[4] = 1;
-        image[5] = 1;
-        let names_at = image.len() as u32;
-        image.extend_from_slice(&names);
-        let shoff = image.len() as u32;
-        let shnum = sections.len() as u16 + 2;
-        image[0x20..0x24].copy_from_slice(&shoff.to_le_bytes());
-        image[0x2E..0x30].copy_from_slice(&40u16.to_le_bytes());
-        image[0x30..0x32].copy_from_slice(&shnum.to_le_bytes());
-        image[0x32..0x34].copy_from_slice(&(shnum - 1).to_le_bytes());
-
-        let mut push = |name: u32, kind: u32, flags: u32, addr: u32, offset: u32, size: u32| {
-            let mut h = [0u8; 40];
-            for (at, v) in [
-                (0, name),
-                (4, kind),
-                (8, flags),
-                (12, addr),
-                (16, offset),
-                (20, size),
-            ] {
-                h[at..at + 4].copy_from_slice(&v.to_le_bytes());
-            }
-            image.extend_from_slice(&h);
-        };
-        push(0, 0, 0, 0, 0, 0);
-        for ((_, kind, flags, addr, size), name) in sections.iter().zip(&name_offsets) {
-            push(*name, *kind, *flags, *addr, 0, *size);
-        }
-        push(shstrtab_name, 3, 0, 0, names_at, names.len() as u32);
-        image
-    }
-
-    const PROGBITS: u32 = 1;
+    use crate::elf::build::{elf, PROGBITS, SHF_ALLOC, SHT_NOBITS};
 
     #[test]
     fn sums_flash_and_ram_by_address() {
-        let image = elf(&[
-            (".vector_table", PROGBITS, SHF_ALLOC, 0x0800_0000, 304),
-            (".text", PROGBITS, SHF_ALLOC | 0x4, 0x0800_0130, 10_000),
-            (".rodata", PROGBITS, SHF_ALLOC, 0x0800_2840, 2_000),
-            (".data", PROGBITS, SHF_ALLOC | 0x1, 0x2000_0000, 56),
-            (".bss", SHT_NOBITS, SHF_ALLOC | 0x1, 0x2000_0038, 500),
-            (".uninit", SHT_NOBITS, SHF_ALLOC | 0x1, 0x2000_022C, 1_300),
-            (".defmt", PROGBITS, 0, 0, 40),
-            (".debug_info", PROGBITS, 0, 0, 99_999),
-        ]);
+        let image = elf(
+            &[],
+            &[
+                (".vector_table", PROGBITS, SHF_ALLOC, 0x0800_0000, 304),
+                (".text", PROGBITS, SHF_ALLOC | 0x4, 0x0800_0130, 10_000),
+                (".rodata", PROGBITS, SHF_ALLOC, 0x0800_2840, 2_000),
+                (".data", PROGBITS, SHF_ALLOC | 0x1, 0x2000_0000, 56),
+                (".bss", SHT_NOBITS, SHF_ALLOC | 0x1, 0x2000_0038, 500),
+                (".uninit", SHT_NOBITS, SHF_ALLOC | 0x1, 0x2000_022C, 1_300),
+                (".defmt", PROGBITS, 0, 0, 40),
+                (".debug_info", PROGBITS, 0, 0, 99_999),
+            ],
+        );
         let footprint = measure(&image).unwrap();
         assert_eq!(footprint.flash, 304 + 10_000 + 2_000 + 56);
         assert_eq!(footprint.ram, 56 + 500 + 1_300);
         assert_eq!(footprint.sections.len(), 6);
-    }
-
-    #[test]
-    fn rejects_what_is_not_elf32_le() {
-        assert!(measure(b"not an elf").is_err());
-        let mut image = elf(&[]);
-        image[4] = 2;
-        assert!(measure(&image).is_err());
     }
 
     #[test]

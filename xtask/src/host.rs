@@ -1,11 +1,13 @@
 //! The machine xtask runs on: programs on `PATH`, whether we are root, Debian packages, and
-//! the tools xtask installs with `cargo install` (`defmt-print`, flip-link).
+//! the tools xtask installs with `cargo install` (`defmt-print`, flip-link) into cargo's `bin`
+//! folder or the project's, with the `PATH` that finds them.
 //!
 //! Used by the tasks that install what they need on a fresh Debian machine when running as
 //! root and explain what to install otherwise ([`crate::pyenv`], [`crate::linuxcnc`],
-//! [`crate::wiring`]).
+//! [`crate::wiring`], [`crate::linker`]); it uses none of them.
 
 use std::env;
+use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -85,6 +87,27 @@ pub fn require(program: &str, packages: &[&str]) -> Result<PathBuf, String> {
         .ok_or_else(|| format!("`{program}` still not on PATH after installing `{list}`"))
 }
 
+/// cargo's `bin` folder for `cargo install` without `--root`: `$CARGO_INSTALL_ROOT/bin`,
+/// else `$CARGO_HOME/bin`, else `~/.cargo/bin`.
+pub fn cargo_bin_dir() -> Option<PathBuf> {
+    let var = |name: &str| env::var_os(name).filter(|v| !v.is_empty());
+    let root = var("CARGO_INSTALL_ROOT")
+        .or_else(|| var("CARGO_HOME"))
+        .map(PathBuf::from)
+        .or_else(|| var("HOME").map(|home| Path::new(&home).join(".cargo")))?;
+    Some(root.join("bin"))
+}
+
+/// `PATH` with `dir` in front, unless it is on it already.
+pub fn path_with(dir: &Path) -> OsString {
+    let current = env::var_os("PATH").unwrap_or_default();
+    if env::split_paths(&current).any(|p| p == dir) {
+        return current;
+    }
+    env::join_paths(std::iter::once(dir.to_path_buf()).chain(env::split_paths(&current)))
+        .unwrap_or(current)
+}
+
 /// The `defmt-print` release this project uses (supports defmt wire formats 3 and 4, i.e.
 /// defmt 0.3 and 1.x).
 pub const DEFMT_PRINT_VERSION: &str = "1.2.0";
@@ -94,7 +117,7 @@ pub const DEFMT_PRINT_VERSION: &str = "1.2.0";
 /// built and a pinned version never replaces one the user installed. Below the target
 /// directory when cargo's home is unknown.
 pub fn tools_root(target_dir: &Path) -> PathBuf {
-    crate::linker::cargo_bin_dir()
+    cargo_bin_dir()
         .and_then(|bin| bin.parent().map(|home| home.join("handwheel-tools")))
         .unwrap_or_else(|| target_dir.join("tools"))
 }
@@ -116,14 +139,14 @@ pub fn defmt_print(tools_root: &Path) -> Result<PathBuf, String> {
 }
 
 /// `cargo install <name> --locked --version =<version>`, with `--root <root>` if given (else
-/// into cargo's own `bin` folder, [`crate::linker::cargo_bin_dir`]); returns the installed
+/// into cargo's own `bin` folder, [`cargo_bin_dir`]); returns the installed
 /// binary, which must exist afterwards. The one way xtask installs a tool. The install runs
 /// with that `bin` folder on its `PATH`: xtask calls the tool by its path (or puts the folder
 /// on its builds' `PATH`), so cargo's advice to add the folder to `PATH` would mislead.
 pub fn cargo_install(root: Option<&Path>, name: &str, version: &str) -> Result<PathBuf, String> {
     let bin_dir = match root {
         Some(root) => root.join("bin"),
-        None => crate::linker::cargo_bin_dir()
+        None => cargo_bin_dir()
             .ok_or("cannot tell cargo's bin folder: neither CARGO_HOME nor HOME is set")?,
     };
     let bin = bin_dir.join(name);
@@ -135,7 +158,7 @@ pub fn cargo_install(root: Option<&Path>, name: &str, version: &str) -> Result<P
         sh,
         "cargo install {name} --locked --version {version} {root_option...}"
     )
-    .env("PATH", crate::linker::path_with(&bin_dir));
+    .env("PATH", path_with(&bin_dir));
     eprintln!(
         "xtask: cargo install {name} --locked --version {version}{} (once; it builds from \
          source, a few minutes)",
@@ -164,5 +187,17 @@ mod tests {
     fn finds_a_shell_and_not_nonsense() {
         assert!(find_in_path("sh").is_some());
         assert!(find_in_path("no-such-program-xtask-test").is_none());
+    }
+
+    #[test]
+    fn path_with_puts_a_folder_first_once() {
+        let dir = Path::new("/no/such/xtask-test-bin");
+        let once = path_with(dir);
+        assert_eq!(env::split_paths(&once).next().as_deref(), Some(dir));
+        let current = env::var_os("PATH").unwrap_or_default();
+        assert_eq!(
+            env::split_paths(&once).count(),
+            env::split_paths(&current).count() + 1
+        );
     }
 }

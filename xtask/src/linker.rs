@@ -15,7 +15,6 @@
 //! `PATH` if the shell lacks it.
 
 use std::ffi::OsString;
-use std::path::{Path, PathBuf};
 
 use crate::host;
 
@@ -31,27 +30,6 @@ pub struct FlipLink {
     pub path: OsString,
 }
 
-/// cargo's `bin` folder for `cargo install` without `--root`: `$CARGO_INSTALL_ROOT/bin`,
-/// else `$CARGO_HOME/bin`, else `~/.cargo/bin`.
-pub fn cargo_bin_dir() -> Option<PathBuf> {
-    let var = |name: &str| std::env::var_os(name).filter(|v| !v.is_empty());
-    let root = var("CARGO_INSTALL_ROOT")
-        .or_else(|| var("CARGO_HOME"))
-        .map(PathBuf::from)
-        .or_else(|| var("HOME").map(|home| Path::new(&home).join(".cargo")))?;
-    Some(root.join("bin"))
-}
-
-/// `PATH` with `dir` in front, unless it is on it already.
-pub fn path_with(dir: &Path) -> OsString {
-    let current = std::env::var_os("PATH").unwrap_or_default();
-    if std::env::split_paths(&current).any(|p| p == dir) {
-        return current;
-    }
-    std::env::join_paths(std::iter::once(dir.to_path_buf()).chain(std::env::split_paths(&current)))
-        .unwrap_or(current)
-}
-
 /// flip-link for the board's builds: the one on `PATH`, else the one in cargo's `bin`
 /// folder, installed there with `cargo install flip-link --locked` on first use. Returns
 /// the `PATH` the builds need to find it.
@@ -60,29 +38,12 @@ pub fn flip_link() -> Result<FlipLink, String> {
     if host::find_in_path(FLIP_LINK).is_some() {
         return Ok(FlipLink { path: current });
     }
-    let bin =
-        cargo_bin_dir().ok_or("flip-link is not on PATH and neither CARGO_HOME nor HOME is set")?;
+    let bin = host::cargo_bin_dir()
+        .ok_or("flip-link is not on PATH and neither CARGO_HOME nor HOME is set")?;
     if !bin.join(FLIP_LINK).is_file() {
         host::cargo_install(None, FLIP_LINK, FLIP_LINK_VERSION)?;
     }
     Ok(FlipLink {
-        path: path_with(&bin),
+        path: host::path_with(&bin),
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn path_with_puts_a_folder_first_once() {
-        let dir = Path::new("/no/such/xtask-test-bin");
-        let once = path_with(dir);
-        assert_eq!(std::env::split_paths(&once).next().as_deref(), Some(dir));
-        let current = std::env::var_os("PATH").unwrap_or_default();
-        assert_eq!(
-            std::env::split_paths(&once).count(),
-            std::env::split_paths(&current).count() + 1
-        );
-    }
 }

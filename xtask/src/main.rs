@@ -14,6 +14,7 @@ mod board;
 mod dbc;
 mod docs;
 mod eds;
+mod elf;
 mod footprint;
 mod fw;
 mod go_master;

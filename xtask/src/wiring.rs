@@ -21,8 +21,9 @@ pub const LINKS: &str = "tools/doclinks";
 /// The marks of the documents' code blocks and the blocks checked against files
 /// (standard library and pytest), relative to the workspace root.
 pub const SNIPPET_MARKS: &str = "tools/snippets/test_marks.py";
-/// The import graph of the firmware crate and the no_std crates has no circle (standard
-/// library and pytest), relative to the workspace root.
+/// The import graphs of the firmware crate, the no_std crates and xtask, and of the Python
+/// modules of host/ and tools/, have no circle (standard library and pytest), relative to the
+/// workspace root.
 pub const MODULE_GRAPH: &str = "tools/modgraph";
 /// Its pinned requirements (WireViz, PyYAML, pytest and their dependencies).
 pub const REQUIREMENTS: &str = "tools/wiring/requirements.txt";
