@@ -22,7 +22,8 @@ import threading
 import time
 from typing import List
 
-FRAME_COMMANDS = b"tTrR"
+# The component's package (installed in the venv the LinuxCNC suite runs with) has the codec.
+from canopen_handwheel import slcan
 
 
 class SlcanHub:
@@ -36,7 +37,7 @@ class SlcanHub:
         self.port = self.server.getsockname()[1]
         self._stop = threading.Event()
         self._clients: List[socket.socket] = []
-        self._buffers = {}
+        self._lines = {}  # client -> its slcan.LineSplitter
         self._protected: set = set()
         self._refuse_until = 0.0
         self._mute_until = 0.0
@@ -121,7 +122,7 @@ class SlcanHub:
 
     def _pump(self, up) -> None:
         """Moves frames until the upstream closes (or, with `up` None, for one round)."""
-        up_buf = b""
+        from_up = slcan.LineSplitter()
         while not self._stop.is_set():
             self._apply_faults()
             waiting = [self.server] + self._clients + ([up] if up is not None else [])
@@ -134,7 +135,7 @@ class SlcanHub:
                         continue
                     conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                     self._clients.append(conn)
-                    self._buffers[conn] = b""
+                    self._lines[conn] = slcan.LineSplitter()
                 elif s is up:
                     try:
                         data = up.recv(4096)
@@ -142,13 +143,12 @@ class SlcanHub:
                         data = b""
                     if not data:
                         return
-                    up_buf += data
-                    *lines, up_buf = up_buf.split(b"\r")
+                    lines = from_up.feed(data)
                     if time.monotonic() < self._mute_until:
                         continue
                     for line in lines:
-                        line = line.lstrip(b"\x07")
-                        if line[:1] and line[:1] in FRAME_COMMANDS:
+                        # Frames only: the device's answers (`z`) were to the clients' frames.
+                        if slcan.decode(line) is not None:
                             self._send_all(line + b"\r", exclude=None)
                 elif s in self._clients:
                     self._from_client(s, up)
@@ -172,10 +172,8 @@ class SlcanHub:
         if not data:
             self._drop(s)
             return
-        buf = self._buffers[s] + data
-        *lines, self._buffers[s] = buf.split(b"\r")
-        for line in lines:
-            if line[:1] and line[:1] in FRAME_COMMANDS:
+        for line in self._lines[s].feed(data):
+            if slcan.decode(line) is not None:
                 if up is not None:
                     try:
                         up.sendall(line + b"\r")
@@ -183,7 +181,7 @@ class SlcanHub:
                         pass  # the device is going; its port's closing shows next round
                 self._send_all(line + b"\r", exclude=s)
             else:
-                self._send(s, b"\r")
+                self._send(s, slcan.OK)  # a channel command, answered here
 
     def _send(self, s: socket.socket, data: bytes) -> None:
         try:
@@ -199,7 +197,7 @@ class SlcanHub:
     def _drop(self, s: socket.socket) -> None:
         if s in self._clients:
             self._clients.remove(s)
-            self._buffers.pop(s, None)
+            self._lines.pop(s, None)
             s.close()
 
     def close(self) -> None:

@@ -21,7 +21,7 @@ from can.interfaces.virtual import VirtualBus
 
 import fake_hal
 import records
-from canopen_handwheel import component, core
+from canopen_handwheel import component, core, slcan
 from canopen_handwheel.core import Record
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -519,7 +519,7 @@ class SlcanDevice:
         conn, _ = self.server.accept()
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         conn.setblocking(False)  # never wait in a send: frames are stamped as they come
-        buf, out = b"", b""
+        lines, out = slcan.LineSplitter(), b""
         try:
             while not self.done.is_set():
                 while not self.outbox.empty():
@@ -535,17 +535,14 @@ class SlcanDevice:
                     data = conn.recv(65536)
                     if not data:
                         return
-                    buf += data
-                    *lines, buf = buf.split(b"\r")
-                    for line in lines:
-                        if line[:1] == b"t":
-                            cob, n = int(line[1:4], 16), int(line[4:5])
-                            data = bytes.fromhex(line[5 : 5 + 2 * n].decode())
-                            self.frames.append((now, cob, data))
-                            if cob == 0x600 + NODE and n == 8:
-                                out += self.encode([(0x580 + NODE, self.sdo(data))])
-                        else:
-                            out += b"\r"  # O, C, S...: acknowledged
+                    for line in lines.feed(data):
+                        frame = slcan.decode(line)
+                        if frame is None:
+                            out += slcan.OK  # O, C, S...: acknowledged
+                            continue
+                        self.frames.append((now, frame.id, frame.data))
+                        if frame.id == 0x600 + NODE and len(frame.data) == 8:
+                            out += self.encode([(0x580 + NODE, self.sdo(frame.data))])
                 if writable:
                     out = out[conn.send(out) :]
         except OSError:  # the component closed the line
@@ -556,13 +553,14 @@ class SlcanDevice:
     @staticmethod
     def encode(frames) -> bytes:
         """(cob_id, data) frames as SLCAN lines."""
-        return b"".join(f"t{c:03X}{len(d)}{d.hex().upper()}\r".encode() for c, d in frames)
+        return b"".join(slcan.encode(slcan.Frame(c, d)) for c, d in frames)
 
     def send(self, lines: bytes) -> None:
         """Queues `encode`d frames to go out at once."""
         for line in lines.split(b"\r"):
-            if line[:4] == f"t{0x180 + NODE:03X}".encode() and line[4:5] == b"8":
-                self.last_sequence = Record.decode(bytes.fromhex(line[5:21].decode())).sequence
+            frame = slcan.decode(line)
+            if frame is not None and frame.id == 0x180 + NODE and len(frame.data) == 8:
+                self.last_sequence = Record.decode(frame.data).sequence
         self.outbox.put(lines)
 
     def seen_at(self, cob_id):

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import fake_hal
 import records
-from canopen_handwheel import component, core
+from canopen_handwheel import component, core, slcan
 from canopen_handwheel.core import Config, Core, Record
 from records import EMCY, EN, HB, ML, SESSION, TPDO1
 
@@ -583,7 +583,7 @@ def test_slcan_lines_are_read_in_bulk():
 class SlcanLines:
     @staticmethod
     def encode(frames) -> bytes:
-        return b"".join(f"t{c:03X}{len(d)}{d.hex().upper()}\r".encode() for c, d in frames)
+        return b"".join(slcan.encode(slcan.Frame(c, d)) for c, d in frames)
 
 
 # The pin steps over random rounds -------------------------------------------------------------

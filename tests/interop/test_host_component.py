@@ -19,14 +19,14 @@ from pathlib import Path
 
 import pytest
 
+from canopen_handwheel import slcan
 from canopen_handwheel.core import Record
 from rig import NODE_ID, ROOT, START_TIMEOUT, Board, Stimulus
 from rig.component import HalLog, capture_problems, end_component
 
-TPDO1_LINE = f"t{0x180 + NODE_ID:03X}8".encode()
-BOOTUP_LINE = f"t{0x700 + NODE_ID:03X}100".encode()
-EMCY_LINE = f"t{0x080 + NODE_ID:03X}8".encode() + b"0050010000000000\r"  # 0x5000, cleared never
-FRAME_COMMANDS = b"tTrR"
+BOOTUP = slcan.Frame(0x700 + NODE_ID, b"\x00")
+# EMCY 0x5000, cleared never
+EMCY_LINE = slcan.encode(slcan.Frame(0x080 + NODE_ID, bytes.fromhex("0050010000000000")))
 
 COMPONENT_RUN = """
 import sys
@@ -85,7 +85,7 @@ class Relay:
 
     def _run(self) -> None:
         client = None
-        up_buf = client_buf = b""
+        from_up, from_client = slcan.LineSplitter(), slcan.LineSplitter()
         try:
             while not self._stop.is_set():
                 waiting = [self.up] + ([client] if client else [self.server])
@@ -100,28 +100,26 @@ class Relay:
                         data = self.up.recv(65536)
                         if not data:
                             return
-                        up_buf += data
-                        *lines, up_buf = up_buf.split(b"\r")
-                        for line in lines:
-                            line = line.lstrip(b"\x07")
-                            if line == BOOTUP_LINE:
+                        for line in from_up.feed(data):
+                            frame = slcan.decode(line)
+                            if frame is None:
+                                continue  # the device's answers (`z`) to the client's frames
+                            out += line + b"\r"
+                            if frame == BOOTUP:
                                 self.booted.set()
-                            if line[:1] and line[:1] in FRAME_COMMANDS:
-                                out += line + b"\r"
-                                if line.startswith(TPDO1_LINE) and len(line) == 21:
-                                    self.records.append((now, bytes.fromhex(line[5:].decode())))
+                            tpdo1 = frame.id == 0x180 + NODE_ID and not frame.extended
+                            if tpdo1 and len(frame.data) == 8:
+                                self.records.append((now, frame.data))
                     else:
                         data = client.recv(65536)
                         if not data:
                             client = None
                             continue
-                        client_buf += data
-                        *lines, client_buf = client_buf.split(b"\r")
-                        for line in lines:
-                            if line[:1] and line[:1] in FRAME_COMMANDS:
+                        for line in from_client.feed(data):
+                            if slcan.decode(line) is not None:
                                 self.up.sendall(line + b"\r")
                             else:
-                                out += b"\r"
+                                out += slcan.OK  # a channel command, answered here
                 with self._lock:
                     if self._rate:
                         due = int((now - self._flood_start) * self._rate) + self._flood_base

@@ -1,6 +1,7 @@
-"""The SLCAN relay's own logic (tools/rig/relay.py), without an emulator: the SLCAN lines it
-parses and writes, which record a copy is of and when it goes out, and the relay itself
-between a stand-in emulator port (a plain TCP server) and a python-can `slcan` client."""
+"""The SLCAN relay's own logic (tools/rig/relay.py), without an emulator: which record a copy
+is of and when it goes out, and the relay itself between a stand-in emulator port (a plain
+TCP server) and a python-can `slcan` client. The SLCAN lines it reads and writes are the
+codec's (host/tests/test_slcan.py)."""
 
 from __future__ import annotations
 
@@ -11,89 +12,9 @@ import time
 import can
 import pytest
 
+from canopen_handwheel import slcan
 from rig import Frame
-from rig.relay import (
-    LineSplitter,
-    Relay,
-    Replay,
-    SlcanFrame,
-    encode,
-    is_bootup,
-    parse_line,
-)
-
-
-@pytest.mark.parametrize(
-    "line, frame",
-    [
-        (b"t7101" + b"00", SlcanFrame(0x710, b"\x00")),
-        (b"t19080102030405060708", SlcanFrame(0x190, bytes(range(1, 9)))),
-        (b"t19080a0B0c0D0e0F1011", SlcanFrame(0x190, bytes.fromhex("0a0b0c0d0e0f1011"))),
-        (b"t0000", SlcanFrame(0x000, b"")),
-        (b"T01ABCDEF2BEEF", SlcanFrame(0x1ABCDEF, b"\xbe\xef", extended=True)),
-        (b"r6108", SlcanFrame(0x610, b"", remote=True, dlc=8)),
-        (b"R000001233", SlcanFrame(0x123, b"", extended=True, remote=True, dlc=3)),
-        (b"\x07\x07t0000", SlcanFrame(0x000, b"")),
-    ],
-)
-def test_frame_lines_parse(line, frame):
-    assert parse_line(line) == frame
-
-
-@pytest.mark.parametrize(
-    "line",
-    [
-        b"",
-        b"O",
-        b"C",
-        b"S8",
-        b"z",
-        b"V0101",
-        b"t19",  # cut in the identifier
-        b"t190",  # no DLC
-        b"t1908010203",  # fewer bytes than the DLC
-        b"t190101020",  # more
-        b"t1909" + b"00" * 9,  # DLC 9
-        b"t8001" + b"00",  # beyond 11 bits
-        b"T200000001" + b"00",  # beyond 29 bits
-        b"t19G100",  # not hex
-        b"t1901zz",
-        b"r6108" + b"00",  # a remote frame with data
-    ],
-)
-def test_other_lines_are_no_frames(line):
-    assert parse_line(line) is None
-
-
-@pytest.mark.parametrize(
-    "frame",
-    [
-        SlcanFrame(0x190, bytes(range(8))),
-        SlcanFrame(0x000, bytes([1, 16])),
-        SlcanFrame(0x7FF, b""),
-        SlcanFrame(0x1FFFFFFF, b"\xff", extended=True),
-        SlcanFrame(0x610, b"", remote=True, dlc=8),
-        SlcanFrame(0x12345, b"", extended=True, remote=True, dlc=0),
-    ],
-)
-def test_encode_round_trips_and_ends_in_cr(frame):
-    line = encode(frame)
-    assert line.endswith(b"\r") and line.count(b"\r") == 1
-    assert parse_line(line[:-1]) == frame
-
-
-def test_encode_is_what_the_board_sends():
-    assert encode(SlcanFrame(0x190, bytes.fromhex("0a0b0c0d0e0f1011"))) == b"t1908" + (
-        b"0A0B0C0D0E0F1011\r"
-    )
-
-
-def test_lines_split_across_reads_and_bells_dropped():
-    split = LineSplitter()
-    assert split.feed(b"t71010") == []
-    assert split.feed(b"0\r\x07t00") == [b"t710100"]
-    assert split.feed(b"0\r\rz\r") == [b"t000", b"", b"z"]
-    assert split.feed(b"") == []
+from rig.relay import Relay, Replay, is_bootup
 
 
 def records(n: int, tag=lambda i: i) -> list:
@@ -154,10 +75,10 @@ def test_replay_refuses_a_copy_of_the_newest_itself():
 
 def test_bootup_match():
     boot = is_bootup(16)
-    assert boot(SlcanFrame(0x710, b"\x00"))
-    assert not boot(SlcanFrame(0x710, b"\x05"))
-    assert not boot(SlcanFrame(0x711, b"\x00"))
-    assert not boot(SlcanFrame(0x710, b"", remote=True, dlc=1))
+    assert boot(slcan.Frame(0x710, b"\x00"))
+    assert not boot(slcan.Frame(0x710, b"\x05"))
+    assert not boot(slcan.Frame(0x711, b"\x00"))
+    assert not boot(slcan.Frame(0x710, b"", remote=True, dlc=1))
 
 
 class FakeEmulator:

@@ -70,22 +70,29 @@ import sys
 import time
 from pathlib import Path
 
-# The chip model (tools/stm32emu) is a package beside this folder.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# The chip model (tools/stm32emu) is a package beside this folder; the SLCAN codec is the host
+# component's (host/src; standard library only, so this venv needs no python-can for it).
+sys.path[:0] = [
+    str(Path(__file__).resolve().parents[1]),
+    str(Path(__file__).resolve().parents[2] / "host" / "src"),
+]
 
+from canopen_handwheel import slcan  # noqa: E402
 from stm32emu import cortex, periph  # noqa: E402
 from stm32emu import machine as machine_mod  # noqa: E402
 from stm32emu.image import APPLICATION, LOADER  # noqa: E402
 
 MAX_LAG = 0.05
-SLCAN_RATES = [10, 20, 50, 100, 125, 250, 500, 800, 1000]
+# An SLCAN line is 30 bytes at most; a client's unfinished line beyond this is refused.
+LONGEST_SLCAN_LINE = 64
 
 
 class Client:
     def __init__(self, sock: socket.socket, kind: str) -> None:
         self.sock = sock
         self.kind = kind
-        self.buffer = b""
+        self.buffer = b""  # the control line's unfinished line
+        self.lines = slcan.LineSplitter(LONGEST_SLCAN_LINE)  # the CAN port's
 
     def send(self, data: bytes) -> None:
         try:
@@ -225,10 +232,10 @@ class Server:
             if not data:
                 self._drop(client)
                 continue
-            client.buffer += data
             if client.kind == "can":
-                self._slcan_input(client)
+                self._slcan_input(client, data)
             else:
+                client.buffer += data
                 self._stim_input(client)
 
     def _drop(self, client: Client) -> None:
@@ -244,22 +251,27 @@ class Server:
 
     # -- SLCAN --------------------------------------------------------------------------------
 
-    def _slcan_input(self, client: Client) -> None:
-        while True:
-            cut = [i for i in (client.buffer.find(b"\r"), client.buffer.find(b"\n")) if i >= 0]
-            if not cut:
-                if len(client.buffer) > 64:
-                    client.buffer = b""
-                    client.send(b"\a")
-                return
-            i = min(cut)
-            line, client.buffer = client.buffer[:i], client.buffer[i + 1 :]
-            client.send(self._slcan_command(line.decode("ascii", "replace")))
+    def _slcan_input(self, client: Client, data: bytes) -> None:
+        overflows = client.lines.overflows
+        # A line typed by hand (`nc`) ends in `\n`: that ends a command here as `\r` does.
+        for line in client.lines.feed(data.replace(b"\n", b"\r")):
+            client.send(self._slcan_command(line))
+        if client.lines.overflows > overflows:
+            client.send(b"\a")  # after the lines before it: it is the last thing read
 
-    def _slcan_command(self, line: str) -> bytes:
+    def _slcan_command(self, line: bytes) -> bytes:
+        frame = slcan.decode(line)
+        if frame is not None:
+            self.frames_in += 1
+            self.m.deliver(
+                periph.Frame(frame.id, frame.data, frame.extended, frame.remote, frame.length)
+            )
+            self.m.update_irqs()
+            return slcan.ack(frame)
         if not line:
             return b"\r"
-        letter, args = line[0], line[1:]
+        text = line.decode("ascii", "replace")
+        letter, args = text[0], text[1:]
         if letter in "OL":
             self.slcan_open = True
             return b"\r"
@@ -267,7 +279,7 @@ class Server:
             self.slcan_open = False
             return b"\r"
         if letter == "S" and len(args) == 1 and args.isdigit() and int(args) < 9:
-            self.m.can.bus_bitrate = SLCAN_RATES[int(args)] * 1000
+            self.m.can.bus_bitrate = slcan.BITRATES[int(args)]
             return b"\r"
         if letter == "V":
             return b"V0101\r"
@@ -277,40 +289,17 @@ class Server:
             return b"F00\r"
         if letter in "sZ":
             return b"\r"
-        if letter in "tTrR":
-            try:
-                frame = self._parse_frame(letter, args)
-            except ValueError:
-                return b"\a"
-            self.frames_in += 1
-            self.m.deliver(frame)
-            self.m.update_irqs()
-            return b"z\r" if letter in "tr" else b"Z\r"
-        return b"\a"
-
-    @staticmethod
-    def _parse_frame(letter: str, args: str) -> periph.Frame:
-        extended = letter in "TR"
-        remote = letter in "rR"
-        width = 8 if extended else 3
-        can_id = int(args[:width], 16)
-        dlc = int(args[width])
-        if dlc > 8 or can_id >= (1 << (29 if extended else 11)):
-            raise ValueError
-        data = b"" if remote else bytes.fromhex(args[width + 1 : width + 1 + 2 * dlc])
-        if not remote and len(data) != dlc:
-            raise ValueError
-        return periph.Frame(can_id, data, extended, remote, dlc)
+        return b"\a"  # an unknown command, or a frame line no frame can be read from
 
     def _node_frame(self, frame: periph.Frame) -> None:
         self.frames_out += 1
         if self.can_client is None or not self.slcan_open:
             return
-        if frame.extended:
-            head = f"{'R' if frame.remote else 'T'}{frame.can_id:08X}{frame.length}"
-        else:
-            head = f"{'r' if frame.remote else 't'}{frame.can_id:03X}{frame.length}"
-        self.can_client.send((head + frame.data.hex().upper() + "\r").encode())
+        self.can_client.send(
+            slcan.encode(
+                slcan.Frame(frame.can_id, frame.data, frame.extended, frame.remote, frame.dlc)
+            )
+        )
 
     # -- control line -------------------------------------------------------------------------
 

@@ -1,6 +1,6 @@
-"""The control line's commands on a machine with the release image, without sockets or
-the wall clock: a command goes to the server as a line would, the test moves emulated time
-on and reads the replies. Needs the release ELF (as test_machine.py)."""
+"""The control line's commands and the SLCAN port on a machine with the release image,
+without sockets or the wall clock: a command goes to the server as a line would, the test
+moves emulated time on and reads the replies. Needs the release ELF (as test_machine.py)."""
 
 import pytest
 
@@ -195,3 +195,61 @@ def test_an_idle_cpu_waits_in_wall_time_for_input(board, monkeypatch):
     before = m.now
     s.idle()
     assert m.now == before
+
+
+# The SLCAN port ------------------------------------------------------------------------------
+
+
+class Line:
+    """The socket of a client of the SLCAN port: what the server sends it (what the
+    client would read)."""
+
+    def __init__(self) -> None:
+        self.sent = b""
+
+    def sendall(self, data: bytes) -> None:
+        self.sent += data
+
+
+def slcan_client(s) -> Line:
+    """A client on the board's SLCAN port."""
+    line = Line()
+    s.can_client = server.Client(line, "can")
+    return line
+
+
+def test_commands_are_answered_and_frames_put_on_the_bus(board):
+    m, s = board
+    line = slcan_client(s)
+    sdo = b"t6108" + b"4000100000000000"
+    s._slcan_input(s.can_client, b"C\rO\rS4\r" + sdo + b"\rT000006101AA\rr6100\rV\rN\r")
+    assert line.sent == b"\r\r\rz\rZ\rz\rV0101\rNBOARD\r"
+    assert s.frames_in == 3 and s.slcan_open
+    assert m.can.bus_bitrate == 125_000
+
+
+def test_bad_lines_are_refused_and_lines_may_come_in_pieces(board):
+    m, s = board
+    line = slcan_client(s)
+    for piece in (b"t61", b"08", b"00\rt6109\rt80", b"00\rS9\rQ\rC\n"):
+        s._slcan_input(s.can_client, piece)
+    # `t6108` + one byte: the DLC says 8; DLC 9; identifier beyond 11 bits; no S9; no Q.
+    assert line.sent == b"\a\a\a\a\a\r"
+    assert s.frames_in == 0 and not s.slcan_open
+
+
+def test_a_line_that_never_ends_is_refused_once_with_its_tail(board):
+    m, s = board
+    line = slcan_client(s)
+    s._slcan_input(s.can_client, b"O\r" + b"t" * 65)
+    assert line.sent == b"\r\a"
+    s._slcan_input(s.can_client, b"6100\rC\r")  # the rest of that line, then a command
+    assert line.sent == b"\r\a\r"
+    assert s.frames_in == 0 and not s.slcan_open
+
+
+def test_the_node_s_frames_reach_the_client_as_lines(board):
+    m, s = board
+    line = slcan_client(s)
+    m.run_ms(50)
+    assert line.sent.startswith(b"t7101" + b"00\r"), line.sent  # the boot-up of node 16

@@ -5,7 +5,8 @@ The interop suite (`tests/interop`, whose conftest.py holds only the pytest fixt
 LinuxCNC suite, `cargo xtask demo` (tools/demo.py) and the LinuxCNC console import it from
 here. It is not installed: put `tools/` on `sys.path` (the suites' pytest.ini files do) or
 run a script that lives in `tools/`; `host/src` too, since `feed_record` decodes with the
-host component's `canopen_handwheel.core.Record` (standard library only).
+host component's `canopen_handwheel.core.Record` and the relay speaks SLCAN with its
+`canopen_handwheel.slcan` (both standard library only).
 
 - `constants`: the repository root, the EDS, COB-IDs, NMT states and commands, timeouts;
 - `frames`: `Frame`, `FrameRecorder` (every received frame, with waits), `feed_record` (a

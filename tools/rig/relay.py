@@ -4,7 +4,9 @@ emulator's CAN port, as a CAN bus with a hostile stretch of wire in the middle.
 The emulator's SLCAN port takes one client. The relay is that client and listens on a port
 of its own (`channel`, `socket://127.0.0.1:<port>`) for the component. Frame lines pass both
 ways unchanged and in order; the client's channel commands (`O`, `C`, `S8`, ...) are answered
-`\\r` here (the device's channel is open from its power-on). On command it
+`\\r` here (the device's channel is open from its power-on). The host component's SLCAN
+codec (`canopen_handwheel.slcan`) reads and writes the lines; `drop` predicates get its
+`Frame`. On command it
 
 - drops the device's frames that match a predicate (`drop`: e.g. the next boot-up), so that
   the component never sees them;
@@ -29,87 +31,12 @@ import select
 import socket
 import threading
 import time
-from dataclasses import dataclass
 from typing import Callable, List, Optional, Sequence
 
-import can
+from canopen_handwheel import slcan
 
 from .constants import NODE_ID, START_TIMEOUT
 from .frames import Frame, FrameRecorder
-
-FRAME_LETTERS = b"tTrR"
-BEL = b"\x07"
-
-
-@dataclass(frozen=True)
-class SlcanFrame:
-    """One frame of an SLCAN line."""
-
-    id: int
-    data: bytes = b""
-    extended: bool = False
-    remote: bool = False
-    dlc: Optional[int] = None  # a remote frame's DLC; None: len(data)
-
-    @property
-    def length(self) -> int:
-        return len(self.data) if self.dlc is None else self.dlc
-
-
-def parse_line(line: bytes) -> Optional[SlcanFrame]:
-    """The frame of one SLCAN line (without its `\\r`; leading BELs ignored): `tIIIL<data>`,
-    `TIIIIIIIIL<data>`, `rIIIL`, `RIIIIIIIIL`. None for anything else (a command, a reply,
-    a line that is cut or malformed)."""
-    line = line.lstrip(BEL)
-    if not line or line[:1] not in FRAME_LETTERS:
-        return None
-    letter = line[:1]
-    extended = letter in b"TR"
-    remote = letter in b"rR"
-    width = 8 if extended else 3
-    head = line[1 : 2 + width]
-    if len(head) != width + 1:
-        return None
-    try:
-        text = head.decode("ascii")
-        can_id = int(text[:width], 16)
-        dlc = int(text[width])
-    except (UnicodeDecodeError, ValueError):
-        return None
-    if dlc > 8 or can_id >= (1 << (29 if extended else 11)):
-        return None
-    body = line[2 + width :]
-    if remote:
-        return SlcanFrame(can_id, b"", extended, True, dlc) if not body else None
-    if len(body) != 2 * dlc:
-        return None
-    try:
-        data = bytes.fromhex(body.decode("ascii"))
-    except (UnicodeDecodeError, ValueError):
-        return None
-    return SlcanFrame(can_id, data, extended, False)
-
-
-def encode(frame: SlcanFrame) -> bytes:
-    """The SLCAN line of `frame`, with its `\\r` (upper-case hex, as the board sends)."""
-    if frame.extended:
-        head = f"{'R' if frame.remote else 'T'}{frame.id:08X}{frame.length}"
-    else:
-        head = f"{'r' if frame.remote else 't'}{frame.id:03X}{frame.length}"
-    body = "" if frame.remote else frame.data.hex().upper()
-    return (head + body + "\r").encode()
-
-
-class LineSplitter:
-    """Cuts a byte stream into `\\r`-terminated lines (returned without the `\\r`, leading
-    BELs removed); the unfinished rest waits for the next `feed`."""
-
-    def __init__(self) -> None:
-        self._rest = b""
-
-    def feed(self, data: bytes) -> List[bytes]:
-        *lines, self._rest = (self._rest + data).split(b"\r")
-        return [line.lstrip(BEL) for line in lines]
 
 
 class Replay:
@@ -166,13 +93,13 @@ class Drop:
     one dropped is appended to `frames` (as the device recorder has it) and `done` is set
     once `count` have been dropped."""
 
-    def __init__(self, match: Callable[[SlcanFrame], bool], count: int = 1) -> None:
+    def __init__(self, match: Callable[[slcan.Frame], bool], count: int = 1) -> None:
         self.match = match
         self.count = count
         self.frames: List[Frame] = []
         self.done = threading.Event()
 
-    def wants(self, frame: SlcanFrame) -> bool:
+    def wants(self, frame: slcan.Frame) -> bool:
         """Whether `frame` is to be dropped: it matches and fewer than `count` were."""
         return len(self.frames) < self.count and self.match(frame)
 
@@ -180,7 +107,7 @@ class Drop:
         return self.done.wait(timeout)
 
 
-def is_bootup(node_id: int = NODE_ID) -> Callable[[SlcanFrame], bool]:
+def is_bootup(node_id: int = NODE_ID) -> Callable[[slcan.Frame], bool]:
     """Matches the boot-up of `node_id` (its heartbeat identifier, one byte 00)."""
     return lambda f: f.id == 0x700 + node_id and f.data == b"\x00" and not f.remote
 
@@ -202,7 +129,7 @@ class Relay:
         self._lock = threading.Lock()
         self._drops: List[Drop] = []
         self._replays: List[Replay] = []
-        self._outgoing: List[tuple] = []  # (SlcanFrame, to_device, to_client)
+        self._outgoing: List[tuple] = []  # (slcan.Frame, to_device, to_client)
         self._hold_until = 0.0  # `hold`: the device's frames wait for the client until then
         self._held: List[bytes] = []
         self._stop = threading.Event()
@@ -217,7 +144,7 @@ class Relay:
 
     # Commands (from the test's thread) -------------------------------------------------------
 
-    def drop(self, match: Callable[[SlcanFrame], bool], count: int = 1) -> Drop:
+    def drop(self, match: Callable[[slcan.Frame], bool], count: int = 1) -> Drop:
         """Drops the next `count` device frames matching `match`."""
         rule = Drop(match, count)
         with self._lock:
@@ -243,7 +170,7 @@ class Relay:
     ) -> None:
         """Puts a frame of another node on the bus: to the device and to the client."""
         with self._lock:
-            self._outgoing.append((SlcanFrame(cob_id, bytes(data)), to_device, to_client))
+            self._outgoing.append((slcan.Frame(cob_id, bytes(data)), to_device, to_client))
         self._wake_w.send(b"\0")
 
     def hold(self, seconds: float) -> None:
@@ -282,7 +209,7 @@ class Relay:
 
     def _loop(self) -> None:
         client: Optional[socket.socket] = None
-        from_up, from_client = LineSplitter(), LineSplitter()
+        from_up, from_client = slcan.LineSplitter(), slcan.LineSplitter()
         while not self._stop.is_set():
             waiting = [self.up, self._wake_r, client if client is not None else self.server]
             with self._lock:
@@ -295,7 +222,7 @@ class Relay:
                 elif s is self.server:
                     client, _ = self.server.accept()
                     client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    from_client = LineSplitter()
+                    from_client = slcan.LineSplitter()
                 elif s is self.up:
                     data = self.up.recv(65536)
                     if not data:
@@ -314,16 +241,16 @@ class Relay:
                         continue
                     now = time.monotonic()
                     for line in from_client.feed(data):
-                        frame = parse_line(line)
+                        frame = slcan.decode(line)
                         if frame is None:
-                            to_client.append(b"\r")  # a channel command: answered here
+                            to_client.append(slcan.OK)  # a channel command: answered here
                             continue
-                        self.host.on_message_received(_message(frame, now))
+                        self.host.on_message_received(slcan.to_message(frame, now))
                         to_up.append(line + b"\r")
             with self._lock:
                 outgoing, self._outgoing = self._outgoing, []
             for frame, device, other in outgoing:
-                line = encode(frame)
+                line = slcan.encode(frame)
                 self.injected.append(_frame(len(self.injected), time.monotonic(), frame))
                 if device:
                     to_up.append(line)
@@ -349,10 +276,10 @@ class Relay:
 
     def _from_device(self, line: bytes, now: float) -> List[bytes]:
         """What goes to the client for one line from the device."""
-        frame = parse_line(line)
+        frame = slcan.decode(line)
         if frame is None:
             return []  # the device's replies to our commands (`z`, `\r`): not the client's
-        self.device.on_message_received(_message(frame, now))
+        self.device.on_message_received(slcan.to_message(frame, now))
         with self._lock:
             for rule in self._drops:
                 if rule.wants(frame):
@@ -372,7 +299,7 @@ class Relay:
             copy = rule.offer(self.records)
             if copy is not None:
                 self._replays.pop(0)
-                out.append(encode(SlcanFrame(copy.id, copy.data)))
+                out.append(slcan.encode(slcan.Frame(copy.id, copy.data)))
                 rule.at = time.monotonic()
                 self.injected.append(Frame(len(self.injected), rule.at, copy.id, copy.data))
                 rule.fired.set()
@@ -386,18 +313,7 @@ class Relay:
             s.close()
 
 
-def _message(frame: SlcanFrame, now: float) -> can.Message:
-    return can.Message(
-        timestamp=now,
-        arbitration_id=frame.id,
-        data=frame.data,
-        dlc=frame.length,
-        is_extended_id=frame.extended,
-        is_remote_frame=frame.remote,
-    )
-
-
-def _frame(seq: int, now: float, frame: SlcanFrame) -> Frame:
+def _frame(seq: int, now: float, frame: slcan.Frame) -> Frame:
     return Frame(seq, now, frame.id, frame.data, frame.extended, frame.remote)
 
 

@@ -54,7 +54,7 @@ from importlib import resources
 from typing import Callable, List, Optional, Tuple
 
 from . import capture as captures
-from . import core
+from . import core, slcan
 
 # The component logs from its loop, its heartbeat thread and its signal handling: one line is
 # one write under this lock, so that no line is split by another thread's (`print` writes the
@@ -420,8 +420,9 @@ def slcan_bus(channel: str, **kwargs):
     takes what the port holds (`os.read` on its descriptor, a serial port or a socket) and
     parses all complete lines at once. python-can reads one byte per call (two `select`s and
     a `recv` per byte on a `socket://` line), about 3 000 frames/s at most on a busy PC. Lines
-    other than standard data frames (`t`), and lines too long for one, are ignored. `recv(0)`
-    returns None only when no parsed frame is left and the port has nothing to read."""
+    other than standard data frames (`t`, as `slcan.decode` reads them), and lines too long
+    for one, are ignored. `recv(0)` returns None only when no parsed frame is left and the port
+    has nothing to read."""
     import can
     from can.interfaces.slcan import slcanBus
 
@@ -431,7 +432,7 @@ def slcan_bus(channel: str, **kwargs):
         def __init__(self, *args, **kw) -> None:
             super().__init__(*args, **kw)
             self._frames: "collections.deque" = collections.deque()
-            self._partial = b""
+            self._lines = slcan.LineSplitter(self.LONGEST_LINE)
             try:
                 self._fd = self.serialPortOrig.fileno()
             except Exception:  # a URL handler without a descriptor: python-can's reading
@@ -456,28 +457,13 @@ def slcan_bus(channel: str, **kwargs):
             return self._frames.popleft(), False
 
         def _parse(self, data: bytes) -> None:
-            *lines, rest = (self._partial + data).split(b"\r")
-            self._partial = rest if len(rest) <= self.LONGEST_LINE else b""
-            for line in lines:
-                line = line.lstrip(b"\x07")
-                if line[:1] != b"t" or len(line) < 5:
+            for line in self._lines.feed(data):
+                frame = slcan.decode(line)
+                # The component reads CANopen's frames: 11-bit data frames.
+                if frame is None or frame.extended or frame.remote:
                     continue
-                try:
-                    can_id = int(line[1:4], 16)
-                    dlc = int(line[4:5])
-                    payload = bytes.fromhex(line[5:].decode("ascii"))
-                except ValueError:
-                    continue
-                if dlc > 8 or len(payload) != dlc:
-                    continue
-                self._frames.append(
-                    can.Message(
-                        arbitration_id=can_id,
-                        data=payload,
-                        is_extended_id=False,
-                        timestamp=time.time(),
-                    )
-                )
+                # An adapter's own timestamp (`Z1`) wraps every minute: the host's clock it is.
+                self._frames.append(slcan.to_message(frame, time.time()))
 
     return BulkSlcanBus(channel=channel, **kwargs)
 
