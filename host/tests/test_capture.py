@@ -14,7 +14,7 @@ import pytest
 
 import records
 from canopen_handwheel import capture, cli, component, core, decode
-from canopen_handwheel.core import Record
+from canopen_handwheel.record import Record
 from test_component import NODE, Device, Running, SlcanFeed, pin_changes, wait
 
 TPDO1, EMCY, HB = 0x180 + NODE, 0x080 + NODE, 0x700 + NODE

@@ -22,7 +22,7 @@ from can.interfaces.virtual import VirtualBus
 import fake_hal
 import records
 from canopen_handwheel import component, core, slcan
-from canopen_handwheel.core import Record
+from canopen_handwheel.record import Record
 
 ROOT = Path(__file__).resolve().parents[2]
 NODE = 16

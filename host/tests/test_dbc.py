@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from canopen_handwheel import core, decode
-from canopen_handwheel.core import Record
+from canopen_handwheel.record import Record
 
 ROOT = Path(__file__).resolve().parents[2]
 DBC = ROOT / "eds" / "handwheel.dbc"

@@ -13,6 +13,7 @@ and ("probed", value, t): `core.replay_core`) and replay with `Config(dating=Tru
 
 import json
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -69,7 +70,7 @@ def test_the_dating_vectors_notice_a_changed_dating(monkeypatch, mutant):
     dating = [v for v in load() if v.get("dating")]
     assert _differs(dating) == [], "the rule as shipped agrees"
     if mutant == "date limit x10":
-        monkeypatch.setattr(core, "DATE_LIMIT", core.DATE_LIMIT * 10)
+        _patch(monkeypatch, "DATE_LIMIT", lambda v: v * 10)
     elif mutant == "sent_at at the answer":
         done = core.Core.done
 
@@ -80,6 +81,20 @@ def test_the_dating_vectors_notice_a_changed_dating(monkeypatch, mutant):
 
         monkeypatch.setattr(core.Core, "done", late_done)
     assert _differs(dating), f"no dating vector notices {mutant}"
+
+
+def _patch(monkeypatch, name, change):
+    """`name` changed by `change` in every module of the core that holds it: its home and
+    each module that imported it (the core's modules read their own copies)."""
+    home = next(
+        m
+        for key, m in sorted(sys.modules.items())
+        if key.startswith("canopen_handwheel.") and name in vars(m) and m is not core
+    )
+    value = change(getattr(home, name))
+    for key, module in list(sys.modules.items()):
+        if key.startswith("canopen_handwheel.") and name in vars(module):
+            monkeypatch.setattr(module, name, value)
 
 
 def _differs(vectors) -> list:
@@ -114,7 +129,7 @@ def test_the_boundary_vectors_notice_a_changed_limit(monkeypatch, mutant):
     boundaries = [v for v in load() if v["name"].startswith("boundary:")]
     assert _differs(boundaries) == [], "the rule as shipped agrees"
     name, change = RULE_MUTANTS[mutant]
-    monkeypatch.setattr(core, name, change(getattr(core, name)))
+    _patch(monkeypatch, name, change)
     assert _differs(boundaries), f"no boundary vector notices {mutant}"
 
 

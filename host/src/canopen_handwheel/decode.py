@@ -30,7 +30,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from . import capture as captures
 from . import core
-from .core import Record
+from .record import Record
 
 # NMT command specifiers (CiA 301).
 NMT_COMMANDS = {
