@@ -45,5 +45,7 @@ fn main() {
     if env::var("TARGET").is_ok_and(|t| t.starts_with("thumb")) {
         println!("cargo:rustc-link-arg=-Tlink.x");
         println!("cargo:rustc-link-arg=--nmagic");
+        // defmt's symbol table for the log (`defmt-rtt`).
+        println!("cargo:rustc-link-arg=-Tdefmt.x");
     }
 }

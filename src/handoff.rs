@@ -1,7 +1,13 @@
-//! The request to stay in the resident loader (docs/FIRMWARE-UPDATE.md, "Boot"): two words in
-//! memory.x's HANDOFF, the last 8 bytes of SRAM, which no image uses, so that they survive the
-//! system reset into the loader. The loader reads and clears them before it touches anything
-//! else; power-on clears SRAM, so no stale request outlives a power cut.
+//! The words between this application and the resident loader (docs/FIRMWARE-UPDATE.md,
+//! "Boot" and "Trial boot"): two words in memory.x's HANDOFF, the last 8 bytes of SRAM, which
+//! no image uses, so that they survive a system reset. The loader reads them first at every
+//! reset; power-on clears SRAM, so nothing stale outlives a power cut.
+//!
+//! - The request to stay in the loader, written before the reset into it (0x1F51 "stop").
+//! - The trial: before each start the loader writes its count of the starts this image has
+//!   not confirmed (`canopen_loader::boot`); the image clears it once it is healthy on the
+//!   bus ([`confirm_start`]). Starts that end in a reset before that (a hang, a fault, the
+//!   watchdog) add up, and at 3 the loader stays.
 
 use cortex_m::peripheral::SCB;
 
@@ -10,6 +16,18 @@ const HANDOFF: usize = 0x2000_4FF8;
 /// Word 0 of the request ("LOAD" in ASCII, most significant byte first); word 1 is its
 /// complement.
 pub const REQUEST: u32 = 0x4C4F_4144;
+
+/// The start is confirmed: clears the trial's count (both words), so that the next reset
+/// (a reset node, the watchdog, NRST) starts a fresh trial.
+pub fn confirm_start() {
+    let words = HANDOFF as *mut u32;
+    // SAFETY: as in `reset_into_loader`: SRAM outside every image's RAM region, two aligned
+    // word writes that alias no Rust object.
+    unsafe {
+        words.write_volatile(0);
+        words.add(1).write_volatile(0);
+    }
+}
 
 /// Writes the request and resets the MCU: the loader runs next and stays.
 pub fn reset_into_loader() -> ! {

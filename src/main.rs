@@ -254,6 +254,11 @@ mod app {
         let local = cx.local;
         let mut can = CanSide::new(local.rx_consumer, cx.shared.can, || Mono::now().ticks());
         let wheel = &mut LinkedWheel::new(cx.shared.wheel, DecoderConfig::default());
+        // The loader started this image on trial (docs/FIRMWARE-UPDATE.md, "Trial boot"):
+        // confirmed once the node is healthy on the bus, that is once this task runs and a
+        // frame of it (the boot-up, first) was acknowledged by another node, or once a master
+        // confirms (0x1F51:1 = 0x80).
+        let mut on_trial = true;
         loop {
             local.watchdog.feed();
             let ticks = Mono::now().ticks();
@@ -273,6 +278,11 @@ mod app {
                 can.set_rx_filter(filter);
             }
             round_log::print(&out.log, can.counters);
+            if on_trial && (out.start_confirmed || can.frame_acknowledged()) {
+                handoff::confirm_start();
+                on_trial = false;
+                info!("trial boot: confirmed, healthy on the bus");
+            }
             if out.enter_loader {
                 // 0x1F51:1 = 0 was answered: let that answer reach the bus (a bounded wait,
                 // `LOADER_DRAIN_MS`), then reset into the loader, which stays

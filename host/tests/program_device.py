@@ -1,7 +1,9 @@
 """A model of the handwheel's program download as docs/FIRMWARE-UPDATE.md states it: the
 application's 0x1F51 "stop" into the loader, the loader's clear, download, checks and start,
-0x1F56 and 0x1F57, the boot decision. The update's tests drive it step by step
-(test_update.py) and through python-canopen on the virtual bus (test_update_cli.py)."""
+0x1F56 and 0x1F57, the boot decision with its trial boot (an image that never becomes healthy
+leaves the loader in charge with code 64; one that never talks answers nothing). The update's
+tests drive it step by step (test_update.py) and through python-canopen on the virtual bus
+(test_update_cli.py)."""
 
 import struct
 import zlib
@@ -23,6 +25,16 @@ class Abort(Exception):
         self.code = code
 
 
+class Silent(Exception):
+    """The device runs an image that answers nothing."""
+
+
+# How an installed image behaves once started (`ProgramDevice.health`, by its CRC).
+TRIAL_FAILS = "trial fails"  # hangs or faults: the loader stays after 3 starts, code 64
+SILENT = "silent"  # feeds its watchdog and never talks
+TRIAL_FAILED = 64
+
+
 def update_file(version: int, size: int = 1000, vendor=VENDOR, product=PRODUCT) -> bytes:
     body = bytes((version * 7 + i * 13) & 0xFF for i in range(size))
     return image.build(body, vendor, product, version)
@@ -38,14 +50,17 @@ class ProgramDevice:
     `nmt`; `take_reset` says whether the last write asked for a reset (the caller resets with
     `boot` after the answer, as the device does). `bootups` counts boot-ups sent."""
 
-    def __init__(self, slot=None, has_loader=True, feed=0, status_polls=0):
+    def __init__(self, slot=None, has_loader=True, feed=0, status_polls=0, health=None):
         self.slot = slot
+        self.health = health or {}  # image CRC -> TRIAL_FAILS or SILENT; others are healthy
+        self.silent = False
         self.has_loader = has_loader
         self.feed = 0
         self.status_polls = status_polls  # 0x1F57 reads "in progress" this often after each change
         self.bootups = 0
         self.handoff = False
         self.reset_due = False
+        self.rescue_pending = False
         self.log = []
         self.boot()
         self.feed = 0 if self.loader else feed  # left on by a master before this test
@@ -60,13 +75,22 @@ class ProgramDevice:
             return False
         return (img.vendor_id, img.product_code) == (VENDOR, PRODUCT)
 
-    def boot(self) -> None:
+    def boot(self, power_on: bool = False) -> None:
+        """A reset (the boot decision), or with `power_on` a power cycle: the loader's
+        window then catches a pending rescue request (`rescue_pending`)."""
         stay = self.handoff or not self.valid()
+        if power_on and self.rescue_pending:
+            stay = True
         self.handoff = False
-        self.loader = stay and self.has_loader
+        self.rescue_pending = False
+        health = None if stay else self.health.get(self.crc())
+        self.silent = health == SILENT
+        self.loader = (stay or health == TRIAL_FAILS) and self.has_loader
         self.state = PRE_OPERATIONAL
         self.control = 0 if self.loader else 1
         self.status = status(0 if self.valid() else 1)
+        if health == TRIAL_FAILS:
+            self.status = status(TRIAL_FAILED)
         self.busy = 0
         self.feed = 0
         self.bootups += 1
@@ -86,6 +110,8 @@ class ProgramDevice:
 
     def read(self, index: int, sub: int) -> int:
         self.log.append(("read", index, sub))
+        if self.silent:
+            raise Silent
         key = (index, sub)
         if key == (0x1000, 0):
             return LOADER_DEVICE_TYPE if self.loader else APP_DEVICE_TYPE
@@ -112,6 +138,8 @@ class ProgramDevice:
 
     def write(self, index: int, sub: int, value: int) -> None:
         self.log.append(("write", index, sub, value))
+        if self.silent:
+            raise Silent
         if (index, sub) == (0x2000, 0) and not self.loader:
             self.feed = value
             return

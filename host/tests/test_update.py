@@ -16,16 +16,21 @@ from program_device import (
     OPERATIONAL,
     PRE_OPERATIONAL,
     PRODUCT,
+    SILENT,
+    TRIAL_FAILS,
     VENDOR,
     Abort,
     ProgramDevice,
+    Silent,
     update_file,
 )
 
 OLD = update_file(3)
 NEW = update_file(4, size=3000)
 NEW_IMAGE = image.UpdateImage.parse(NEW)
-FAST = update.Settings(node=16, boot_timeout=0.5, status_timeout=0.5, poll_interval=0.05)
+FAST = update.Settings(
+    node=16, boot_timeout=0.5, status_timeout=0.5, poll_interval=0.05, trial_timeout=2
+)
 
 LOSE_ANSWER = "lose answer"  # the device did it; its answer never arrived
 LOSE_REQUEST = "lose request"  # the device never saw it
@@ -70,6 +75,13 @@ class Driver:
             return Ok()
         if isinstance(step, update.WaitBootup):
             return Ok() if self.seen_bootups > self.armed else NoAnswer("no boot-up")
+        if isinstance(step, update.HoldInLoader):
+            # The operator switches the board off and on; the loader's window takes the
+            # request.
+            dev.rescue_pending = True
+            dev.boot(power_on=True)
+            self.seen_bootups += 1
+            return Ok()
         if fault == LOSE_REQUEST:
             return NoAnswer("timeout")
         try:
@@ -88,9 +100,11 @@ class Driver:
                 raise AssertionError(step)
         except Abort as e:
             out = Aborted(e.code)
+        except Silent:
+            out = NoAnswer("timeout")
         if dev.take_reset():
             dev.boot()
-            if fault != LOSE_BOOTUP:
+            if fault != LOSE_BOOTUP and not dev.silent:
                 self.seen_bootups += 1
         return NoAnswer("timeout") if fault == LOSE_ANSWER else out
 
@@ -372,6 +386,62 @@ def test_a_start_whose_boot_up_was_lost_is_seen_by_its_device_type():
 
     result, d = run(dev, faults)
     assert result.status == update.OK and writes(d).count((0x1F51, 1)) == 1
+
+
+def test_an_image_that_fails_its_trial_boot_is_unhealthy_and_not_sent_again():
+    """The new image hangs or faults before it talks: the loader starts it 3 times under the
+    watchdog, then stays with 0x1F57 code 64. The update says so and how to recover (a good
+    image), and downloads nothing again."""
+    dev = ProgramDevice(OLD, health={NEW_IMAGE.crc: TRIAL_FAILS})
+    result, d = run(dev)
+    assert result.status == update.UNHEALTHY and result.exit_code == update.EXIT_UNHEALTHY == 5
+    assert dev.loader and dev.status == 64 << 1
+    assert "the new image never became healthy: node 16 came back as its loader" in result.message
+    assert "code 64" in result.message
+    assert "Sending this image again would not help" in result.message
+    assert "update GOOD.update" in result.message and "--rescue" not in result.message
+    assert sum(isinstance(s, update.Download) for s in d.steps) == 1
+    assert writes(d).count((0x1F51, 1)) == 1, "start is not repeated"
+
+
+def test_an_image_that_never_answers_is_unhealthy_and_the_way_back_is_rescue():
+    """The new image feeds its watchdog and never talks (or talks at another bit rate):
+    nothing answers after the start, not even a loader after the trial's time."""
+    dev = ProgramDevice(OLD, health={NEW_IMAGE.crc: SILENT})
+    result, d = run(dev)
+    assert result.status == update.UNHEALTHY and dev.silent
+    assert "never answered after the start of the new image" in result.message
+    assert "--rescue" in result.message
+    waits = [s.timeout for s in d.steps if isinstance(s, update.WaitBootup)]
+    assert waits[-1] == FAST.trial_timeout, "the trial's time was given"
+    assert writes(d).count((0x1F51, 1)) == 1
+
+
+def test_rescue_holds_a_silent_device_in_its_loader_then_updates_it():
+    """`--rescue`: a device whose image never answers is held in its loader at the power-on
+    the operator brings about, then updated with a good image."""
+    dev = ProgramDevice(OLD, health={zlib.crc32(OLD[512:]): SILENT})
+    assert dev.silent
+    failed, _ = run(dev)
+    assert failed.status == update.FAILED and "--rescue" in failed.message
+    settings = update.Settings(node=16, boot_timeout=0.5, status_timeout=0.5, rescue=True)
+    result, d = run(dev, settings=settings)
+    assert result.status == update.OK, result.message
+    assert not dev.loader and not dev.silent and dev.crc() == NEW_IMAGE.crc
+    assert isinstance(d.steps[1], update.Note) and "switch node 16 off and on" in d.steps[1].text
+    assert isinstance(d.steps[2], update.HoldInLoader)
+    assert result.before.loader, "identified as the loader the window kept"
+
+
+def test_a_rescue_nobody_answers_fails_with_a_hint():
+    settings = update.Settings(node=16, rescue=True, rescue_timeout=3)
+    plan = update.Update(NEW_IMAGE, settings)
+    while not isinstance(plan.step, update.HoldInLoader):
+        plan.answer(Ok())
+    assert plan.step.timeout == 3
+    plan.answer(NoAnswer("no answer within 3 s"))
+    assert plan.step is None and plan.result.status == update.FAILED
+    assert "rescue: no answer to the loader's request within 3 s" in plan.result.message
 
 
 def test_a_node_that_never_answers_fails_with_a_hint():

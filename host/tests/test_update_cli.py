@@ -13,7 +13,7 @@ import pytest
 from canopen import objectdictionary as odm
 
 from canopen_handwheel import cli, component, update, update_cli
-from program_device import PRE_OPERATIONAL, Abort, ProgramDevice, update_file
+from program_device import PRE_OPERATIONAL, TRIAL_FAILS, Abort, ProgramDevice, update_file
 
 NODE = 16
 OLD = update_file(3)
@@ -207,6 +207,48 @@ def test_no_device_fails_with_a_hint(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no answer from node 16 reading the device type 0x1000" in err
     assert "The device was not changed." in err and "to retry:" in err
+
+
+def test_an_image_that_never_became_healthy_says_how_to_recover_not_to_retry(tmp_path, capsys):
+    """The new image fails its trial boot (the loader stays with 0x1F57 code 64): exit 5,
+    what happened, and the way back (a good image), never the same command again."""
+    path = tmp_path / "fw.bin"
+    path.write_bytes(NEW)
+    channel = channel_name()
+    crc = update_cli.UpdateImage.parse(NEW).crc
+    model = ProgramDevice(OLD, health={crc: TRIAL_FAILS})
+    dev = BusDevice(channel, model)
+    try:
+        code = cli.main(["update", str(path), *options(channel, "--trial-timeout", "1")])
+    finally:
+        dev.close()
+    err = capsys.readouterr().err
+    assert code == update.EXIT_UNHEALTHY == 5, err
+    assert "unhealthy: the new image never became healthy" in err
+    assert "code 64" in err and "update with a good image" in err
+    assert "to retry" not in err
+    assert model.loader, "the loader answers, for the good image"
+
+
+def test_rescue_sends_the_loaders_request_until_it_is_answered(tmp_path, capsys):
+    """`--rescue` repeats 0x1F51:1 = 0 until it is answered (here by the application, which
+    resets into its loader; on a board that never answers, by the loader's window at the
+    power-on), then updates."""
+    path = tmp_path / "fw.bin"
+    path.write_bytes(NEW)
+    channel = channel_name()
+    model = ProgramDevice(OLD)
+    dev = BusDevice(channel, model)
+    try:
+        code = cli.main(["update", str(path), *options(channel, "--rescue")])
+    finally:
+        dev.close()
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "rescue: switch node 16 off and on now" in err and "rescue: node 16 answered" in err
+    assert not model.loader and model.version() == 4
+    a = update_cli.parse_args(["fw.bin", "--rescue", "--rescue-timeout", "5"])
+    assert (a.rescue, a.rescue_timeout, a.trial_timeout) == (True, 5.0, 15.0)
 
 
 def test_the_progress_bar_on_a_terminal_redraws_one_line():

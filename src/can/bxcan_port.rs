@@ -125,8 +125,10 @@ impl CanLink for Bxcan {
         }
     }
 
-    fn acknowledge_transmit(&mut self) {
+    fn acknowledge_transmit(&mut self) -> bool {
+        let acknowledged = transmitted_ok();
         self.clear_tx_interrupt();
+        acknowledged
     }
 
     fn idle(&self) -> bool {
@@ -223,6 +225,16 @@ fn read_status() -> (BusState, ErrorCounters) {
         lec: esr.lec().bits(),
     };
     (state, counters)
+}
+
+/// Whether a mailbox's last request ended with its frame acknowledged (TXOK, RM0008 24.9.3:
+/// set when the frame went out and another node acknowledged it; clear after an abort, and
+/// cleared with RQCP). bxcan clears the flags without saying.
+fn transmitted_ok() -> bool {
+    // SAFETY: a read of CAN_TSR, which has no side effects; called from the transmit task,
+    // which holds the CAN port resource, before it clears the flags.
+    let tsr = unsafe { (*pac::CAN::ptr()).tsr().read() };
+    tsr.txok0().bit_is_set() || tsr.txok1().bit_is_set() || tsr.txok2().bit_is_set()
 }
 
 /// Routes warning, error-passive and bus-off changes to the SCE interrupt.

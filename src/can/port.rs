@@ -31,8 +31,9 @@ pub trait CanLink {
     /// The next received frame that passes the acceptance filter, or `None` when the
     /// receive side is empty.
     fn receive(&mut self) -> Option<Received>;
-    /// The transmit interrupt came: acknowledge it.
-    fn acknowledge_transmit(&mut self);
+    /// The transmit interrupt came: acknowledge it. Returns whether a frame that left a
+    /// mailbox was acknowledged on the bus (not aborted).
+    fn acknowledge_transmit(&mut self) -> bool;
     /// No frame waits in the controller.
     fn idle(&self) -> bool;
     /// Withdraws every frame the controller holds that is not on the bus yet.
@@ -55,6 +56,8 @@ pub struct CanPort<L> {
     stats: CanStats,
     /// The path ran empty since the device last asked (`transmit_state`).
     ran_empty: bool,
+    /// A frame of ours was acknowledged on the bus since start-up.
+    acknowledged: bool,
 }
 
 impl<L: CanLink> CanPort<L> {
@@ -65,6 +68,7 @@ impl<L: CanLink> CanPort<L> {
             queue: TxQueue::new(),
             stats: CanStats::default(),
             ran_empty: false,
+            acknowledged: false,
         }
     }
 
@@ -81,7 +85,9 @@ impl<L: CanLink> CanPort<L> {
 
     /// The transmit interrupt: the controller has room again.
     pub fn on_transmit_room(&mut self) {
-        self.link.acknowledge_transmit();
+        if self.link.acknowledge_transmit() {
+            self.acknowledged = true;
+        }
         self.pump();
         self.note_if_empty();
     }
@@ -170,6 +176,12 @@ impl<L: CanLink> CanPort<L> {
     /// CAN-side task until then (`handwheel_device::RateSwitch` keeps the time).
     pub fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
         self.link.switch_bit_rate(rate)
+    }
+
+    /// Whether a frame of ours was acknowledged on the bus since start-up: another node
+    /// took it, so the node talks at the bus's bit rate (the trial boot's confirmation).
+    pub fn frame_acknowledged(&self) -> bool {
+        self.acknowledged
     }
 
     /// Counters since start-up.

@@ -23,9 +23,9 @@ import pytest
 from rig import Board, FrameRecorder, Rig, Stimulus, open_rig
 
 # The suite's longest tests (tens of seconds each: every flash operation of a store cut, the
-# update's downloads) go first: on two workers the short ones then fill in beside them,
-# instead of one long test running alone at the end.
-LONGEST_FIRST = ["test_update.py", "test_power_cut.py"]
+# update's downloads, the trial boots) go first: on two workers the short ones then fill in
+# beside them, instead of one long test running alone at the end.
+LONGEST_FIRST = ["test_update.py", "test_power_cut.py", "test_trial_boot.py"]
 
 
 def pytest_collection_modifyitems(config, items):

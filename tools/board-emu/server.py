@@ -105,7 +105,7 @@ class Decoder:
     """`defmt-print -e ELF` fed through a pipe, its output on this process's stderr, started
     anew at every reset and with the other image's ELF when the CPU goes from one image to
     the other (`restart`; `elfs`: image kind -> ELF, only images that log with defmt). While
-    an image without a defmt log runs (the loader), nothing is decoded: it writes no RTT
+    an image without a defmt log runs (a loader of before), nothing is decoded: it writes no RTT
     log. A decoder that exits is restarted too: the board never dies of a broken log pipe."""
 
     def __init__(self, defmt_print: str, elfs: dict[str, str], kind: str) -> None:
@@ -163,7 +163,7 @@ class Decoder:
 
 
 def logs_with_defmt(elf: str) -> bool:
-    """Whether the ELF carries defmt's symbol table (the loader logs nothing)."""
+    """Whether the ELF carries defmt's symbol table (an image without it logs nothing)."""
     from elftools.elf.elffile import ELFFile
 
     with open(elf, "rb") as f:

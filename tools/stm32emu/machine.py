@@ -332,8 +332,32 @@ class Machine:
             model.write(offset, value, mask)
         if kind == "iwdg" and self.iwdg.running:
             self.rcc.regs[0x24] = self.rcc.regs.get(0x24, 0) | 1  # 19.3: LSI forced on
+        if kind == "rcc" and offset in self.PERIPHERAL_RESETS:
+            self._reset_peripherals(offset, value & mask)
         if kind in ("exti", "can"):
             self.update_irqs()
+
+    # RM0008 7.3.4 APB2RSTR and 7.3.5 APB1RSTR: the bits of the modelled peripherals.
+    PERIPHERAL_RESETS = {
+        0x0C: {0: "afio", 2: "A", 3: "B", 4: "C"},
+        0x10: {25: "can"},
+    }
+
+    def _reset_peripherals(self, offset: int, bits: int) -> None:
+        """A reset bit set in APB2RSTR or APB1RSTR: that peripheral's registers go back to
+        their reset values (the loader hands the application a bxCAN, GPIOB and AFIO as out
+        of reset this way)."""
+        for bit, name in self.PERIPHERAL_RESETS[offset].items():
+            if not bits >> bit & 1:
+                continue
+            if name == "afio":
+                self.afio.reset()
+            elif name == "can":
+                self.can.reset()
+            else:
+                self.gpio[name].reset()
+        self._apply_inputs()
+        self.update_irqs()
 
     def _bb_read(self, _uc, offset, _size, _user):
         self.accesses += 1

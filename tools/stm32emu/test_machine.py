@@ -283,16 +283,95 @@ LOADER_ELF = Path(
 with_loader = pytest.mark.skipif(not LOADER_ELF.exists(), reason=f"no loader image at {LOADER_ELF}")
 
 
+HANDOFF = 0x2000_4FF8
+TRIAL_TAG = 0x5452_4C00  # canopen_loader::boot: "TRL" and the count of unconfirmed starts
+RESCUE = bytes([0x2F, 0x51, 0x1F, 0x01, 0, 0, 0, 0])  # 0x1F51:1 = 0, the window's request
+
+
+def handoff(m) -> tuple[int, int]:
+    words = bytes(m.uc.mem_read(HANDOFF, 8))
+    return int.from_bytes(words[:4], "little"), int.from_bytes(words[4:], "little")
+
+
 @with_loader
 def test_the_loader_starts_the_application_it_was_flashed_with():
-    """Power-on: the loader finds the application valid and jumps (VTOR at its vector
-    table, no frame of its own): the first frame is the application's boot-up."""
+    """Power-on: the loader finds the application valid, listens for 100 ms without a frame
+    of its own, counts the start and jumps (VTOR at its vector table) with the watchdog
+    running and bxCAN, GPIOB and AFIO back in their reset state: the first frame is the
+    application's boot-up, whose acknowledgement confirms the start (the count cleared)."""
     m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
     assert m.running() == "loader" and m.nvic.vtor == 0
-    m.run_ms(300)
+    m.run_ms(100)
+    assert m.running() == "loader" and not m.transmitted, "listening, silent"
+    m.run_ms(200)
     assert m.running() == "application" and m.nvic.vtor == m.app.table_address
     assert [(f.can_id, f.data) for _, f in m.transmitted][:1] == [(0x710, b"\x00")]
     assert m.stats.resets == ["0.0 ms PowerOn"] and not m.core.locked_up
+    assert handoff(m) == (0, 0), "confirmed"
+
+
+@with_loader
+def test_the_window_costs_the_boot_up_100_ms():
+    """The boot-up comes 100 ms (the window) after the loader's check of the image, about
+    35 ms of CRC: docs/FIRMWARE-UPDATE.md states the figures."""
+    m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
+    m.run_ms(300)
+    boot_up = next(ms for ms, f in m.transmitted if f.can_id == 0x710)
+    assert 130 <= boot_up <= 145, boot_up
+
+
+@with_loader
+def test_a_request_in_the_window_keeps_the_loader():
+    """0x1F51:1 = 0 to the node inside the window: the loader boots up, answers it and
+    stays, the application never started (VTOR 0, no reset); 0x1F57 reads 0 (the
+    application is valid)."""
+    m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
+    m.run_ms(80)
+    reply = sdo(m, RESCUE)
+    assert reply[:4] == bytes([0x60, 0x51, 0x1F, 0x01])
+    assert [(f.can_id, f.data) for _, f in m.transmitted][:1] == [(0x710, b"\x00")]
+    m.run_ms(300)
+    assert m.running() == "loader" and m.nvic.vtor == 0
+    assert m.stats.resets == ["0.0 ms PowerOn"]
+    reply = sdo(m, bytes([0x40, 0x57, 0x1F, 1, 0, 0, 0, 0]))
+    assert reply[0] == 0x43 and reply[4:] == bytes(4)
+
+
+@with_loader
+def test_an_application_that_never_confirms_is_started_three_times():
+    """The application's boot-up is never acknowledged (the bus at another rate): the count
+    stays, and it runs on; each reset counts one more start; the third keeps the loader,
+    with 0x1F57 code 64."""
+    m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
+    m.can.bus_bitrate = 500_000  # the node's 1 Mbit/s frames reach nobody
+    m.run_ms(300)
+    assert m.running() == "application"
+    assert handoff(m) == (TRIAL_TAG | 1, ~(TRIAL_TAG | 1) & 0xFFFF_FFFF)
+    for starts in (2, 3):
+        m.pin_reset()
+        m.run_ms(300)
+        assert m.running() == "application" and handoff(m)[0] == TRIAL_TAG | starts
+    m.pin_reset()
+    m.run_ms(300)
+    assert m.running() == "loader" and handoff(m)[0] == TRIAL_TAG | 3
+    m.can.bus_bitrate = None
+    reply = sdo(m, bytes([0x40, 0x57, 0x1F, 1, 0, 0, 0, 0]))
+    assert reply[0] == 0x43 and int.from_bytes(reply[4:], "little") == 64 << 1
+    m.power_on()
+    m.run_ms(300)
+    assert m.running() == "application" and handoff(m) == (0, 0), "a power-on: a fresh trial"
+
+
+def test_a_peripheral_reset_bit_resets_the_peripheral():
+    """RCC_APB1RSTR's CANRST and APB2RSTR's IOPBRST and AFIORST put bxCAN, GPIOB and AFIO
+    back to their reset values (RM0008 7.3.4, 7.3.5)."""
+    m = machine.Machine(str(ELF))
+    m.run_ms(50)
+    assert m.can.mode == "normal" and m.gpio["B"].crh != 0x4444_4444 and m.afio.regs[1]
+    m._write_word(periph.RCC_BASE + 0x10, 1 << 25, 0xFFFF_FFFF)
+    m._write_word(periph.RCC_BASE + 0x0C, 1 << 3 | 1, 0xFFFF_FFFF)
+    assert m.can.mode == "sleep" and m.can.btr == 0x0123_0000
+    assert m.gpio["B"].crh == 0x4444_4444 and m.afio.regs == [0] * 7
 
 
 @with_loader
@@ -308,3 +387,44 @@ def test_without_the_validity_mark_the_loader_stays_and_answers():
     assert [(f.can_id, f.data) for _, f in m.transmitted][:1] == [(0x710, b"\x00")]
     reply = sdo(m, bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0]))
     assert reply[0] == 0x43 and int.from_bytes(reply[4:8], "little") == 0x544F_4F42
+
+
+def bad_images():
+    """tools/rig/bad_images.py, by its path: the rig package itself needs python-can."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bad_images", ROOT / "tools/rig/bad_images.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@with_loader
+@pytest.mark.parametrize("kind", ["hang", "fault", "lockup", "silent", "wrong-bit-rate"])
+def test_each_broken_image_does_what_its_name_says(kind):
+    """The images of tools/rig/bad_images.py behind the real loader: the loader takes each
+    (header, vector table, CRC genuine); `hang`, `fault` and `lockup` are reset by the
+    watchdog until the loader stays after the third start; `silent` and `wrong-bit-rate` run
+    on, never reset, never heard, their first start never confirmed."""
+    made = bad_images()
+    m = machine.Machine(str(ELF), loader=str(LOADER_ELF))
+    slot = m.memory.header.origin - m.flash.origin
+    length = int.from_bytes(m.fpec.memory[slot + 0x14 : slot + 0x18], "little")
+    release = bytes(m.fpec.memory[slot : slot + 512 + length])
+    m.write_flash(slot, made.make(kind, release))
+    m.can.bus_bitrate = 1_000_000  # the node's rate: another one stays off the bus
+    m.power_on()
+    powered = len(m.stats.resets)
+    m.run_ms(7_000 if kind in ("hang", "fault", "lockup") else 3_000)
+    boot_ups = [ms for ms, f in m.transmitted if f.can_id == 0x710 and f.data == b"\x00"]
+    if kind in ("hang", "fault", "lockup"):
+        assert m.running() == "loader", m.stats.resets
+        assert [r.split()[-1] for r in m.stats.resets[powered:]] == ["IndependentWatchdog"] * 3
+        assert len(boot_ups) == 1 and boot_ups[0] > 6_000, "the loader's, after 3 starts"
+        assert handoff(m)[0] == TRIAL_TAG | 3
+        assert (m.core.faults > 0) == (kind != "hang")
+    else:
+        assert m.running() == "application" and len(m.stats.resets) == powered
+        assert not m.transmitted, "nothing reaches the bus"
+        assert handoff(m)[0] == TRIAL_TAG | 1, "never confirmed"
+        assert m.iwdg.feeds > 100

@@ -18,7 +18,11 @@
 //! the release image; `none` runs the application alone, as before the loader (it starts
 //! as the loader would start it); FILE flashes that loader ELF. `--image stack-overflow`
 //! runs the test build that overflows its stack on purpose (feature `stack-overflow-test`)
-//! instead of the release image, alone unless `--loader FILE`.
+//! instead of the release image, alone unless `--loader FILE`. `--image hang|fault|lockup|
+//! silent|wrong-bit-rate` boots the loader with a broken application in the slot: the
+//! release update file changed by `tools/rig/bad_images.py` (header, vector table and CRC
+//! genuine; docs/FIRMWARE-UPDATE.md, "Trial boot"), installed into the flash file, which the
+//! board then boots without flashing an application of its own.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -37,7 +41,14 @@ pub const SEAL: &str = "tools/seal";
 
 /// The usage line of `cargo xtask board`.
 const USAGE: &str = "usage: cargo xtask board --can-port <P> --stim-port <Q> [--flash FILE] \
-                     [--dip N] [--image release|stack-overflow] [--loader auto|none|FILE]";
+                     [--dip N] [--image release|stack-overflow|hang|fault|lockup|silent|\
+                     wrong-bit-rate] [--loader auto|none|FILE]";
+
+/// The broken applications of `tools/rig/bad_images.py`, by the name it takes.
+pub const BROKEN: [&str; 5] = ["hang", "fault", "lockup", "silent", "wrong-bit-rate"];
+
+/// The script that makes them from the release update file.
+pub const BAD_IMAGES: &str = "tools/rig/bad_images.py";
 
 /// The board's two TCP ports.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,6 +102,8 @@ pub enum Image {
     /// The release profile with feature `stack-overflow-test`: it overflows its stack on
     /// purpose right after boot.
     StackOverflow,
+    /// The release image broken as [`BROKEN`] names it, installed behind the loader.
+    Broken(&'static str),
 }
 
 impl Image {
@@ -98,9 +111,16 @@ impl Image {
         match name {
             "release" => Ok(Self::Release),
             "stack-overflow" => Ok(Self::StackOverflow),
-            other => Err(format!(
-                "--image: `{other}` is not `release` or `stack-overflow`"
-            )),
+            other => BROKEN
+                .iter()
+                .find(|&&kind| kind == other)
+                .map(|&kind| Self::Broken(kind))
+                .ok_or_else(|| {
+                    format!(
+                        "--image: `{other}` is not `release`, `stack-overflow` or one of {}",
+                        BROKEN.join(", ")
+                    )
+                }),
         }
     }
 }
@@ -186,7 +206,7 @@ pub fn loader_elf(args: &Args) -> Result<Option<PathBuf>, String> {
         Loader::Off => Ok(None),
         Loader::File(path) => Ok(Some(path.clone())),
         Loader::Auto => {
-            if args.image != Image::Release {
+            if args.image == Image::StackOverflow {
                 return Ok(None);
             }
             crate::fw::loader_build()?;
@@ -218,13 +238,13 @@ pub fn python(root: &Path, target_dir: &Path) -> Result<PathBuf, String> {
     pyenv::emu_python(root, target_dir)
 }
 
-/// The emulator's command line for the application `elf` and the `loader` (None: the
-/// application alone), its log decoded by `defmt_print`, up to the board's own options
-/// (ports, flash file, DIP switch).
+/// The emulator's command line for the application `elf` (None: the slot as the flash file
+/// holds it) and the `loader` (None: the application alone), its log decoded by
+/// `defmt_print`, up to the board's own options (ports, flash file, DIP switch).
 pub fn server_argv(
     python: &Path,
     root: &Path,
-    elf: &Path,
+    elf: Option<&Path>,
     loader: Option<&Path>,
     defmt_print: &Path,
 ) -> Vec<OsString> {
@@ -232,7 +252,9 @@ pub fn server_argv(
     if let Some(loader) = loader {
         argv.extend(["--loader".into(), loader.into()]);
     }
-    argv.extend(["--elf".into(), elf.into()]);
+    if let Some(elf) = elf {
+        argv.extend(["--elf".into(), elf.into()]);
+    }
     argv.extend(["--defmt-print".into(), defmt_print.into()]);
     argv
 }
@@ -337,6 +359,17 @@ mod tests {
         ]))
         .unwrap();
         assert_eq!(overflow.image, Image::StackOverflow);
+        for kind in BROKEN {
+            let broken = Args::from_args(&strings(&[
+                "--can-port",
+                "1",
+                "--stim-port",
+                "2",
+                &format!("--image={kind}"),
+            ]))
+            .unwrap();
+            assert_eq!(broken.image, Image::Broken(kind));
+        }
         assert!(Args::from_args(&strings(&[
             "--can-port",
             "1",

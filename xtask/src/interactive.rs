@@ -6,6 +6,7 @@ use std::process::Command;
 
 use xshell::cmd;
 
+use crate::fw::update_file;
 use crate::suites::Board;
 use crate::workspace::{target_dir, workspace_root};
 use crate::{board, linuxcnc, pyenv, shell};
@@ -25,10 +26,25 @@ pub fn run_board(args: board::Args) -> Result<(), String> {
     }
     let root = workspace_root();
     let sh = &shell::at(&root)?;
+    let elf = match args.image {
+        board::Image::Broken(kind) => {
+            // The broken image goes into the flash file's slot; the board boots what the
+            // flash file holds there.
+            let flash = args.flash.as_deref().unwrap_or(&default_flash);
+            let (python, script, update) =
+                (&setup.python, root.join(board::BAD_IMAGES), update_file());
+            shell::run(cmd!(
+                sh,
+                "{python} {script} {kind} {update} --install {flash}"
+            ))?;
+            None
+        }
+        _ => Some(setup.elf.as_path()),
+    };
     let argv = board::server_argv(
         &setup.python,
         &root,
-        &setup.elf,
+        elf,
         loader.as_deref(),
         &setup.defmt_print,
     );

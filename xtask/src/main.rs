@@ -62,7 +62,9 @@ tasks:
                                         target/board-emu/flash.bin); N: the DIP switch in
                                         binary, switches 8..1 (0b01100101: 1, 3, 6, 7 on; 0x65
                                         and 101 too); stack-overflow: the test build that
-                                        overflows its stack right after boot; --loader: auto
+                                        overflows its stack right after boot; hang, fault,
+                                        lockup, silent, wrong-bit-rate: a broken application
+                                        behind the loader (tools/rig/bad_images.py); --loader: auto
                                         (the workspace's loader/, if any), none (the
                                         application alone) or an ELF
   snippets                              run the README's and docs/' code blocks that need no

@@ -35,7 +35,7 @@ impl Board {
 
     pub fn prepare_image(image: board::Image) -> Result<Self, String> {
         let elf = match image {
-            board::Image::Release => {
+            board::Image::Release | board::Image::Broken(_) => {
                 release_build()?;
                 let elf = firmware_elf("release");
                 // The board boots the loader, and the update tests send this file.
@@ -65,13 +65,17 @@ impl Board {
     /// board` does.
     pub fn export(&self) {
         let (variable, loader) = match self.image {
-            board::Image::Release => ("HANDWHEEL_BOARD_SERVER", Some(loader_elf())),
+            // A broken image is installed into each board's flash file (`cargo xtask board`):
+            // no server command to export.
+            board::Image::Release | board::Image::Broken(_) => {
+                ("HANDWHEEL_BOARD_SERVER", Some(loader_elf()))
+            }
             board::Image::StackOverflow => ("HANDWHEEL_BOARD_SERVER_STACK_OVERFLOW", None),
         };
         let argv = board::server_argv(
             &self.python,
             &workspace_root(),
-            &self.elf,
+            Some(&self.elf),
             loader.as_deref(),
             &self.defmt_print,
         );

@@ -36,7 +36,8 @@ pub const STORAGE_LENGTH: u32 = 2 * 1024;
 pub const RAM_ORIGIN: u32 = 0x2000_0000;
 /// Length of `RAM`: 20 KiB less the hand-off words.
 pub const RAM_LENGTH: u32 = 20 * 1024 - 8;
-/// The request to stay in the loader (`HANDOFF`): two words, no image's RAM.
+/// The words between loader and application (`HANDOFF`): two words, no image's RAM, that
+/// hold the request to stay in the loader or the trial's count ([`crate::boot`]).
 pub const HANDOFF_ORIGIN: u32 = RAM_ORIGIN + RAM_LENGTH;
 /// Word 0 of a hand-off request ("LOAD"); word 1 is its complement.
 pub const HANDOFF_REQUEST: u32 = 0x4C4F_4144;

@@ -289,6 +289,11 @@ impl LoaderNode {
         &self.inner.program
     }
 
+    /// The loader stayed because the application failed its trial boot: 0x1F57 says so.
+    pub fn report_failed_trial(&mut self) {
+        self.inner.program.report_failed_trial();
+    }
+
     /// Boots: the boot-up message, then Pre-operational (also after a reset communication).
     pub fn start(&mut self, now: Instant, tx: &mut impl FrameSink) {
         self.sdo = SdoServer::new(self.inner.config.sdo_timeout_ms);

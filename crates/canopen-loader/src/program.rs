@@ -53,6 +53,11 @@ pub enum FlashStatus {
     WriteError = 5,
     /// The image does not fit the slot.
     AddressError = 6,
+    /// The application was started [`MAX_TRIAL_STARTS`](crate::boot::MAX_TRIAL_STARTS)
+    /// times in a row and never confirmed that it is healthy on the bus (a hang, a fault, a
+    /// lock-up, each ended by the watchdog): the loader stayed. The first code of the range
+    /// CiA 302-3 leaves to the manufacturer (64..127).
+    TrialFailed = 64,
 }
 
 impl FlashStatus {
@@ -61,7 +66,7 @@ impl FlashStatus {
     #[must_use]
     pub const fn abort(self) -> Option<SdoAbort> {
         match self {
-            Self::Ok | Self::NoValidProgram => None,
+            Self::Ok | Self::NoValidProgram | Self::TrialFailed => None,
             Self::FormatUnknown => Some(SdoAbort::InvalidValue),
             Self::FormatError => Some(SdoAbort::CannotStore),
             Self::NotCleared => Some(SdoAbort::DeviceState),
@@ -108,8 +113,10 @@ pub fn vector_table_ok(stack_pointer: u32, reset: u32, length: u32) -> bool {
     sp_ok && reset_ok
 }
 
-/// The CRC-32 of `len` slot bytes from `offset`, as the flash reads now.
-fn flash_crc(flash: &impl SlotFlash, offset: usize, len: usize) -> u32 {
+/// The CRC-32 of `len` slot bytes from `offset`, as the flash reads now (one copy for every
+/// flash type, as [`check_application`]).
+#[inline(never)]
+fn flash_crc(flash: &dyn SlotFlash, offset: usize, len: usize) -> u32 {
     let mut crc = Crc32::new();
     let mut buf = [0u8; 64];
     let mut at = 0;
@@ -123,7 +130,7 @@ fn flash_crc(flash: &impl SlotFlash, offset: usize, len: usize) -> u32 {
     crc.finish()
 }
 
-fn read_word(flash: &impl SlotFlash, offset: usize) -> u32 {
+fn read_word(flash: &(impl SlotFlash + ?Sized), offset: usize) -> u32 {
     let mut w = [0; 4];
     flash.read(offset, &mut w);
     u32::from_le_bytes(w)
@@ -134,6 +141,13 @@ fn read_word(flash: &impl SlotFlash, offset: usize) -> u32 {
 /// content.
 #[must_use]
 pub fn valid_application(flash: &impl SlotFlash, device: DeviceId) -> Option<ImageHeader> {
+    check_application(flash, device)
+}
+
+/// [`valid_application`] over any flash, in one copy: the loader checks through two flash
+/// types (before and after it takes the flash controller) and has no flash to spare for two.
+#[inline(never)]
+fn check_application(flash: &dyn SlotFlash, device: DeviceId) -> Option<ImageHeader> {
     let mut head = [0u8; HEADER_LEN];
     flash.read(0, &mut head);
     let header = ImageHeader::parse(&head).ok()?;
@@ -237,6 +251,12 @@ impl Program {
     #[must_use]
     pub const fn received(&self) -> usize {
         self.received
+    }
+
+    /// The loader stayed because the application it holds failed its trial boot
+    /// ([`FlashStatus::TrialFailed`] until the next "clear").
+    pub fn report_failed_trial(&mut self) {
+        self.status = FlashStatus::TrialFailed;
     }
 
     /// A download failed: the application is invalid, and the next needs a clear.
@@ -435,7 +455,7 @@ impl Program {
         }
         let sp = read_word(flash, HEADER_SLOT);
         let reset = read_word(flash, HEADER_SLOT + 4);
-        if flash_crc(flash, HEADER_SLOT, len) != header.crc
+        if flash_crc(&*flash, HEADER_SLOT, len) != header.crc
             || !vector_table_ok(sp, reset, header.length)
         {
             return Err(self.fail(FlashStatus::FormatError));

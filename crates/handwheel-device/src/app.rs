@@ -187,6 +187,9 @@ pub struct FeedApp {
     pub(crate) software_id: u32,
     /// 0x1F51:1 = 0 ("stop") was answered: the firmware is to reset into the loader.
     pub(crate) enter_loader: bool,
+    /// 0x1F51:1 = 0x80 ("confirm", as Zephyr's CiA 302-3 master writes it after an update)
+    /// was answered: a master says the image runs well; the firmware ends its trial boot.
+    pub(crate) start_confirmed: bool,
     /// The device started less than [`SESSION_DELAY_MS`](crate::od::SESSION_DELAY_MS) ago:
     /// no session opens yet.
     pub(crate) young: bool,
@@ -210,6 +213,7 @@ impl FeedApp {
             record: None,
             software_id: 0,
             enter_loader: false,
+            start_confirmed: false,
             young: true,
             uptime_ms: 0,
             #[cfg(feature = "mutants")]
@@ -508,11 +512,15 @@ impl<W: Wheel> AppContext<'_, W> {
     /// way into the loader: only with the feed disabled, like a store (the reset ends the
     /// wheel's service); the SDO answer goes out first, then the firmware resets
     /// ([`HandwheelDevice::loader_requested`](crate::HandwheelDevice::loader_requested)).
+    /// "Confirm" (0x80, Zephyr's manufacturer value, which its master writes after an update's
+    /// boot-up) confirms the trial boot as the image's own confirmation does
+    /// ([`HandwheelDevice::start_confirmed`](crate::HandwheelDevice::start_confirmed)).
     fn program_control(&mut self, value: u32) -> Result<(), SdoAbort> {
         const STOP: u32 = 0;
         const START: u32 = 1;
         const CLEAR: u32 = 3;
-        if !matches!(value, STOP | START | CLEAR) {
+        const CONFIRM: u32 = 0x80;
+        if !matches!(value, STOP | START | CLEAR | CONFIRM) {
             return Err(SdoAbort::InvalidValue);
         }
         if self.app.nmt != NmtState::PreOperational {
@@ -526,6 +534,10 @@ impl<W: Wheel> AppContext<'_, W> {
             }
             // Already started: the application is the program that runs.
             START => Ok(()),
+            CONFIRM => {
+                self.app.start_confirmed = true;
+                Ok(())
+            }
             // Clearing the slot is the loader's: stop first.
             _ => Err(SdoAbort::DeviceState),
         }

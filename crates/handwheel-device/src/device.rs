@@ -161,6 +161,12 @@ impl<S: Storage> HandwheelDevice<S> {
         self.app.enter_loader
     }
 
+    /// 0x1F51:1 = 0x80 ("confirm") was answered: a master confirmed the image after its
+    /// start ([`Outputs::start_confirmed`](crate::Outputs::start_confirmed)).
+    pub fn start_confirmed(&self) -> bool {
+        self.app.start_confirmed
+    }
+
     /// Power-on: applies stored parameters, sends the boot-up frame, enters Pre-operational.
     pub fn start(&mut self, now: Instant, wheel: &mut impl Wheel, tx: &mut dyn FrameSink) {
         self.started = Some(now);

@@ -98,6 +98,10 @@ pub struct Outputs {
     /// path: the caller lets the path drain, then resets into the resident loader
     /// (docs/FIRMWARE-UPDATE.md). Once set, every later round says so again.
     pub enter_loader: bool,
+    /// A master confirmed the running image (0x1F51:1 = 0x80): the firmware ends its trial
+    /// boot, as when its own frames are acknowledged on the bus (docs/FIRMWARE-UPDATE.md,
+    /// "Trial boot"). Once set, every later round says so again.
+    pub start_confirmed: bool,
 }
 
 /// Where the node is in its life.
@@ -199,6 +203,7 @@ impl<S: Storage> Node<S> {
             .sleep_ms(now_ms, now, deadline, self.bus)
             .min(self.rate_switch.sleep_cap_ms());
         out.enter_loader = self.device.loader_requested();
+        out.start_confirmed = self.device.start_confirmed();
         out
     }
 

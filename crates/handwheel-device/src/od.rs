@@ -19,8 +19,9 @@ use handwheel_core::{Axis, FeedRecord, FeedState, FeedStatus, Handwheel, DEFAULT
 
 /// Program control (CiA 302-3), sub 1: U8 rw. Reads 1 ("started": this is the application);
 /// writing 0 ("stop") resets into the resident loader, only in Pre-operational with the feed
-/// disabled; 1 ("start") is already done; 3 ("clear") is the loader's (stop first); 2 and
-/// other values are refused. docs/FIRMWARE-UPDATE.md.
+/// disabled; 1 ("start") is already done; 0x80 ("confirm") ends the trial boot of a new image;
+/// 3 ("clear") is the loader's (stop first); 2 and other values are refused.
+/// docs/FIRMWARE-UPDATE.md.
 pub const PROGRAM_CONTROL: u16 = 0x1F51;
 /// Program software identification (CiA 302-3), sub 1: U32 ro, the `crc` of the application's
 /// own image header (the CRC-32 of the image that runs).
@@ -511,8 +512,9 @@ pub const EDS_NOTES: [(u16, &str); 9] = [
         "0x1F51:1 program control (CiA 302-3): 0 (stop) resets into the resident loader, which
 takes a firmware update (0x1F50 there; its 0x1000 reads 0x544F4F42): accepted only in
 Pre-operational with the feed disabled, the answer goes out first. 1 (start): nothing to do;
-3 (clear, the loader's): 0x08000022; other values 0x06090030; any write outside
-Pre-operational 0x08000022. 0x1F56:1 is the running image's CRC-32.",
+0x80 (confirm, as Zephyr's master writes it): ends the trial boot of a new image; 3 (clear,
+the loader's): 0x08000022; other values 0x06090030; any write outside Pre-operational
+0x08000022. 0x1F56:1 is the running image's CRC-32.",
     ),
     (
         0x1010,

@@ -1,6 +1,7 @@
 //! The application's side of CiA 302-3 program download (docs/FIRMWARE-UPDATE.md): 0x1F51:1
 //! "stop" resets into the resident loader, only in Pre-operational with the feed disabled;
-//! 0x1F56:1 is the running image's CRC, 0x1F57:1 is 0.
+//! 0x1F51:1 "confirm" (0x80) ends the trial boot; 0x1F56:1 is the running image's CRC,
+//! 0x1F57:1 is 0.
 
 mod common;
 
@@ -57,7 +58,7 @@ fn start_is_already_done_and_clear_is_the_loaders() {
     let mut b = bench_with_crc(1);
     assert_eq!(b.sdo_write(PROGRAM_CONTROL, 1, &[1]), Ok(()));
     assert_eq!(b.sdo_write(PROGRAM_CONTROL, 1, &[3]), Err(DEVICE_STATE));
-    for value in [2, 4, 0x80, 0xFF] {
+    for value in [2, 4, 0x7F, 0x81, 0xFF] {
         assert_eq!(
             b.sdo_write(PROGRAM_CONTROL, 1, &[value]),
             Err(INVALID_VALUE),
@@ -73,6 +74,25 @@ fn start_is_already_done_and_clear_is_the_loaders() {
         Err(0x0607_0012),
         "a U8: too long"
     );
+}
+
+#[test]
+fn confirm_ends_the_trial_boot_in_pre_operational() {
+    let mut b = bench_with_crc(1);
+    assert!(!b.device.start_confirmed());
+    b.nmt(0x01);
+    b.take();
+    assert_eq!(
+        b.sdo_write(PROGRAM_CONTROL, 1, &[0x80]),
+        Err(DEVICE_STATE),
+        "as every 0x1F51 write, only in Pre-operational"
+    );
+    assert!(!b.device.start_confirmed());
+    b.nmt(0x80);
+    assert_eq!(b.sdo_write(PROGRAM_CONTROL, 1, &[0x80]), Ok(()));
+    assert!(b.device.start_confirmed());
+    assert!(!b.device.loader_requested(), "and nothing else");
+    assert_eq!(b.sdo_upload(0x1F51, 1), Ok(vec![1]), "still started");
 }
 
 #[test]

@@ -7,7 +7,8 @@ hands back its outcome (`answer`), which gives the next step, until `step` is No
 `result` says how it ended. Steps: `Read`, `Write` (an expedited SDO download; `arm_bootup`:
 forget the boot-ups seen so far first, so that `WaitBootup` waits for one after this write),
 `PreOperational` (NMT to the node), `WaitBootup`, `Pause`, `Download` (0x1F50:1, the whole
-update file, segmented) and `Note` (a line for the operator). Outcomes: `Ok` (with the value
+update file, segmented), `HoldInLoader` (the rescue request until it is answered) and `Note`
+(a line for the operator). Outcomes: `Ok` (with the value
 of a `Read`), `Aborted` (the SDO abort code) and `NoAnswer` (a timeout, an unexpected frame,
 no boot-up in time).
 
@@ -22,6 +23,15 @@ The order, and why:
   0x1F57, read 0x1F56 (it must be the file's CRC before the loader is told to start it);
   a failure here is tried again from "clear", `Settings.retries` times;
 - 0x1F51 = 1, wait for the application's boot-up, check 0x1000, read 0x1F56 and 0x1018:3.
+  The loader starts a new image on trial: one that never becomes healthy on the bus (a hang,
+  a fault) is reset by the watchdog until, after 3 starts, the loader stays and says so in
+  0x1F57 (code 64): then the update ends `UNHEALTHY`, and the way on is an update with a good
+  image, not this one again. A device that answers nothing after the start (an image that
+  feeds the watchdog but never talks, or talks at the wrong bit rate) ends `UNHEALTHY` too:
+  the way back is `--rescue`;
+- with `Settings.rescue`, first `HoldInLoader`: the loader's request (0x1F51:1 = 0) sent
+  again and again while the operator power-cycles the board, until the loader answers it in
+  its listening window at power-on (docs/FIRMWARE-UPDATE.md, "The way back at power-on").
 A write of 0x1F51 whose answer did not come is repeated only after reading 0x1F51 (or, for
 stop and start, which reset the device, after looking for its boot-up and its 0x1000): the
 device may have done it, and repeating a done step is refused (0x08000022) and misleads.
@@ -60,6 +70,7 @@ CONTROL_NAMES = {STOP: "stop", START: "start", CLEAR: "clear"}
 
 # 0x1F57: bit 0 in progress, bits 1-7 the code; what each code means for this loader.
 IN_PROGRESS = 0x01
+TRIAL_FAILED = 64  # the first of CiA 302-3's manufacturer-specific codes
 STATUS_CODES = {
     0: "no error",
     1: "no valid program",
@@ -71,6 +82,8 @@ STATUS_CODES = {
     6: "general address error (the image does not fit the slot)",
     7: "flash secured",
     63: "unspecified error",
+    TRIAL_FAILED: "the application was started 3 times and never became healthy on the bus "
+    "(a hang, a fault or a lock-up before it talks): the loader stays",
 }
 
 # SDO aborts (CiA 301), and what the loader and the application mean by them here.
@@ -92,11 +105,18 @@ EXIT_OK = 0
 EXIT_FAILED = 1  # the device did not take the update (see the message; retry)
 EXIT_REFUSED = 3  # the device must not be updated now, or not with this file
 EXIT_BAD_FILE = 4  # the file is not an update image (nothing was sent)
+EXIT_UNHEALTHY = 5  # the image went in, but never became healthy: update with a good one
 
 OK = "ok"
 FAILED = "failed"
 REFUSED = "refused"
-EXIT_CODES = {OK: EXIT_OK, FAILED: EXIT_FAILED, REFUSED: EXIT_REFUSED}
+UNHEALTHY = "unhealthy"
+EXIT_CODES = {OK: EXIT_OK, FAILED: EXIT_FAILED, REFUSED: EXIT_REFUSED, UNHEALTHY: EXIT_UNHEALTHY}
+
+# The request that keeps the loader in its listening window at power-on: an SDO expedited
+# download of 0x1F51:1 = 0 ("stop"), and the loader's (or the application's) answer to it.
+RESCUE_REQUEST = bytes([0x2F, 0x51, 0x1F, 0x01, 0x00, 0x00, 0x00, 0x00])
+RESCUE_ANSWER = bytes([0x60, 0x51, 0x1F, 0x01])
 
 
 def abort_text(code: int) -> str:
@@ -188,7 +208,17 @@ class Note:
     text: str
 
 
-Step = object  # Read | Write | PreOperational | WaitBootup | Pause | Download | Note
+@dataclass(frozen=True)
+class HoldInLoader:
+    """Send `RESCUE_REQUEST` to the node every `interval` s until `RESCUE_ANSWER` comes
+    (`Ok`), at most `timeout` s (`NoAnswer`); an abort answer (a running application that
+    refuses the stop) is no answer: the loader's window comes with the next power-on."""
+
+    timeout: float
+    interval: float = 0.01
+
+
+Step = object  # Read | Write | PreOperational | WaitBootup | Pause | Download | HoldInLoader | Note
 
 
 # Outcomes ------------------------------------------------------------------------------------
@@ -221,6 +251,11 @@ class Settings:
     poll_interval: float = 0.05  # s between reads of 0x1F57
     read_attempts: int = 3  # a read without an answer is repeated (reads change nothing)
     control_attempts: int = 3  # a 0x1F51 write is tried at most this often
+    # s to wait, after a start the application does not answer, for the loader that ends a
+    # failed trial boot: 3 starts of up to 2 s each (the watchdog) and the loader's window.
+    trial_timeout: float = 15.0
+    rescue: bool = False  # first hold the device in its loader at a power-on (HoldInLoader)
+    rescue_timeout: float = 60.0  # s the operator has for the power cycle
 
 
 @dataclass(frozen=True)
@@ -266,6 +301,15 @@ CLEARED = (
     "takes the next update."
 )
 STARTED = "The device was told to start the new application."
+# What to do about an image that went in but never became healthy.
+RECOVER = (
+    "Sending this image again would not help: update with a good image, e.g. "
+    "`canopen-handwheel update GOOD.update` (the one the device ran before)."
+)
+RESCUE = (
+    "Update with a good image through the loader's window at power-on: "
+    "`canopen-handwheel update GOOD.update --rescue`, then switch the board off and on."
+)
 
 
 class _End(Exception):
@@ -313,6 +357,8 @@ class Update:
         img = self.image
         node = self.settings.node
         yield Note(f"update file: {img.describe()}")
+        if self.settings.rescue:
+            yield from self._rescue()
         before = self.before = yield from self._identify()
         yield Note(f"node {node}: {before.describe()}")
         if before.loader:
@@ -355,12 +401,35 @@ class Update:
             crc,
         )
 
+    def _rescue(self) -> Generator[Step, Outcome, None]:
+        """The loader's request, again and again, until the loader answers it in its window
+        at the power-on the operator brings about (or a running application answers it and
+        resets into its loader); then a pause for that reset and for late answers."""
+        node = self.settings.node
+        timeout = self.settings.rescue_timeout
+        yield Note(
+            f"rescue: switch node {node} off and on now (within {timeout:g} s); sending its "
+            "loader's request (0x1F51:1 = 0) until it answers"
+        )
+        out = yield HoldInLoader(timeout)
+        if not isinstance(out, Ok):
+            raise _End(
+                FAILED,
+                f"rescue: no answer to the loader's request within {timeout:g} s "
+                f"({self._what(out)}): was node {node} switched off and on, on this bus, at "
+                "this node-ID and bit rate?",
+            )
+        yield Note(f"rescue: node {node} answered: its loader stays")
+        yield Pause(0.5)
+
     def _identify(self) -> Generator[Step, Outcome, Identity]:
         """0x1000, 0x1018:1-3, 0x1F56, 0x1F57 (polled until not in progress); the file must
         be for this device; the application must have program download."""
         img = self.image
         node = self.settings.node
-        device_type = yield from self._u32(DEVICE_TYPE, "the device type 0x1000")
+        device_type = yield from self._u32(
+            DEVICE_TYPE, "the device type 0x1000", after_reset=self.settings.rescue
+        )
         loader = device_type == LOADER_DEVICE_TYPE
         vendor = yield from self._u32(VENDOR_ID, "the vendor-ID 0x1018:1")
         product = yield from self._u32(PRODUCT_CODE, "the product code 0x1018:2")
@@ -489,7 +558,9 @@ class Update:
     def _start(self) -> Generator[Step, Outcome, None]:
         """0x1F51 = 1, the application's boot-up and its 0x1000. Without an answer or a
         boot-up, the device's 0x1000 tells whether it started; only if it did not is start
-        written again."""
+        written again. A device that answers nothing after the start is given the time of a
+        failed trial boot to come back as its loader; back in its loader with code 64, or
+        never answering at all, the new image is `UNHEALTHY`."""
         node = self.settings.node
         last = ""
         for _ in range(self.settings.control_attempts):
@@ -503,11 +574,38 @@ class Update:
                 )
             self.place = STARTED
             booted = yield WaitBootup(self.settings.boot_timeout)
-            device_type = yield from self._device_type_after_reset()
-            if device_type != LOADER_DEVICE_TYPE:
+            answer = yield from self._try_read(
+                DEVICE_TYPE, "the device type 0x1000", after_reset=True
+            )
+            if not isinstance(answer, Ok):
+                trial = self.settings.trial_timeout
+                yield Note(
+                    f"node {node} does not answer after the start: waiting up to {trial:g} s "
+                    "for its loader (it stays after 3 starts of an image that never becomes "
+                    "healthy)"
+                )
+                booted = yield WaitBootup(trial)
+                answer = yield from self._try_read(
+                    DEVICE_TYPE, "the device type 0x1000", after_reset=True
+                )
+            if not isinstance(answer, Ok) or answer.value is None:
+                raise _End(
+                    UNHEALTHY,
+                    f"node {node} never answered after the start of the new image "
+                    f"({self._what(answer)}): it runs, but does not talk on the bus (it may "
+                    "feed its watchdog and stay silent, or talk at another bit rate). " + RESCUE,
+                )
+            if answer.value != LOADER_DEVICE_TYPE:
                 yield Note(f"node {node} runs its application")
                 return
             status = yield from self._poll_status()
+            if status >> 1 == TRIAL_FAILED:
+                raise _End(
+                    UNHEALTHY,
+                    f"the new image never became healthy: node {node} came back as its loader "
+                    f"({status_text(status)}). The device waits in its loader and answers on "
+                    "the bus (a power-on gives the image 3 more starts). " + RECOVER,
+                )
             if isinstance(booted, Ok):
                 self.place = CLEARED
                 raise _End(
@@ -546,9 +644,11 @@ class Update:
             f"s ({status_text(value)}).",
         )
 
-    def _read(self, obj, what: str, after_reset: bool = False) -> Generator[Step, Outcome, Outcome]:
-        """The outcome of reading `obj`: `Ok` or `Aborted`; a read without an answer is
-        repeated (after a reset, a pause first), and `_End` when none comes."""
+    def _try_read(
+        self, obj, what: str, after_reset: bool = False
+    ) -> Generator[Step, Outcome, Outcome]:
+        """The outcome of reading `obj`: `Ok` or `Aborted`, or the last `NoAnswer` when
+        none came; a read without an answer is repeated (after a reset, a pause first)."""
         index, sub = obj
         out: Outcome = NoAnswer()
         for i in range(self.settings.read_attempts):
@@ -557,15 +657,23 @@ class Update:
             out = yield Read(index, sub, what)
             if isinstance(out, (Ok, Aborted)):
                 return out
+        return out
+
+    def _read(self, obj, what: str, after_reset: bool = False) -> Generator[Step, Outcome, Outcome]:
+        """As `_try_read`, and `_End` when no answer comes."""
+        out = yield from self._try_read(obj, what, after_reset)
+        if isinstance(out, (Ok, Aborted)):
+            return out
         raise _End(
             FAILED,
             f"no answer from node {self.settings.node} reading {what} "
             f"({self.settings.read_attempts} times; last: {self._what(out)}): is it on the "
-            "bus at this node-ID and bit rate?",
+            "bus at this node-ID and bit rate? (A device whose image never answers: add "
+            "--rescue and switch it off and on.)",
         )
 
-    def _u32(self, obj, what: str) -> Generator[Step, Outcome, int]:
-        out = yield from self._read(obj, what)
+    def _u32(self, obj, what: str, after_reset: bool = False) -> Generator[Step, Outcome, int]:
+        out = yield from self._read(obj, what, after_reset)
         if isinstance(out, Aborted):
             raise _End(FAILED, f"reading {what}: {abort_text(out.code)}.")
         assert isinstance(out, Ok) and out.value is not None

@@ -37,7 +37,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         "with the update file `cargo xtask fw` writes (it prints `update image: PATH`). The "
         "device must not have its feed enabled. Exit status: 0 updated, 1 failed (the "
         "message says how to retry), 2 usage, 3 refused (nothing was changed), 4 not an "
-        "update file (nothing was sent).",
+        "update file (nothing was sent), 5 the new image went in but never became healthy "
+        "(update with a good image; the message says how).",
     )
     p.add_argument("file", help="the update file")
     component.add_bus_options(p)
@@ -68,6 +69,27 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         help=f"seconds the flash status 0x1F57 may show 'in progress' "
         f"({update.Settings.status_timeout:g}, 0.1..600)",
     )
+    p.add_argument(
+        "--trial-timeout",
+        type=float,
+        default=update.Settings.trial_timeout,
+        help=f"seconds to wait, after a start the new image does not answer, for the loader "
+        f"that ends a failed trial boot ({update.Settings.trial_timeout:g}, 1..600)",
+    )
+    p.add_argument(
+        "--rescue",
+        action="store_true",
+        help="first hold the device in its loader: asks you to switch the board off and on, "
+        "and sends the loader's request (0x1F51:1 = 0) until the loader answers it in its "
+        "window at power-on; for a device whose image never answers",
+    )
+    p.add_argument(
+        "--rescue-timeout",
+        type=float,
+        default=update.Settings.rescue_timeout,
+        help=f"seconds to wait for the power cycle with --rescue "
+        f"({update.Settings.rescue_timeout:g}, 1..3600)",
+    )
     args = p.parse_args(argv)
     for name, low, high in (
         ("node", 1, 127),
@@ -75,6 +97,8 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         ("sdo_timeout", 0.05, 10),
         ("boot_timeout", 0.1, 60),
         ("status_timeout", 0.1, 600),
+        ("trial_timeout", 1, 600),
+        ("rescue_timeout", 1, 3600),
     ):
         value = getattr(args, name)
         if not low <= value <= high:  # also false for nan
@@ -190,6 +214,8 @@ def carry_out(
             return update.Ok()
         if isinstance(step, update.Download):
             return download(device, step, data, out)
+        if isinstance(step, update.HoldInLoader):
+            return hold_in_loader(device, step, sleep)
     except canopen.SdoAbortedError as e:
         settle(device, sleep)
         return update.Aborted(e.code)
@@ -197,6 +223,39 @@ def carry_out(
         settle(device, sleep)
         return update.NoAnswer(str(e))
     raise TypeError(f"unknown step {step!r}")
+
+
+def hold_in_loader(
+    device: Device, step: update.HoldInLoader, sleep: Callable[[float], None] = time.sleep
+):
+    """`update.RESCUE_REQUEST` to the node every `step.interval` s until its answer comes:
+    the loader's window at power-on is short (docs/FIRMWARE-UPDATE.md), so the request must
+    be on the bus whenever it opens. Answers that arrive after the first go to python-canopen's
+    SDO queue: they are dropped (`settle`) before the update goes on."""
+    import can
+
+    node = device.node.id
+    answered = threading.Event()
+
+    def on_answer(can_id: int, data, timestamp) -> None:
+        if bytes(data[:4]) == update.RESCUE_ANSWER:
+            answered.set()
+
+    device.network.subscribe(0x580 + node, on_answer)
+    deadline = time.monotonic() + step.timeout
+    try:
+        while not answered.is_set():
+            if time.monotonic() > deadline:
+                return update.NoAnswer(f"no answer within {step.timeout:g} s")
+            try:
+                device.network.send_message(0x600 + node, update.RESCUE_REQUEST)
+            except can.CanError:
+                pass  # a full transmit queue while nobody acknowledges: the next one goes
+            answered.wait(step.interval)
+    finally:
+        device.network.unsubscribe(0x580 + node, on_answer)
+    settle(device, sleep)
+    return update.Ok()
 
 
 # How long a failed SDO exchange may still bring answers in: the device answers a request
@@ -265,6 +324,9 @@ def run(args: argparse.Namespace, argv: Sequence[str], out: Optional[TextIO] = N
         retries=args.retries,
         boot_timeout=args.boot_timeout,
         status_timeout=args.status_timeout,
+        trial_timeout=args.trial_timeout,
+        rescue=args.rescue,
+        rescue_timeout=args.rescue_timeout,
     )
     import canopen
 
