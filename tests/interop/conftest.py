@@ -114,3 +114,28 @@ def raw_bus(board: Board):
     finally:
         notifier.stop()
         bus.shutdown()
+
+
+@pytest.fixture(scope="module")
+def release() -> bytes:
+    """The update file `cargo xtask fw` writes (`test_update.UPDATE_FILE`), for the update
+    and trial-boot tests."""
+    from test_update import UPDATE_FILE
+
+    data = UPDATE_FILE.read_bytes()
+    assert data[:4] == b"HWIM", f"{UPDATE_FILE} is not an update file (cargo xtask fw)"
+    return data
+
+
+@pytest.fixture
+def relay(board: Board):
+    """The SLCAN relay of `tools/rig/relay.py` in front of `board`, once its boot-up came."""
+    from rig.constants import NODE_ID, START_TIMEOUT
+    from rig.relay import Relay
+
+    r = Relay(board)
+    try:
+        r.device.wait_id(0x700 + NODE_ID, b"\x00", timeout=START_TIMEOUT)
+        yield r
+    finally:
+        r.close()

@@ -25,14 +25,13 @@ import pytest
 
 from rig import Board
 from rig.bad_images import make
-from rig.constants import NODE_ID, START_TIMEOUT
+from rig.constants import NODE_ID
 from rig.relay import Relay
 from test_update import (
     BOOT,
     COMMAND,
     ROOT,
     SDO_TIMEOUT,
-    UPDATE_FILE,
     download,
     enter_loader,
     image_crc,
@@ -61,23 +60,6 @@ LONG_TRIAL = pytest.mark.skipif(
     not os.environ.get("HANDWHEEL_LONG_TRIALS"),
     reason="a long trial-boot test: HANDWHEEL_LONG_TRIALS=1 runs it",
 )
-
-
-@pytest.fixture(scope="module")
-def release() -> bytes:
-    data = UPDATE_FILE.read_bytes()
-    assert data[:4] == b"HWIM", f"{UPDATE_FILE} is not an update file (cargo xtask fw)"
-    return data
-
-
-@pytest.fixture
-def relay(board: Board):
-    r = Relay(board)
-    try:
-        r.device.wait_id(0x700 + NODE_ID, BOOTUP, timeout=START_TIMEOUT)
-        yield r
-    finally:
-        r.close()
 
 
 def handoff(board: Board) -> tuple[int, int]:

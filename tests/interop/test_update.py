@@ -24,7 +24,7 @@ import canopen
 import pytest
 
 from rig import Board
-from rig.constants import NODE_ID, START_TIMEOUT
+from rig.constants import NODE_ID
 from rig.relay import Relay
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,23 +53,6 @@ def variant(data: bytes, version: int, pad: int) -> bytes:
 
 def image_crc(data: bytes) -> int:
     return struct.unpack_from("<I", data, 0x18)[0]
-
-
-@pytest.fixture(scope="module")
-def release() -> bytes:
-    data = UPDATE_FILE.read_bytes()
-    assert data[:4] == b"HWIM", f"{UPDATE_FILE} is not an update file (cargo xtask fw)"
-    return data
-
-
-@pytest.fixture
-def relay(board: Board):
-    r = Relay(board)
-    try:
-        r.device.wait_id(0x700 + NODE_ID, b"\x00", timeout=START_TIMEOUT)
-        yield r
-    finally:
-        r.close()
 
 
 @contextmanager
