@@ -312,7 +312,12 @@ def test_a_full_transmit_side_never_loses_a_frame(rig):
     assert waited < TRANSMIT_STALL_MS - 10, f"the frames waited {waited:.1f} ms"
     board.control("hold off")
     beat = rig.frames.wait_id(HEARTBEAT, since=held)
-    out = [f.id for f in rig.frames.frames(since=held)][:4]
+    # Two frames out, the error counter is below 128 again: the EMCY of "error active
+    # again" (code 0x0000) may then be queued before the heartbeat leaves and, more urgent,
+    # go first. It is not one of the frames that waited.
+    out = [
+        f.id for f in rig.frames.frames(since=held) if not (f.id == EMCY and f.data[:2] == bytes(2))
+    ][:4]
     assert out == [EMCY, TPDO1, SDO_TX, HEARTBEAT], f"by priority, none lost: {out}"
     assert beat.data == bytes([OPERATIONAL])
     emcy = rig.frames.frames(EMCY, since=held)[0]
