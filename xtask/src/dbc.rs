@@ -221,18 +221,6 @@ fn camel(name: &str) -> String {
         .collect()
 }
 
-/// A feed state with every field at its zero, for probing the encoders one field at a time.
-fn zero_state() -> FeedState {
-    FeedState {
-        position: 0,
-        axis: None,
-        multiplier: Multiplier::X1,
-        status: FeedStatus::empty(),
-        epoch: 0,
-        session: 0,
-    }
-}
-
 /// The bits of `byte` that `vary` sets, over every value it takes.
 fn probe(values: impl Iterator<Item = u8>) -> u32 {
     values.fold(0, |mask, v| mask | u32::from(v))
@@ -244,7 +232,7 @@ fn packed_fields(index: u16) -> Result<Vec<Field>, String> {
     Ok(match index {
         FEED_SELECTION => {
             let with = |f: &dyn Fn(&mut FeedState)| {
-                let mut s = zero_state();
+                let mut s = FeedState::ZERO;
                 f(&mut s);
                 s.selection_byte()
             };
@@ -281,7 +269,7 @@ fn packed_fields(index: u16) -> Result<Vec<Field>, String> {
         }
         FEED_STATUS => {
             let with = |f: &dyn Fn(&mut FeedState)| {
-                let mut s = zero_state();
+                let mut s = FeedState::ZERO;
                 f(&mut s);
                 s.status_byte()
             };

@@ -92,6 +92,16 @@ impl FeedState {
     /// Where the epoch sits in the selection byte and the session in the status byte.
     pub const HIGH_SHIFT: u32 = 5;
 
+    /// Every field at its zero (no axis, x1, no flags): the feed at power-on.
+    pub const ZERO: Self = Self {
+        position: 0,
+        axis: None,
+        multiplier: Multiplier::X1,
+        status: FeedStatus::empty(),
+        epoch: 0,
+        session: 0,
+    };
+
     /// The status byte as object 0x2030 and the feed record carry it: the flags in bits 0-4,
     /// the session in bits 5-7.
     pub const fn status_byte(&self) -> u8 {

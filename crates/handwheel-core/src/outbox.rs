@@ -35,18 +35,10 @@
 //!
 //! The state machine is checked exhaustively against the host's rule by `crates/feed-check`.
 
-use crate::feed::{FeedState, FeedStatus};
-use crate::selector::Multiplier;
+use crate::feed::FeedState;
 
 /// What an unused slot holds (never read: `len` says which slots are in use).
-const UNUSED: FeedState = FeedState {
-    position: 0,
-    axis: None,
-    multiplier: Multiplier::X1,
-    status: FeedStatus::empty(),
-    epoch: 0,
-    session: 0,
-};
+const UNUSED: FeedState = FeedState::ZERO;
 
 /// Closed epochs the outbox holds at most. An operator who changes the selection more often
 /// than this while the bus is blocked loses the motion of the oldest ones (to no axis).
@@ -371,7 +363,8 @@ mod tests {
     use std::vec;
 
     use super::*;
-    use crate::selector::Axis;
+    use crate::feed::FeedStatus;
+    use crate::selector::{Axis, Multiplier};
 
     fn state(position: i32, axis: Axis, epoch: u8) -> FeedState {
         FeedState {
