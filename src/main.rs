@@ -26,7 +26,7 @@
 //! The CAN interrupts come next because the receive FIFO holds only three frames and the
 //! mailboxes only three; they only move frames between hardware and queues. Everything that
 //! touches the CANopen device runs in one task, `canopen` (priority 2), which also samples
-//! the selector switches and drives the LEDs: the device and the accumulator are that task's
+//! the selector switches and drives the LEDs and the digital outputs: the device and the accumulator are that task's
 //! own and need no lock, and nothing on the CAN side ever preempts another part of it.
 //!
 //! SysTick (the monotonic) runs at priority 3, not at its reset priority above everything:
@@ -52,7 +52,7 @@ static EVENTS: Events = Events::new();
 mod app {
     use super::{Mono, EVENTS};
 
-    use board::{DeviceStorage, Leds, Selectors, WheelInputs, SYSCLK_HZ};
+    use board::{DeviceStorage, DigitalOutputs, Leds, Selectors, WheelInputs, SYSCLK_HZ};
     use cortex_m::peripheral::scb::SystemHandler;
     use defmt::info;
     use handwheel_core::{DecoderConfig, EdgeState, LinkedWheel};
@@ -103,6 +103,7 @@ mod app {
         rx_consumer: RxConsumer,
         selectors: Selectors,
         leds: Leds,
+        outputs: DigitalOutputs,
         watchdog: board::watchdog::Watchdog,
     }
 
@@ -166,6 +167,7 @@ mod app {
                 rx_consumer,
                 selectors: board.selectors,
                 leds: board.leds,
+                outputs: board.outputs,
                 watchdog: board.watchdog,
             },
         )
@@ -245,7 +247,7 @@ mod app {
     /// command at a time; the CAN port through one short lock per call, never for a round.
     #[task(
         priority = 2,
-        local = [node, rx_consumer, watchdog, selectors, leds],
+        local = [node, rx_consumer, watchdog, selectors, leds, outputs],
         shared = [can, wheel]
     )]
     async fn canopen(cx: canopen::Context) {
@@ -266,6 +268,9 @@ mod app {
             if let Some((run, err)) = out.leds {
                 local.leds.set(run, err);
             }
+            // Every round, so that an error reaction reaches the pins in the round that found
+            // the error.
+            local.outputs.set(out.digital.jog_live, out.digital.written);
             // A frame on a new identifier is received from the next round on; before that it
             // is dropped, as by any controller before its reconfiguration.
             if let Some(filter) = out.rx_filter {

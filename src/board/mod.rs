@@ -74,6 +74,8 @@ pub struct Board {
     pub dip: u8,
     /// RUN and ERR LEDs.
     pub leds: Leds,
+    /// The digital outputs: "jog live" and the CNC's (0x6A00).
+    pub outputs: DigitalOutputs,
     /// The CAN controller, not yet started.
     pub can: CanInstance,
     /// Where 0x1010 stores parameters.
@@ -144,6 +146,31 @@ pub fn init(dp: pac::Peripherals) -> Board {
         .into_push_pull_output_with_state(&mut gpiob.crl, PinState::Low);
     err.set_speed(&mut gpiob.crl, IOPinSpeed::Mhz2);
 
+    // The digital outputs, off (low) from here on. PA15, PB3 and PB4 come out of reset as
+    // JTAG's; SWJ_CFG = 0b010 frees them and keeps SWD (the HAL writes that into every later
+    // MAPR write too, bxCAN's remap below included). PC14 sits behind the backup domain's
+    // switch: 2 MHz, as all of them (slow edges, no load current to speak of).
+    let (pa15, pb3, pb4) = afio.mapr.disable_jtag(gpioa.pa15, gpiob.pb3, gpiob.pb4);
+    macro_rules! output {
+        ($pin:expr, $cr:expr) => {{
+            let mut pin = $pin.into_push_pull_output_with_state($cr, PinState::Low);
+            pin.set_speed($cr, IOPinSpeed::Mhz2);
+            pin.erase()
+        }};
+    }
+    let outputs = DigitalOutputs {
+        pins: [
+            output!(gpioa.pa8, &mut gpioa.crh),
+            output!(pa15, &mut gpioa.crh),
+            output!(pb3, &mut gpiob.crl),
+            output!(pb4, &mut gpiob.crl),
+            output!(gpioa.pa9, &mut gpioa.crh),
+            output!(gpioa.pa10, &mut gpioa.crh),
+            output!(gpiob.pb2, &mut gpiob.crl),
+            output!(gpioc.pc14, &mut gpioc.crh),
+        ],
+    };
+
     // Wheel: both edges of both channels on EXTI6/EXTI7 (they share the EXTI9_5 vector).
     let mut exti = dp.EXTI;
     let mut a = gpiob.pb6.into_pull_up_input(&mut gpiob.crl);
@@ -177,6 +204,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         selectors,
         dip,
         leds: Leds { run, err },
+        outputs,
         can: CanInstance { _can: can },
         storage: FlashStorage::new(flash),
         watchdog,
@@ -248,6 +276,24 @@ impl Leds {
     pub fn set(&mut self, run: bool, err: bool) {
         self.run.set_state(PinState::from(!run));
         self.err.set_state(PinState::from(err));
+    }
+}
+
+/// The board's eight digital outputs, push-pull, active high, in board order: out 1 the
+/// "jog live" LED (PA8), outs 2..8 the bits 0..6 of 0x6A00:1 (PA15, PB3, PB4, PA9, PA10, PB2,
+/// PC14). Bit 7 of 0x6A00:1 has no pin.
+pub struct DigitalOutputs {
+    pins: [gpio::ErasedPin<Output<PushPull>>; 8],
+}
+
+impl DigitalOutputs {
+    /// Drives out 1 with `jog_live` and outs 2..8 with bits 0..6 of `written`. (Each pin is
+    /// one BSRR write: no read-modify-write of a port.)
+    pub fn set(&mut self, jog_live: bool, written: u8) {
+        let levels = u16::from(written) << 1 | u16::from(jog_live);
+        for (i, pin) in self.pins.iter_mut().enumerate() {
+            pin.set_state(PinState::from(levels >> i & 1 != 0));
+        }
     }
 }
 

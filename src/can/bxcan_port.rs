@@ -67,7 +67,9 @@ pub fn start(instance: CanInstance, bit_rate: BitRate, filter: RxFilter, mode: M
 /// unconfigured node's filter repeats NMT and LSS in the SYNC and SDO entries. Bank 1 passes every
 /// heartbeat (0x700..0x77F) for the heartbeat consumer, which picks its producers itself, and
 /// the second SDO server's requests (0x1201:1; a repeat of our SDO request while it is not
-/// valid) as a mask that compares all 11 bits.
+/// valid) as a mask that compares all 11 bits. Bank 2 lists RPDO1 (0x1400:1 while it is
+/// received; a repeat of our SDO request otherwise), so that a master that moves it is
+/// heard on the new identifier only.
 /// Data frames only: RTR is not served. Reprogramming while running (RM0008 24.7.4: the
 /// banks are deactivated in filter init mode) can miss a frame that arrives in those few
 /// register writes; only a master's reconfiguration triggers it.
@@ -93,6 +95,7 @@ pub fn set_filters(can: &mut Bxcan, filter: RxFilter) {
         Mask16::frames_with_std_id(standard_id(filter.second_sdo_request()), standard_id(0x7FF));
     second_sdo.data_frames_only();
     filters.enable_bank(1, Fifo::Fifo0, [heartbeats, second_sdo]);
+    filters.enable_bank(2, Fifo::Fifo0, [data(filter.rpdo()); 4]);
 }
 
 fn standard_id(id: u16) -> StandardId {

@@ -37,6 +37,14 @@ def test_every_eds_object_reads_its_default(rig):
         name = f"{var.index:04X}sub{var.subindex} {var.name}"
         if var.access_type == "wo":
             continue
+        if var.index < 0x1000:
+            # The dummy types python-canopen adds from the EDS's [DummyUsage] (0x0002..0x0007,
+            # which RPDO1 may map): data type definitions, not objects; the device answers
+            # 0x06020000 (CiA 301 makes reading their size optional).
+            code = rig.read_abort(var.index, var.subindex)
+            if code != 0x06020000:
+                mismatches.append(f"{name}: abort {code:#010x}, wanted 0x06020000")
+            continue
         if var.index == 0x1003 and var.subindex > 0:
             # CiA 301: entries above the error count hold no data yet.
             code = rig.read_abort(0x1003, var.subindex)

@@ -57,7 +57,9 @@ the host are lost, and a controller leaving initialization or sleep mode cannot 
 same for 1..400 ms, shorter than the watchdog: the CAN task falls behind while the CAN
 interrupts keep receiving, and catches up), `corrupt` (flips
 a bit of the parameter page), `leds` (the LED history: `led <ms> <run|err> <0|1>` lines,
-then `ok`), `status` (one `status key=value ...` line, then `ok`), `rate <kbit|auto>`.
+then `ok`), `status` (one `status key=value ...` line, then `ok`; `outputs=0x..` the digital
+outputs driven high, bit n = board output n + 1, and `jog=0|1` output 1, "jog live"),
+`rate <kbit|auto>`.
 """
 
 from __future__ import annotations
@@ -537,6 +539,10 @@ class Server:
             "exceptions": m.core.exceptions_taken,
             "tailchains": m.core.tail_chains,
             "nesting": m.core.max_nesting,
+            # The digital outputs driven high (bit n = board output n + 1: 1 is "jog live",
+            # 2..8 are 0x6A00:1 bits 0..6), and "jog live" alone.
+            "outputs": f"{m.outputs():#04x}",
+            "jog": m.outputs() & 1,
         }
 
     # -- the loop -----------------------------------------------------------------------------

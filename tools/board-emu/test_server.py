@@ -5,7 +5,7 @@ moves emulated time on and reads the replies. Needs the release ELF (as test_mac
 import pytest
 
 import server
-from stm32emu import machine
+from stm32emu import machine, periph
 from stm32emu.test_machine import ELF
 
 pytestmark = pytest.mark.skipif(not ELF.exists(), reason=f"no release image at {ELF}")
@@ -253,3 +253,19 @@ def test_the_node_s_frames_reach_the_client_as_lines(board):
     line = slcan_client(s)
     m.run_ms(50)
     assert line.sent.startswith(b"t7101" + b"00\r"), line.sent  # the boot-up of node 16
+
+
+def test_status_reports_the_digital_outputs(board):
+    """`status` has `outputs` (bit n = board output n + 1) and `jog` (output 1, "jog live"):
+    all off after reset; an SDO write of 0x6A00:1 = 0xFF drives outputs 2..8 (bits 0..6; bit
+    7 has no pin) and not "jog live"; a JTAG pin drives nothing until SWJ_CFG releases it."""
+    m, s = board
+    m.run_ms(100)
+    assert (s.status()["outputs"], s.status()["jog"]) == ("0x00", 0)
+    write_outputs = bytes([0x2F, 0x00, 0x62, 0x01, 0xFF, 0, 0, 0])
+    m.deliver(periph.Frame(0x610, write_outputs))  # node 16's SDO server
+    m.run_ms(20)
+    assert (s.status()["outputs"], s.status()["jog"]) == ("0xfe", 0)
+    # PA15, PB3 and PB4 (outputs 2..4) back to JTAG: they no longer drive.
+    m.afio.regs[1] &= ~(0b111 << 24)
+    assert s.status()["outputs"] == "0xf0"

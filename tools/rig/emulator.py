@@ -170,6 +170,12 @@ class Board:
         (line,) = self.control("status")
         return dict(word.split("=", 1) for word in line.split()[1:])
 
+    def outputs(self) -> tuple[int, bool]:
+        """The digital outputs driven high (bit n = board output n + 1: output 1 is "jog
+        live", outputs 2..8 are 0x6A00:1 bits 0..6) and "jog live" alone, from `status`."""
+        status = self.status()
+        return int(status["outputs"], 16), status["jog"] == "1"
+
     def leds(self) -> list[tuple[float, str, bool]]:
         """The LED history: (ms of emulated time, "run" or "err", on)."""
         out = []

@@ -69,6 +69,12 @@ MULT_PINS = {1: 5, 10: 6, 100: 7}  # PA5..PA7, active low
 DIP_PINS = [12, 13, 14, 15, 0, 1, 10, 11]  # PB, switch on = grounded
 RUN_LED = ("C", 13)  # active low
 ERR_LED = ("B", 5)  # active high
+# The board's digital outputs, out 1 first (active high): the "jog live" LED, then
+# 0x6A00:1 bits 0..6 (src/board/pins.rs).
+OUTPUT_PINS = (("A", 8), ("A", 15), ("B", 3), ("B", 4), ("A", 9), ("A", 10), ("B", 2), ("C", 14))
+# JTAG's pins out of reset (JTDI, JTDO, NJTRST): the GPIO drives them only once AFIO's SWJ_CFG
+# has released them (RM0008 9.3.5, table 41).
+JTAG_PINS = {("A", 15), ("B", 3), ("B", 4)}
 # Edges per detent and the time between two edges of `turn` (a brisk hand: 4 detents/10 ms).
 EDGES_PER_DETENT = 4
 EDGE_CYCLES = 600 * cortex.CORE_HZ // 1_000_000  # 600 us
@@ -443,6 +449,18 @@ class Machine:
             if self.led_state[name] != on:
                 self.led_state[name] = on
                 self.leds.append(LedChange(self.ms(), name, on))
+
+    def outputs(self) -> int:
+        """The board's digital outputs driven high now: bit n = output n + 1. A pin drives
+        only as a GPIO output; a JTAG pin only once SWJ_CFG released it."""
+        value = 0
+        for n, (port, bit) in enumerate(OUTPUT_PINS):
+            gpio = self.gpio[port]
+            if (port, bit) in JTAG_PINS and not self.afio.jtag_released():
+                continue
+            if gpio.output_mask() >> bit & gpio.odr >> bit & 1:
+                value |= 1 << n
+        return value
 
     def _on_can_transmit(self, frame: periph.Frame) -> None:
         self.transmitted.append((self.ms(), frame))

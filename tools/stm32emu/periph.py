@@ -146,11 +146,18 @@ class Afio:
         self.regs = [0] * 7  # EVCR, MAPR, EXTICR1..4, (MAPR2 at 0x1C ignored)
 
     def read(self, offset: int) -> int:
+        if offset == 0x04:  # MAPR's SWJ_CFG is write-only: it reads 0 (9.4.2)
+            return self.regs[1] & ~(0b111 << 24)
         return self.regs[offset // 4] if offset < 0x18 else 0
 
     def write(self, offset: int, value: int, mask: int) -> None:
         if offset < 0x18:
             self.regs[offset // 4] = merge(self.regs[offset // 4], value, mask)
+
+    def jtag_released(self) -> bool:
+        """MAPR's SWJ_CFG (bits 24-26) frees PA15, PB3 and PB4 from JTAG: 0b010 (JTAG off,
+        SW-DP on) or 0b100 (both off). Write-only on the chip; the model keeps the value."""
+        return (self.regs[1] >> 24) & 0b111 in (0b010, 0b100)
 
     def port_of_line(self, line: int) -> int:
         return (self.regs[2 + line // 4] >> (4 * (line % 4))) & 0xF

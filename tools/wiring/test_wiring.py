@@ -28,6 +28,7 @@ PEERS = {
     **{f"multiplier {m}": ("S2", m) for m in ("x1", "x10", "x100")},
     **{f"DIP {n}": ("S3", n) for n in range(1, 9)},
     "ERR LED": ("R1", 1),
+    **{f"out {n}": ("X2", n) for n in range(1, 9)},
 }
 # Signals the board itself wires (the RUN LED is the Blue Pill's PC13 LED).
 ON_BOARD = {"RUN LED"}
@@ -47,6 +48,7 @@ OTHER_WIRES = [
     (("X1", "GND"), ("S3", "C")),
     (("R1", 2), ("D1", "A")),
     (("X1", "GND"), ("D1", "K")),
+    (("X1", "GND"), ("X2", "GND")),
 ]
 
 

@@ -90,7 +90,8 @@ struct Field {
     values: Vec<(u32, String)>,
 }
 
-/// The DBC of node `node`: one message per default TPDO, its mapped objects as signals.
+/// The DBC of node `node`: one message per default TPDO and RPDO, its mapped objects as
+/// signals.
 pub fn generate(node: u8) -> Result<String, String> {
     let mut out = String::new();
     let _ = write!(
@@ -98,31 +99,44 @@ pub fn generate(node: u8) -> Result<String, String> {
         "VERSION \"\"\n\n\
          NS_ :\n\tCM_\n\tVAL_\n\n\
          BS_:\n\n\
-         BU_: Handwheel\n"
+         BU_: Handwheel Master\n"
     );
     let mut comments = String::new();
     let mut tables = String::new();
-    for (n, tpdo) in COMM_DEFAULTS.tpdo.iter().enumerate() {
-        let cob_id = tpdo.cob_id_base + u32::from(node);
+    // The device's TPDOs (sent by the handwheel), then its RPDOs (sent by a master).
+    let tpdos = COMM_DEFAULTS.tpdo.iter().enumerate().map(|(n, t)| {
+        let name = format!("TPDO{}", n + 1);
+        (name, t.cob_id_base, t.mapping, "Handwheel")
+    });
+    let rpdos = COMM_DEFAULTS.rpdo.iter().enumerate().map(|(n, r)| {
+        let name = format!("RPDO{}", n + 1);
+        (name, r.cob_id_base, r.mapping, "Master")
+    });
+    for (name, cob_id_base, mapping, sender) in tpdos.chain(rpdos) {
+        let cob_id = cob_id_base + u32::from(node);
         let mut signals = Vec::new();
         let mut offset = 0;
-        for &entry in tpdo.mapping {
+        for &entry in mapping {
             let (index, sub, bits) = ((entry >> 16) as u16, (entry >> 8) as u8, entry & 0xFF);
             signals.extend(signals_of(index, sub, offset, bits)?);
             offset += bits;
         }
         let bytes = offset.div_ceil(8);
-        let name = format!("TPDO{}", n + 1);
-        let _ = write!(out, "\nBO_ {cob_id} {name}: {bytes} Handwheel\n");
+        let _ = write!(out, "\nBO_ {cob_id} {name}: {bytes} {sender}\n");
         for s in &signals {
             let (sign, (low, high)) = if s.signed {
                 ('-', (-(1i64 << (s.bits - 1)), (1i64 << (s.bits - 1)) - 1))
             } else {
                 ('+', (0, (1i64 << s.bits) - 1))
             };
+            let receiver = if sender == "Handwheel" {
+                "Vector__XXX"
+            } else {
+                "Handwheel"
+            };
             let _ = writeln!(
                 out,
-                " SG_ {} : {}|{}@1{sign} (1,0) [{low}|{high}] \"\" Vector__XXX",
+                " SG_ {} : {}|{}@1{sign} (1,0) [{low}|{high}] \"\" {receiver}",
                 s.name, s.start, s.bits
             );
             let _ = writeln!(comments, "CM_ SG_ {cob_id} {} \"{}\";", s.name, s.comment);
@@ -134,8 +148,7 @@ pub fn generate(node: u8) -> Result<String, String> {
                 tables.push_str(" ;\n");
             }
         }
-        let mapped: Vec<String> = tpdo
-            .mapping
+        let mapped: Vec<String> = mapping
             .iter()
             .map(|m| format!("0x{:04X}:{}", m >> 16, (m >> 8) & 0xFF))
             .collect();
@@ -147,8 +160,9 @@ pub fn generate(node: u8) -> Result<String, String> {
     }
     let _ = write!(
         out,
-        "\nCM_ \"The CANopen CNC handwheel's transmit PDOs, written by `cargo xtask dbc` from \
-         the device's object table: change the table, not this file.\";\n{comments}{tables}"
+        "\nCM_ \"The CANopen CNC handwheel's PDOs (its TPDOs, and the RPDOs a master sends it), \
+         written by `cargo xtask dbc` from the device's object table: change the table, not \
+         this file.\";\n{comments}{tables}"
     );
     Ok(out)
 }
@@ -409,11 +423,13 @@ mod tests {
         let five = generate(5).unwrap();
         assert!(five.contains("BO_ 389 TPDO1: 8 Handwheel"));
         assert!(five.contains("BO_ 645 TPDO2: 1 Handwheel"));
+        assert!(five.contains("BO_ 517 RPDO1: 1 Master"));
         assert!(five.contains("VAL_ 389 Multiplier 0 \"x1\" 1 \"x10\" 2 \"x100\" ;"));
         let default = generate(default_node()).unwrap();
         assert_eq!(
             five.replace("389", "400")
                 .replace("645", "656")
+                .replace("517", "528")
                 .replace("node 5", "node 16"),
             default
         );

@@ -131,16 +131,18 @@ SimpleBootUpSlave=1
 Granularity=8
 DynamicChannelsSupported=0
 GroupMessaging=0
-NrOfRXPDO=0
+NrOfRXPDO={}
 NrOfTXPDO={}
 LSS_Supported=1
 
 [DummyUsage]
 ",
+        COMM_DEFAULTS.rpdo.len(),
         COMM_DEFAULTS.tpdo.len()
     );
-    for dummy in 1..=7 {
-        let _ = writeln!(out, "Dummy{dummy:04X}=0");
+    for dummy in 1..=7u16 {
+        let used = u8::from(canopen_slave::rpdo::dummy_size(dummy).is_some());
+        let _ = writeln!(out, "Dummy{dummy:04X}={used}");
     }
     out.push_str("\n[Comments]\nLines=0\n");
 }

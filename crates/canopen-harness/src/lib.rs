@@ -3,7 +3,9 @@
 //! `cargo xtask test` (the `random-frames` binary here, stable).
 //!
 //! It feeds a device arbitrary (time step, frame) sequences, with application activity
-//! (PDO requests, errors raised and cleared, mapped data changing) driven by the same bytes;
+//! (PDO requests, errors raised and cleared, mapped data changing) driven by the same bytes,
+//! and RPDO1 ([`RPDO`]) writing two objects, whose table ranges the application's `write`
+//! asserts were checked;
 //! an input of odd length starts with the second SDO server (0x1201) configured on
 //! [`SDO2_RX`] / [`SDO2_TX`].
 //! It asserts that nothing panics, that every frame the engine must ignore leaves it (and
@@ -12,8 +14,8 @@
 
 use canopen_slave::{
     standard_objects, Access, Application, CommDefaults, Config, DataType, Device, Frame,
-    FrameSink, Identity, Instant, MemoryStorage, NmtState, NodeId, Od, OdEntry, SdoAbort, SinkFull,
-    TpdoDefaults, STANDARD_OBJECTS,
+    FrameSink, Identity, Instant, MemoryStorage, NmtState, NodeId, Od, OdEntry, RpdoDefaults,
+    SdoAbort, SinkFull, TpdoDefaults, STANDARD_OBJECTS,
 };
 
 const NODE: u8 = 0x22;
@@ -21,6 +23,8 @@ const NODE: u8 = 0x22;
 pub const SDO2_RX: u16 = 0x6A2;
 /// See [`SDO2_RX`].
 pub const SDO2_TX: u16 = 0x6B2;
+/// RPDO1's default identifier.
+pub const RPDO: u16 = 0x200 + NODE as u16;
 
 const IDENTITY: Identity = Identity {
     device_type: 0x196,
@@ -36,6 +40,12 @@ const DEFAULTS: CommDefaults = CommDefaults {
     heartbeat_ms: 50,
     heartbeat_consumers: [0x0001_0032, 0],
     emcy_inhibit_100us: 10,
+    rpdo: [RpdoDefaults {
+        cob_id_base: 0x200,
+        transmission_type: 255,
+        event_timer_ms: 30,
+        mapping: &[0x2000_0008, 0x0005_0008, 0x2001_0010],
+    }],
     tpdo: [
         TpdoDefaults {
             cob_id_base: 0x180,
@@ -74,6 +84,8 @@ struct App {
     text: ([u8; 32], usize),
     position: i32,
     events: u32,
+    rpdos: u32,
+    rpdo_timeouts: u32,
 }
 
 impl Application for App {
@@ -115,6 +127,14 @@ impl Application for App {
         self.events += 1;
     }
 
+    fn on_rpdo(&mut self, _pdo: u8) {
+        self.rpdos += 1;
+    }
+
+    fn on_rpdo_timeout(&mut self, _pdo: u8) {
+        self.rpdo_timeouts += 1;
+    }
+
     fn save_application(&self, buf: &mut [u8]) -> usize {
         buf[0] = self.flag;
         1
@@ -145,10 +165,10 @@ impl FrameSink for Sink {
 
 /// `sync`: the SYNC identifier (0x1005, which a write may move, onto an identifier the
 /// second SDO server may have had before); `sdo2`: the second SDO server's request
-/// identifier while 0x1201 makes it valid.
-fn must_ignore(id: u16, dlc: usize, sync: u16, sdo2: Option<u16>) -> bool {
+/// identifier while 0x1201 makes it valid; `rpdo`: RPDO1's while 0x1400:1 makes it valid.
+fn must_ignore(id: u16, dlc: usize, sync: u16, sdo2: Option<u16>, rpdo: Option<u16>) -> bool {
     let sdo = id == 0x600 + u16::from(NODE) || Some(id) == sdo2;
-    let known = id == 0 || id == sync || sdo || (0x701..=0x77F).contains(&id);
+    let known = id == 0 || id == sync || sdo || Some(id) == rpdo || (0x701..=0x77F).contains(&id);
     !known || (id == 0 && dlc != 2) || (sdo && dlc != 8)
 }
 
@@ -207,6 +227,7 @@ pub fn frames(input: &[u8]) -> Outcome {
             2 | 3 => 0x600 + u16::from(NODE),
             4 => 0x700 + u16::from(*id_lo & 0x7F),
             5 => SDO2_RX,
+            6 => RPDO,
             _ => (u16::from(*sel) << 8 | u16::from(*id_lo)) & 0x7FF,
         };
         let dlc = usize::from(*len % 9).min(rest.len());
@@ -238,7 +259,9 @@ pub fn frames(input: &[u8]) -> Outcome {
         let sdo2 = second_sdo(&mut dev, &mut app);
         // Bit 31 means nothing to a SYNC consumer.
         let sync = (cob_id(&mut dev, &mut app, 0x1005, 0) & 0x7FF) as u16;
-        if must_ignore(id, dlc, sync, sdo2.map(|(rx, _)| rx)) {
+        let rpdo = cob_id(&mut dev, &mut app, 0x1400, 1);
+        let rpdo = (rpdo & 0x8000_0000 == 0).then_some((rpdo & 0x7FF) as u16);
+        if must_ignore(id, dlc, sync, sdo2.map(|(rx, _)| rx), rpdo) {
             let (dev_before, app_before) = (dev.clone(), app.clone());
             dev.on_frame(t, &frame, &mut app, &mut tx);
             assert_eq!(
@@ -300,15 +323,18 @@ impl Rng {
 pub const MAX_RECORDS: u64 = 40;
 
 /// Objects a shaped SDO request names: the dictionary's, and one that is not there.
-const INDICES: [u16; 22] = [
+const INDICES: [u16; 24] = [
     0x1000, 0x1001, 0x1003, 0x1005, 0x1008, 0x1010, 0x1011, 0x1014, 0x1015, 0x1016, 0x1017, 0x1018,
-    0x1201, 0x1800, 0x1801, 0x1A00, 0x1A01, 0x2000, 0x2001, 0x2002, 0x6004, 0x1234,
+    0x1201, 0x1400, 0x1600, 0x1800, 0x1801, 0x1A00, 0x1A01, 0x2000, 0x2001, 0x2002, 0x6004, 0x1234,
 ];
 
 /// Values a shaped SDO download carries: signatures of 0x1010 / 0x1011, mapping entries,
 /// COB-IDs (valid, invalid, clashing; the second SDO server's), heartbeat entries, and the
 /// edges of the ranges.
-const VALUES: [u32; 19] = [
+const VALUES: [u32; 22] = [
+    RPDO as u32,
+    0x8000_0000 | RPDO as u32,
+    0x0007_0020,
     SDO2_RX as u32,
     SDO2_TX as u32,
     0x8000_0000 | SDO2_RX as u32,
@@ -391,6 +417,11 @@ pub fn random_input(rng: &mut Rng, buf: &mut Vec<u8>) {
                 4 => {
                     data[0] = rng.pick(&[0x00, 0x04, 0x05, 0x7F]);
                     dlc = 1;
+                }
+                // RPDO1: its mapped length or around it, values in and out of range.
+                6 => {
+                    data[0] = rng.below(3) as u8;
+                    dlc = rng.pick(&[3, 4, 4, 4, 5, 8]);
                 }
                 _ => {}
             }

@@ -1,11 +1,11 @@
-//! The engine: one NMT state machine driving the SDO server, heartbeat, SYNC, TPDO and
-//! EMCY services over the object dictionary. Sans-I/O: frames come in through
+//! The engine: one NMT state machine driving the SDO server, heartbeat, SYNC, RPDO, TPDO
+//! and EMCY services over the object dictionary. Sans-I/O: frames come in through
 //! [`Device::on_frame`], time through every call, frames go out to a [`FrameSink`].
 //!
 //! This file holds the device and its dispatch of frames and time; each service's part of
 //! the engine is a submodule: `nmt` (boot and the one place of NMT transitions),
 //! `objects` (the communication objects, one table row each), `sdo` (the object
-//! dictionary as the SDO server sees it), `pdo` (the TPDO service), `errors` (EMCY,
+//! dictionary as the SDO server sees it), `pdo` (the RPDO and TPDO services), `errors` (EMCY,
 //! bus and heartbeat-loss policy); `objects::params` is 0x1010 store and 0x1011 restore.
 
 mod errors;
@@ -23,6 +23,7 @@ use crate::heartbeat::Heartbeat;
 use crate::lss::{self, LssAction, LssAddress, LssSlave};
 use crate::nmt::{NmtCommand, NmtState};
 use crate::od::{Od, Value};
+use crate::rpdo::{Rpdo, RPDOS};
 use crate::sdo::SdoServer;
 use crate::storage::Storage;
 use crate::sync::SyncConsumer;
@@ -44,6 +45,24 @@ pub trait Application {
     /// and the table's range; the application may still refuse (e.g. 0x06090030, or
     /// 0x08000022 in the wrong device state).
     fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), SdoAbort>;
+
+    /// Whether [`Application::write`] would take `data` for `index:sub` now, without writing
+    /// it: an RPDO is taken whole or not at all, so each of its values is checked here
+    /// (after the table's checks) before any is written. `write` should then not refuse
+    /// what this accepted; if it does, the rest of the frame is not written.
+    fn check_write(&mut self, _index: u16, _sub: u8, _data: &[u8]) -> Result<(), SdoAbort> {
+        Ok(())
+    }
+
+    /// RPDO `pdo` (1-based) was written to its mapped objects (at its reception, or at the
+    /// SYNC after it for the synchronous types).
+    fn on_rpdo(&mut self, _pdo: u8) {}
+
+    /// Deadline monitoring: RPDO `pdo` (1-based) did not come within its event timer
+    /// (0x1400+n:05) in Operational. Called once per timeout; monitoring starts again with
+    /// the next frame. An application that drives outputs from the PDO puts them in a
+    /// safe state here.
+    fn on_rpdo_timeout(&mut self, _pdo: u8) {}
 
     /// Called after every NMT state change.
     fn on_nmt_state(&mut self, _state: NmtState) {}
@@ -159,6 +178,8 @@ pub struct Stats {
     pub emcy_overflow: u16,
     /// TPDO events dropped because a mapped object could not be read.
     pub tpdo_errors: u16,
+    /// RPDO frames not processed: shorter than their mapping, or a value refused.
+    pub rpdo_errors: u16,
 }
 
 /// [`Device::request_tpdo`] was given a PDO number the device does not have.
@@ -186,6 +207,7 @@ struct Inner<S> {
     storage: S,
     tx_refused: u16,
     tpdo_errors: u16,
+    rpdo_errors: u16,
     /// The application was told of a heartbeat loss and not yet of the recovery.
     heartbeat_lost: bool,
 }
@@ -203,7 +225,7 @@ impl<S: Storage> Device<S> {
             revision: identity(3),
             serial: config.serial_number,
         };
-        Self {
+        let mut device = Self {
             sdo: [
                 SdoServer::new(config.sdo_timeout_ms),
                 SdoServer::new(config.sdo_timeout_ms),
@@ -222,6 +244,7 @@ impl<S: Storage> Device<S> {
                     state: NmtState::Initialising,
                     heartbeat: Heartbeat::new(),
                     sync: SyncConsumer::new(),
+                    rpdos: [const { Rpdo::new() }; RPDOS],
                     tpdos: [const { Tpdo::new() }; TPDOS],
                     emcy: Emcy::new(),
                     sdo2: SDO2_DEFAULTS,
@@ -229,9 +252,14 @@ impl<S: Storage> Device<S> {
                 storage,
                 tx_refused: 0,
                 tpdo_errors: 0,
+                rpdo_errors: 0,
                 heartbeat_lost: false,
             },
-        }
+        };
+        // The table's defaults already, so that `rx_filter` before `start` (the filter a
+        // firmware first programs) holds the default RPDO; `start` loads them again.
+        device.inner.comm.load_defaults(Instant::ZERO);
+        device
     }
 
     /// Power-on: loads stored parameters, sends the boot-up frame, enters Pre-operational.
@@ -280,6 +308,8 @@ impl<S: Storage> Device<S> {
                     .heartbeat
                     .on_heartbeat(now, (id - cob::HEARTBEAT) as u8);
             }
+        } else if let Some(pdo) = self.inner.rpdo_on(id) {
+            self.inner.on_rpdo(now, pdo, frame, app);
         } else if self.inner.comm.sync.is_sync(frame) {
             self.inner.on_sync(now, app, tx);
         }
@@ -287,8 +317,8 @@ impl<S: Storage> Device<S> {
         self.inner.settle_heartbeat(app);
     }
 
-    /// Time-driven work: SDO timeout, heartbeat consumers and producer, TPDO event timers
-    /// and inhibit times, queued EMCYs. Call it at [`Device::next_deadline`] at the latest.
+    /// Time-driven work: SDO timeout, heartbeat consumers and producer, RPDO deadline
+    /// monitoring, TPDO event timers and inhibit times, queued EMCYs. Call it at [`Device::next_deadline`] at the latest.
     pub fn poll(&mut self, now: Instant, app: &mut dyn Application, tx: &mut dyn FrameSink) {
         if self.inner.comm.node.is_none() || self.inner.comm.state == NmtState::Initialising {
             return;
@@ -303,6 +333,7 @@ impl<S: Storage> Device<S> {
         if self.inner.comm.heartbeat.beat_due(now) {
             self.inner.send_heartbeat(tx);
         }
+        self.inner.check_rpdo_deadlines(now, app);
         self.inner.service_tpdos(now, app, tx);
         self.inner.service_emcy(now, tx);
     }
@@ -320,6 +351,9 @@ impl<S: Storage> Device<S> {
         next = earliest(next, comm.heartbeat.deadline());
         next = earliest(next, self.lss.deadline());
         if comm.state == NmtState::Operational {
+            for r in &comm.rpdos {
+                next = earliest(next, r.deadline);
+            }
             for t in &comm.tpdos {
                 next = earliest(next, t.deadline());
             }
@@ -360,13 +394,14 @@ impl<S: Storage> Device<S> {
             tx_refused: self.inner.tx_refused,
             emcy_overflow: self.inner.comm.emcy.overflow(),
             tpdo_errors: self.inner.tpdo_errors,
+            rpdo_errors: self.inner.rpdo_errors,
         }
     }
 
     /// The identifiers the device handles now (NMT, SYNC as 0x1005 says, this node's SDO
-    /// requests on both servers, heartbeats). The firmware reprograms its acceptance filter
-    /// whenever this changes, e.g. after a write of 0x1005 or 0x1201 or a reset of
-    /// communication.
+    /// requests on both servers, RPDO1 while it is received, heartbeats). The firmware
+    /// reprograms its acceptance filter whenever this changes, e.g. after a write of 0x1005,
+    /// 0x1201 or 0x1400 or a reset of communication.
     #[must_use]
     #[inline(always)]
     pub fn rx_filter(&self) -> RxFilter {
@@ -378,8 +413,12 @@ impl<S: Storage> Device<S> {
         // and copy it (1 KiB more stack).
         let [rx, tx, _] = comm.sdo2;
         let second = ((rx | tx) & COB_INVALID == 0).then_some(rx as u16);
+        let [rpdo] = &comm.rpdos;
+        let rpdo = rpdo.active().then(|| rpdo.can_id());
         match comm.node {
-            Some(node) => RxFilter::with_sync(node, sync).with_second_sdo(second),
+            Some(node) => RxFilter::with_sync(node, sync)
+                .with_second_sdo(second)
+                .with_rpdo(rpdo),
             None => RxFilter::unconfigured(),
         }
     }

@@ -37,6 +37,15 @@ pub mod register {
 pub mod code {
     /// Heartbeat consumer timeout ("life guard error or heartbeat error").
     pub const HEARTBEAT: u16 = 0x8130;
+    /// An RPDO's mapped values were refused by the dictionary or the application ("protocol
+    /// error - generic": the frame was not processed, for a reason other than its length).
+    pub const RPDO_REFUSED: u16 = 0x8200;
+    /// An RPDO shorter than its mapping ("PDO not processed due to length error").
+    pub const RPDO_SHORT: u16 = 0x8210;
+    /// An RPDO longer than its mapping ("PDO length exceeded"); it was processed.
+    pub const RPDO_LONG: u16 = 0x8220;
+    /// Deadline monitoring: no RPDO within its event timer ("RPDO timeout").
+    pub const RPDO_TIMEOUT: u16 = 0x8250;
 }
 
 /// Why an error could not be raised.

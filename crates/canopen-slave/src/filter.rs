@@ -1,7 +1,8 @@
 //! The identifiers the device listens to, for the CAN controller's acceptance filter.
 //!
 //! Which frames the engine wants depends on configuration a master can change (0x1005 moves
-//! SYNC, 0x1201 opens a second SDO server) and on the node-ID, so the filter is derived from the engine, not written into the
+//! SYNC, 0x1201 opens a second SDO server, 0x1400 moves or disables RPDO1) and on the node-ID,
+//! so the filter is derived from the engine, not written into the
 //! driver: the firmware compares [`Device::rx_filter`](crate::Device::rx_filter) after each
 //! round and reprograms the controller when it changed.
 
@@ -11,7 +12,8 @@ use crate::lss::LSS_REQUEST;
 /// The set of identifiers the engine handles; every other frame may be dropped in hardware.
 ///
 /// NMT (0x000), SYNC (0x1005, 0x080 by default), this node's SDO requests (0x600 + node-ID,
-/// and 0x1201:1 while the second SDO server is valid), every heartbeat 0x700..=0x77F (the
+/// and 0x1201:1 while the second SDO server is valid), RPDO1 (0x1400:1 while it is valid
+/// and maps something), every heartbeat 0x700..=0x77F (the
 /// consumer picks its producers itself, so a change of 0x1016 needs no new filter) and LSS
 /// requests (0x7E5). An unconfigured node ([`RxFilter::unconfigured`]) has no SYNC and no
 /// SDO: NMT, heartbeats and LSS only.
@@ -21,6 +23,7 @@ pub struct RxFilter {
     sync: u16,
     sdo_request: u16,
     second_sdo_request: u16,
+    rpdo: u16,
 }
 
 impl RxFilter {
@@ -29,14 +32,15 @@ impl RxFilter {
         Self::with_sync(node, cob::SYNC)
     }
 
-    /// The filter of an unconfigured node (CiA 305 node-ID 0xFF). Its [`RxFilter::sync`] and
-    /// [`RxFilter::sdo_request`] repeat identifiers that are in the filter anyway (NMT and
+    /// The filter of an unconfigured node (CiA 305 node-ID 0xFF). Its [`RxFilter::sync`],
+    /// [`RxFilter::sdo_request`] and [`RxFilter::rpdo`] repeat identifiers that are in the filter anyway (NMT and
     /// LSS), so that a port can program the same four list entries in every case.
     pub const fn unconfigured() -> Self {
         Self {
             sync: cob::NMT,
             sdo_request: LSS_REQUEST,
             second_sdo_request: LSS_REQUEST,
+            rpdo: LSS_REQUEST,
         }
     }
 
@@ -47,6 +51,7 @@ impl RxFilter {
             sync: sync & MAX_STANDARD_ID,
             sdo_request,
             second_sdo_request: sdo_request,
+            rpdo: sdo_request,
         }
     }
 
@@ -60,6 +65,25 @@ impl RxFilter {
             },
             ..self
         }
+    }
+
+    /// This filter with RPDO1's identifier (0x1400:1, 11 bits; higher bits are ignored), or
+    /// without (`None`: the RPDO is not received).
+    pub const fn with_rpdo(self, rpdo: Option<u16>) -> Self {
+        Self {
+            rpdo: match rpdo {
+                Some(id) => id & MAX_STANDARD_ID,
+                None => self.sdo_request,
+            },
+            ..self
+        }
+    }
+
+    /// RPDO1's identifier while it is received; otherwise a repeat of
+    /// [`RxFilter::sdo_request`], so that a port can program the same list entries in every
+    /// case.
+    pub const fn rpdo(&self) -> u16 {
+        self.rpdo
     }
 
     /// The SYNC identifier.
@@ -101,6 +125,7 @@ impl RxFilter {
             || id == self.sync
             || id == self.sdo_request
             || id == self.second_sdo_request
+            || id == self.rpdo
             || id == LSS_REQUEST
             || id & mask == base
     }
@@ -139,6 +164,20 @@ mod tests {
         let none = f.with_second_sdo(None);
         assert_eq!(none, RxFilter::new(node));
         assert_eq!(none.second_sdo_request(), 0x610);
+    }
+
+    #[test]
+    fn a_received_rpdo_adds_its_identifier() {
+        let node = NodeId::new(16).unwrap();
+        let f = RxFilter::new(node).with_rpdo(Some(0x210));
+        for id in 0..=MAX_STANDARD_ID {
+            let expected = matches!(id, 0x000 | 0x080 | 0x210 | 0x610 | 0x700..=0x77F | 0x7E5);
+            assert_eq!(f.accepts(id), expected, "{id:#05x}");
+        }
+        assert_eq!(f.rpdo(), 0x210);
+        let none = f.with_rpdo(None);
+        assert_eq!(none, RxFilter::new(node));
+        assert_eq!(none.rpdo(), 0x610);
     }
 
     #[test]

@@ -14,6 +14,8 @@ pub mod cob {
     pub const SYNC: u16 = 0x080;
     /// Emergency.
     pub const EMCY: u16 = 0x080;
+    /// First receive PDO.
+    pub const RPDO1: u16 = 0x200;
     /// First transmit PDO.
     pub const TPDO1: u16 = 0x180;
     /// Second transmit PDO.

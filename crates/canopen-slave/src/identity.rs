@@ -52,6 +52,32 @@ impl TpdoDefaults {
     }
 }
 
+/// Defaults of one receive PDO (0x1400+n and 0x1600+n).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct RpdoDefaults {
+    /// COB-ID without the node-ID (0x200 for RPDO1); set bit 31 to disable the PDO.
+    pub cob_id_base: u32,
+    /// 0..=240 (the data takes effect at the next SYNC), 254 or 255 (at once).
+    pub transmission_type: u8,
+    /// Deadline monitoring, ms (0 = off): no frame within it in Operational is EMCY 0x8250.
+    pub event_timer_ms: u16,
+    /// Mapping entries `index << 16 | sub << 8 | bits`, at most 8.
+    pub mapping: &'static [u32],
+}
+
+impl RpdoDefaults {
+    /// RPDO `n` (1-based) of the pre-defined connection set: 0x200 + 0x100 * (n - 1), acting
+    /// at once (255), no deadline monitoring, nothing mapped.
+    pub const fn predefined(n: u8) -> Self {
+        Self {
+            cob_id_base: (cob::RPDO1 as u32) + 0x100 * (n.saturating_sub(1) as u32),
+            transmission_type: 255,
+            event_timer_ms: 0,
+            mapping: &[],
+        }
+    }
+}
+
 /// Defaults of the engine-owned communication parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct CommDefaults {
@@ -61,16 +87,19 @@ pub struct CommDefaults {
     pub heartbeat_consumers: [u32; 2],
     /// 0x1015 EMCY inhibit time, 100 µs units.
     pub emcy_inhibit_100us: u16,
+    /// RPDO1.
+    pub rpdo: [RpdoDefaults; 1],
     /// TPDO1 and TPDO2.
     pub tpdo: [TpdoDefaults; 2],
 }
 
 impl CommDefaults {
-    /// Heartbeat every second, no consumers, no EMCY inhibit, pre-defined TPDOs.
+    /// Heartbeat every second, no consumers, no EMCY inhibit, pre-defined PDOs.
     pub const DEFAULT: Self = Self {
         heartbeat_ms: 1000,
         heartbeat_consumers: [0, 0],
         emcy_inhibit_100us: 0,
+        rpdo: [RpdoDefaults::predefined(1)],
         tpdo: [TpdoDefaults::predefined(1), TpdoDefaults::predefined(2)],
     };
 }

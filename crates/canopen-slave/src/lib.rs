@@ -6,7 +6,7 @@
 //! through the [`Application`] trait.
 //!
 //! Supported: NMT slave, SDO server (expedited and segmented) and a second one configured
-//! through 0x1201, heartbeat producer and two consumers, SYNC consumer, two TPDOs (event-driven and synchronous) with dynamic mapping,
+//! through 0x1201, heartbeat producer and two consumers, SYNC consumer, two TPDOs (event-driven and synchronous) and one RPDO (acting at once or at the next SYNC, with deadline monitoring), with dynamic mapping,
 //! EMCY producer with error history, store/restore of parameters, CiA 303-3 indicators, the
 //! CAN controller's error states as EMCYs and LED codes ([`bus`]), the LSS slave of CiA 305
 //! ([`lss`]: node-ID and bit timing over the bus, fastscan, unconfigured nodes), and helpers to drive the
@@ -76,6 +76,7 @@ mod log;
 
 mod abort;
 mod cob_id;
+mod mapping;
 
 pub mod bus;
 pub mod crc;
@@ -89,6 +90,7 @@ pub mod indicators;
 pub mod lss;
 pub mod nmt;
 pub mod od;
+pub mod rpdo;
 pub mod sdo;
 pub mod storage;
 pub mod sync;
@@ -105,7 +107,7 @@ pub use device::{Application, Config, Device, NoSuchPdo, Stats};
 pub use emcy::EmcyError;
 pub use filter::RxFilter;
 pub use frame::{Frame, FrameError, FrameSink, InvalidNodeId, NodeId, SinkFull};
-pub use identity::{CommDefaults, Identity, TpdoDefaults};
+pub use identity::{CommDefaults, Identity, RpdoDefaults, TpdoDefaults};
 pub use indicators::{indicators, ErrorIndication, Pattern};
 pub use lss::{LssAddress, LssSlave, LssState};
 pub use nmt::{NmtCommand, NmtState};

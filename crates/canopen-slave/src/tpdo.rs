@@ -4,22 +4,17 @@
 use crate::abort::SdoAbort;
 use crate::cob_id::COB_INVALID;
 use crate::frame::MAX_STANDARD_ID;
+use crate::mapping::{split_mapping, PdoMapping};
 use crate::nmt::NmtState;
 use crate::od::{Od, OdEntry};
 use crate::time::Instant;
+
+pub use crate::mapping::MAX_MAPPED;
 
 /// Number of transmit PDOs.
 pub const TPDOS: usize = 2;
 /// COB-ID bit 30: no RTR allowed on this PDO.
 pub const NO_RTR: u32 = 1 << 30;
-/// Most objects one PDO maps.
-pub const MAX_MAPPED: usize = 8;
-
-/// A mapping entry split into (index, sub-index, length in bits).
-pub(crate) const fn split_mapping(entry: u32) -> (u16, u8, u8) {
-    ((entry >> 16) as u16, (entry >> 8) as u8, entry as u8)
-}
-
 /// Checks that `entry` names an object that can go into a TPDO; returns it with its size in
 /// bytes. Only whole objects are mapped: the length must equal the object's size.
 pub(crate) fn check_mapping(od: &Od, entry: u32) -> Result<(&'static OdEntry, usize), SdoAbort> {
@@ -32,6 +27,11 @@ pub(crate) fn check_mapping(od: &Od, entry: u32) -> Result<(&'static OdEntry, us
     Ok((e, size))
 }
 
+/// [`check_mapping`] as the mapping's write check.
+fn check_entry(od: &Od, entry: u32) -> Result<usize, SdoAbort> {
+    check_mapping(od, entry).map(|(_, size)| size)
+}
+
 /// One transmit PDO: its parameters and its transmission state.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub(crate) struct Tpdo {
@@ -39,8 +39,7 @@ pub(crate) struct Tpdo {
     transmission_type: u8,
     inhibit_100us: u16,
     event_timer_ms: u16,
-    mapped: u8,
-    mapping: [u32; MAX_MAPPED],
+    mapping: PdoMapping,
     /// An event (application request, event timer, entry to Operational) awaits sending.
     pending: bool,
     /// No frame of this PDO before this instant (inhibit time, or a retry after a full sink).
@@ -56,8 +55,7 @@ impl Tpdo {
             transmission_type: 255,
             inhibit_100us: 0,
             event_timer_ms: 0,
-            mapped: 0,
-            mapping: [0; MAX_MAPPED],
+            mapping: PdoMapping::new(),
             pending: false,
             hold_until: Instant::ZERO,
             event_at: None,
@@ -71,7 +69,7 @@ impl Tpdo {
 
     /// Whether the PDO exists and has something mapped.
     pub(crate) fn active(&self) -> bool {
-        self.valid() && self.mapped != 0
+        self.valid() && self.mapping.any()
     }
 
     /// Types 254/255: sent on events and on the event timer, subject to the inhibit time.
@@ -91,9 +89,7 @@ impl Tpdo {
 
     /// The active mapping entries.
     pub(crate) fn mapping(&self) -> &[u32] {
-        self.mapping
-            .get(..usize::from(self.mapped))
-            .unwrap_or(&self.mapping)
+        self.mapping.entries()
     }
 
     /// Reads 0x1800+n.
@@ -152,59 +148,18 @@ impl Tpdo {
 
     /// Reads 0x1A00+n.
     pub(crate) fn read_mapping(&self, sub: u8) -> Result<u32, SdoAbort> {
-        if sub == 0 {
-            return Ok(self.mapped.into());
-        }
-        usize::from(sub)
-            .checked_sub(1)
-            .and_then(|i| self.mapping.get(i))
-            .copied()
-            .ok_or(SdoAbort::NoSubIndex)
+        self.mapping.read(sub)
     }
 
-    /// Checked write of 0x1A00+n, enforcing the CiA 301 re-mapping procedure: PDO invalid,
-    /// sub 0 = 0, entries, sub 0 = n.
+    /// Checked write of 0x1A00+n ([`PdoMapping::write`]: objects a TPDO may carry).
     pub(crate) fn write_mapping(&mut self, sub: u8, v: u32, od: &Od) -> Result<(), SdoAbort> {
-        if self.valid() {
-            return Err(SdoAbort::DeviceState);
-        }
-        if sub == 0 {
-            let n = usize::try_from(v).map_err(|_| SdoAbort::ValueTooHigh)?;
-            let entries = self.mapping.get(..n).ok_or(SdoAbort::ValueTooHigh)?;
-            let mut bytes = 0;
-            for &entry in entries {
-                bytes += check_mapping(od, entry)?.1;
-            }
-            if bytes > 8 {
-                return Err(SdoAbort::PdoTooLong);
-            }
-        } else {
-            if self.mapped != 0 {
-                return Err(SdoAbort::DeviceState);
-            }
-            if usize::from(sub) > MAX_MAPPED {
-                return Err(SdoAbort::NoSubIndex);
-            }
-            // 0 clears an entry; anything else must name a mappable object.
-            if v != 0 {
-                check_mapping(od, v)?;
-            }
-        }
-        self.set_mapping(sub, v);
-        Ok(())
+        let valid = self.valid();
+        self.mapping.write(sub, v, valid, od, check_entry)
     }
 
     /// Unchecked write of 0x1A00+n (defaults, stored parameters).
     pub(crate) fn set_mapping(&mut self, sub: u8, v: u32) {
-        if sub == 0 {
-            // Clamped so that a corrupt stored value can never index past the array.
-            self.mapped = (v.min(MAX_MAPPED as u32)) as u8;
-        } else if let Some(m) = usize::from(sub)
-            .checked_sub(1)
-            .and_then(|i| self.mapping.get_mut(i))
-        {
-            *m = v;
-        }
+        self.mapping.set(sub, v);
     }
 
     fn arm_event_timer(&mut self, now: Instant) {

@@ -88,7 +88,10 @@ fn sync_refuses_reserved_and_used_identifiers() {
 fn moved_sync_is_received_on_its_new_identifier_only() {
     let mut b = Bench::operational();
     let node = canopen_slave::NodeId::new(NODE).unwrap();
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(node));
+    assert_eq!(
+        b.dev.rx_filter(),
+        RxFilter::new(node).with_rpdo(Some(RPDO1))
+    );
     // TPDO1 on every SYNC.
     b.download(0x1800, 2, &[1]).unwrap();
     b.download_u32(0x1005, 0, 0x081).unwrap();
@@ -104,7 +107,10 @@ fn moved_sync_is_received_on_its_new_identifier_only() {
     assert_eq!(sent[0].id(), TPDO1);
     // Reset communication brings the default back, and the filter with it.
     b.nmt(0x82, NODE);
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(node));
+    assert_eq!(
+        b.dev.rx_filter(),
+        RxFilter::new(node).with_rpdo(Some(RPDO1))
+    );
 }
 
 #[test]

@@ -46,7 +46,8 @@ fn new_node_id_takes_effect_at_reset_communication() {
     assert_eq!(frames.len(), 1);
     assert_eq!((frames[0].id(), frames[0].data()), (0x709, &[0u8][..]));
     assert_eq!(b.dev.node_id(), NodeId::new(9).ok());
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(NodeId::new(9).unwrap()));
+    let filter = RxFilter::new(NodeId::new(9).unwrap()).with_rpdo(Some(0x209));
+    assert_eq!(b.dev.rx_filter(), filter);
     // The old SDO channel is gone, the new one answers; NMT addresses node 9.
     b.rx(frame(SDO_RX, &req(0x40, 0x1000, 0, [0; 4])));
     assert!(b.take().is_empty());

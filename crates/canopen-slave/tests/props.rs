@@ -7,7 +7,8 @@ use proptest::prelude::*;
 
 /// Frames the device must ignore whatever its state.
 fn must_ignore(id: u16, dlc: usize) -> bool {
-    let known = id == 0 || id == 0x080 || id == SDO_RX || (0x701..=0x77F).contains(&id);
+    let known =
+        id == 0 || id == 0x080 || id == SDO_RX || id == RPDO1 || (0x701..=0x77F).contains(&id);
     !known || (id == 0 && dlc != 2) || (id == SDO_RX && dlc != 8)
 }
 
@@ -16,6 +17,7 @@ fn any_frame() -> impl Strategy<Value = (u16, Vec<u8>)> {
         Just(0u16),
         Just(0x080),
         Just(SDO_RX),
+        Just(RPDO1),
         Just(0x707),
         Just(HB),
         0u16..=0x7FF,
@@ -33,6 +35,8 @@ fn sdo_request() -> impl Strategy<Value = [u8; 8]> {
         Just(0x1014),
         Just(0x1016),
         Just(0x1017),
+        Just(0x1400),
+        Just(0x1600),
         Just(0x1800),
         Just(0x1801),
         Just(0x1A00),

@@ -55,7 +55,10 @@ fn defaults_and_a_channel_that_is_not_valid_answers_nothing() {
     b.download_u32(0x1201, 1, u32::from(SDO2_RX)).unwrap();
     b.rx(frame(SDO2_RX, &request));
     assert_eq!(b.take(), vec![], "0x1201:2 still not valid");
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(node()));
+    assert_eq!(
+        b.dev.rx_filter(),
+        RxFilter::new(node()).with_rpdo(Some(RPDO1))
+    );
 }
 
 #[test]
@@ -298,7 +301,10 @@ fn resets_restore_the_defaults_and_0x1010_does_not_store_them() {
     b.nmt(0x82, NODE);
     b.take();
     assert_eq!(params(&mut b), [INVALID, INVALID, 0]);
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(node()));
+    assert_eq!(
+        b.dev.rx_filter(),
+        RxFilter::new(node()).with_rpdo(Some(RPDO1))
+    );
     b.rx(frame(SDO2_RX, &req(0x40, 0x1000, 0, [0; 4])));
     assert_eq!(
         b.take(),
@@ -320,18 +326,29 @@ fn resets_restore_the_defaults_and_0x1010_does_not_store_them() {
 #[test]
 fn the_acceptance_filter_takes_the_channel_while_it_is_valid() {
     let mut b = Bench::new();
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(node()));
+    assert_eq!(
+        b.dev.rx_filter(),
+        RxFilter::new(node()).with_rpdo(Some(RPDO1))
+    );
     configure(&mut b);
     let filter = b.dev.rx_filter();
     assert_eq!(filter.second_sdo_request(), SDO2_RX);
     assert!(filter.accepts(SDO2_RX));
     assert!(filter.accepts(SDO_RX) && filter.accepts(0x080));
     assert!(!filter.accepts(SDO2_TX), "replies are not received");
-    assert_eq!(filter, RxFilter::new(node()).with_second_sdo(Some(SDO2_RX)));
+    assert_eq!(
+        filter,
+        RxFilter::new(node())
+            .with_rpdo(Some(RPDO1))
+            .with_second_sdo(Some(SDO2_RX))
+    );
     // Not valid when either COB-ID is not.
     b.download_u32(0x1201, 2, INVALID | u32::from(SDO2_TX))
         .unwrap();
-    assert_eq!(b.dev.rx_filter(), RxFilter::new(node()));
+    assert_eq!(
+        b.dev.rx_filter(),
+        RxFilter::new(node()).with_rpdo(Some(RPDO1))
+    );
     assert!(!b.dev.rx_filter().accepts(SDO2_RX));
 }
 

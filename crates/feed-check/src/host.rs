@@ -523,7 +523,7 @@ impl<T: Clone> HostRule<T> {
         }
     }
 
-    /// `core.py`'s `_dated`: a probe sent at most the date limit ago found the successor of
+    /// `frames.py`'s `_undated` (inverted): a probe sent at most the date limit ago found the successor of
     /// `reference` not yet made (`dated_at`). Always, without dating.
     fn dated(&self, reference: &Record, rec: &Record, now_ms: u64) -> bool {
         if !self.config.dating {

@@ -143,7 +143,7 @@ impl FeedAccumulator {
         if detents == 0 {
             return;
         }
-        if !self.enabled || self.selection.axis.is_none() {
+        if !self.takes_motion() {
             self.ignored_detents = self.ignored_detents.wrapping_add(detents.unsigned_abs());
             self.latch(FeedStatus::IGNORED_MOTION);
             return;
@@ -165,6 +165,15 @@ impl FeedAccumulator {
             }
             self.pending_steps = kept;
         }
+    }
+
+    /// Whether a detent taken in now moves the position: the feed is enabled and an axis is
+    /// selected. The one rule [`FeedAccumulator::add_detents`] follows; whatever else keeps
+    /// motion off (NMT state, master loss, a blocked transmit path, the session) does so by
+    /// disabling the feed. The device shows it as "jog live" (object 0x2036 and its LED).
+    #[inline]
+    pub const fn takes_motion(&self) -> bool {
+        self.enabled && self.selection.axis.is_some()
     }
 
     /// Notes an illegal quadrature transition (a status bit, latched for the epoch).

@@ -9,8 +9,9 @@ use handwheel_core::{
 
 use crate::od::{
     stored_slot, Program, StoredParameter, APP_OBJECTS, ENCODER, FEED_DIAGNOSTICS, FEED_ENABLE,
-    FEED_FORMAT, FEED_SESSION, OD, PROGRAM_OBJECTS, SEQUENCE_PROBE, SESSION_KEY, STEP_BYTE, STORED,
-    STORED_BYTES, STORED_LEN, UPTIME, WHEEL_READS, WHEEL_WRITES,
+    FEED_FORMAT, FEED_SESSION, OD, OUTPUTS, OUTPUT_ERROR_MODE, OUTPUT_ERROR_VALUE, PROGRAM_OBJECTS,
+    SEQUENCE_PROBE, SESSION_KEY, STEP_BYTE, STORED, STORED_BYTES, STORED_LEN, UPTIME, WHEEL_READS,
+    WHEEL_WRITES, WRITE_OUTPUTS,
 };
 
 /// Application parameters that 0x1010 stores: everything the integrator configures about
@@ -22,9 +23,20 @@ pub struct WheelParameters {
     bytes: [u8; STORED_BYTES],
 }
 
-/// The application section's first byte: a new [`STORED`] layout needs a new version, so
-/// that an old record reads as another version and is refused.
-const BLOB_VERSION: u8 = 1;
+/// The application section's first byte: a new [`STORED`] layout needs a new version.
+/// Version 2 added the outputs' error mode and value (0x6A06:1, 0x6A07:1).
+const BLOB_VERSION: u8 = 2;
+
+/// How many of [`STORED`]'s parameters each earlier version holds, as its first ones: a new
+/// stored row sorts after the old ones, so an old section is a prefix of the new layout and
+/// restores all it holds, the newer parameters at their defaults. A layout that does not
+/// keep the old rows first needs its own reading here.
+const EARLIER_VERSIONS: [(u8, usize); 1] = [(1, const { stored_slot(FEED_DIAGNOSTICS, 3) } + 1)];
+
+const _: () = assert!(
+    stored_slot(OUTPUT_ERROR_MODE, 1) == EARLIER_VERSIONS[0].1,
+    "version 1's parameters come first, the outputs' after them"
+);
 
 impl WheelParameters {
     /// Factory settings: the stored rows' defaults.
@@ -80,6 +92,14 @@ impl WheelParameters {
         }
     }
 
+    /// 0x6A06:1 and 0x6A07:1: which outputs an error sets, and to what.
+    pub(crate) const fn output_error(&self) -> (u8, u8) {
+        (
+            self.param::<OUTPUT_ERROR_MODE, 1>() as u8,
+            self.param::<OUTPUT_ERROR_VALUE, 1>() as u8,
+        )
+    }
+
     /// Parameter `index:sub` and its size in bytes; `None` for other objects.
     fn get(&self, index: u16, sub: u8) -> Option<(u32, u8)> {
         let k = STORED
@@ -114,28 +134,47 @@ impl WheelParameters {
 
     /// The application section: the version, then each stored parameter in [`STORED`]'s
     /// order, little-endian in its type's size. Returns its length, 0 if `buf` is too short.
+    ///
+    /// The oldest layout that holds every parameter not at its default is written
+    /// ([`EARLIER_VERSIONS`]): with the outputs' error reaction at its defaults, the section
+    /// is the previous firmware's, byte for byte, so a record keeps its size (six to a
+    /// parameter page) and an update stores nothing new.
     fn save(&self, buf: &mut [u8]) -> usize {
-        let section = buf.get_mut(..1 + STORED_BYTES);
-        let Some((version, bytes)) = section.and_then(|s| s.split_first_mut()) else {
+        let (version, len) = EARLIER_VERSIONS
+            .iter()
+            .map(|&(version, held)| (version, STORED[held].offset as usize))
+            .find(|&(_, len)| self.bytes[len..] == Self::DEFAULT.bytes[len..])
+            .unwrap_or((BLOB_VERSION, STORED_BYTES));
+        let section = buf.get_mut(..1 + len);
+        let Some((first, bytes)) = section.and_then(|s| s.split_first_mut()) else {
             return 0;
         };
-        *version = BLOB_VERSION;
-        bytes.copy_from_slice(&self.bytes);
-        1 + STORED_BYTES
+        *first = version;
+        bytes.copy_from_slice(&self.bytes[..len]);
+        1 + len
     }
 
     /// The parameters of a stored section, each checked as its SDO write is, or the first
     /// object whose value that write refuses (0x1010:3, the application's section, for a
     /// section of another version or length).
+    /// A section of an earlier version restores the parameters it holds, the rest keep their
+    /// defaults ([`EARLIER_VERSIONS`]).
     fn load(blob: &[u8]) -> Result<Self, (u16, u8)> {
         let whole = (0x1010, 3);
-        let Some((&BLOB_VERSION, mut rest)) = blob.split_first() else {
+        let Some((&version, mut rest)) = blob.split_first() else {
             return Err(whole);
+        };
+        let held = match version {
+            BLOB_VERSION => STORED_LEN,
+            _ => {
+                let earlier = EARLIER_VERSIONS.iter().find(|&&(v, _)| v == version);
+                earlier.ok_or(whole)?.1
+            }
         };
         let mut p = Self::DEFAULT;
         for &StoredParameter {
             index, sub, size, ..
-        } in &STORED
+        } in &STORED[..held]
         {
             let (bytes, tail) = rest.split_at_checked(usize::from(size)).ok_or(whole)?;
             let value = OD
@@ -195,6 +234,8 @@ pub struct FeedApp {
     pub(crate) young: bool,
     /// 0x2035: milliseconds since the device started (wrapping).
     pub(crate) uptime_ms: u32,
+    /// 0x6A00:1: the digital outputs as driven (bit n = output n + 1 of CiA 401's numbering).
+    pub(crate) outputs: u8,
     /// The bug the feed checker's mutation tests run, if any.
     #[cfg(feature = "mutants")]
     pub(crate) mutant: Option<crate::mutant::Mutant>,
@@ -216,6 +257,7 @@ impl FeedApp {
             start_confirmed: false,
             young: true,
             uptime_ms: 0,
+            outputs: 0,
             #[cfg(feature = "mutants")]
             mutant: None,
         }
@@ -253,6 +295,10 @@ impl<W: Wheel> Application for AppContext<'_, W> {
             .any(|&(i, s, p)| (i, s, p) == (index, sub, Program::Control))
         {
             return self.program_control(value);
+        }
+        if (index, sub) == OUTPUTS {
+            self.app.outputs = value as u8;
+            return Ok(());
         }
         if let Some(route) = WHEEL_WRITES
             .iter()
@@ -298,9 +344,20 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         {
             return;
         }
+        // The outputs and their error reaction are the CNC's, apart from the feed: a master
+        // drives them all the time, and none of them shapes motion.
         if !matches!(
             index,
-            FEED_ENABLE | FEED_SESSION | SEQUENCE_PROBE | SESSION_KEY | 0x1003 | 0x1010 | 0x1011
+            FEED_ENABLE
+                | FEED_SESSION
+                | SEQUENCE_PROBE
+                | SESSION_KEY
+                | 0x1003
+                | 0x1010
+                | 0x1011
+                | WRITE_OUTPUTS
+                | OUTPUT_ERROR_MODE
+                | OUTPUT_ERROR_VALUE
         ) {
             self.end_session();
         }
@@ -315,6 +372,9 @@ impl<W: Wheel> Application for AppContext<'_, W> {
         if state == NmtState::Operational {
             self.wheel.lock(|w| w.feed.start_records());
         } else {
+            if state == NmtState::Stopped {
+                self.output_error_reaction();
+            }
             self.stop(StopReason::NotOperational);
             #[cfg(feature = "mutants")]
             if self.mutant(crate::mutant::Mutant::NmtStopKeepsHeld) {
@@ -330,8 +390,14 @@ impl<W: Wheel> Application for AppContext<'_, W> {
     }
 
     fn on_heartbeat_lost(&mut self, _node_id: u8) {
+        self.output_error_reaction();
         self.app.master_lost = true;
         self.stop(StopReason::MasterLost);
+    }
+
+    fn on_rpdo_timeout(&mut self, _pdo: u8) {
+        // The master's outputs stopped coming: CiA 401's error reaction, as on master loss.
+        self.output_error_reaction();
     }
 
     fn on_heartbeat_restored(&mut self) {
@@ -458,6 +524,7 @@ impl<W: Wheel> AppContext<'_, W> {
             Some(parameter) => parameter,
             None if (index, sub) == STEP_BYTE => (app.step_byte.into(), 1),
             None if (index, sub) == UPTIME => (app.uptime_ms, 4),
+            None if (index, sub) == OUTPUTS => (app.outputs.into(), 1),
             None if index & 0xFFF0 == 0x1F50 => {
                 let &(.., program) = PROGRAM_OBJECTS
                     .iter()
@@ -552,6 +619,16 @@ impl<W: Wheel> AppContext<'_, W> {
         });
     }
 
+    /// CiA 401's error reaction: every output whose 0x6A06:1 bit is set takes its 0x6A07:1
+    /// bit; the others keep theirs. The outputs stay so until a master writes 0x6A00:1
+    /// again: a recovery (the master's heartbeat back, Operational again) changes nothing.
+    /// Called on the master's heartbeat lost, on NMT Stopped and when an RPDO misses its
+    /// deadline (0x1400:05, `Application::on_rpdo_timeout`).
+    pub(crate) fn output_error_reaction(&mut self) {
+        let (mode, value) = self.app.parameters.output_error();
+        self.app.outputs = self.app.outputs & !mode | value & mode;
+    }
+
     fn end_session(&mut self) {
         self.wheel.change(|w| w.feed.set_session(0));
     }
@@ -593,10 +670,46 @@ mod tests {
         };
         assert_eq!(p.decoder(), decoder);
         // The layout of the records already in the field: version 1, 0x2001, 0x2020:3,
-        // 0x2020:4, 0x2040:3 (little-endian U16).
+        // 0x2020:4, 0x2040:3 (little-endian U16), while the outputs' parameters are at their
+        // defaults.
         assert_eq!(save(p), [1, 1, 2, 1, 0x2C, 0x01]);
         assert_eq!(WheelParameters::load(&save(p)), Ok(p));
-        assert_eq!(p.save(&mut [0; 5]), 0, "a short buffer takes nothing");
+        // Version 2 adds 0x6A06:1 and 0x6A07:1.
+        p.set(0x6A07, 1, 0x80).unwrap();
+        assert_eq!(save(p), [2, 1, 2, 1, 0x2C, 0x01, 0xFF, 0x80]);
+        assert_eq!(WheelParameters::load(&save(p)), Ok(p));
+        assert_eq!(p.save(&mut [0; 7]), 0, "a short buffer takes nothing");
+    }
+
+    #[test]
+    fn a_section_the_previous_firmware_stored_restores_all_it_holds() {
+        // Version 1, as the firmware before the outputs stored it: the unit-step format,
+        // 2 counts per detent, inverted, a backlog bound of 300.
+        let old = [1, 1, 2, 1, 0x2C, 0x01];
+        let p = WheelParameters::load(&old).unwrap();
+        assert!(p.unit_steps());
+        assert_eq!(p.decoder().counts_per_detent, CountsPerDetent::Two);
+        assert!(p.decoder().invert);
+        assert_eq!(p.get(0x2040, 3), Some((300, 2)));
+        assert_eq!(p.output_error(), (0xFF, 0x00), "the outputs' defaults");
+        // Checked as before, and only its own length.
+        assert_eq!(
+            WheelParameters::load(&[1, 0, 3, 0, 40, 0]),
+            Err((0x2020, 3))
+        );
+        assert_eq!(WheelParameters::load(&old[..5]), Err((0x1010, 3)));
+        let v1_with_v2_length = [1, 1, 2, 1, 0x2C, 0x01, 0xFF, 0];
+        assert_eq!(WheelParameters::load(&v1_with_v2_length), Err((0x1010, 3)));
+        assert_eq!(
+            WheelParameters::load(&[3, 0, 4, 0, 40, 0, 0xFF, 0]),
+            Err((0x1010, 3))
+        );
+        // Saved again as it was; with an error mode of its own, as version 2.
+        assert_eq!(save(p), old);
+        let mut q = p;
+        q.set(0x6A06, 1, 0x0F).unwrap();
+        assert_eq!(save(q), [2, 1, 2, 1, 0x2C, 0x01, 0x0F, 0]);
+        assert_eq!(WheelParameters::load(&save(q)), Ok(q));
     }
 
     #[test]
@@ -632,10 +745,13 @@ mod tests {
 
     #[test]
     fn bad_blobs_are_refused_naming_the_object() {
-        let good = save(WheelParameters::DEFAULT);
-        assert_eq!(good, [1, 0, 4, 0, 40, 0]);
+        assert_eq!(save(WheelParameters::DEFAULT), [1, 0, 4, 0, 40, 0]);
+        let mut p = WheelParameters::DEFAULT;
+        p.set(0x6A06, 1, 0).unwrap();
+        let good = save(p);
+        assert_eq!(good, [2, 0, 4, 0, 40, 0, 0, 0]);
         let bad = [
-            (0, 2, (0x1010, 3)),
+            (0, 3, (0x1010, 3)),
             (1, 2, (0x2001, 0)),
             (2, 3, (0x2020, 3)),
             (2, 5, (0x2020, 3)),
@@ -654,7 +770,7 @@ mod tests {
         let mut above = good.clone();
         above[4..6].copy_from_slice(&1001u16.to_le_bytes());
         assert_eq!(WheelParameters::load(&above), Err((0x2040, 3)));
-        assert_eq!(WheelParameters::load(&good[..5]), Err((0x1010, 3)));
+        assert_eq!(WheelParameters::load(&good[..7]), Err((0x1010, 3)));
         assert_eq!(
             WheelParameters::load(&[good.as_slice(), &[0]].concat()),
             Err((0x1010, 3))

@@ -43,6 +43,17 @@ pub struct TransmitState {
     pub ran_empty: bool,
 }
 
+/// The board's digital outputs as the device decides them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct DigitalOutputs {
+    /// "Jog live" (0x2036): a detent turned now moves the feed position. The device's own
+    /// output (board output 1), which no object a master writes drives.
+    pub jog_live: bool,
+    /// 0x6A00:1 as driven: the CNC's outputs, bit n = the object's output n + 1 (the board
+    /// has pins for bits 0..6, as its outputs 2..8).
+    pub written: u8,
+}
+
 /// Notices a transmit path that has not run empty for [`TRANSMIT_STALL_MS`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 struct StallWatch {
@@ -356,6 +367,16 @@ impl<S: Storage> HandwheelDevice<S> {
     #[inline(always)]
     pub fn rx_filter(&self) -> RxFilter {
         self.engine.rx_filter()
+    }
+
+    /// The digital outputs to drive now: "jog live" from the wheel's own rule
+    /// ([`FeedAccumulator::takes_motion`](handwheel_core::FeedAccumulator::takes_motion)) and
+    /// 0x6A00:1 as the master wrote it or an error reaction left it.
+    pub fn digital_outputs(&self, wheel: &mut impl Wheel) -> DigitalOutputs {
+        DigitalOutputs {
+            jog_live: wheel.lock(|w| w.feed.takes_motion()),
+            written: self.app.outputs,
+        }
     }
 
     /// NMT state.

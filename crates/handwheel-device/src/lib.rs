@@ -45,7 +45,7 @@ pub mod rate_switch;
 pub mod record;
 
 pub use app::WheelParameters;
-pub use device::{HandwheelDevice, TransmitState, EMCY_ENCODER, TRANSMIT_STALL_MS};
+pub use device::{DigitalOutputs, HandwheelDevice, TransmitState, EMCY_ENCODER, TRANSMIT_STALL_MS};
 pub use duties::{Duties, Sample};
 pub use node::{CanIo, LogEvents, Node, Outputs};
 pub use rate_switch::RateSwitch;

@@ -4,7 +4,7 @@
 //! [`Node::poll`] takes the time, the CAN port ([`CanIo`]: received frames, the controller's
 //! error state, lost frames, the transmit path's state, the bit-rate switch's steps; frames go
 //! out through its [`FrameSink`]), the switch lines and the wheel, does one round and returns
-//! [`Outputs`]: the LED levels, the acceptance filter to program, what to log and how long the
+//! [`Outputs`]: the LED and digital output levels, the acceptance filter to program, what to log and how long the
 //! caller may sleep. The caller polls again when that time is up or an interrupt raised an
 //! event, whichever comes first; polling earlier is always allowed.
 //!
@@ -22,16 +22,17 @@
 //! old one), the bus state, lost frames and illegal quadrature transitions (the engine decides
 //! the EMCYs), the device's time-driven work, the transmit path's stall watch, an LSS
 //! bit-rate switch (one step per round), the acceptance filter (when a write of 0x1005 or a
-//! reset of communication moved SYNC), the LEDs. The round runs at its `now_ms`, except the
-//! stall watch, which dates the transmit path's state when the port read it
-//! ([`CanIo::dated_transmit_state`]).
+//! reset of communication moved SYNC), the LEDs, then the digital outputs (every round, so
+//! that an error reaction reaches the pins in the round that learnt of the error). The round
+//! runs at its `now_ms`, except the stall watch, which dates the transmit path's state when
+//! the port read it ([`CanIo::dated_transmit_state`]).
 
 use canopen_slave::{BusEvent, BusState, Frame, FrameSink, RxFilter, Storage, WideClock};
 use handwheel_core::{BitRate, Intake, Selection, SelectorInput, Wheel};
 
 use crate::duties::{Duties, RECOVERY_POLL_MS};
 use crate::rate_switch::RateSwitch;
-use crate::{HandwheelDevice, TransmitState};
+use crate::{DigitalOutputs, HandwheelDevice, TransmitState};
 
 /// The CAN port as the step function sees it; frames go out through its [`FrameSink`].
 pub trait CanIo: FrameSink {
@@ -88,6 +89,9 @@ pub struct LogEvents {
 pub struct Outputs {
     /// The RUN and ERR LED levels, when they are due.
     pub leds: Option<(bool, bool)>,
+    /// The digital outputs' levels, every round: all off until the device has started, so
+    /// that an error reaction or a write reaches the pins in the round that made it.
+    pub digital: DigitalOutputs,
     /// The acceptance filter to program, when the device's identifiers changed.
     pub rx_filter: Option<RxFilter>,
     /// How long the caller may sleep, from the `now_ms` of the round, before the next one.
@@ -190,6 +194,7 @@ impl<S: Storage> Node<S> {
         } else {
             self.round(now_ms, io, switches, wheel, &mut out);
         }
+        out.digital = self.device.digital_outputs(wheel);
         let now = self.clock.now(now_ms);
         // A feed record made due after the device's last service (a transmit stall's stop)
         // goes out in the next round, at once.

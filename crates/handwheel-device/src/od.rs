@@ -65,6 +65,11 @@ pub const SESSION_KEY: u16 = 0x2034;
 /// 49.7 days. A master that read it before can tell that no power cycle came since: a new
 /// life's uptime is never more than the time since.
 pub const DEVICE_UPTIME: u16 = 0x2035;
+/// Jog live: U8 ro, mappable, 1 exactly when a detent turned now moves the feed position
+/// (the feed enabled and an axis selected: `FeedAccumulator::takes_motion`, the rule the
+/// accumulator itself follows), else 0. The device drives its "jog live" LED (board output 1)
+/// from it; the CNC's outputs (0x6A00) never reach that LED.
+pub const JOG_LIVE: u16 = 0x2036;
 
 /// A session opens (0x2002 = 1..7) only this long after the device started: a record of a
 /// new power life never carries a session within this of the life's start, longer than the
@@ -78,6 +83,21 @@ pub const FEED_DIAGNOSTICS: u16 = 0x2040;
 /// gives an encoder's position, kept so that TPDO1's mapping (0x60040020) stays the same; the
 /// device claims no profile (0x1000 = 0, see docs/CONFORMANCE.md).
 pub const POSITION_VALUE: u16 = 0x6004;
+/// Write output 8-bit, sub 1: U8 rw, PDO-mappable, 0 after power-on and reset node; bit n is
+/// digital output n + 1 (board outputs 2..8 carry bits 0..6, bit 7 has no pin). CiA 401's
+/// "write output 8-bit" (0x6200) at the second logical device's place (CiA 301: +0x800), not
+/// at 0x6200 itself, which CiA 406 (whose position value 0x6004 is kept) gives its cyclic
+/// timer; no profile is claimed (0x1000 = 0, docs/CONFORMANCE.md). It reads the outputs as
+/// driven: after an error reaction (0x6A06, 0x6A07) the value the
+/// reaction left, until a master writes it again.
+pub const WRITE_OUTPUTS: u16 = 0x6A00;
+/// Error mode output 8-bit, sub 1: U8 rw, stored by 0x1010, default 0xFF. Bit n set: on an
+/// error (master heartbeat lost, NMT Stopped, an RPDO deadline missed) output n + 1 takes
+/// its bit of 0x6A07; clear: it keeps its value. CiA 401's 0x6206 at +0x800.
+pub const OUTPUT_ERROR_MODE: u16 = 0x6A06;
+/// Error value output 8-bit, sub 1: U8 rw, stored by 0x1010, default 0: the value each
+/// output whose 0x6A06 bit is set takes on an error. CiA 401's 0x6207 at +0x800.
+pub const OUTPUT_ERROR_VALUE: u16 = 0x6A07;
 
 /// Largest settable unit-step backlog: 1000 steps are 2 s of run-on at the default pacing,
 /// the most any integrator could want from a compatibility mode.
@@ -125,6 +145,11 @@ pub const COMM_DEFAULTS: CommDefaults = CommDefaults {
     heartbeat_ms: 1000,
     heartbeat_consumers: [0, 0],
     emcy_inhibit_100us: 0,
+    // RPDO1 on 0x200 + node-ID drives the CiA 401 digital outputs (0x6A00:1), acting at once.
+    rpdo: [canopen_slave::RpdoDefaults {
+        mapping: &[0x6A00_0108],
+        ..canopen_slave::RpdoDefaults::predefined(1)
+    }],
     tpdo: [
         TpdoDefaults {
             cob_id_base: 0x180,
@@ -171,6 +196,9 @@ pub enum Behaviour {
     Program(Program),
     /// The device's uptime, which the device keeps from its start.
     Uptime,
+    /// 0x6A00:1, the digital outputs as driven, which the device keeps: a write sets them,
+    /// an error reaction changes them.
+    Outputs,
     /// Read from the wheel under its lock and, if writable, written there.
     Wheel {
         /// The value.
@@ -483,6 +511,10 @@ pub const APP_OBJECTS: &[AppObject] = {
                     .map_err(|_| SdoAbort::DeviceState)
             }),
         O::new(DEVICE_UPTIME, 0, "Device uptime", U32, Behaviour::Uptime),
+        O::wheel(JOG_LIVE, 0, "Jog live", U8, |_, wheel| {
+            wheel.feed.takes_motion().into()
+        })
+        .mappable(),
         O::record(FEED_DIAGNOSTICS, "Feed diagnostics", 3),
         O::wheel(FEED_DIAGNOSTICS, 1, "Ignored detents", U32, |_, wheel| {
             wheel.feed.ignored_detents()
@@ -501,12 +533,28 @@ pub const APP_OBJECTS: &[AppObject] = {
             state.position as u32
         })
         .mappable(),
+        O::array(WRITE_OUTPUTS, "Write output 8-bit", 1),
+        O::new(
+            WRITE_OUTPUTS,
+            1,
+            "Write outputs 1 to 8",
+            U8,
+            Behaviour::Outputs,
+        )
+        .writable()
+        .mappable(),
+        O::array(OUTPUT_ERROR_MODE, "Error mode output 8-bit", 1),
+        O::stored(OUTPUT_ERROR_MODE, 1, "Error mode outputs 1 to 8", U8)
+            .writable()
+            .default(0xFF),
+        O::array(OUTPUT_ERROR_VALUE, "Error value output 8-bit", 1),
+        O::stored(OUTPUT_ERROR_VALUE, 1, "Error value outputs 1 to 8", U8).writable(),
     ]
 };
 
 /// Notes the EDS carries before an object's section: what a master must know beyond the
 /// object's type and limits.
-pub const EDS_NOTES: [(u16, &str); 9] = [
+pub const EDS_NOTES: [(u16, &str); 11] = [
     (
         PROGRAM_CONTROL,
         "0x1F51:1 program control (CiA 302-3): 0 (stop) resets into the resident loader, which
@@ -538,8 +586,9 @@ other (see 0x1010 above for when it is refused).",
         "A master opens its session by writing 1..7 last in its configuration; every feed record
 carries it (0x2030 bits 5-7). A change of it is a new selection epoch with the feed off. The
 device ends it (0) at power-on, reset node and reset communication, at any successful SDO
-write other than to 0x2000, 0x2002, 0x2033, 0x2034, 0x1003, 0x1010 and 0x1011, and when the
-feed sequence outruns its pace (64 numbers at once, then one per ms): README \"Feed record\".
+write other than to 0x2000, 0x2002, 0x2033, 0x2034, 0x1003, 0x1010, 0x1011 and the outputs'
+0x6A00, 0x6A06, 0x6A07, and when the feed sequence outruns its pace (64 numbers at once, then
+one per ms): README \"Feed record\".
 A session opens only 0.5 s after the device started (earlier: abort 0x08000022).",
     ),
     (
@@ -570,11 +619,30 @@ record numbered n or later was made after it sent the write, in the session it o
 README \"The contract\".",
     ),
     (
+        JOG_LIVE,
+        "1 exactly when a detent turned now moves the feed position (0x6004): the feed enabled
+(0x2000 = 1, which also means Operational, the master's heartbeat present and the transmit
+path draining) and an axis selected, in either feed format. Board output 1, the \"jog live\"
+LED, shows it; 0x6A00 never drives that output.",
+    ),
+    (
         SESSION_KEY,
         "Written by the master that opened the session, right after 0x2002 (refused with
 0x08000022 while no session is open); 0 again whenever the session changes or ends. The
 master's probes (0x2033) carry it, so a session someone else opened with the same token is
 never taken for its own. Write-only, so that no tool saves it.",
+    ),
+    (
+        WRITE_OUTPUTS,
+        "0x6A00, 0x6A06, 0x6A07 are CiA 401's 0x6200, 0x6206, 0x6207 at the second logical
+device's place (+0x800), clear of CiA 406's 0x6200 (cyclic timer); the device claims no
+profile (0x1000 = 0). 0x6A00:1 bit n drives board output n + 2 (bits 0..6; bit 7 has no pin)
+and reads the outputs as driven. On an error (the master's heartbeat lost, NMT Stopped, an
+RPDO deadline missed) every output whose 0x6A06:1 bit is set takes its 0x6A07:1 bit, in the
+round that learns of it, and keeps it until a master writes 0x6A00:1 again; a recovery
+changes nothing. Reset communication keeps the outputs; reset node and power-on set them to
+0. 0x6A06:1 (default 0xFF) and 0x6A07:1 (default 0) are stored by 0x1010. Writes of these
+objects keep the feed session.",
     ),
 ];
 
@@ -598,7 +666,7 @@ const HANDWHEEL: [OdEntry; APP_OBJECTS.len()] = {
             );
         }
         let written = match o.behaviour {
-            Behaviour::Stored | Behaviour::Program(Program::Control) => true,
+            Behaviour::Stored | Behaviour::Program(Program::Control) | Behaviour::Outputs => true,
             Behaviour::Wheel { write, .. } => write.is_some(),
             Behaviour::Header | Behaviour::UnitStep | Behaviour::Program(_) | Behaviour::Uptime => {
                 false
@@ -825,6 +893,25 @@ pub(crate) const STEP_BYTE: (u16, u8) = {
     match found {
         Some(key) => key,
         None => panic!("no unit-step byte"),
+    }
+};
+
+/// The digital outputs: the one row of [`Behaviour::Outputs`].
+pub(crate) const OUTPUTS: (u16, u8) = {
+    let mut found = None;
+    let mut i = 0;
+    while i < APP_OBJECTS.len() {
+        let o = &APP_OBJECTS[i];
+        if let Behaviour::Outputs = o.behaviour {
+            assert!(found.is_none(), "one set of outputs");
+            assert!(size(o) == 1, "the outputs are one byte");
+            found = Some((o.index, o.sub));
+        }
+        i += 1;
+    }
+    match found {
+        Some(key) => key,
+        None => panic!("no outputs"),
     }
 };
 

@@ -134,7 +134,7 @@ fn eds_limits_are_the_limits_the_device_enforces() {
     let eds = eds_entries();
     let mut b = Bench::new();
     // Mapping counts can only be written while the PDO is invalid (CiA 301 procedure).
-    for cob in [0x1800u16, 0x1801] {
+    for cob in [0x1400u16, 0x1800, 0x1801] {
         let id = b.read_u32(cob, 1) | 0x8000_0000;
         b.sdo_write(cob, 1, &id.to_le_bytes()).unwrap();
     }

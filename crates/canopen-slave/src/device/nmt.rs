@@ -1,6 +1,6 @@
 //! NMT: initialisation (power-on, reset node, reset communication) and the one place where
 //! the NMT state changes. Each service's reaction to a new state is its own
-//! (`on_nmt_state` of the SDO server, EMCY, heartbeat and TPDOs); this module only calls
+//! (`on_nmt_state` of the SDO server, EMCY, heartbeat, RPDOs and TPDOs); this module only calls
 //! them in order.
 
 use super::objects::params::blob::Blob;
@@ -9,7 +9,7 @@ use crate::frame::{cob, Frame, FrameSink};
 use crate::nmt::{NmtCommand, NmtState};
 use crate::storage::Storage;
 use crate::time::Instant;
-use crate::tpdo;
+use crate::{rpdo, tpdo};
 
 /// Why the device (re)initialises.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -58,6 +58,7 @@ impl<S: Storage> Device<S> {
             server.on_nmt_state(next);
         }
         comm.emcy.on_nmt_state(next);
+        rpdo::on_nmt_state(&mut comm.rpdos, next);
         tpdo::on_nmt_state(&mut comm.tpdos, next, now);
         app.on_nmt_state(next);
         if comm.heartbeat.on_nmt_state(prev, next, now) {
@@ -76,6 +77,8 @@ impl<S: Storage> Device<S> {
         tx: &mut dyn FrameSink,
     ) {
         self.set_state(now, NmtState::Initialising, app, tx);
+        // The RPDOs start over with their stored parameters: their errors end here.
+        self.inner.clear_rpdo_faults();
         // Also at power-on, when the state was Initialising already.
         for server in &mut self.sdo {
             server.reset();

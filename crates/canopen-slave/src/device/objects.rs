@@ -17,12 +17,14 @@ use crate::emcy::Emcy;
 use crate::frame::{cob, NodeId, MAX_STANDARD_ID};
 use crate::heartbeat::Heartbeat;
 use crate::identity::{CommDefaults, Identity};
+use crate::mapping::MAX_MAPPED;
 use crate::nmt::NmtState;
 use crate::od::{Access, DataType, ObjectCode, Od, OdEntry, Value};
+use crate::rpdo::{Rpdo, RPDOS};
 use crate::storage::Storage;
 use crate::sync::SyncConsumer;
 use crate::time::Instant;
-use crate::tpdo::{Tpdo, MAX_MAPPED, NO_RTR, TPDOS};
+use crate::tpdo::{Tpdo, NO_RTR, TPDOS};
 
 /// The NMT state and the services behind the communication objects.
 #[derive(Clone, Debug, PartialEq, Hash)]
@@ -36,6 +38,7 @@ pub(super) struct Comm {
     pub(super) state: NmtState,
     pub(super) heartbeat: Heartbeat,
     pub(super) sync: SyncConsumer,
+    pub(super) rpdos: [Rpdo; RPDOS],
     pub(super) tpdos: [Tpdo; TPDOS],
     pub(super) emcy: Emcy,
     /// 0x1201:1..3, the second SDO server's parameters: COB-ID client to server, COB-ID
@@ -56,15 +59,15 @@ pub(super) struct Refused {
     pub(super) abort: SdoAbort,
 }
 
-/// Whether `(index, sub)` is a COB-ID that may not change while valid (EMCY, TPDOs): a
+/// Whether `(index, sub)` is a COB-ID that may not change while valid (EMCY, PDOs): a
 /// restore gives these up first and sets them last, as a master re-configuring them does.
 fn guarded_cob_id(index: u16, sub: u8) -> bool {
-    index == 0x1014 || (index & 0xFE00 == 0x1800 && sub == 1)
+    index == 0x1014 || (matches!(index & 0xFE00, 0x1400 | 0x1800) && sub == 1)
 }
 
-/// Whether `index` is a TPDO mapping object.
+/// Whether `index` is a PDO mapping object.
 fn mapping_object(index: u16) -> bool {
-    index & 0xFE00 == 0x1A00
+    matches!(index & 0xFE00, 0x1600 | 0x1A00)
 }
 
 /// What a checked write may need besides the objects.
@@ -91,6 +94,7 @@ type Restore = fn(&mut Comm, u16, u8, u32, Instant);
 pub struct CommObject {
     first: u16,
     last: u16,
+    group: Group,
     /// CiA 301's name; a PDO range's carries its PDO's number after the first word
     /// ([`ObjectName`]).
     name: &'static str,
@@ -108,7 +112,7 @@ impl CommObject {
     pub const fn name(&self, index: u16) -> ObjectName {
         ObjectName {
             text: self.name,
-            number: if self.first == self.last {
+            number: if matches!(self.group, Group::Single) {
                 None
             } else {
                 Some(index.wrapping_sub(self.first).wrapping_add(1))
@@ -146,6 +150,29 @@ impl core::fmt::Display for ObjectName {
     }
 }
 
+/// Whether a row is one object or a PDO range's, one object per PDO of its direction.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Group {
+    Single,
+    Rpdo,
+    Tpdo,
+}
+
+impl Group {
+    /// How many objects a row of this group stands for.
+    const fn objects(self) -> usize {
+        match self {
+            Self::Single => 1,
+            Self::Rpdo => RPDOS,
+            Self::Tpdo => TPDOS,
+        }
+    }
+}
+
+/// The groups in the order their stored parameters were added to the blob: a later group's
+/// go after an earlier one's, so that a blob of an older layout is a prefix of today's.
+const BLOB_ORDER: [Group; 3] = [Group::Single, Group::Tpdo, Group::Rpdo];
+
 /// The communication object of `index` (the PDO ranges' row for any of their indices), for
 /// configuration tools: the engine finds its objects through `ROUTES`.
 pub fn comm_object(index: u16) -> Option<&'static CommObject> {
@@ -154,7 +181,8 @@ pub fn comm_object(index: u16) -> Option<&'static CommObject> {
 
 /// Where the value of a communication entry comes from: a number CiA 301 or the engine
 /// fixes, or what the device declares ([`Identity`], [`CommDefaults`]; a PDO range's entries
-/// take their PDO's [`TpdoDefaults`](crate::TpdoDefaults)).
+/// take their PDO's [`RpdoDefaults`](crate::RpdoDefaults) or
+/// [`TpdoDefaults`](crate::TpdoDefaults)).
 #[derive(Clone, Copy)]
 enum Source {
     Fixed(u32),
@@ -169,6 +197,9 @@ enum Source {
     /// Consumer heartbeat entry `n` (0-based).
     Consumer(usize),
     Heartbeat,
+    RpdoCobId,
+    RpdoType,
+    RpdoEventTimer,
     TpdoCobId,
     TpdoType,
     TpdoInhibit,
@@ -285,9 +316,20 @@ impl CommEntry {
         self.limits
     }
 
-    /// The dictionary's entry at `index` (of PDO `pdo`, 0-based, for the PDO ranges).
-    const fn od_entry(&self, index: u16, id: &Identity, d: &CommDefaults, pdo: usize) -> OdEntry {
-        let t = &d.tpdo[pdo];
+    /// The dictionary's entry at `index` (of PDO `pdo`, 0-based, of the row's `group`).
+    const fn od_entry(
+        &self,
+        index: u16,
+        id: &Identity,
+        d: &CommDefaults,
+        group: Group,
+        pdo: usize,
+    ) -> OdEntry {
+        let mapping = match group {
+            Group::Rpdo => d.rpdo[pdo].mapping,
+            Group::Tpdo => d.tpdo[pdo].mapping,
+            Group::Single => &[],
+        };
         let text = match self.source {
             Source::DeviceName => Some(id.device_name),
             Source::HardwareVersion => Some(id.hardware_version),
@@ -306,13 +348,16 @@ impl CommEntry {
             Source::EmcyInhibit => d.emcy_inhibit_100us as u32,
             Source::Consumer(n) => d.heartbeat_consumers[n],
             Source::Heartbeat => d.heartbeat_ms as u32,
+            Source::RpdoCobId => d.rpdo[pdo].cob_id_base,
+            Source::RpdoType => d.rpdo[pdo].transmission_type as u32,
+            Source::RpdoEventTimer => d.rpdo[pdo].event_timer_ms as u32,
             // Bit 30 reads 1 whatever is written (no RTR): the default says so too.
-            Source::TpdoCobId => t.cob_id_base | NO_RTR,
-            Source::TpdoType => t.transmission_type as u32,
-            Source::TpdoInhibit => t.inhibit_100us as u32,
-            Source::TpdoEventTimer => t.event_timer_ms as u32,
-            Source::MappedCount => t.mapping.len() as u32,
-            Source::Mapped(n) if n < t.mapping.len() => t.mapping[n],
+            Source::TpdoCobId => d.tpdo[pdo].cob_id_base | NO_RTR,
+            Source::TpdoType => d.tpdo[pdo].transmission_type as u32,
+            Source::TpdoInhibit => d.tpdo[pdo].inhibit_100us as u32,
+            Source::TpdoEventTimer => d.tpdo[pdo].event_timer_ms as u32,
+            Source::MappedCount => mapping.len() as u32,
+            Source::Mapped(n) if n < mapping.len() => mapping[n],
             Source::Mapped(_) => 0,
             // Handled above.
             Source::DeviceName | Source::HardwareVersion | Source::SoftwareVersion => 0,
@@ -365,6 +410,43 @@ fn on_command(_: &Comm, _: u16, _: u8) -> Result<u32, SdoAbort> {
     Ok(1)
 }
 
+/// The entries of a PDO mapping object, either direction.
+const MAPPING_ENTRIES: &[CommEntry] = {
+    use Access::Rw;
+    use CommEntry as E;
+    use DataType::{U32, U8};
+    &[
+        // A count above what a PDO holds is refused.
+        E::parameter(0, "Number of mapped objects", U8, Rw, Source::MappedCount)
+            .limits(0, MAX_MAPPED as i64)
+            .stored(),
+        E::parameter(1, "Mapped object 1", U32, Rw, Source::Mapped(0))
+            .hex()
+            .stored(),
+        E::parameter(2, "Mapped object 2", U32, Rw, Source::Mapped(1))
+            .hex()
+            .stored(),
+        E::parameter(3, "Mapped object 3", U32, Rw, Source::Mapped(2))
+            .hex()
+            .stored(),
+        E::parameter(4, "Mapped object 4", U32, Rw, Source::Mapped(3))
+            .hex()
+            .stored(),
+        E::parameter(5, "Mapped object 5", U32, Rw, Source::Mapped(4))
+            .hex()
+            .stored(),
+        E::parameter(6, "Mapped object 6", U32, Rw, Source::Mapped(5))
+            .hex()
+            .stored(),
+        E::parameter(7, "Mapped object 7", U32, Rw, Source::Mapped(6))
+            .hex()
+            .stored(),
+        E::parameter(8, "Mapped object 8", U32, Rw, Source::Mapped(7))
+            .hex()
+            .stored(),
+    ]
+};
+
 /// The communication objects, by index. The engine looks them up in [`ROUTES`], the rows
 /// with behaviour without what only the compiler and configuration tools need.
 const OBJECTS: &[CommObject] = {
@@ -376,6 +458,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1000,
             last: 0x1000,
+            group: Group::Single,
             name: "Device type",
             code: Var,
             entries: &[E::constant(0, "Device type", U32, Source::DeviceType).hex()],
@@ -386,6 +469,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1001,
             last: 0x1001,
+            group: Group::Single,
             name: "Error register",
             code: Var,
             entries: &[E::parameter(0, "Error register", U8, Ro, Source::Fixed(0))],
@@ -397,6 +481,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1003,
             last: 0x1003,
+            group: Group::Single,
             name: "Pre-defined error field",
             code: Array,
             entries: &[
@@ -413,6 +498,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1005,
             last: 0x1005,
+            group: Group::Single,
             name: "COB-ID SYNC",
             code: Var,
             entries: &[E::parameter(0, "COB-ID SYNC", U32, Rw, Source::Fixed(0x80))
@@ -429,6 +515,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1008,
             last: 0x1008,
+            group: Group::Single,
             name: "Manufacturer device name",
             code: Var,
             entries: &[E::constant(
@@ -444,6 +531,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1009,
             last: 0x1009,
+            group: Group::Single,
             name: "Manufacturer hardware version",
             code: Var,
             entries: &[E::constant(
@@ -459,6 +547,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x100A,
             last: 0x100A,
+            group: Group::Single,
             name: "Manufacturer software version",
             code: Var,
             entries: &[E::constant(
@@ -475,6 +564,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1010,
             last: 0x1010,
+            group: Group::Single,
             name: "Store parameters",
             code: Array,
             entries: &[
@@ -497,6 +587,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1011,
             last: 0x1011,
+            group: Group::Single,
             name: "Restore default parameters",
             code: Array,
             entries: &[
@@ -530,6 +621,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1014,
             last: 0x1014,
+            group: Group::Single,
             name: "COB-ID EMCY",
             code: Var,
             entries: &[E::parameter(0, "COB-ID EMCY", U32, Rw, Source::Fixed(0x80))
@@ -545,6 +637,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1015,
             last: 0x1015,
+            group: Group::Single,
             name: "Inhibit time EMCY",
             code: Var,
             entries: &[E::parameter(0, "Inhibit time EMCY", U16, Rw, Source::EmcyInhibit).stored()],
@@ -555,6 +648,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1016,
             last: 0x1016,
+            group: Group::Single,
             name: "Consumer heartbeat time",
             code: Array,
             entries: &[
@@ -573,6 +667,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1017,
             last: 0x1017,
+            group: Group::Single,
             name: "Producer heartbeat time",
             code: Var,
             entries: &[
@@ -589,6 +684,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1018,
             last: 0x1018,
+            group: Group::Single,
             name: "Identity object",
             code: Record,
             entries: &[
@@ -607,6 +703,7 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1201,
             last: 0x1201,
+            group: Group::Single,
             name: "SDO server parameter",
             code: Record,
             entries: &[
@@ -647,8 +744,56 @@ const OBJECTS: &[CommObject] = {
             restore: |c, _, sub, v, _| c.set_sdo2(sub, v),
         },
         CommObject {
+            first: 0x1400,
+            last: 0x15FF,
+            group: Group::Rpdo,
+            name: "RPDO communication parameter",
+            code: Record,
+            entries: &[
+                E::highest(5),
+                E::parameter(1, "COB-ID used by RPDO", U32, Rw, Source::RpdoCobId)
+                    .plus_node_id()
+                    .stored(),
+                E::parameter(2, "Transmission type", U8, Rw, Source::RpdoType).stored(),
+                E::parameter(5, "Event timer", U16, Rw, Source::RpdoEventTimer).stored(),
+            ],
+            read: |c, index, sub| c.rpdo(index - 0x1400)?.read_comm(sub),
+            write: |c, _, index, sub, v| {
+                let n = index - 0x1400;
+                c.rpdo(n)?;
+                if sub == 1 {
+                    c.check_cob_id(CobSlot::Rpdo(usize::from(n)), v)?;
+                }
+                c.rpdo_mut(n)?.write_comm(sub, v)
+            },
+            restore: |c, index, sub, v, _| {
+                if let Ok(r) = c.rpdo_mut(index - 0x1400) {
+                    r.set_comm(sub, v);
+                }
+            },
+        },
+        CommObject {
+            first: 0x1600,
+            last: 0x17FF,
+            group: Group::Rpdo,
+            name: "RPDO mapping parameter",
+            code: Record,
+            entries: MAPPING_ENTRIES,
+            read: |c, index, sub| c.rpdo(index - 0x1600)?.read_mapping(sub),
+            write: |c, _, index, sub, v| {
+                let od = c.od;
+                c.rpdo_mut(index - 0x1600)?.write_mapping(sub, v, &od)
+            },
+            restore: |c, index, sub, v, _| {
+                if let Ok(r) = c.rpdo_mut(index - 0x1600) {
+                    r.set_mapping(sub, v);
+                }
+            },
+        },
+        CommObject {
             first: 0x1800,
             last: 0x19FF,
+            group: Group::Tpdo,
             name: "TPDO communication parameter",
             code: Record,
             entries: &[
@@ -679,38 +824,10 @@ const OBJECTS: &[CommObject] = {
         CommObject {
             first: 0x1A00,
             last: 0x1BFF,
+            group: Group::Tpdo,
             name: "TPDO mapping parameter",
             code: Record,
-            entries: &[
-                // A count above what a PDO holds is refused.
-                E::parameter(0, "Number of mapped objects", U8, Rw, Source::MappedCount)
-                    .limits(0, MAX_MAPPED as i64)
-                    .stored(),
-                E::parameter(1, "Mapped object 1", U32, Rw, Source::Mapped(0))
-                    .hex()
-                    .stored(),
-                E::parameter(2, "Mapped object 2", U32, Rw, Source::Mapped(1))
-                    .hex()
-                    .stored(),
-                E::parameter(3, "Mapped object 3", U32, Rw, Source::Mapped(2))
-                    .hex()
-                    .stored(),
-                E::parameter(4, "Mapped object 4", U32, Rw, Source::Mapped(3))
-                    .hex()
-                    .stored(),
-                E::parameter(5, "Mapped object 5", U32, Rw, Source::Mapped(4))
-                    .hex()
-                    .stored(),
-                E::parameter(6, "Mapped object 6", U32, Rw, Source::Mapped(5))
-                    .hex()
-                    .stored(),
-                E::parameter(7, "Mapped object 7", U32, Rw, Source::Mapped(6))
-                    .hex()
-                    .stored(),
-                E::parameter(8, "Mapped object 8", U32, Rw, Source::Mapped(7))
-                    .hex()
-                    .stored(),
-            ],
+            entries: MAPPING_ENTRIES,
             read: |c, index, sub| c.tpdo(index - 0x1A00)?.read_mapping(sub),
             write: |c, _, index, sub, v| {
                 let od = c.od;
@@ -747,7 +864,7 @@ pub const STANDARD_OBJECTS: usize = {
     let mut i = 0;
     while i < OBJECTS.len() {
         let o = &OBJECTS[i];
-        len += o.entries.len() * if o.first == o.last { 1 } else { TPDOS };
+        len += o.entries.len() * o.group.objects();
         i += 1;
     }
     len
@@ -757,7 +874,7 @@ pub const STANDARD_OBJECTS: usize = {
 /// first part of an application's [`Od`]: the entries of the engine's object rows, with the
 /// defaults the device declares: 0x1000, 0x1001, 0x1003 (4 entries), 0x1005, 0x1008-0x100A,
 /// 0x1010, 0x1011, 0x1014, 0x1015, 0x1016 (2 consumers), 0x1017, 0x1018, 0x1201 (a second
-/// SDO server), TPDO1/2 (0x1800/0x1801, 0x1A00/0x1A01).
+/// SDO server), RPDO1 (0x1400, 0x1600), TPDO1/2 (0x1800/0x1801, 0x1A00/0x1A01).
 pub const fn standard_objects(id: &Identity, d: &CommDefaults) -> [OdEntry; STANDARD_OBJECTS] {
     let mut pdo = 0;
     while pdo < d.tpdo.len() {
@@ -767,18 +884,25 @@ pub const fn standard_objects(id: &Identity, d: &CommDefaults) -> [OdEntry; STAN
         );
         pdo += 1;
     }
+    pdo = 0;
+    while pdo < d.rpdo.len() {
+        assert!(
+            d.rpdo[pdo].mapping.len() <= MAX_MAPPED,
+            "a PDO maps at most 8 objects"
+        );
+        pdo += 1;
+    }
     let mut list = [OdEntry::highest_sub(0, 0); STANDARD_OBJECTS];
     let mut k = 0;
     let mut i = 0;
     while i < OBJECTS.len() {
         let o = &OBJECTS[i];
-        let pdos = if o.first == o.last { 1 } else { TPDOS };
         let mut pdo = 0;
-        while pdo < pdos {
+        while pdo < o.group.objects() {
             let mut e = 0;
             while e < o.entries.len() {
                 // Below 0x200 PDOs per range, so the offset fits.
-                list[k] = o.entries[e].od_entry(o.first + pdo as u16, id, d, pdo);
+                list[k] = o.entries[e].od_entry(o.first + pdo as u16, id, d, o.group, pdo);
                 k += 1;
                 e += 1;
             }
@@ -790,25 +914,35 @@ pub const fn standard_objects(id: &Identity, d: &CommDefaults) -> [OdEntry; STAN
 }
 
 /// How many parameters 0x1010 stores.
-pub(crate) const STORED_LEN: usize = stored_len();
+pub(crate) const STORED_LEN: usize = stored_len(BLOB_ORDER.len());
 
-/// The parameters 0x1010 stores, in the order of the blob's communication section: the
-/// single objects' stored sub-indices in table order, then PDO by PDO the PDO ranges'.
+/// How many of them blob version 1 holds: those before the RPDO's.
+pub(crate) const STORED_V1_LEN: usize = stored_len(2);
+
+/// The parameters 0x1010 stores, in the order of the blob's communication section: group by
+/// group in [`BLOB_ORDER`] (the single objects' stored sub-indices in table order, then PDO
+/// by PDO the TPDO ranges', then the RPDO ranges').
 pub(crate) const STORED: [(u16, u8); STORED_LEN] = stored_list();
 
-const fn stored_len() -> usize {
+/// How many parameters the first `groups` groups of [`BLOB_ORDER`] store.
+const fn stored_len(groups: usize) -> usize {
     let mut len = 0;
-    let mut i = 0;
-    while i < OBJECTS.len() {
-        let o = &OBJECTS[i];
-        let mut e = 0;
-        while e < o.entries.len() {
-            if o.entries[e].stored {
-                len += if o.first == o.last { 1 } else { TPDOS };
+    let mut g = 0;
+    while g < groups {
+        let group = BLOB_ORDER[g];
+        let mut i = 0;
+        while i < OBJECTS.len() {
+            let o = &OBJECTS[i];
+            let mut e = 0;
+            while e < o.entries.len() {
+                if o.entries[e].stored && o.group as u8 == group as u8 {
+                    len += group.objects();
+                }
+                e += 1;
             }
-            e += 1;
+            i += 1;
         }
-        i += 1;
+        g += 1;
     }
     len
 }
@@ -816,32 +950,31 @@ const fn stored_len() -> usize {
 const fn stored_list() -> [(u16, u8); STORED_LEN] {
     let mut list = [(0, 0); STORED_LEN];
     let mut k = 0;
-    // Round 0: the single objects; round n + 1: the objects of PDO n.
-    let mut round = 0;
-    while round <= TPDOS {
-        let mut i = 0;
-        while i < OBJECTS.len() {
-            let o = &OBJECTS[i];
-            let single = o.first == o.last;
-            if single == (round == 0) {
-                // Below 0x200 PDOs per range, so the offset fits.
-                let index = if single {
-                    o.first
-                } else {
-                    o.first + (round - 1) as u16
-                };
-                let mut e = 0;
-                while e < o.entries.len() {
-                    if o.entries[e].stored {
-                        list[k] = (index, o.entries[e].sub);
-                        k += 1;
+    let mut g = 0;
+    while g < BLOB_ORDER.len() {
+        let group = BLOB_ORDER[g];
+        let mut pdo = 0;
+        while pdo < group.objects() {
+            let mut i = 0;
+            while i < OBJECTS.len() {
+                let o = &OBJECTS[i];
+                if o.group as u8 == group as u8 {
+                    // Below 0x200 PDOs per range, so the offset fits.
+                    let index = o.first + pdo as u16;
+                    let mut e = 0;
+                    while e < o.entries.len() {
+                        if o.entries[e].stored {
+                            list[k] = (index, o.entries[e].sub);
+                            k += 1;
+                        }
+                        e += 1;
                     }
-                    e += 1;
                 }
+                i += 1;
             }
-            i += 1;
+            pdo += 1;
         }
-        round += 1;
+        g += 1;
     }
     list
 }
@@ -926,6 +1059,8 @@ enum CobSlot {
     Emcy,
     /// TPDO `n` (0-based).
     Tpdo(usize),
+    /// RPDO `n` (0-based).
+    Rpdo(usize),
     /// 0x1201 sub-index `n + 1`: 0 client to server, 1 server to client.
     Sdo(usize),
 }
@@ -936,7 +1071,8 @@ impl CobSlot {
             Self::Sync => 0,
             Self::Emcy => 1,
             Self::Tpdo(n) => 2 + n,
-            Self::Sdo(n) => 2 + TPDOS + n,
+            Self::Rpdo(n) => 2 + TPDOS + n,
+            Self::Sdo(n) => 2 + TPDOS + RPDOS + n,
         }
     }
 }
@@ -1026,7 +1162,7 @@ impl Comm {
     }
 
     /// The table default of `(index, sub)` (with the node-ID added where the table says so).
-    fn default_value(&self, index: u16, sub: u8) -> Option<u32> {
+    pub(super) fn default_value(&self, index: u16, sub: u8) -> Option<u32> {
         let node = u32::from(self.node.map_or(0, NodeId::get));
         match self.od.find(index, sub).ok()?.value() {
             Value::Comm(v) => Some(v),
@@ -1099,6 +1235,7 @@ impl Comm {
         // Objects missing from the table stay disabled rather than keeping stale values.
         self.heartbeat = Heartbeat::new();
         self.sync = SyncConsumer::new();
+        self.rpdos = [const { Rpdo::new() }; RPDOS];
         self.tpdos = [const { Tpdo::new() }; TPDOS];
         self.emcy.set(0x1014, COB_INVALID);
         self.emcy.set(0x1015, 0);
@@ -1120,16 +1257,21 @@ impl Comm {
     /// other object of this node uses it (0x06040043), so that no frame of ours goes out
     /// where the network expects another kind (feed records read as emergencies, a TPDO
     /// taken for SYNC, an SDO request of the second server taken for SYNC or answered as
-    /// a PDO). An entry with bit 31 set claims nothing, except SYNC, which is always
+    /// a PDO, an RPDO taken for SYNC). An entry with bit 31 set claims nothing, except SYNC, which is always
     /// received (bit 31 means nothing to a consumer).
     fn check_cob_id(&self, slot: CobSlot, value: u32) -> Result<(), SdoAbort> {
         let [sdo_rx, sdo_tx, _] = self.sdo2;
-        let mut owners = [0; 4 + TPDOS];
+        let mut owners = [0; 4 + TPDOS + RPDOS];
         owners[CobSlot::Sync.index()] = self.sync.cob_id() & !COB_INVALID;
         owners[CobSlot::Emcy.index()] = self.emcy.cob_id();
         for (n, t) in self.tpdos.iter().enumerate() {
             if let Some(owner) = owners.get_mut(CobSlot::Tpdo(n).index()) {
                 *owner = t.cob_id();
+            }
+        }
+        for (n, r) in self.rpdos.iter().enumerate() {
+            if let Some(owner) = owners.get_mut(CobSlot::Rpdo(n).index()) {
+                *owner = r.cob_id();
             }
         }
         owners[CobSlot::Sdo(0).index()] = sdo_rx;
@@ -1172,6 +1314,14 @@ impl Comm {
                 (tx & u32::from(MAX_STANDARD_ID)) as u16,
             )),
         }
+    }
+
+    fn rpdo(&self, n: u16) -> Result<&Rpdo, SdoAbort> {
+        self.rpdos.get(usize::from(n)).ok_or(SdoAbort::NoObject)
+    }
+
+    fn rpdo_mut(&mut self, n: u16) -> Result<&mut Rpdo, SdoAbort> {
+        self.rpdos.get_mut(usize::from(n)).ok_or(SdoAbort::NoObject)
     }
 
     fn tpdo(&self, n: u16) -> Result<&Tpdo, SdoAbort> {
@@ -1261,6 +1411,11 @@ mod tests {
             Some("TPDO1 communication parameter")
         );
         assert_eq!(name(0x1A01).as_deref(), Some("TPDO2 mapping parameter"));
+        assert_eq!(
+            name(0x1400).as_deref(),
+            Some("RPDO1 communication parameter")
+        );
+        assert_eq!(name(0x1600).as_deref(), Some("RPDO1 mapping parameter"));
         assert_eq!(name(0x1017).as_deref(), Some("Producer heartbeat time"));
         assert_eq!(name(0x1002), None);
         let mapped = comm_object(0x1A01).and_then(|o| o.entry(3));

@@ -3,8 +3,8 @@
 
 use canopen_slave::{
     standard_objects, Access, Application, CommDefaults, Config, DataType, Device, Frame,
-    FrameSink, Identity, Instant, MemoryStorage, NmtState, NodeId, Od, OdEntry, SdoAbort, SinkFull,
-    TpdoDefaults, STANDARD_OBJECTS,
+    FrameSink, Identity, Instant, MemoryStorage, NmtState, NodeId, Od, OdEntry, RpdoDefaults,
+    SdoAbort, SinkFull, TpdoDefaults, STANDARD_OBJECTS,
 };
 
 pub const NODE: u8 = 5;
@@ -13,6 +13,7 @@ pub const SDO_TX: u16 = 0x580 + NODE as u16;
 pub const HB: u16 = 0x700 + NODE as u16;
 pub const EMCY: u16 = 0x080 + NODE as u16;
 pub const TPDO1: u16 = 0x180 + NODE as u16;
+pub const RPDO1: u16 = 0x200 + NODE as u16;
 pub const TPDO2: u16 = 0x280 + NODE as u16;
 /// The second SDO server's identifiers (0x1201:1 and :2) the tests configure: free ones
 /// (0x680..0x6DF is outside CiA 301's restricted ranges).
@@ -33,6 +34,11 @@ pub const DEFAULTS: CommDefaults = CommDefaults {
     heartbeat_ms: 1000,
     heartbeat_consumers: [0, 0],
     emcy_inhibit_100us: 0,
+    // Predefined: 0x200 + node-ID, acting at once, no deadline monitoring; 0x6200:1.
+    rpdo: [RpdoDefaults {
+        mapping: &[0x6200_0108],
+        ..RpdoDefaults::predefined(1)
+    }],
     tpdo: [
         TpdoDefaults {
             cob_id_base: 0x180,
@@ -53,7 +59,7 @@ pub const DEFAULTS: CommDefaults = CommDefaults {
 
 pub static STANDARD: [OdEntry; STANDARD_OBJECTS] = standard_objects(&IDENTITY, &DEFAULTS);
 
-pub static APP_OBJECTS: [OdEntry; 15] = [
+pub static APP_OBJECTS: [OdEntry; 21] = [
     OdEntry::app(0x2000, 0, DataType::U8, Access::Rw).range(0, 1),
     OdEntry::app(0x2001, 0, DataType::U16, Access::Wo),
     OdEntry::highest_sub(0x2100, 7),
@@ -69,6 +75,16 @@ pub static APP_OBJECTS: [OdEntry; 15] = [
     OdEntry::app(0x6004, 0, DataType::I32, Access::Ro).mappable(),
     OdEntry::app(0x6005, 0, DataType::U8, Access::Ro).mappable(),
     OdEntry::app(0x6006, 0, DataType::U16, Access::Ro),
+    // RPDO targets: outputs, a ranged level, a write-only word, one the application refuses
+    // 0xEE for (0x08000022), and one that is not mappable.
+    OdEntry::highest_sub(0x6200, 1),
+    OdEntry::app(0x6200, 1, DataType::U8, Access::Rw).mappable(),
+    OdEntry::app(0x6201, 0, DataType::I16, Access::Rw)
+        .range(-100, 100)
+        .mappable(),
+    OdEntry::app(0x6202, 0, DataType::U32, Access::Wo).mappable(),
+    OdEntry::app(0x6203, 0, DataType::U8, Access::Rw).mappable(),
+    OdEntry::app(0x6204, 0, DataType::U8, Access::Rw),
 ];
 
 pub static OD: Od = Od::checked(&[&STANDARD, &APP_OBJECTS]);
@@ -99,6 +115,17 @@ pub struct TestApp {
     pub restored: Vec<Vec<u8>>,
     /// `may_store` answers false: 0x1010, 0x1011 and LSS store are refused.
     pub store_refused: bool,
+    /// 0x6200:1, 0x6201, 0x6202, 0x6203, 0x6204.
+    pub outputs: u8,
+    pub level: i16,
+    pub word: u32,
+    pub refusing: u8,
+    pub plain: u8,
+    /// Every write of an object 0x62xx, in order: (index, sub, bytes).
+    pub writes: Vec<(u16, u8, Vec<u8>)>,
+    /// Calls of `on_rpdo` and `on_rpdo_timeout`.
+    pub rpdos: Vec<u8>,
+    pub rpdo_timeouts: Vec<u8>,
 }
 
 impl Application for TestApp {
@@ -115,6 +142,10 @@ impl Application for TestApp {
             (0x6004, 0) => self.position.to_le_bytes().to_vec(),
             (0x6005, 0) => vec![self.buttons],
             (0x6006, 0) => vec![0x34, 0x12],
+            (0x6200, 1) => vec![self.outputs],
+            (0x6201, 0) => self.level.to_le_bytes().to_vec(),
+            (0x6203, 0) => vec![self.refusing],
+            (0x6204, 0) => vec![self.plain],
             _ => return Err(SdoAbort::NoObject),
         };
         buf.get_mut(..bytes.len())
@@ -127,6 +158,10 @@ impl Application for TestApp {
         let mut raw = [0u8; 4];
         raw[..data.len().min(4)].copy_from_slice(&data[..data.len().min(4)]);
         let v = u32::from_le_bytes(raw);
+        if index & 0xFF00 == 0x6200 {
+            self.check_write(index, sub, data)?;
+            self.writes.push((index, sub, data.to_vec()));
+        }
         match (index, sub) {
             (0x2000, 0) => self.flag = v as u8,
             (0x2001, 0) => self.write_only = v as u16,
@@ -134,9 +169,29 @@ impl Application for TestApp {
             (0x2200, 0) => self.text = data.to_vec(),
             (0x2300, 0) if v == 7 => return Err(SdoAbort::DeviceState),
             (0x2300, 0) => self.guarded = v as u8,
+            (0x6200, 1) => self.outputs = v as u8,
+            (0x6201, 0) => self.level = v as i16,
+            (0x6202, 0) => self.word = v,
+            (0x6203, 0) => self.refusing = v as u8,
+            (0x6204, 0) => self.plain = v as u8,
             _ => return Err(SdoAbort::NoObject),
         }
         Ok(())
+    }
+
+    fn check_write(&mut self, index: u16, _sub: u8, data: &[u8]) -> Result<(), SdoAbort> {
+        match (index, data) {
+            (0x6203, [0xEE]) => Err(SdoAbort::DeviceState),
+            _ => Ok(()),
+        }
+    }
+
+    fn on_rpdo(&mut self, pdo: u8) {
+        self.rpdos.push(pdo);
+    }
+
+    fn on_rpdo_timeout(&mut self, pdo: u8) {
+        self.rpdo_timeouts.push(pdo);
     }
 
     fn on_nmt_state(&mut self, state: NmtState) {

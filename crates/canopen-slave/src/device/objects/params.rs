@@ -7,7 +7,7 @@
 
 pub(crate) mod blob;
 
-use super::{Comm, Refused, WriteCtx, STORED_LEN};
+use super::{Comm, Refused, WriteCtx, STORED, STORED_LEN};
 use crate::abort::SdoAbort;
 use crate::device::{Application, Device, Inner};
 use crate::emcy;
@@ -27,7 +27,12 @@ impl<S: Storage> Inner<S> {
         params: impl Iterator<Item = (u16, u8, u32)>,
         app: &mut dyn Application,
     ) -> Option<(Refused, u8)> {
+        // A blob of an older layout holds a prefix of `STORED`: the parameters added since
+        // restore as their defaults.
         let mut values = [0; STORED_LEN];
+        for (dst, &(index, sub)) in values.iter_mut().zip(&STORED) {
+            *dst = self.comm.default_value(index, sub).unwrap_or(0);
+        }
         for (dst, (_, _, value)) in values.iter_mut().zip(params) {
             *dst = value;
         }
@@ -84,7 +89,10 @@ pub(super) fn save(
     let sections = check(ctx, sub, signature, SAVE_SIGNATURE)?;
     let mut blob = Blob::load(ctx.storage);
     if sections & COMM != 0 {
-        blob.set_comm(|index, sub| comm.read(index, sub).unwrap_or(0));
+        blob.set_comm(
+            |index, sub| comm.read(index, sub).unwrap_or(0),
+            |index, sub| comm.default_value(index, sub),
+        );
     }
     if sections & APP != 0 {
         blob.set_app(|buf| ctx.app.save_application(buf));
