@@ -98,7 +98,7 @@ def test_a_quick_power_cycle_counts_nothing_bad():
     r, _ = replayed("quick_power_cycle")
     assert r.pins["frames-bad"] == 0
     assert not verdicts(r, decode.COPY) and not verdicts(r, decode.IMPOSSIBLE)
-    assert sum(v.credited.get("x", 0) for v in verdicts(r)) == r.pins["axis.x.jog-counts"]
+    assert sum(v.delta for v in verdicts(r) if v.axis == "x") == r.pins["axis.x.jog-counts"]
 
 
 def test_a_blocked_transmit_path_is_reported_as_such():

@@ -700,7 +700,7 @@ def test_pin_table():
     names = [n for n, _, _ in core.pin_table("xz")]
     assert "axis.x.jog-counts" in names and "halui.axis.z.select" in names
     assert "axis.y.jog-counts" not in names
-    assert len(names) == len(set(names)) == 2 * 5 + 18
+    assert len(names) == len(set(names)) == 2 * 5 + 18 + 1 + core.OUT_PINS + 2
 
 
 def test_a_boot_up_during_a_configuration_it_then_answered_configures_once():

@@ -12,7 +12,7 @@ import canopen
 import pytest
 from canopen import objectdictionary as odm
 
-from canopen_handwheel import cli, component, update, update_cli
+from canopen_handwheel import bus, cli, update, update_cli
 from program_device import PRE_OPERATIONAL, TRIAL_FAILS, Abort, ProgramDevice, update_file
 
 NODE = 16
@@ -125,7 +125,7 @@ def test_a_bad_file_is_refused_before_the_bus(tmp_path, monkeypatch, capsys, con
     path = tmp_path / "fw.bin"
     if content is not None:
         path.write_bytes(content)
-    monkeypatch.setattr(component, "open_bus", lambda *a: pytest.fail("the bus was opened"))
+    monkeypatch.setattr(bus, "open_bus", lambda *a: pytest.fail("the bus was opened"))
     assert cli.main(["update", str(path)]) == update.EXIT_BAD_FILE == 4
     assert why in capsys.readouterr().err
 

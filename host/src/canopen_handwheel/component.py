@@ -2,10 +2,11 @@
 
 It creates the HAL pins, connects python-can and python-canopen, produces the master's
 heartbeat on a timer thread of its own (on the grid `core.next_beat` gives, whatever the main
-loop is doing), reads the bus itself in the main loop and hands every frame from the device
-to the core, carries out the core's actions (SDO transfers, NMT start) on a worker thread so
-that nothing waits for an SDO timeout, and writes the core's pin steps to HAL. It decides
-nothing itself.
+loop is doing), sends the outputs the CNC drives (RPDO1: `machine-on`, `out-1` .. `out-6`)
+from another (`OutputSender`, when `core.OutputSchedule` says), reads the bus itself in the
+main loop and hands every frame from the device to the core, carries out the core's actions
+(SDO transfers, NMT start) on a worker thread so that nothing waits for an SDO timeout, and
+writes the core's pin steps to HAL. It decides nothing itself.
 
 Receiving: there is no python-can notifier thread. The main loop reads the bus with
 `recv`, hands the device's TPDO1, EMCY and heartbeat to the core and only the SDO responses
@@ -40,21 +41,23 @@ loads without LinuxCNC.
 from __future__ import annotations
 
 import argparse
-import collections
 import dataclasses
+import math
 import os
 import queue
 import random
-import select
 import signal
 import sys
 import threading
 import time
-from importlib import resources
 from typing import Callable, List, Optional, Tuple
 
 from . import capture as captures
-from . import core, slcan
+from . import core
+from .bus import add_bus_options as add_bus_options
+from .bus import default_eds as default_eds
+from .bus import open_bus as open_bus
+from .bus import slcan_bus as slcan_bus
 
 # The component logs from its loop, its heartbeat thread and its signal handling: one line is
 # one write under this lock, so that no line is split by another thread's (`print` writes the
@@ -68,29 +71,6 @@ def log(message: str) -> None:
     with _LOG_LOCK:
         sys.stderr.write(line)
         sys.stderr.flush()
-
-
-def default_eds() -> str:
-    """The device's EDS as installed with the package (built from the repository's
-    `eds/handwheel.eds`, which `handwheel.eds` in the source tree links to)."""
-    return str(resources.files(__package__).joinpath("handwheel.eds"))
-
-
-def add_bus_options(p: argparse.ArgumentParser) -> None:
-    """The options that find the device: the component's, and `update`'s."""
-    p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan)")
-    p.add_argument(
-        "--channel",
-        default="can0",
-        help="python-can channel (can0; for slcan a serial port or socket://host:port)",
-    )
-    p.add_argument(
-        "--bitrate",
-        type=int,
-        default=None,
-        help="bit rate for interfaces that set it (default: leave it as it is)",
-    )
-    p.add_argument("--node", type=int, default=16, help="the handwheel's node-ID (16)")
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -189,6 +169,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         "of a 100-detent wheel); motion beyond it is counted in frames-bad and not applied",
     )
     p.add_argument(
+        "--output-period-ms",
+        type=int,
+        default=core.DEFAULT_OUTPUT_PERIOD_MS,
+        help=f"the outputs (RPDO1: machine-on, out-1..out-6) sent again this often while "
+        f"nothing changes ({core.DEFAULT_OUTPUT_PERIOD_MS}); a change goes out at once",
+    )
+    p.add_argument(
         "--capture",
         default=None,
         metavar="FILE",
@@ -233,6 +220,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             args.counts_per_detent,
             args.invert_direction,
             args.sdo_channel,
+            args.output_period_ms,
         )
         # Probes of one run never repeat those of another (an answer held on its way), and
         # its session keys are not another run's (another component that wrote the same
@@ -289,6 +277,16 @@ class HalPins:
 
     def run_on_budget(self) -> float:
         return float(self.comp["run-on-budget"])
+
+    def output_byte(self) -> int:
+        """The outputs byte (RPDO1) the input pins ask for."""
+        c = self.comp
+        outs = [bool(c[f"out-{n}"]) for n in range(1, core.OUT_PINS + 1)]
+        return core.output_byte(bool(c["machine-on"]), outs)
+
+    def write_outputs(self, live: bool, sent: int) -> None:
+        self.comp["outputs-live"] = live
+        self.comp["outputs-sent"] = sent
 
     def write(self, pins: core.Pins) -> None:
         c = self.comp
@@ -415,71 +413,73 @@ class Heartbeat:
             self.thread.join(1)
 
 
-def slcan_bus(channel: str, **kwargs):
-    """python-can's SLCAN bus (`can.Bus(interface="slcan")`), receiving in bulk: every read
-    takes what the port holds (`os.read` on its descriptor, a serial port or a socket) and
-    parses all complete lines at once. python-can reads one byte per call (two `select`s and
-    a `recv` per byte on a `socket://` line), about 3 000 frames/s at most on a busy PC. Lines
-    other than standard data frames (`t`, as `slcan.decode` reads them), and lines too long
-    for one, are ignored. `recv(0)` returns None only when no parsed frame is left and the port
-    has nothing to read."""
-    import can
-    from can.interfaces.slcan import slcanBus
+class OutputSender:
+    """The outputs (RPDO1, 0x200 + node-ID, one byte) from a thread of its own, when
+    `core.OutputSchedule` says: the main loop hands over the byte the pins ask for and whether
+    the device may get it (`update`) and never waits for a send, so the feed's path through
+    the loop gains nothing from it. Frames go through the bus `attach` gave (none while the
+    bus is down); a failed send is logged once per run of failures and tried again once the
+    inhibit time allows."""
 
-    class BulkSlcanBus(slcanBus):
-        LONGEST_LINE = 64
+    def __init__(
+        self, cob_id: int, period: float, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.cob_id = cob_id
+        self.schedule = core.OutputSchedule(period=period)
+        self.clock = clock
+        self.sent = 0  # frames sent (wrapping, as the `outputs-sent` pin)
+        self._lock = threading.Lock()
+        self._send: Optional[Callable[[int, bytes], None]] = None
+        self._byte = 0
+        self._allowed = False
+        self._failing = False
+        self._changed = threading.Event()
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="outputs", daemon=True)
+        self.thread.start()
 
-        def __init__(self, *args, **kw) -> None:
-            super().__init__(*args, **kw)
-            self._frames: "collections.deque" = collections.deque()
-            self._lines = slcan.LineSplitter(self.LONGEST_LINE)
-            try:
-                self._fd = self.serialPortOrig.fileno()
-            except Exception:  # a URL handler without a descriptor: python-can's reading
-                self._fd = None
+    def attach(self, send: Optional[Callable[[int, bytes], None]]) -> None:
+        """The bus's send, or None while it is down (nothing is sent then)."""
+        with self._lock:
+            self._send = send
+        self._changed.set()
 
-        def _recv_internal(self, timeout):
-            if self._fd is None:
-                return super()._recv_internal(timeout)
-            deadline = None if timeout is None else time.monotonic() + timeout
-            while not self._frames:
-                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+    def update(self, byte: int, allowed: bool) -> None:
+        """What the pins ask for now, and whether the device may get it."""
+        with self._lock:
+            if (byte, allowed) == (self._byte, self._allowed):
+                return
+            self._byte, self._allowed = byte, allowed
+        self._changed.set()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            # Cleared before the inputs are read: an update after this wakes the wait below.
+            self._changed.clear()
+            with self._lock:
+                send, byte = self._send, self._byte
+                allowed = self._allowed and send is not None
+            byte_now = self.schedule.due(self.clock(), byte, allowed)
+            if byte_now is not None and send is not None:
                 try:
-                    ready, _, _ = select.select([self._fd], [], [], wait)
-                    if not ready:
-                        return None, False
-                    data = os.read(self._fd, 65536)
-                except (OSError, ValueError) as e:
-                    raise can.CanOperationError(f"reading the SLCAN line: {e!r}") from e
-                if not data:
-                    raise can.CanOperationError("the SLCAN line closed")
-                self._parse(data)
-            return self._frames.popleft(), False
+                    send(self.cob_id, bytes([byte_now]))
+                    self.sent = core.wrap_s32(self.sent + 1)
+                    self._failing = False
+                except Exception as e:
+                    self.schedule.unsent()
+                    if not self._failing:
+                        log(f"sending the outputs (RPDO1): {e!r}; trying again")
+                    self._failing = True
+            wake = self.schedule.wake_at(self.clock(), byte, allowed)
+            wait = None if math.isinf(wake) else max(0.0, wake - self.clock())
+            self._changed.wait(wait)
 
-        def _parse(self, data: bytes) -> None:
-            for line in self._lines.feed(data):
-                frame = slcan.decode(line)
-                # The component reads CANopen's frames: 11-bit data frames.
-                if frame is None or frame.extended or frame.remote:
-                    continue
-                # An adapter's own timestamp (`Z1`) wraps every minute: the host's clock it is.
-                self._frames.append(slcan.to_message(frame, time.time()))
-
-    return BulkSlcanBus(channel=channel, **kwargs)
-
-
-def open_bus(interface: str, channel: str, bitrate: Optional[int]):
-    """python-can's bus for the bus options (SLCAN lines read in bulk: `slcan_bus`)."""
-    import can
-
-    kwargs = {}
-    if bitrate is not None:
-        kwargs["bitrate"] = bitrate
-    if interface == "slcan":
-        if str(channel).startswith("socket://"):
-            kwargs["sleep_after_open"] = 0
-        return slcan_bus(channel, **kwargs)
-    return can.Bus(interface=interface, channel=channel, **kwargs)
+    def stop(self) -> None:
+        """No frame after this returns."""
+        self._stop.set()
+        self._changed.set()
+        if self.thread is not threading.current_thread():
+            self.thread.join(1)
 
 
 class Link:
@@ -956,6 +956,8 @@ def run(
     servo_period = linuxcnc_servo_period()
     axes = AxisReader(hal_module, servo_period or core.SERVO_PERIOD)
     c = core.Core(cfg)
+    period = cfg.output_period or core.DEFAULT_OUTPUT_PERIOD_MS / 1000
+    outputs = OutputSender(core.RPDO1 + args.node, period, clock)
     events: "queue.Queue" = queue.Queue()  # the worker's outcomes
     link: Optional[Link] = None
     worker: Optional[Worker] = None
@@ -975,10 +977,12 @@ def run(
                     next_connect = now + 1.0
                 else:
                     worker = Worker(link, events, args.node, clock)
+                    outputs.attach(link.send)
                     log("bus open")
                     c.reconnected(now)
             if link is not None and link.failed.is_set():
                 log("bus failed; reconnecting")
+                outputs.attach(None)
                 drop(link, worker)
                 link, worker = None, None
                 if capture is not None and c.pending is not None:
@@ -1014,6 +1018,9 @@ def run(
                     motion_known=c.motion_known,
                 )
             c.tick(now)
+            # Right after the frames and inputs of the round, before the pin steps' holds.
+            live = link is not None and c.outputs_live
+            outputs.update(pins.output_byte(), live)
             if link is not None:
                 action = c.next_action(now)
                 if action is not None and capture is not None:
@@ -1021,12 +1028,14 @@ def run(
                 if action is not None and worker is not None:
                     worker.submit(action)
             write_steps(pins, c.publish(clock(), axes.motion))
+            pins.write_outputs(live, outputs.sent)
             for line in c.take_log():
                 log(line)
             if capture is not None:
                 capture.flush()
         log(f"{getattr(stop, 'reason', 'asked to stop')}: stopping")
     finally:
+        outputs.stop()  # the device holds its error values once the heartbeat stops
         if capture is not None:
             capture.stopped(clock())
         shut_down(args, cfg, c, link, worker, capture)

@@ -17,6 +17,7 @@ from .metering import (
     RUN_ON_BUDGET_RANGE,
     rate_horizon,
 )
+from .outputs import DEFAULT_OUTPUT_PERIOD_MS, output_period
 from .overrides import DEFAULT_OVERRIDE_STEP, OVERRIDE_STEP_RANGE, OVERRIDES, parse_axes
 from .record import DEVICE_AXES
 from .sdo import parse_sdo_channel
@@ -154,6 +155,7 @@ def make_config(
     counts_per_detent: int = DEFAULT_COUNTS_PER_DETENT,
     invert_direction: bool = False,
     sdo_channel: str = "auto",
+    output_period_ms: int = DEFAULT_OUTPUT_PERIOD_MS,
 ) -> "Config":
     """The component's settings from its options, every one checked (`ValueError` says
     which is wrong). The device is told to allow five of the component's heartbeat periods
@@ -179,6 +181,7 @@ def make_config(
         raise ValueError(f"--override-step must be {low}..{high} %")
     if counts_per_detent not in COUNTS_PER_DETENT:
         raise ValueError(f"--counts-per-detent must be one of {COUNTS_PER_DETENT}")
+    period = output_period(output_period_ms)
     master_node = resolve_master(node, master)
     return Config(
         node=node,
@@ -198,6 +201,7 @@ def make_config(
         invert_direction=invert_direction,
         dating=True,
         own_sdo=parse_sdo_channel(sdo_channel, master_node),
+        output_period=period,
     )
 
 
@@ -270,6 +274,9 @@ class Config:
     dating: bool = False
     # The component's own SDO channel (`own_sdo_ids`): (to the device, from it), or None.
     own_sdo: Optional[Tuple[int, int]] = None
+    # s, the outputs' repeat period (`--output-period-ms`, `OutputSchedule`); None: no
+    # outputs (a capture of a component from before them replays without).
+    output_period: Optional[float] = None
 
     @property
     def axis_letters(self) -> str:

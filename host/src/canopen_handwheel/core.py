@@ -11,7 +11,7 @@ and deterministic in the times it is given, so it is tested without a bus or Lin
 The event API (stable; `replay` runs a list of these events through a `Core`):
 
 - `frame(cob_id, data, now)`: a frame the shell read at `now` (identifiers other than the
-  device's TPDO1, EMCY and heartbeat are ignored);
+  device's TPDO1, EMCY and heartbeat are ignored); for TPDO1 it answers a `FeedVerdict`;
 - `drained(now)`: the shell's receive path was found empty at a moment not before `now`,
   so every frame that reached the host before `now` has been handed to `frame`;
 - `tick(now)`: time passes (staleness);
@@ -41,10 +41,11 @@ The parts have modules of their own, named by idea, and every name they define i
 re-exported here: `record` (the feed record, continuity), `order` (the order rule),
 `sessions` (tokens, the session key), `dating` (the sequence probe), `configuration`
 (settings, the device's configuration, the actions), `metering` (run-on metering,
-plausibility), `overrides`, `stops` (feed stops), `sdo` (other masters, the own SDO
-channel), `pins` (the pins). `Core` itself is the state and the event API; its session
-keeping, frame handlers and publishing are the mixins `session_keeping.SessionKeeping`,
-`frames.FrameHandling` and `pins.Publishing`.
+plausibility), `overrides`, `outputs` (RPDO1: the outputs' byte, when it goes out), `stops`
+(feed stops), `sdo` (other masters, the own SDO channel), `pins` (the pins), `verdict`
+(what the rule made of a feed record). `Core` itself is the state and the event API; its
+session keeping, frame handlers and publishing are the mixins
+`session_keeping.SessionKeeping`, `frames.FrameHandling` and `pins.Publishing`.
 """
 
 from __future__ import annotations
@@ -58,12 +59,14 @@ from .configuration import Action, Config, Configure, Configured, WriteFeed, con
 from .dating import NONCE_MASK, PROBE_DATES, PROBE_PERIOD, Probe, Probed
 from .frames import FrameHandling
 from .metering import POSITION, RUN_ON, RUN_ON_BUDGET_RANGE, VELOCITY, Allowance, rate_horizon
+from .outputs import outputs_allowed
 from .pins import Pins, Publishing
 from .record import OPERATIONAL, Record
 from .sdo import ABORT_DEVICE_STATE, FOREIGN_SDO_QUIET
 from .session_keeping import SessionKeeping
 from .sessions import next_key
 from .stops import STOP_NONE, STOP_REASON_WAIT
+from .verdict import FeedVerdict
 
 # isort: split
 # Every public name of the core's modules, as `canopen_handwheel.core` had them all before
@@ -73,12 +76,14 @@ from .configuration import *  # noqa: F403
 from .dating import *  # noqa: F403
 from .metering import *  # noqa: F403
 from .order import *  # noqa: F403
+from .outputs import *  # noqa: F403
 from .overrides import *  # noqa: F403
 from .pins import *  # noqa: F403
 from .record import *  # noqa: F403
 from .sdo import *  # noqa: F403
 from .sessions import *  # noqa: F403
 from .stops import *  # noqa: F403
+from .verdict import *  # noqa: F403
 
 # The core's log lines not yet taken by the shell (`Core.take_log`): a bounded queue, so that
 # nothing on the bus can make it grow.
@@ -207,13 +212,14 @@ class Core(SessionKeeping, FrameHandling, Publishing):
 
     # Events ---------------------------------------------------------------------------
 
-    def frame(self, cob_id: int, data: bytes, now: float) -> None:
-        """A frame from the bus (any identifier; others than the device's are ignored)."""
+    def frame(self, cob_id: int, data: bytes, now: float) -> Optional[FeedVerdict]:
+        """A frame from the bus (any identifier; others than the device's are ignored). The
+        device's feed record (TPDO1) is answered with what the rule made of it."""
         self.tick(now)
         node = self.cfg.node
         if cob_id == 0x180 + node:
-            self._tpdo1(bytes(data), now)
-        elif cob_id == 0x080 + node:
+            return self._tpdo1(bytes(data), now)
+        if cob_id == 0x080 + node:
             self._emcy(bytes(data))
         elif cob_id == 0x700 + node:
             self._heartbeat(bytes(data), now)
@@ -221,6 +227,7 @@ class Core(SessionKeeping, FrameHandling, Publishing):
             self._foreign_sdo_request(bytes(data))
         elif cob_id == 0x580 + node:
             self._sdo_response(bytes(data))
+        return None
 
     def drained(self, now: float) -> None:
         """The shell found its receive path empty at a moment not before `now`: every frame
@@ -334,6 +341,11 @@ class Core(SessionKeeping, FrameHandling, Publishing):
             and self.record.enabled
             and not self.foreign_newest
         )
+
+    @property
+    def outputs_live(self) -> bool:
+        """The device gets RPDO1, its outputs (`outputs_allowed`)."""
+        return outputs_allowed(self.session, self.fresh, self.state, self.foreign_newest)
 
     def selected(self) -> Optional[str]:
         """The configured letter the device's switch selects, if any."""

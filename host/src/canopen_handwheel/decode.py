@@ -4,10 +4,11 @@ of every feed record, by replaying the capture through the component's own core.
 Every frame is one line: NMT commands, heartbeats with the state, SDO requests and replies
 with index, sub-index, value and the meaning of an abort code, EMCYs with the meaning of their
 code, feed records (`core.Record`) with every field, unit steps (TPDO2). Beside each feed
-record: what the core did with it (the counts it credited and to which axis, a gap, a
-duplicate, a copy of an earlier record, a baseline and why, another session's record), read
-from the core's own state before and after it took the record; at the end a summary per axis
-and the pins as the component last wrote them.
+record: the verdict the core answered when it took the record (`core.FeedVerdict`: the
+counts it credited and to which axis, or why none: a gap, a duplicate, a copy of an earlier
+record, a baseline and why, another session's record), printed as it is; at the end a summary
+per axis and the pins as the component last wrote them (`pin_replay`: the component's own
+`HalPins` into a stand-in for LinuxCNC's `hal`).
 
 `replay` runs a capture (`capture.read`) through a `core.Core`, as the component's main loop
 ran it: the frames of the device at their time stamps, and, with the component's host notes,
@@ -31,6 +32,20 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 from . import capture as captures
 from . import core
 from .record import Record
+
+# The verdicts' kinds (`FeedVerdict.kind`), by the names the decoder's users test them with.
+from .verdict import (  # noqa: F401
+    AT_REST,
+    BASELINE,
+    COPY,
+    CREDITED,
+    DROPPED,
+    DUPLICATE,
+    FOREIGN,
+    IMPOSSIBLE,
+    NOT_CREDITED,
+    FeedVerdict,
+)
 
 # NMT command specifiers (CiA 301).
 NMT_COMMANDS = {
@@ -121,7 +136,7 @@ def object_names(node: int) -> Dict[Tuple[int, int], str]:
     try:
         import canopen
 
-        from .component import default_eds
+        from .bus import default_eds
 
         od = canopen.import_od(default_eds(), node)
     except Exception:
@@ -178,6 +193,8 @@ class Describer:
             return unit_step(data[0])
         if fn in (0x180, 0x280, 0x380, 0x480):
             return f"TPDO{(fn - 0x100) >> 8} of node {node}"
+        if fn == core.RPDO1 and node == self.cfg.node and len(data) == 1:
+            return core.describe_outputs(data[0])
         if fn in (0x200, 0x300, 0x400, 0x500):
             return f"RPDO{(fn - 0x180) >> 8} to node {node}"
         if fn == 0x580:
@@ -336,191 +353,17 @@ def record_signals(r: Record) -> Dict[str, int]:
 DBC_FLAGS = ("FeedEnabled", "EncoderError", "StepsDropped", "MasterLost", "IgnoredMotion")
 
 
-# What the rule made of a record ---------------------------------------------------------------
-
-# Verdict kinds, for the summary.
-CREDITED = "credited"
-BASELINE = "baseline"
-AT_REST = "no motion"
-DUPLICATE = "duplicate"
-COPY = "copy"
-FOREIGN = "other session"
-IMPOSSIBLE = "impossible"
-NOT_CREDITED = "motion not credited"
-DROPPED = "session dropped"
-
-
-@dataclass
-class Verdict:
-    kind: str
-    text: str
-    credited: Dict[str, int] = field(default_factory=dict)  # letter -> counts
-    lost: int = 0
-    bad: int = 0
-    motion: int = 0  # how far the position moved since the last record taken (not credited)
-
-
-def _explain(c: core.Core, data: bytes, now: float) -> Tuple[str, str, int]:
-    """(kind, why, motion) for the feed record `data` about to be handed to `c` at `now`,
-    from the core's own functions on its state before the record."""
-    now = max(c.now, now)
-    if len(data) != 8:
-        return IMPOSSIBLE, f"{len(data)} bytes: a record the device cannot send", 0
-    rec = Record.decode(data)
-    fault = core.record_fault(rec)
-    if fault is not None:
-        return IMPOSSIBLE, f"the device never sends {fault}", 0
-    if c.session is None:
-        return FOREIGN, "the host has no session yet (configuring): not judged", 0
-    if rec.session != c.session:
-        return FOREIGN, f"session {rec.session}, not the host's {c.session}: not judged", 0
-    verdict, ahead = core.order_verdict(c.order, rec, now)
-    if verdict == core.RENEW:
-        return DROPPED, f"over {core.ORDER_WINDOW:g} s after the newest: a new session", 0
-    if verdict == core.DUPLICATE:
-        return DUPLICATE, "the newest record again (a duplicate): nothing", 0
-    if verdict == core.SAME_NUMBER:
-        return IMPOSSIBLE, "the newest record's sequence number with other bytes", 0
-    if verdict == core.COPY:
-        behind = core.SEQUENCE_MODULO - ahead
-        return COPY, f"a copy of an earlier record ({behind} numbers behind the newest)", 0
-    if verdict == core.FIRST or c.record is None:
-        return BASELINE, "the session's first record: baseline", 0
-    prev = c.record
-    stale = c.record_time is None or now - c.record_time > c.stale_after
-    delta = core.continuity(prev, rec)
-    motion = delta or 0
-    moved = core.wrap_s32(rec.position - prev.position)
-
-    def baseline(why: str):
-        if moved:
-            why += f"; position {moved:+d} since the last record taken, not credited"
-        return BASELINE, "baseline: " + why, moved
-
-    if stale:
-        return baseline(f"nothing of the session for {now - prev_time(c):.3f} s")
-    if c.baseline:
-        return baseline("the record before it was impossible")
-    if c.drained_at is None or now - c.drained_at > core.BACKLOG_LIMIT:
-        waited = "ever" if c.drained_at is None else f"{now - c.drained_at:.3f} s"
-        return baseline(f"from a backlog (receive path not found empty for {waited})")
-    pair = core.pair_fault(prev, rec)
-    if pair is not None:
-        return IMPOSSIBLE, f"cannot follow the previous record: {pair}", 0
-    if delta is None:
-        gap = core.sequence_gap(prev, rec)
-        epochs = (rec.epoch - prev.epoch) % core.EPOCH_MODULO
-        return baseline(f"epoch {prev.epoch} -> {rec.epoch} ({epochs} on) across a gap of {gap}")
-    if delta == 0:
-        return AT_REST, "no motion", 0
-    if c.cfg.dating:
-        at = core.dated_at(c.dates, prev)
-        if at is None or now - at > core.DATE_LIMIT:
-            since = "no probe" if at is None else f"the last probe {now - at:.3f} s ago"
-            return baseline(f"not dated within {core.DATE_LIMIT:g} s ({since}): held on its way?")
-    letter = letter_of(c.cfg, rec.axis)
-    if letter is None:
-        return NOT_CREDITED, f"moved {delta}: axis {rec.axis} drives nothing (--axes)", motion
-    if not (c.epochs_shown or rec.epoch != 0):
-        return NOT_CREDITED, f"moved {delta}: no epoch shown since the configuration", motion
-    return CREDITED, f"moved {delta}", motion
-
-
-def letter_of(cfg: core.Config, axis: int) -> Optional[str]:
-    """The `--axes` letter switch position `axis` drives, if any."""
-    return cfg.axes[axis - 1] if 1 <= axis <= len(cfg.axes) else None
-
-
-def prev_time(c: core.Core) -> float:
-    return c.record_time if c.record_time is not None else c.now
-
-
-def judge(c: core.Core, cob_id: int, data: bytes, now: float) -> Verdict:
-    """Hands the feed record to `c` (`Core.frame`) and says what it did with it: the counts
-    it credited (from its counts before and after), the records it counted lost and the
-    frames it counted bad, and why."""
-    c.tick(now)
-    kind, why, motion = _explain(c, data, now)
-    counts, lost, bad = dict(c.counts), c.records_lost, c.frames_bad
-    session = c.session
-    c.frame(cob_id, data, now)
-    credited = {L: core.wrap_s32(c.counts[L] - counts[L]) for L in c.counts}
-    credited = {L: n for L, n in credited.items() if n}
-    v = Verdict(kind, why, credited, core.wrap_s32(c.records_lost - lost), 0, motion)
-    v.bad = core.wrap_s32(c.frames_bad - bad)
-    if kind == CREDITED and not credited:
-        v.kind = NOT_CREDITED
-        v.text += ": faster than --max-detents-per-s, counted bad" if v.bad else ": not credited"
-    if session is not None and c.session is None and kind != DROPPED:
-        v.text += "; the session was dropped"
-    return v
-
-
-def verdict_text(v: Verdict, cfg: core.Config) -> str:
-    parts = []
-    for L, n in v.credited.items():
-        name = core.OVERRIDES.get(L, L.upper())
-        parts.append(f"{name} {n:+d}")
-    text = v.text
-    if parts:
-        text = f"credited {', '.join(parts)} ({text})"
-    if v.lost:
-        text += f"; {v.lost} record{'s' if v.lost != 1 else ''} lost before it"
-    if v.bad and "bad" not in text:
-        text += "; counted bad"
-    return text
-
-
 # Replaying -------------------------------------------------------------------------------------
-
-
-class _HalRecorder:
-    """A stand-in for LinuxCNC's `hal` module: `component.HalPins` writes the pins into it,
-    and it keeps every change (time, pin, value)."""
-
-    HAL_BIT, HAL_FLOAT, HAL_S32, HAL_U32 = "bit", "float", "s32", "u32"
-    HAL_IN, HAL_OUT = "in", "out"
-
-    def __init__(self) -> None:
-        self.values: Dict[str, object] = {}
-        self.initial: Dict[str, object] = {}
-        self.changes: List[Tuple[float, str, object]] = []
-        self.now = 0.0
-        recorder = self
-
-        class component:  # noqa: N801 - the real module's name
-            def __init__(self, name: str) -> None:
-                self.name = name
-
-            def newpin(self, name, type_, dir_) -> None:
-                value = 0.0 if type_ == "float" else False if type_ == "bit" else 0
-                recorder.values[name] = recorder.initial[name] = value
-
-            def ready(self) -> None:
-                pass
-
-            def exit(self) -> None:
-                pass
-
-            def __getitem__(self, name):
-                return recorder.values[name]
-
-            def __setitem__(self, name, value) -> None:
-                if recorder.values.get(name) != value:  # as fake_hal logs a change
-                    recorder.changes.append((recorder.now, name, value))
-                recorder.values[name] = value
-
-        self.component = component
 
 
 @dataclass
 class Line:
     """One frame of the capture and what it was: `text` in CANopen terms, `verdict` for a feed
-    record of the device (what the rule made of it), `log` the core's log lines it caused."""
+    record of the device (what the core answered it), `log` the core's log lines it caused."""
 
     frame: captures.Frame
     text: str
-    verdict: Optional[Verdict] = None
+    verdict: Optional[FeedVerdict] = None
     log: List[str] = field(default_factory=list)
 
 
@@ -561,7 +404,12 @@ class Replay:
                 continue
             want = last.get(pin, str(self.initial.get(pin)))
             got = str(self.pins.get(pin))
-            if want != got:
+            if pin == "outputs-sent":
+                # The outputs' thread may send after the loop last wrote the pins: the
+                # capture may hold a few frames more than the pin counted.
+                if not 0 <= int(got) - int(want) <= SENT_AFTER_THE_LAST_WRITE:
+                    out.append(f"{pin}: {want} live, {got} replayed")
+            elif want != got:
                 out.append(f"{pin}: {want} live, {got} replayed")
             counting = pin.endswith("counts") or pin in COUNTERS
             replayed = [str(v) for v in [self.initial.get(pin)] + self.history(pin)]
@@ -572,6 +420,9 @@ class Replay:
         return out
 
 
+# The outputs frames that may go out between the main loop's last pin write and the end of
+# the outputs' thread (one round of the loop, far less than `OUTPUT_INHIBIT` apart each).
+SENT_AFTER_THE_LAST_WRITE = 2
 # The pins that count events: their every value shows in a replay.
 COUNTERS = ("records-lost", "frames-bad", "feed-stops", "counts-dropped")
 
@@ -664,21 +515,24 @@ class _Run:
     `HalPins` into a recorder) and the host's side (notes, or inferred from the bus)."""
 
     def __init__(self, cfg: core.Config, with_notes: bool, events) -> None:
-        from .component import HalPins
+        from .pin_replay import HalRecorder, shell_pins
 
         self.c = core.Core(cfg)
-        self.hal = _HalRecorder()
-        self.pins = HalPins(self.hal, "handwheel", cfg)
+        self.hal = HalRecorder()
+        self.pins = shell_pins(self.hal, cfg)
         self.infer = None if with_notes else _Inference(self.c, cfg, events)
         self.stopped: Optional[Tuple[Dict[str, object], int]] = None
         self.drained_noted = False
+        self.outputs_sent = 0  # the outputs frames (RPDO1) the component sent so far
 
     def publish(self, t: float) -> None:
-        from .component import write_steps
+        from .pin_replay import write_steps
 
         if self.stopped is None:
             self.hal.now = t
-            write_steps(self.pins, self.c.publish(t), sleep=lambda s: None)
+            write_steps(self.pins, self.c.publish(t))
+            if self.c.cfg.output_period is not None:  # a component that sends outputs
+                self.pins.write_outputs(self.c.outputs_live, self.outputs_sent)
 
     def final(self) -> Tuple[Dict[str, object], int]:
         return self.stopped or (dict(self.hal.values), len(self.hal.changes))
@@ -723,16 +577,15 @@ def replay(
             t = frame.t
             line = Line(frame, describer.describe(frame))
             judged = not (frame.error or frame.extended or frame.remote) and frame.id in device
+            if not frame.rx and frame.id == core.RPDO1 + cfg.node:
+                run.outputs_sent = core.wrap_s32(run.outputs_sent + 1)
             if run.infer is not None:
                 run.infer.frame(frame)
             if judged:
                 if not run.drained_noted:
                     c.drained(t - (captures.DRAIN_SLACK if with_notes else 0.0))
                 run.drained_noted = False
-                if frame.id == 0x180 + cfg.node:
-                    line.verdict = judge(c, frame.id, frame.data, t)
-                else:
-                    c.frame(frame.id, frame.data, t)
+                line.verdict = c.frame(frame.id, frame.data, t)  # TPDO1's: the rule's answer
             elif (
                 frame.rx
                 and not (frame.error or frame.extended or frame.remote)
@@ -853,14 +706,14 @@ def summary(r: Replay) -> List[str]:
         assert v is not None
         kinds[v.kind] = kinds.get(v.kind, 0) + 1
         lost += v.lost
-        for L, n in v.credited.items():
-            axes[L].credited += n
-            axes[L].records += 1
-        if v.kind in (NOT_CREDITED, BASELINE) and v.motion and len(line.frame.data) == 8:
-            letter = letter_of(cfg, Record.decode(line.frame.data).axis)
-            if letter is not None:
-                axes[letter].not_credited += 1
-                axes[letter].motion_not_credited += v.motion
+        if v.axis is None:
+            continue
+        if v.credited:
+            axes[v.axis].credited += v.delta
+            axes[v.axis].records += 1
+        elif v.kind in (NOT_CREDITED, BASELINE) and v.moved:
+            axes[v.axis].not_credited += 1
+            axes[v.axis].motion_not_credited += v.moved
     out = ["summary per switch position:"]
     for i, (L, s) in enumerate(axes.items(), start=1):
         name = core.OVERRIDES.get(L, f"axis {L.upper()}")
@@ -907,7 +760,7 @@ def report(r: Replay, records_only: bool = False) -> List[str]:
         text = f"{f.t - start:12.6f} {direction} {f.id:03X} [{len(f.data)}] {f.data.hex(' '):23}  "
         text += line.text
         if line.verdict is not None:
-            text += "  ->  " + verdict_text(line.verdict, r.cfg)
+            text += "  ->  " + line.verdict.text
         out.append(text)
         for entry in line.log:
             out.append(f"{f.t - start:12.6f}   host   {entry}")

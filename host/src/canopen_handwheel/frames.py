@@ -13,12 +13,15 @@ from .order import AHEAD, COPY, DUPLICATE, ORDER_WINDOW, RENEW, SAME_NUMBER, ord
 from .overrides import OVERRIDES
 from .record import (
     BOOTUP,
+    EPOCH_MODULO,
     OPERATIONAL,
     PRE_OPERATIONAL,
+    SEQUENCE_MODULO,
     STOPPED,
     Record,
     _link,
     record_fault,
+    sequence_gap,
     wrap_s32,
 )
 from .sdo import (
@@ -36,6 +39,7 @@ from .stops import (
     STOP_SESSION_ENDED,
     stop_reason,
 )
+from .verdict import FeedVerdict, Reason
 
 
 class FrameHandling:
@@ -64,52 +68,90 @@ class FrameHandling:
     def _bad(self) -> None:
         self.frames_bad = wrap_s32(self.frames_bad + 1)
 
-    def _tpdo1(self, data: bytes, now: float) -> None:
+    def _tpdo1(self, data: bytes, now: float) -> FeedVerdict:
+        """The feed record: what it credits, and why (`FeedVerdict`)."""
         if len(data) != 8:
             self._impossible()
-            return
+            return FeedVerdict(Reason.MALFORMED, bad=True, detail=f"{len(data)} bytes")
         rec = Record.decode(data)
-        if record_fault(rec) is not None:
+        fault = record_fault(rec)
+        if fault is not None:
             self._impossible()
-            return
+            return FeedVerdict(Reason.NEVER_SENT, bad=True, detail=fault)
         if self.session is None or rec.session != self.session:
             if self.in_loader and self.config_due == math.inf:
                 # A loader sends no records: an application runs (its boot-up was missed).
                 self.config_due = self.now
+            held = self.session
             self._foreign(rec)
-            return
+            if held is None:
+                return FeedVerdict(Reason.NO_SESSION)
+            detail = f"session {rec.session}, not the host's {held}"
+            return FeedVerdict(Reason.OTHER_SESSION, detail=detail)
         verdict, ahead = order_verdict(self.order, rec, self.now)
         if verdict == RENEW:
             self._drop_session(f"no record of it for more than {ORDER_WINDOW:g} s")
-            return
+            return FeedVerdict(Reason.STALE_SESSION)
         if verdict == DUPLICATE:
-            return  # the same frame twice (a known CAN effect): nothing at all
+            return FeedVerdict(Reason.DUPLICATE)  # the same frame twice (a known CAN effect)
         if verdict == SAME_NUMBER:
             self._impossible()  # one number, two records
-            return
+            return FeedVerdict(Reason.SAME_NUMBER, bad=True)
         if verdict == COPY:
             self._bad()  # an earlier record again: never a reference, no loss
-            return
+            behind = f"{SEQUENCE_MODULO - ahead} numbers"
+            return FeedVerdict(Reason.COPY, bad=True, detail=behind)
         prev = self.record
         fresh = prev is not None and self.fresh
-        if verdict == AHEAD and fresh:
-            self.records_lost = wrap_s32(self.records_lost + ahead - 1)
+        lost = ahead - 1 if verdict == AHEAD and fresh else 0
+        self.records_lost = wrap_s32(self.records_lost + lost)
         late = self.drained_at is None or self.now - self.drained_at > BACKLOG_LIMIT
-        continuous = fresh and not self.baseline and not late
         if rec.epoch != 0:
             self.epochs_shown = True
+        moved = 0 if prev is None else wrap_s32(rec.position - prev.position)
+        bad = False
+        detail = ""
         delta: Optional[int] = None
-        if continuous and prev is not None:
+        # Whether it continues the record before it (else it is a baseline, and why), in the
+        # order the rule asks.
+        if prev is None:
+            reason = Reason.FIRST
+        elif not fresh:
+            reason = Reason.STALE
+            assert self.record_time is not None
+            detail = f"{self.now - self.record_time:.3f} s"
+        elif self.baseline:
+            reason = Reason.AFTER_IMPOSSIBLE
+        elif late:
+            reason = Reason.LATE
+            waited = None if self.drained_at is None else self.now - self.drained_at
+            detail = "ever" if waited is None else f"{waited:.3f} s"
+        else:
             delta, fault = _link(prev, rec)
+            reason = Reason.CREDITED if delta else Reason.AT_REST
             if fault is not None:
                 self._bad()
-            if delta and not self._dated(prev):
-                delta = None  # it may have been held on its way: a baseline
+                bad, reason, detail = True, Reason.CANNOT_FOLLOW, fault
+            elif delta is None:
+                reason = Reason.OTHER_EPOCH
+                epochs = (rec.epoch - prev.epoch) % EPOCH_MODULO
+                gap = sequence_gap(prev, rec)
+                detail = f"epoch {prev.epoch} -> {rec.epoch} ({epochs} on) across a gap of {gap}"
+            elif delta:
+                undated = self._undated(prev)
+                if undated is not None:
+                    delta = None  # it may have been held on its way: a baseline
+                    reason, detail = Reason.UNDATED, undated
         if delta and not self.allowance.take(abs(delta) // rec.multiplier, self.now):
             self._bad()  # faster than a wheel turns
             delta = None
+            bad, reason = True, Reason.TOO_FAST
         letter = self._letter(rec.axis)
-        credited = bool(delta and self.epochs_shown and letter is not None)
+        if delta and letter is None:
+            reason, detail = Reason.NO_AXIS, f"axis {rec.axis}"
+        elif delta and not self.epochs_shown:
+            reason = Reason.NO_EPOCH
+        credited = reason is Reason.CREDITED
         if credited and delta is not None and letter is not None:
             if letter in OVERRIDES:
                 delta //= rec.multiplier  # an override moves by detents, whatever the multiplier
@@ -133,17 +175,20 @@ class FrameHandling:
             self.credit_last = self.now
             if self.gate(letter):
                 self.credit_open[letter] = True
+        credit = delta if credited and delta is not None else 0
+        return FeedVerdict(reason, letter, credit, moved, lost, bad, detail)
 
-    def _dated(self, reference: Record) -> bool:
-        """A probe sent at most DATE_LIMIT ago found the successor of `reference` not yet
-        made (`dated_at`): what a record adds to it is recent. Else counted (`undated`) and
-        logged once until a record is dated again."""
+    def _undated(self, reference: Record) -> Optional[str]:
+        """None if a probe sent at most DATE_LIMIT ago found the successor of `reference`
+        not yet made (`dated_at`): what a record adds to it is recent. Else why not (the
+        last probe's age), counted (`undated`) and logged once until a record is dated
+        again."""
         if not self.cfg.dating:
-            return True
+            return None
         at = dated_at(self.dates, reference)
         if at is not None and self.now - at <= DATE_LIMIT:
             self.undated_logged = False
-            return True
+            return None
         self.undated = wrap_s32(self.undated + 1)
         if not self.undated_logged:
             self.undated_logged = True
@@ -152,7 +197,7 @@ class FrameHandling:
                 f"{DATE_LIMIT:g} s by the sequence probe (0x2033; held on its way, or the "
                 "probes unanswered): not credited"
             )
-        return False
+        return "no probe" if at is None else f"the last probe {self.now - at:.3f} s ago"
 
     def _foreign(self, rec: Record) -> None:
         """A possible record of another session (0: none; another token: another master's,

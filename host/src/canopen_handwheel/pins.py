@@ -8,6 +8,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 from .dating import BACKLOG_LIMIT
 from .metering import IN_FLIGHT, RUN_ON, VELOCITY, AxisMotion, meter_counts
+from .outputs import OUT_BOARD_OFFSET, OUT_PINS
 from .overrides import OVERRIDES
 from .record import STATUS_ENCODER_ERROR, wrap_s32
 from .stops import STOP_NONE
@@ -90,6 +91,29 @@ OVERRIDE_PINS = [
 ]
 COMPONENT_PINS = [
     ("enable", "bit", "in", "feed allowed (e.g. machine on); the component writes 0x2000 = 1 / 0"),
+    (
+        "machine-on",
+        "bit",
+        "in",
+        "the board's machine-on output (output 2): bit 0 of the outputs byte (RPDO1, 0x6A00:1)",
+    ),
+    *[
+        (
+            f"out-{n}",
+            "bit",
+            "in",
+            f"the board's output {n + OUT_BOARD_OFFSET}: bit {n} of the outputs byte",
+        )
+        for n in range(1, OUT_PINS + 1)
+    ],
+    (
+        "outputs-live",
+        "bit",
+        "out",
+        "the device gets the outputs (configured by the component, Operational); false: it "
+        "holds its error values (0x6A07)",
+    ),
+    ("outputs-sent", "s32", "out", "outputs frames (RPDO1) sent (wrapping)"),
     (
         "position-mode",
         "bit",

@@ -1,8 +1,8 @@
 """`canopen-handwheel update FILE`: the firmware update over CAN (CiA 302-3 program
 download, docs/FIRMWARE-UPDATE.md). The shell around `update.Update`: it reads and checks
 the file (`image.UpdateImage`, before the bus is opened), opens the bus with the component's
-options, carries out each step over python-canopen, shows the download's progress on stderr
-and prints the outcome. It decides nothing itself.
+options (`bus.py`), carries out each step over python-canopen, shows the download's progress
+on stderr and prints the outcome. It decides nothing itself.
 
 python-canopen's SDO client repeats no request here (`MAX_RETRIES`): whether a step that got
 no answer is repeated is the planner's decision, since the device may have carried it out.
@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 from typing import Callable, Optional, Sequence, TextIO
 
-from . import component, update
+from . import bus as buses
+from . import update
 from .image import ImageError, UpdateImage
 
 # Bytes handed to python-canopen's segmented download per write (7 fit one segment).
@@ -41,7 +42,7 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         "(update with a good image; the message says how).",
     )
     p.add_argument("file", help="the update file")
-    component.add_bus_options(p)
+    buses.add_bus_options(p)
     p.add_argument(
         "--retries",
         type=int,
@@ -331,7 +332,7 @@ def run(args: argparse.Namespace, argv: Sequence[str], out: Optional[TextIO] = N
     import canopen
 
     try:
-        bus = component.open_bus(args.interface, args.channel, args.bitrate)
+        bus = buses.open_bus(args.interface, args.channel, args.bitrate)
     except Exception as e:
         log(
             f"cannot open the bus ({e!r}). Nothing was sent. To retry: {update.retry_command(argv)}"
