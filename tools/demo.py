@@ -154,6 +154,7 @@ class Demo:
         self.network: Optional[canopen.Network] = None
         self.stim: Optional[Stimulus] = None
         self.feed_enabled = False
+        self.machine_on = False
         self.last_action = "-"
 
     def boot(self) -> None:
@@ -202,6 +203,20 @@ class Demo:
         self.feed_enabled = on
         self.last_action = f"0x2000 = {int(on)}"
 
+    def set_machine_on(self, on: bool) -> None:
+        """Bit 0 of the outputs (the "machine on" LED, board output 2), sent as the CNC's
+        component does: one RPDO1 frame (0x200 + node-ID) with the outputs' byte."""
+        self.network.send_message(0x200 + NODE_ID, bytes([int(on)]))
+        self.machine_on = on
+        self.last_action = f"RPDO1 = {int(on):#04x}"
+
+    def outputs(self) -> str:
+        """The board's outputs as its control line reports them: output 1 the device's "jog
+        live", 2..8 the CNC's (0x6A00:1 bits 0..6)."""
+        driven, jog = self.emulator.outputs()
+        lit = [str(n + 1) for n in range(8) if driven >> n & 1]
+        return f"jog live {'ON ' if jog else 'off'}  lit {' '.join(lit) or '-'}"
+
     def close(self) -> None:
         try:
             if self.stim is not None:
@@ -241,6 +256,7 @@ class Demo:
             f"selection    {selection}",
             f"TPDO1        {feed}",
             f"CNC axes     {axes}",
+            f"outputs      {self.outputs()}   machine on {'sent' if self.machine_on else 'off'}",
             f"frames/s     TPDO1 {tpdo_rate:3.0f}, all {all_rate:3.0f}   last EMCY {emcy}",
             f"last         {self.last_action}",
         ]
@@ -251,6 +267,7 @@ class Demo:
 KEYS_HELP = (
     "keys   right/up +1 detent, left/down -1, PgUp/PgDn +-10\n"
     "       x y z w v axis, 0 none, 1 2 3 = x1 x10 x100, e feed on/off, q quit\n"
+    "       m machine on/off (RPDO1: board output 2)\n"
     "       (CNC axes in detents x multiplier)"
 )
 
@@ -321,6 +338,8 @@ def interactive(demo: Demo) -> None:
                 demo.set_feed(not demo.feed_enabled)
             except canopen.SdoAbortedError as e:
                 demo.last_action = f"0x2000 write refused: {e}"
+        elif key in (ord("m"), ord("M")):
+            demo.set_machine_on(not demo.machine_on)
         return True
 
     screen(KEYS_HELP, demo.view, on_key)
@@ -342,6 +361,17 @@ TOUR = [
 ]
 
 
+def until(predicate, timeout: float) -> bool:
+    """Polls `predicate` (the board's control line, not a frame the CNC waits on) every
+    10 ms for at most `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 def tour(demo: Demo, pace: float) -> bool:
     expected = {name: 0 for name in AXIS_NAMES[1:]}
     ok = True
@@ -358,6 +388,12 @@ def tour(demo: Demo, pace: float) -> bool:
         ok &= matched
         print(f"axis {axis:>4} x{multiplier:<3} turn {detents:+3d}:  CNC {demo.axes()}{note}")
         time.sleep(pace)
+    # The outputs: "jog live" is on while a detent moves an axis (feed on, X selected), the
+    # CNC's "machine on" (RPDO1 bit 0) lights board output 2.
+    demo.set_machine_on(True)
+    seen = until(lambda: demo.emulator.outputs() == (0b11, True), STEP_TIMEOUT)
+    ok &= seen
+    print(f"machine on (RPDO1):  outputs {demo.outputs()}{'' if seen else '   <-- expected 1 2'}")
     # Disabled feed: turning moves nothing (and the node says so in status bit 4).
     demo.set_feed(False)
     demo.stimulus("turn +2")
@@ -366,6 +402,9 @@ def tour(demo: Demo, pace: float) -> bool:
         matched = demo.cnc.axes == expected
     ok &= matched
     print(f"feed disabled, turn  +2:  CNC {demo.axes()}{'' if matched else '   <-- moved'}")
+    dark = until(lambda: not demo.emulator.outputs()[1], STEP_TIMEOUT)
+    ok &= dark
+    print(f"feed disabled:       outputs {demo.outputs()}{'' if dark else '   <-- jog live on'}")
     for line in demo.view():
         print("  " + line)
     return ok
