@@ -112,3 +112,33 @@ def test_rpdo1_drives_the_pins_and_its_deadline_applies_the_error_value(rig):
     assert rig.read(0x6A00, 1) == 0
     rig.network.send_message(rpdo1, bytes([0x03]))
     wait_outputs(rig, lambda out, jog: out == pins_of(0x03), "the next RPDO drives them again")
+
+
+def test_a_moved_and_remapped_rpdo1_is_stored_and_listened_to_on_its_new_identifier(rig):
+    """The master moves RPDO1 to 0x300 + node-ID and maps a dummy byte before the outputs
+    (CiA 301's procedure: invalid, mapping, valid), stores it (0x1010:2, the communication
+    parameters) and powers the board off and on: the stored RPDO1 is restored, the
+    controller's filter takes the new identifier (the frame's second byte drives the pins),
+    and a frame on the old identifier is not taken."""
+    moved = 0x300 + NODE_ID
+    rig.write(0x1400, 1, 0x8000_0000 | 0x200 + NODE_ID, 4)
+    rig.write(0x1600, 0, 0, 1)
+    rig.write(0x1600, 1, 0x0005_0008, 4)  # dummy UNSIGNED8: the first byte is another node's
+    rig.write(0x1600, 2, 0x6A00_0108, 4)
+    rig.write(0x1600, 0, 2, 1)
+    rig.write(0x1400, 1, moved, 4)
+    rig.node.sdo.download(0x1010, 2, b"save")
+    mark = rig.frames.mark()
+    rig.board.control("power")
+    rig.frames.wait_id(0x700 + NODE_ID, bytes([0]), since=mark)
+    assert rig.read(0x1400, 1) == moved
+    assert [rig.read(0x1600, sub) for sub in range(3)] == [2, 0x0005_0008, 0x6A00_0108]
+    rig.start()
+    rig.network.send_message(moved, bytes([0xFF, 0x42]))
+    wait_outputs(rig, lambda out, jog: out == pins_of(0x42), "the moved RPDO1's second byte")
+    filtered = int(rig.board.status()["filtered"])
+    rig.network.send_message(0x200 + NODE_ID, bytes([0x00, 0x11]))
+    time.sleep(0.3)
+    assert rig.board.outputs()[0] == pins_of(0x42), "the old identifier is not listened to"
+    assert int(rig.board.status()["filtered"]) == filtered + 1, "dropped by the filter"
+    assert rig.read(0x6A00, 1) == 0x42
