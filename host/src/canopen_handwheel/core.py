@@ -33,9 +33,9 @@ The event API (stable; `replay` runs a list of these events through a `Core`):
   `shutdown_action()`.
 
 The rules the core keeps, and the argument that motion is never credited to another axis,
-twice or backwards: host/README.md, "The core's rules and why they hold" (its section "What
-it does" states them for machine builders); the docstrings (here and in the
-modules below) name the rule where one implements it.
+twice or backwards: docs/ARCHITECTURE.md, "The host core's rules and why they hold"
+(host/README.md's "What it does" states them for machine builders); the docstrings (here
+and in the modules below) name the rule where one implements it.
 
 The parts have modules of their own, named by idea, and every name they define is
 re-exported here: `record` (the feed record, continuity), `order` (the order rule),

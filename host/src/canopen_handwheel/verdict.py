@@ -17,7 +17,7 @@ __all__ = ["FeedVerdict", "Reason"]
 
 class Reason(enum.Enum):
     """Why a record credited what it did: `CREDITED`, or the one reason it credited nothing.
-    In the order the rule asks (host/README.md, "The core's rules and why they hold")."""
+    In the order the rule asks (docs/ARCHITECTURE.md, "The host core's rules and why they hold")."""
 
     # Not judged at all: the device cannot have sent it, or it is not of the host's session.
     MALFORMED = "malformed"  # not 8 bytes
