@@ -104,7 +104,7 @@ def test_remapping_tpdo1_by_the_cia_procedure(rig):
 
 def test_mapping_errors_while_remapping(rig):
     rig.write(0x1800, 1, 0x80000000 | TPDO1, 4)
-    assert rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")) == 0x08000022, (
+    assert rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")) == 0x06010000, (
         "entries locked until sub0 = 0"
     )
     rig.write(0x1A00, 0, 0, 1)
@@ -117,7 +117,7 @@ def test_mapping_errors_while_remapping(rig):
     ]:
         got = rig.write_abort(0x1A00, 1, entry.to_bytes(4, "little"))
         assert got == code, f"entry {entry:#010x}: {got:#010x}"
-    assert rig.write_abort(0x1A00, 0, b"\x09") == 0x06090031
+    assert rig.write_abort(0x1A00, 0, b"\x09") == 0x06040042, "9 > the 8 entries"
     rig.write(0x1A00, 1, 0x60040020, 4)
     rig.write(0x1A00, 2, 0x20200120, 4)
     rig.write(0x1A00, 3, 0x20100108, 4)

@@ -338,7 +338,7 @@ describe('node-canopen master against the release image', () => {
 
     it('PDO remapping: refused while TPDO1 is valid, taken by the CiA 301 procedure', async () => {
         await rig.resetNode();
-        assert.equal(await rig.abortCode(rig.write(0x1a00, 0, 0, U8)), 0x08000022);
+        assert.equal(await rig.abortCode(rig.write(0x1a00, 0, 0, U8)), 0x06010000);
         await rig.write(0x1800, 1, 0x80000000 + COB.TPDO1, U32); // not valid
         await rig.write(0x1a00, 0, 0, U8);
         assert.equal(await rig.abortCode(rig.write(0x1a00, 1, 0x20000008, U32)), 0x06040041,

@@ -57,7 +57,10 @@ impl PdoMapping {
 
     /// Checked write, enforcing the CiA 301 re-mapping procedure: PDO invalid (`valid`
     /// false), sub 0 = 0, entries, sub 0 = n. Sub 0 = n checks the first n entries with
-    /// `check` and their total against the 8 bytes of a frame.
+    /// `check` and their total against the 8 bytes of a frame. Refusals answer as
+    /// CANopenNode does (and the CiA conformance test accepts): any sub-index while the PDO
+    /// is valid, or an entry while sub 0 is not 0, 0x06010000; a count above the entries
+    /// or whose entries exceed 64 bits, 0x06040042.
     pub(crate) fn write(
         &mut self,
         sub: u8,
@@ -67,11 +70,11 @@ impl PdoMapping {
         check: CheckEntry,
     ) -> Result<(), SdoAbort> {
         if valid {
-            return Err(SdoAbort::DeviceState);
+            return Err(SdoAbort::UnsupportedAccess);
         }
         if sub == 0 {
-            let n = usize::try_from(v).map_err(|_| SdoAbort::ValueTooHigh)?;
-            let entries = self.entries.get(..n).ok_or(SdoAbort::ValueTooHigh)?;
+            let n = usize::try_from(v).map_err(|_| SdoAbort::PdoTooLong)?;
+            let entries = self.entries.get(..n).ok_or(SdoAbort::PdoTooLong)?;
             let mut bytes = 0;
             for &entry in entries {
                 bytes += check(od, entry)?;
@@ -81,7 +84,7 @@ impl PdoMapping {
             }
         } else {
             if self.mapped != 0 {
-                return Err(SdoAbort::DeviceState);
+                return Err(SdoAbort::UnsupportedAccess);
             }
             if usize::from(sub) > MAX_MAPPED {
                 return Err(SdoAbort::NoSubIndex);

@@ -125,12 +125,12 @@ fn several_objects_and_a_dummy_entry_are_decoded_in_order() {
 fn mapping_writes_follow_the_re_mapping_procedure() {
     let mut b = Bench::new();
     // Valid: nothing of the mapping changes.
-    assert_eq!(b.download(0x1600, 0, &[0]), Err(0x0800_0022));
-    assert_eq!(b.download_u32(0x1600, 1, 0x6201_0010), Err(0x0800_0022));
+    assert_eq!(b.download(0x1600, 0, &[0]), Err(0x0601_0000));
+    assert_eq!(b.download_u32(0x1600, 1, 0x6201_0010), Err(0x0601_0000));
     b.download_u32(0x1400, 1, 0x8000_0000 | u32::from(RPDO1))
         .unwrap();
     // Invalid but sub 0 not 0: entries stay.
-    assert_eq!(b.download_u32(0x1600, 1, 0x6201_0010), Err(0x0800_0022));
+    assert_eq!(b.download_u32(0x1600, 1, 0x6201_0010), Err(0x0601_0000));
     b.download(0x1600, 0, &[0]).unwrap();
     for (entry, code) in [
         (0x7000_0008, 0x0602_0000), // no such object
@@ -148,7 +148,7 @@ fn mapping_writes_follow_the_re_mapping_procedure() {
         b.download_u32(0x1600, k, 0x6202_0020).unwrap();
     }
     assert_eq!(b.download(0x1600, 0, &[3]), Err(0x0604_0042), "96 bits");
-    assert_eq!(b.download(0x1600, 0, &[9]), Err(0x0609_0031));
+    assert_eq!(b.download(0x1600, 0, &[9]), Err(0x0604_0042));
     assert_eq!(b.download(0x1600, 0, &[2]), Ok(()), "64 bits");
     b.download(0x1600, 0, &[0]).unwrap();
     // A count past a cleared entry.

@@ -224,11 +224,11 @@ fn moving_a_pdo_to_another_can_id() {
 fn mapping_aborts() {
     let mut b = Bench::new();
     // The PDO is valid: the mapping is locked.
-    assert_eq!(b.download_u32(0x1A00, 1, 0x6005_0008), Err(0x0800_0022));
-    assert_eq!(b.download(0x1A00, 0, &[0]), Err(0x0800_0022));
+    assert_eq!(b.download_u32(0x1A00, 1, 0x6005_0008), Err(0x0601_0000));
+    assert_eq!(b.download(0x1A00, 0, &[0]), Err(0x0601_0000));
     b.download_u32(0x1800, 1, 0x8000_0185).unwrap();
     // Entries are locked until sub 0 is 0.
-    assert_eq!(b.download_u32(0x1A00, 1, 0x6005_0008), Err(0x0800_0022));
+    assert_eq!(b.download_u32(0x1A00, 1, 0x6005_0008), Err(0x0601_0000));
     b.download(0x1A00, 0, &[0]).unwrap();
     assert_eq!(b.download_u32(0x1A00, 1, 0x7000_0020), Err(0x0602_0000));
     assert_eq!(b.download_u32(0x1A00, 1, 0x6004_0120), Err(0x0609_0011));
@@ -236,7 +236,7 @@ fn mapping_aborts() {
     assert_eq!(b.download_u32(0x1A00, 1, 0x6004_0010), Err(0x0604_0041));
     assert_eq!(b.download_u32(0x1A00, 1, 0x2000_0008), Err(0x0604_0041));
     assert_eq!(b.download_u32(0x1A00, 1, 0x1008_0008), Err(0x0604_0041));
-    assert_eq!(b.download(0x1A00, 0, &[9]), Err(0x0609_0031));
+    assert_eq!(b.download(0x1A00, 0, &[9]), Err(0x0604_0042));
     b.download_u32(0x1A00, 3, 0x6005_0008).unwrap();
     // Sub 0 = 3 checks all three entries: 32 + 32 + 8 bits > 64.
     assert_eq!(b.download(0x1A00, 0, &[3]), Err(0x0604_0042));

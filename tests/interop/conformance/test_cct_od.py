@@ -79,8 +79,8 @@ def test_od_05_sub_index_255(dut):
 def test_od_06_value_limits_of_rw_objects(dut):
     checked = 0
     for var in variables(dut, 0x1000, 0x9FFF):
-        # A mapping's count (sub 0, limit 8) of a valid PDO is refused for the state before
-        # its limit is looked at (0x08000022; PDO 24); its limit is PDO 25's.
+        # A mapping's count (sub 0) has no limit in the EDS: a write to a valid PDO's mapping
+        # is refused (0x06010000; PDO 24), a count above the entries is PDO 25's.
         if var.access_type not in ("rw", "rwr", "rww") or var.index in (0x1600, 0x1A00, 0x1A01):
             continue
         size = len(dut.node.sdo.upload(var.index, var.subindex))

@@ -416,10 +416,9 @@ const MAPPING_ENTRIES: &[CommEntry] = {
     use CommEntry as E;
     use DataType::{U32, U8};
     &[
-        // A count above what a PDO holds is refused.
-        E::parameter(0, "Number of mapped objects", U8, Rw, Source::MappedCount)
-            .limits(0, MAX_MAPPED as i64)
-            .stored(),
+        // No table limit: the mapping's own check refuses a count above its entries with
+        // 0x06040042, as CANopenNode does (a limit would answer 0x06090031 first).
+        E::parameter(0, "Number of mapped objects", U8, Rw, Source::MappedCount).stored(),
         E::parameter(1, "Mapped object 1", U32, Rw, Source::Mapped(0))
             .hex()
             .stored(),
