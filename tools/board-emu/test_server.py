@@ -262,7 +262,7 @@ def test_status_reports_the_digital_outputs(board):
     m, s = board
     m.run_ms(100)
     assert (s.status()["outputs"], s.status()["jog"]) == ("0x00", 0)
-    write_outputs = bytes([0x2F, 0x00, 0x62, 0x01, 0xFF, 0, 0, 0])
+    write_outputs = bytes([0x2F, 0x00, 0x6A, 0x01, 0xFF, 0, 0, 0])
     m.deliver(periph.Frame(0x610, write_outputs))  # node 16's SDO server
     m.run_ms(20)
     assert (s.status()["outputs"], s.status()["jog"]) == ("0xfe", 0)
