@@ -256,11 +256,6 @@ mod app {
         let local = cx.local;
         let mut can = CanSide::new(local.rx_consumer, cx.shared.can, || Mono::now().ticks());
         let wheel = &mut LinkedWheel::new(cx.shared.wheel, DecoderConfig::default());
-        // The loader started this image on trial (docs/FIRMWARE-UPDATE.md, "Trial boot"):
-        // confirmed once the node is healthy on the bus, that is once this task runs and a
-        // frame of it (the boot-up, first) was acknowledged by another node, or once a master
-        // confirms (0x1F51:1 = 0x80).
-        let mut on_trial = true;
         loop {
             local.watchdog.feed();
             let ticks = Mono::now().ticks();
@@ -275,17 +270,19 @@ mod app {
             // is dropped, as by any controller before its reconfiguration.
             if let Some(filter) = out.rx_filter {
                 defmt::debug!(
-                    "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x} and {=u16:#05x}",
+                    "CAN filter: SYNC {=u16:#05x}, SDO {=u16:#05x} and {=u16:#05x}, RPDO {=u16:#05x}",
                     filter.sync(),
                     filter.sdo_request(),
-                    filter.second_sdo_request()
+                    filter.second_sdo_request(),
+                    filter.rpdo()
                 );
                 can.set_rx_filter(filter);
             }
             round_log::print(&out.log, can.counters);
-            if on_trial && (out.start_confirmed || can.frame_acknowledged()) {
+            // The loader started this image on trial (docs/FIRMWARE-UPDATE.md, "Trial boot");
+            // the node says when it is healthy on the bus.
+            if out.confirm_trial {
                 handoff::confirm_start();
-                on_trial = false;
                 info!("trial boot: confirmed, healthy on the bus");
             }
             if out.enter_loader {

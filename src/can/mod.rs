@@ -95,14 +95,6 @@ impl<'a, M, C> CanSide<'a, M, C> {
     {
         self.port.lock(|port| port.set_rx_filter(filter));
     }
-
-    /// Whether a frame of ours was acknowledged on the bus since start-up.
-    pub fn frame_acknowledged<L: CanLink>(&mut self) -> bool
-    where
-        M: rtic::Mutex<T = port::CanPort<L>>,
-    {
-        self.port.lock(|port| port.frame_acknowledged())
-    }
 }
 
 impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>, C> FrameSink for CanSide<'_, M, C> {
@@ -148,5 +140,9 @@ impl<L: CanLink, M: rtic::Mutex<T = port::CanPort<L>>, C: Fn() -> u32> CanIo for
 
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
         self.port.lock(|port| port.switch_bit_rate(rate))
+    }
+
+    fn frame_acknowledged(&mut self) -> bool {
+        self.port.lock(|port| port.frame_acknowledged())
     }
 }

@@ -173,7 +173,7 @@ impl<S: Storage> HandwheelDevice<S> {
     }
 
     /// 0x1F51:1 = 0x80 ("confirm") was answered: a master confirmed the image after its
-    /// start ([`Outputs::start_confirmed`](crate::Outputs::start_confirmed)).
+    /// start ([`Outputs::confirm_trial`](crate::Outputs::confirm_trial)).
     pub fn start_confirmed(&self) -> bool {
         self.app.start_confirmed
     }

@@ -58,6 +58,9 @@ pub trait CanIo: FrameSink {
     /// One step of the controller's switch to `rate`, never a wait: `true` once it is on the
     /// bus at `rate`.
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool;
+    /// Whether a frame of ours was acknowledged on the bus since start-up: another node took
+    /// it, so the node talks at the bus's bit rate.
+    fn frame_acknowledged(&mut self) -> bool;
 }
 
 /// What one round found worth a log line. The caller prints them; the lines' texts are the
@@ -102,10 +105,12 @@ pub struct Outputs {
     /// path: the caller lets the path drain, then resets into the resident loader
     /// (docs/FIRMWARE-UPDATE.md). Once set, every later round says so again.
     pub enter_loader: bool,
-    /// A master confirmed the running image (0x1F51:1 = 0x80): the firmware ends its trial
-    /// boot, as when its own frames are acknowledged on the bus (docs/FIRMWARE-UPDATE.md,
-    /// "Trial boot"). Once set, every later round says so again.
-    pub start_confirmed: bool,
+    /// The image is healthy on the bus: the caller ends the loader's trial boot now
+    /// (docs/FIRMWARE-UPDATE.md, "Trial boot"). Set in exactly one round of a start: the
+    /// first in which the device runs and a frame of it was acknowledged by another node, or
+    /// a master confirmed the image (0x1F51:1 = 0x80, as CiA 302-3 masters do after an
+    /// update's boot-up).
+    pub confirm_trial: bool,
 }
 
 /// Where the node is in its life.
@@ -136,6 +141,8 @@ pub struct Node<S> {
     bus: BusState,
     rx_overruns: u32,
     illegal_transitions: u32,
+    /// The image's start is still unconfirmed ([`Outputs::confirm_trial`]).
+    on_trial: bool,
 }
 
 impl<S: Storage> Node<S> {
@@ -154,6 +161,7 @@ impl<S: Storage> Node<S> {
             bus: BusState::ErrorActive,
             rx_overruns: 0,
             illegal_transitions: 0,
+            on_trial: true,
         }
     }
 
@@ -208,7 +216,10 @@ impl<S: Storage> Node<S> {
             .sleep_ms(now_ms, now, deadline, self.bus)
             .min(self.rate_switch.sleep_cap_ms());
         out.enter_loader = self.device.loader_requested();
-        out.start_confirmed = self.device.start_confirmed();
+        out.confirm_trial = self.on_trial
+            && matches!(self.phase, Phase::Running)
+            && (self.device.start_confirmed() || io.frame_acknowledged());
+        self.on_trial &= !out.confirm_trial;
         out
     }
 

@@ -21,6 +21,8 @@ struct Port {
     bus_free: bool,
     /// The rates the node asked the controller to step to.
     steps: Vec<BitRate>,
+    /// Another node acknowledged a frame of ours.
+    acknowledged: bool,
     bus: Option<BusState>,
     rx_overruns: u32,
     /// Frames wait for a bus that takes nothing.
@@ -71,6 +73,10 @@ impl CanIo for Port {
     fn switch_bit_rate(&mut self, rate: BitRate) -> bool {
         self.steps.push(rate);
         self.bus_free
+    }
+
+    fn frame_acknowledged(&mut self) -> bool {
+        self.acknowledged
     }
 }
 
@@ -551,4 +557,38 @@ fn a_stop_of_the_program_asks_for_the_loader_after_its_answer() {
         Some(&answer.to_vec())
     );
     assert!(r.poll(5).enter_loader, "until the firmware resets");
+}
+
+/// The trial boot ends in one round, the first in which the device runs and a frame of it was
+/// acknowledged: not while the controller waits for the bus, not before the acknowledgement,
+/// never again after it.
+#[test]
+fn the_trial_is_confirmed_once_when_a_frame_of_the_running_node_is_acknowledged() {
+    let mut r = Rig::new(false);
+    r.port.acknowledged = true; // a stale flag: the node must still be running first
+    for ms in 0..100 {
+        assert!(!r.poll(ms).confirm_trial, "joining at {ms} ms");
+    }
+    r.port.bus_free = true;
+    r.port.acknowledged = false;
+    assert!(!r.poll(100).confirm_trial, "booted, the boot-up not acknowledged yet");
+    assert!(!r.poll(101).confirm_trial);
+    r.port.acknowledged = true;
+    assert!(r.poll(102).confirm_trial, "the boot-up acknowledged");
+    let later: Vec<bool> = (103..200).map(|ms| r.poll(ms).confirm_trial).collect();
+    assert!(later.iter().all(|&c| !c), "once");
+}
+
+/// A master's 0x1F51:1 = 0x80 confirms the image when no frame of it was acknowledged (a
+/// master that confirms after the boot-up, as CiA 302-3 masters do), once.
+#[test]
+fn a_masters_confirm_ends_the_trial_without_an_acknowledgement() {
+    let mut r = Rig::new(true);
+    assert!(!r.poll(0).confirm_trial);
+    let confirm = [0x2F, 0x51, 0x1F, 0x01, 0x80, 0, 0, 0];
+    let out = r.receive(10, 0x600 + u16::from(NODE), &confirm);
+    assert_eq!(r.sent_on(0x580 + u16::from(NODE)), [vec![0x60, 0x51, 0x1F, 0x01, 0, 0, 0, 0]]);
+    assert!(out.confirm_trial, "confirmed in the round that took the write");
+    r.port.acknowledged = true;
+    assert!(!r.poll(20).confirm_trial, "already confirmed");
 }
