@@ -32,11 +32,17 @@ import sys
 import zlib
 from pathlib import Path
 
-HEADER_SLOT = 512  # docs/FIRMWARE-UPDATE.md: the header slot before the image
-SLOT_ORIGIN = 0x0800_3000  # memory.x: HEADER
-FLASH_ORIGIN = 0x0800_0000
-FLASH_SIZE = 64 * 1024
-SLOT_SIZE = 50 * 1024  # memory.x: HEADER + FLASH
+# The update contract is the host component's module (host/src, standard library only;
+# generated from crates/canopen-loader), on the path also when this runs as a script.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "host" / "src"))
+
+from canopen_handwheel import update_contract as contract  # noqa: E402
+
+HEADER_SLOT = contract.HEADER_SLOT  # the header slot before the image
+SLOT_ORIGIN = contract.SLOT_ORIGIN  # memory.x: HEADER
+FLASH_ORIGIN = contract.LOADER_ORIGIN  # the chip's flash, the loader's pages first
+FLASH_SIZE = contract.CHIP_FLASH_SIZE
+SLOT_SIZE = contract.SLOT_SIZE  # memory.x: HEADER + FLASH
 HARD_FAULT = 3  # the vector table's entry
 IWDG_KR = 0x4000_3000  # RM0008 19.4.1: the key register
 KR_RELOAD = 0xAAAA
@@ -63,7 +69,7 @@ def btr_bit_rate(btr: int) -> float:
 def seal(data: bytearray) -> bytes:
     """The header's `length` and `crc` written for the image after the header slot."""
     body = bytes(data[HEADER_SLOT:])
-    struct.pack_into("<II", data, 0x14, len(body), zlib.crc32(body))
+    struct.pack_into("<II", data, contract.LENGTH_AT, len(body), zlib.crc32(body))
     return bytes(data)
 
 

@@ -14,7 +14,10 @@ slot is the `.image_header` section (it fills memory.x's HEADER region). Sealing
 ELF again writes the same values.
 
 Python's standard library only: it runs at every firmware link, also where no project venv
-exists. It reads the ELF itself rather than through xtask's reader (xtask/src/elf.rs):
+exists. The header's mark, format, size and field offsets are the loader's contract
+(host/src/canopen_handwheel/update_contract.py, which `cargo xtask contract` writes from
+crates/canopen-loader; constants only), imported from host/src as tools/board-emu imports the
+SLCAN codec. It reads the ELF itself rather than through xtask's reader (xtask/src/elf.rs):
 `cargo fw` and `cargo embed` link without xtask, which nothing builds for them (a fresh clone
 has no xtask binary), and building it from here would nest a cargo build of xtask and its
 dependencies inside the firmware's link. xtask checks what the seal wrote against its own
@@ -32,14 +35,19 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
+# The contract's module is the host component's (host/src; standard library only).
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "host" / "src"))
+
+from canopen_handwheel import update_contract as contract  # noqa: E402
+
 SECTION = ".image_header"
-MAGIC = 0x4D49_5748
-FORMAT = 1
-HEADER_SIZE = 32
+MAGIC = contract.MAGIC
+FORMAT = contract.FORMAT
+HEADER_SIZE = contract.HEADER_LEN
 # Offsets of the fields the seal writes.
-LENGTH_AT = 0x14
-CRC_AT = 0x18
-UNSET = 0xFFFF_FFFF
+LENGTH_AT = contract.LENGTH_AT
+CRC_AT = contract.CRC_AT
+UNSET = contract.UNSET
 # Loadable bytes below this address are flash (the ARMv7-M code region, 0x0000_0000 to
 # 0x1FFF_FFFF); above it, RAM and peripherals, which no image programs.
 CODE_REGION_END = 0x2000_0000

@@ -6,11 +6,12 @@
 //!
 //! This file is the dispatch and the usage; each task lives in the file named after what it
 //! runs: `test.rs` (the whole sequence), `fw.rs` (firmware images), `suites.rs` (interop,
-//! snippets, LinuxCNC, host, feed check), `bench.rs`, `docs.rs`, `lint.rs`, `eds.rs`, `dbc.rs`, and
-//! `interactive.rs` (board, linuxcnc, demo: they take the terminal).
+//! snippets, LinuxCNC, host, feed check), `bench.rs`, `docs.rs`, `lint.rs`, `eds.rs`, `dbc.rs`,
+//! `contract.rs`, and `interactive.rs` (board, linuxcnc, demo: they take the terminal).
 
 mod bench;
 mod board;
+mod contract;
 mod dbc;
 mod docs;
 mod eds;
@@ -93,6 +94,11 @@ tasks:
                                         cantools, SavvyCAN, Wireshark) from the object table for
                                         the default node-ID; --check: fail if the committed file
                                         differs; --node N: print node N's to stdout
+  contract [--check]                    write host/src/canopen_handwheel/update_contract.py (the
+                                        update contract for Python: memory map, image header,
+                                        hand-off words, the loader's identity and 0x1F57 codes)
+                                        from crates/canopen-loader; --check: fail if the
+                                        committed file differs
   bench [linuxcnc|update]               1. feed protocol comparison (writes docs/feed-protocols.svg),
                                         2. CPU cost of the wheel edge and SDO path on the release
                                         machine code (emulated), 3. footprint by section and
@@ -130,6 +136,7 @@ fn main() -> ExitCode {
         Some("docs") => docs(rest),
         Some("eds") => eds::run(&workspace_root(), &target_dir(), rest),
         Some("dbc") => dbc::run(&workspace_root(), rest),
+        Some("contract") => contract::run(&workspace_root(), rest),
         Some("go-master") => go_master::run(),
         Some("node-master") => node_master::run(),
         _ => {

@@ -15,7 +15,7 @@ use crate::suites::{
     board_unit_tests, feed_check, host_tests, interop, linuxcnc_suite_with, snippets_run,
 };
 use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
-use crate::{dbc, eds, footprint, linuxcnc};
+use crate::{contract, dbc, eds, footprint, linuxcnc};
 
 /// Crates that must also build without `std` for the MCU.
 const NO_STD_CRATES: &[&str] = &[
@@ -49,6 +49,7 @@ pub fn test() -> Result<(), String> {
     wiring_check()?;
     eds::run(&workspace_root(), &target_dir(), &["--check".into()])?;
     dbc::run(&workspace_root(), &["--check".into()])?;
+    contract::run(&workspace_root(), &["--check".into()])?;
     cargo(cmd!(
         sh,
         "cargo clippy --locked --all-targets -- -D warnings"

@@ -5,16 +5,15 @@
 
 use std::path::Path;
 
+use canopen_loader::header::{
+    CRC_AT, FORMAT, FORMAT_AT, HEADER_LEN, HEADER_SIZE_AT, LENGTH_AT, MAGIC, MAGIC_AT,
+};
 use canopen_slave::crc::crc32;
 
 use crate::elf::{self, u16_at, u32_at};
 
 /// The header's section (`header.x`), which fills the slot's first bytes.
 const HEADER_SECTION: &str = ".image_header";
-/// The validity mark, "HWIM".
-const MAGIC: u32 = 0x4D49_5748;
-const FORMAT: u16 = 1;
-const HEADER_SIZE: u16 = 32;
 /// Loadable bytes below this address are flash (the ARMv7-M code region).
 const CODE_REGION_END: u32 = 0x2000_0000;
 
@@ -63,15 +62,19 @@ pub fn from_elf(elf: &[u8]) -> Result<UpdateImage, String> {
         bytes[at..at + segment.data.len()].copy_from_slice(segment.data);
     }
     let field = |at: usize| u32_at(&bytes, at);
-    let (magic, format, size) = (field(0)?, u16_at(&bytes, 4)?, u16_at(&bytes, 6)?);
-    if (magic, format, size) != (MAGIC, FORMAT, HEADER_SIZE) {
+    let (magic, format, size) = (
+        field(MAGIC_AT)?,
+        u16_at(&bytes, FORMAT_AT)?,
+        u16_at(&bytes, HEADER_SIZE_AT)?,
+    );
+    if (magic, format, usize::from(size)) != (MAGIC, FORMAT, HEADER_LEN) {
         return Err(format!(
             "the image header is not format {FORMAT} (magic {magic:#010x}, format {format}, \
              size {size})"
         ));
     }
     let image = &bytes[slot as usize..];
-    let (length, crc) = (field(0x14)?, field(0x18)?);
+    let (length, crc) = (field(LENGTH_AT)?, field(CRC_AT)?);
     let want = (image.len() as u32, crc32(image));
     if (length, crc) != want {
         return Err(format!(

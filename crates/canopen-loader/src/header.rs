@@ -29,10 +29,38 @@ pub const UNSET: u32 = 0xFFFF_FFFF;
 /// The smallest image: its vector table's stack pointer and reset vector.
 pub const MIN_IMAGE: usize = 8;
 
+/// Offset of `magic` in the header.
+pub const MAGIC_AT: usize = 0x00;
+/// Offset of `format` in the header.
+pub const FORMAT_AT: usize = 0x04;
+/// Offset of `header_size` in the header.
+pub const HEADER_SIZE_AT: usize = 0x06;
+/// Offset of `vendor_id` in the header.
+pub const VENDOR_ID_AT: usize = 0x08;
+/// Offset of `product_code` in the header.
+pub const PRODUCT_CODE_AT: usize = 0x0C;
+/// Offset of `version` in the header.
+pub const VERSION_AT: usize = 0x10;
 /// Offset of `length` in the header.
-const LENGTH_AT: usize = 0x14;
+pub const LENGTH_AT: usize = 0x14;
 /// Offset of `crc` in the header.
-const CRC_AT: usize = 0x18;
+pub const CRC_AT: usize = 0x18;
+/// Offset of the reserved word in the header.
+pub const RESERVED_AT: usize = 0x1C;
+
+/// The header's fields in order, as the table above: name, offset, size in bytes. They tile
+/// the [`HEADER_LEN`] bytes (a test checks it); `cargo xtask contract` hands them to Python.
+pub const FIELDS: [(&str, usize, usize); 9] = [
+    ("magic", MAGIC_AT, 4),
+    ("format", FORMAT_AT, 2),
+    ("header_size", HEADER_SIZE_AT, 2),
+    ("vendor_id", VENDOR_ID_AT, 4),
+    ("product_code", PRODUCT_CODE_AT, 4),
+    ("version", VERSION_AT, 4),
+    ("length", LENGTH_AT, 4),
+    ("crc", CRC_AT, 4),
+    ("reserved", RESERVED_AT, 4),
+];
 
 /// Which application an image is for (0x1018:1 and :2 of the application).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -113,16 +141,18 @@ impl ImageHeader {
         if bytes.len() < HEADER_LEN {
             return Err(HeaderError::Truncated);
         }
-        if word(bytes, 0) != MAGIC {
+        if word(bytes, MAGIC_AT) != MAGIC {
             return Err(HeaderError::Magic);
         }
-        if half(bytes, 4) != FORMAT || usize::from(half(bytes, 6)) != HEADER_LEN {
+        if half(bytes, FORMAT_AT) != FORMAT
+            || usize::from(half(bytes, HEADER_SIZE_AT)) != HEADER_LEN
+        {
             return Err(HeaderError::Format);
         }
         Ok(Self {
-            vendor_id: word(bytes, 0x08),
-            product_code: word(bytes, 0x0C),
-            version: word(bytes, 0x10),
+            vendor_id: word(bytes, VENDOR_ID_AT),
+            product_code: word(bytes, PRODUCT_CODE_AT),
+            version: word(bytes, VERSION_AT),
             length: word(bytes, LENGTH_AT),
             crc: word(bytes, CRC_AT),
         })
@@ -151,11 +181,12 @@ impl ImageHeader {
     pub const fn to_bytes(&self) -> [u8; HEADER_LEN] {
         let mut out = [0xFF; HEADER_LEN];
         let fields = [
-            (0x00, MAGIC),
-            (0x04, FORMAT as u32 | (HEADER_LEN as u32) << 16),
-            (0x08, self.vendor_id),
-            (0x0C, self.product_code),
-            (0x10, self.version),
+            (MAGIC_AT, MAGIC),
+            // `format` and `header_size` in one word.
+            (FORMAT_AT, FORMAT as u32 | (HEADER_LEN as u32) << 16),
+            (VENDOR_ID_AT, self.vendor_id),
+            (PRODUCT_CODE_AT, self.product_code),
+            (VERSION_AT, self.version),
             (LENGTH_AT, self.length),
             (CRC_AT, self.crc),
         ];
@@ -254,6 +285,57 @@ mod tests {
         let slot = h.to_slot();
         assert_eq!(&slot[..32], &b);
         assert!(slot[32..].iter().all(|&x| x == 0xFF));
+    }
+
+    /// The field table tiles the header in order, and each field is where `to_bytes` puts it.
+    #[test]
+    fn fields_tile_the_header_where_to_bytes_puts_them() {
+        let mut at = 0;
+        for (name, offset, size) in FIELDS {
+            assert_eq!(offset, at, "{name}");
+            at += size;
+        }
+        assert_eq!(at, HEADER_LEN);
+        assert_eq!(HEADER_SIZE_AT, FORMAT_AT + 2);
+        let h = ImageHeader {
+            vendor_id: 0x1111_1111,
+            product_code: 0x2222_2222,
+            version: 0x3333_3333,
+            length: 0x4444_4444,
+            crc: 0x5555_5555,
+        };
+        let b = h.to_bytes();
+        let field = |name: &str| {
+            let &(_, offset, size) = FIELDS.iter().find(|(n, ..)| *n == name).unwrap();
+            let mut v = [0u8; 4];
+            v[..size].copy_from_slice(&b[offset..offset + size]);
+            u32::from_le_bytes(v)
+        };
+        assert_eq!(
+            [
+                "magic",
+                "format",
+                "header_size",
+                "vendor_id",
+                "product_code",
+                "version",
+                "length",
+                "crc",
+                "reserved",
+            ]
+            .map(field),
+            [
+                MAGIC,
+                u32::from(FORMAT),
+                HEADER_LEN as u32,
+                h.vendor_id,
+                h.product_code,
+                h.version,
+                h.length,
+                h.crc,
+                UNSET,
+            ]
+        );
     }
 
     #[test]

@@ -3,6 +3,9 @@
 
 /// Bytes in a flash page of the STM32F103C8 (medium density).
 pub const PAGE_SIZE: usize = 1024;
+/// Bytes of the chip's flash, from [`LOADER_ORIGIN`]: the loader's pages first, the
+/// parameter pages last.
+pub const CHIP_FLASH_SIZE: u32 = 64 * 1024;
 
 /// The loader's region (`LOADER`): pages 0-11.
 pub const LOADER_ORIGIN: u32 = 0x0800_0000;
@@ -35,10 +38,12 @@ pub const STORAGE_LENGTH: u32 = 2 * 1024;
 /// Static RAM of both images (`RAM`).
 pub const RAM_ORIGIN: u32 = 0x2000_0000;
 /// Length of `RAM`: 20 KiB less the hand-off words.
-pub const RAM_LENGTH: u32 = 20 * 1024 - 8;
+pub const RAM_LENGTH: u32 = 20 * 1024 - HANDOFF_LENGTH;
 /// The words between loader and application (`HANDOFF`): two words, no image's RAM, that
 /// hold the request to stay in the loader or the trial's count ([`crate::boot`]).
 pub const HANDOFF_ORIGIN: u32 = RAM_ORIGIN + RAM_LENGTH;
+/// Length of `HANDOFF`: two words, the last of SRAM.
+pub const HANDOFF_LENGTH: u32 = 8;
 /// Word 0 of a hand-off request ("LOAD"); word 1 is its complement.
 pub const HANDOFF_REQUEST: u32 = 0x4C4F_4144;
 
@@ -51,6 +56,8 @@ pub const fn is_handoff_request(words: [u32; 2]) -> bool {
 // The regions follow one another as the contract's table says.
 const _: () = assert!(LOADER_ORIGIN + LOADER_LENGTH == SLOT_ORIGIN);
 const _: () = assert!(SLOT_ORIGIN + SLOT_SIZE as u32 == STORAGE_ORIGIN);
-const _: () = assert!(STORAGE_ORIGIN + STORAGE_LENGTH == 0x0801_0000);
+const _: () = assert!(STORAGE_ORIGIN + STORAGE_LENGTH == LOADER_ORIGIN + CHIP_FLASH_SIZE);
+const _: () = assert!(LOADER_ORIGIN + CHIP_FLASH_SIZE == 0x0801_0000);
+const _: () = assert!(HANDOFF_ORIGIN + HANDOFF_LENGTH == 0x2000_5000);
 const _: () = assert!(APP_ORIGIN.is_multiple_of(512));
 const _: () = assert!(SLOT_ORIGIN.is_multiple_of(PAGE_SIZE as u32));

@@ -33,6 +33,14 @@ pub trait SlotFlash {
     fn read(&self, offset: usize, buf: &mut [u8]);
 }
 
+/// 0x1F57:1 bit 0: a download runs.
+pub const FLASH_IN_PROGRESS: u32 = 0x01;
+/// 0x1F57:1 bits 1-7: the code ([`FlashStatus`]), shifted by [`FLASH_CODE_SHIFT`] and
+/// masked by [`FLASH_CODE_MASK`].
+pub const FLASH_CODE_SHIFT: u32 = 1;
+/// The code's bits once shifted (CiA 302-3: 0..63 its own, 64..127 the manufacturer's).
+pub const FLASH_CODE_MASK: u32 = 0x7F;
+
 /// 0x1F57:1 bits 1-7: the flash status code.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -61,6 +69,44 @@ pub enum FlashStatus {
 }
 
 impl FlashStatus {
+    /// Every code the loader reports, in order.
+    pub const ALL: [Self; 8] = [
+        Self::Ok,
+        Self::NoValidProgram,
+        Self::FormatUnknown,
+        Self::FormatError,
+        Self::NotCleared,
+        Self::WriteError,
+        Self::AddressError,
+        Self::TrialFailed,
+    ];
+
+    /// The code in one line for an operator (the host command prints it after the code;
+    /// `cargo xtask contract` hands it to Python).
+    #[must_use]
+    pub const fn meaning(self) -> &'static str {
+        match self {
+            Self::Ok => "no error",
+            Self::NoValidProgram => "no valid program",
+            Self::FormatUnknown => {
+                "data format unknown (the header's magic, format or size, or another device's \
+                 image)"
+            }
+            Self::FormatError => {
+                "data format error (the CRC does not match, or the stream ended short or ran \
+                 past its length)"
+            }
+            Self::NotCleared => "flash not cleared (data before clear)",
+            Self::WriteError => "flash write error (an erase or program failed or read back wrong)",
+            Self::AddressError => "general address error (the image does not fit the slot)",
+            // MAX_TRIAL_STARTS (a test checks the number).
+            Self::TrialFailed => {
+                "the application was started 3 times and never became healthy on the bus (a \
+                 hang, a fault or a lock-up before it talks): the loader stays"
+            }
+        }
+    }
+
     /// The SDO abort that reports this failure (the contract's table); `None` for the
     /// codes no transfer gives.
     #[must_use]
@@ -244,7 +290,7 @@ impl Program {
     /// 0x1F57:1: the status code in bits 1-7, "in progress" in bit 0.
     #[must_use]
     pub const fn flash_status(&self) -> u32 {
-        ((self.status as u32) << 1) | self.streaming as u32
+        ((self.status as u32) << FLASH_CODE_SHIFT) | (self.streaming as u32 * FLASH_IN_PROGRESS)
     }
 
     /// Bytes of the running (or last) stream received.
@@ -472,5 +518,42 @@ impl Program {
         self.status = FlashStatus::Ok;
         self.software_id = header.crc;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::boot::MAX_TRIAL_STARTS;
+
+    /// `ALL` holds every code once, in order, each with a meaning of one line.
+    #[test]
+    fn every_flash_status_is_listed_once_with_its_meaning() {
+        for status in FlashStatus::ALL {
+            // A new variant fails to compile here until it is listed in `ALL` too.
+            match status {
+                FlashStatus::Ok
+                | FlashStatus::NoValidProgram
+                | FlashStatus::FormatUnknown
+                | FlashStatus::FormatError
+                | FlashStatus::NotCleared
+                | FlashStatus::WriteError
+                | FlashStatus::AddressError
+                | FlashStatus::TrialFailed => {}
+            }
+            let meaning = status.meaning();
+            assert!(!meaning.is_empty() && !meaning.contains('\n'), "{status:?}");
+            assert!(meaning.len() < 200 && !meaning.contains("  "), "{status:?}");
+        }
+        assert_eq!(FlashStatus::ALL.len(), 8);
+        let codes = FlashStatus::ALL.map(|s| s as u8);
+        assert!(codes.windows(2).all(|w| w[0] < w[1]), "{codes:?}");
+        assert!(codes.iter().all(|&c| u32::from(c) <= FLASH_CODE_MASK));
+        for status in FlashStatus::ALL {
+            let word = (status as u32) << FLASH_CODE_SHIFT | FLASH_IN_PROGRESS;
+            assert_eq!((word >> FLASH_CODE_SHIFT) & FLASH_CODE_MASK, status as u32);
+        }
+        let trial = FlashStatus::TrialFailed.meaning();
+        assert!(trial.contains(&format!("started {MAX_TRIAL_STARTS} times")));
     }
 }

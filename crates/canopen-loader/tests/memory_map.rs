@@ -2,8 +2,8 @@
 //! the same.
 
 use canopen_loader::layout::{
-    APP_ORIGIN, HANDOFF_ORIGIN, HEADER_SLOT, LOADER_LENGTH, LOADER_ORIGIN, MAX_IMAGE, RAM_LENGTH,
-    RAM_ORIGIN, SLOT_ORIGIN, STORAGE_LENGTH, STORAGE_ORIGIN,
+    APP_ORIGIN, HANDOFF_LENGTH, HANDOFF_ORIGIN, HEADER_SLOT, LOADER_LENGTH, LOADER_ORIGIN,
+    MAX_IMAGE, RAM_LENGTH, RAM_ORIGIN, SLOT_ORIGIN, STORAGE_LENGTH, STORAGE_ORIGIN,
 };
 
 /// Evaluates a length or origin of memory.x: hex or decimal numbers, `K` suffixes, `+`, `-`.
@@ -71,6 +71,6 @@ fn memory_x_is_the_layout() {
     assert_eq!(get("FLASH"), (APP_ORIGIN, MAX_IMAGE as u32));
     assert_eq!(get("STORAGE"), (STORAGE_ORIGIN, STORAGE_LENGTH));
     assert_eq!(get("RAM"), (RAM_ORIGIN, RAM_LENGTH));
-    assert_eq!(get("HANDOFF"), (HANDOFF_ORIGIN, 8));
+    assert_eq!(get("HANDOFF"), (HANDOFF_ORIGIN, HANDOFF_LENGTH));
     assert_eq!(HANDOFF_ORIGIN, 0x2000_4FF8);
 }

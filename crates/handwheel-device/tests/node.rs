@@ -571,7 +571,10 @@ fn the_trial_is_confirmed_once_when_a_frame_of_the_running_node_is_acknowledged(
     }
     r.port.bus_free = true;
     r.port.acknowledged = false;
-    assert!(!r.poll(100).confirm_trial, "booted, the boot-up not acknowledged yet");
+    assert!(
+        !r.poll(100).confirm_trial,
+        "booted, the boot-up not acknowledged yet"
+    );
     assert!(!r.poll(101).confirm_trial);
     r.port.acknowledged = true;
     assert!(r.poll(102).confirm_trial, "the boot-up acknowledged");
@@ -587,8 +590,14 @@ fn a_masters_confirm_ends_the_trial_without_an_acknowledgement() {
     assert!(!r.poll(0).confirm_trial);
     let confirm = [0x2F, 0x51, 0x1F, 0x01, 0x80, 0, 0, 0];
     let out = r.receive(10, 0x600 + u16::from(NODE), &confirm);
-    assert_eq!(r.sent_on(0x580 + u16::from(NODE)), [vec![0x60, 0x51, 0x1F, 0x01, 0, 0, 0, 0]]);
-    assert!(out.confirm_trial, "confirmed in the round that took the write");
+    assert_eq!(
+        r.sent_on(0x580 + u16::from(NODE)),
+        [vec![0x60, 0x51, 0x1F, 0x01, 0, 0, 0, 0]]
+    );
+    assert!(
+        out.confirm_trial,
+        "confirmed in the round that took the write"
+    );
     r.port.acknowledged = true;
     assert!(!r.poll(20).confirm_trial, "already confirmed");
 }

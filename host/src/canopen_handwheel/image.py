@@ -4,7 +4,8 @@ checks everything the loader would check that the file alone can tell, so that a
 damaged file is refused before the command touches the bus (the loader would refuse it too,
 but only after the application was stopped and its slot erased).
 
-Pure: standard library only, no I/O.
+Pure: standard library only, no I/O. The header's layout and the slot are the contract's
+(update_contract.py, generated from crates/canopen-loader).
 """
 
 from __future__ import annotations
@@ -13,13 +14,18 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-MAGIC = 0x4D49_5748  # the bytes "HWIM": the validity mark
-FORMAT = 1
-HEADER_SIZE = 32
-SLOT_HEADER = 512  # the header slot before the image
+from . import update_contract as contract
+
+# The contract's values (crates/canopen-loader, through update_contract.py), by this module's
+# names.
+MAGIC = contract.MAGIC  # the bytes "HWIM": the validity mark
+FORMAT = contract.FORMAT
+HEADER_SIZE = contract.HEADER_LEN
+SLOT_HEADER = contract.HEADER_SLOT  # the header slot before the image
 # The application slot, HEADER + FLASH: 0x0800_3000..0x0800_F800.
-SLOT_SIZE = 0x0800_F800 - 0x0800_3000
-_HEADER = struct.Struct("<IHHIIIIII")
+SLOT_SIZE = contract.SLOT_SIZE
+_HEADER = struct.Struct(contract.HEADER_STRUCT)
+_MARK = MAGIC.to_bytes(4, "little")
 
 
 class ImageError(ValueError):
@@ -49,7 +55,7 @@ class UpdateImage:
         )
         if magic != MAGIC:
             raise ImageError(
-                f"no update image header: the file begins {data[:4]!r}, not b'HWIM' (is it the "
+                f"no update image header: the file begins {data[:4]!r}, not {_MARK!r} (is it the "
                 "ELF or the loader's image instead of the update file `cargo xtask fw` prints?)"
             )
         if fmt != FORMAT or size != HEADER_SIZE:
@@ -57,7 +63,7 @@ class UpdateImage:
                 f"header format {fmt}, size {size}: this command knows format {FORMAT}, "
                 f"size {HEADER_SIZE}"
             )
-        if length == 0xFFFF_FFFF:
+        if length == contract.UNSET:
             raise ImageError("the header is not sealed (length unset): not an update file")
         if SLOT_HEADER + length > SLOT_SIZE:
             raise ImageError(

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from typing import Optional, Tuple
 
+from .update_contract import LOADER_DEVICE_TYPE as LOADER_DEVICE_TYPE
+
 # SDO abort: "data cannot be transferred because of the present device state".
 ABORT_DEVICE_STATE = 0x08000022
 
-# The resident loader's device type 0x1000, "BOOT" (docs/FIRMWARE-UPDATE.md): a device that
-# answers with it runs no application and sends no feed records.
-LOADER_DEVICE_TYPE = 0x544F_4F42
+# The resident loader's device type 0x1000 (`LOADER_DEVICE_TYPE`, "BOOT", from the update
+# contract, docs/FIRMWARE-UPDATE.md): a device that answers with it runs no application and
+# sends no feed records.
 
 # Another master's SDO exchange with the device (`canopen-handwheel update`, a configuration
 # tool): CiA 301's default SDO channel (0x600 + node, 0x580 + node) serves one client at a

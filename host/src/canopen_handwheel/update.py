@@ -45,7 +45,7 @@ import shlex
 from dataclasses import dataclass
 from typing import Generator, Optional, Sequence
 
-from .core import LOADER_DEVICE_TYPE
+from . import update_contract as contract
 from .decode import SDO_ABORTS
 from .image import UpdateImage
 
@@ -60,7 +60,10 @@ PROGRAM_ID = (0x1F56, 1)
 FLASH_STATUS = (0x1F57, 1)
 FEED_ENABLE = (0x2000, 0)
 
-LOADER_PRODUCT_BIT = 0x8000_0000
+# The loader's identity (crates/canopen-loader, through update_contract.py): its 0x1000, and
+# its 0x1018:2 is the application's product code with this bit set.
+LOADER_DEVICE_TYPE = contract.LOADER_DEVICE_TYPE
+LOADER_PRODUCT_BIT = contract.LOADER_PRODUCT_BIT
 
 # 0x1F51 values.
 STOP = 0
@@ -68,22 +71,18 @@ START = 1
 CLEAR = 3
 CONTROL_NAMES = {STOP: "stop", START: "start", CLEAR: "clear"}
 
-# 0x1F57: bit 0 in progress, bits 1-7 the code; what each code means for this loader.
-IN_PROGRESS = 0x01
-TRIAL_FAILED = 64  # the first of CiA 302-3's manufacturer-specific codes
+# 0x1F57: bit 0 in progress, bits 1-7 the code, and what each code means: the loader's codes
+# with their meanings (crates/canopen-loader, through update_contract.py), and two of CiA
+# 302-3's that this loader never reports.
+IN_PROGRESS = contract.FLASH_IN_PROGRESS
+CODE_SHIFT = contract.FLASH_CODE_SHIFT
+NO_ERROR = contract.FLASH_STATUS_OK
+NO_VALID_PROGRAM = contract.FLASH_STATUS_NO_VALID_PROGRAM
+TRIAL_FAILED = contract.FLASH_STATUS_TRIAL_FAILED  # the first manufacturer-specific code
 STATUS_CODES = {
-    0: "no error",
-    1: "no valid program",
-    2: "data format unknown (the header's magic, format or size, or another device's image)",
-    3: "data format error (the CRC does not match, or the stream ended short or ran past "
-    "its length)",
-    4: "flash not cleared (data before clear)",
-    5: "flash write error (an erase or program failed or read back wrong)",
-    6: "general address error (the image does not fit the slot)",
+    **contract.FLASH_STATUS_MEANINGS,
     7: "flash secured",
     63: "unspecified error",
-    TRIAL_FAILED: "the application was started 3 times and never became healthy on the bus "
-    "(a hang, a fault or a lock-up before it talks): the loader stays",
 }
 
 # SDO aborts (CiA 301), and what the loader and the application mean by them here.
@@ -129,7 +128,7 @@ def abort_text(code: int) -> str:
 
 def status_text(value: int) -> str:
     """0x1F57 in words."""
-    code = (value >> 1) & 0x7F
+    code = (value >> CODE_SHIFT) & contract.FLASH_CODE_MASK
     text = f"0x1F57 = 0x{value:08X}: code {code}, {STATUS_CODES.get(code, 'unknown code')}"
     if value & IN_PROGRESS:
         text += ", in progress"
@@ -362,7 +361,8 @@ class Update:
         before = self.before = yield from self._identify()
         yield Note(f"node {node}: {before.describe()}")
         if before.loader:
-            self.place = CLEARED if before.flash_status >> 1 == 1 else STOPPED_VALID
+            no_program = before.flash_status >> CODE_SHIFT == NO_VALID_PROGRAM
+            self.place = CLEARED if no_program else STOPPED_VALID
         else:
             yield from self._enter_loader()
         attempts = self.settings.retries + 1
@@ -514,7 +514,7 @@ class Update:
             return failure
         self.place = CLEARED
         status = yield from self._poll_status()
-        if status >> 1 not in (0, 1):  # cleared: no error, or "no valid program"
+        if status >> CODE_SHIFT not in (NO_ERROR, NO_VALID_PROGRAM):  # cleared
             return f"after clear, {status_text(status)}"
         out = yield Download(len(self.image.data), attempt, attempts)
         if not isinstance(out, Ok):
@@ -525,7 +525,7 @@ class Update:
                 return f"{what}; then {end.message.rstrip('.')}"
             return f"{what}; {status_text(status)}"
         status = yield from self._poll_status()
-        if status >> 1:
+        if status >> CODE_SHIFT != NO_ERROR:
             return f"download of 0x1F50:1 answered, but {status_text(status)}"
         crc = yield from self._u32(PROGRAM_ID, "the program identification 0x1F56")
         if crc != self.image.crc:
@@ -599,7 +599,7 @@ class Update:
                 yield Note(f"node {node} runs its application")
                 return
             status = yield from self._poll_status()
-            if status >> 1 == TRIAL_FAILED:
+            if status >> CODE_SHIFT == TRIAL_FAILED:
                 raise _End(
                     UNHEALTHY,
                     f"the new image never became healthy: node {node} came back as its loader "
