@@ -177,12 +177,12 @@ def test_conformance_table_aborts(rig):
         (
             "mapping entry while the PDO is valid",
             lambda: rig.write_abort(0x1A00, 1, (0x60040020).to_bytes(4, "little")),
-            0x08000022,
+            0x06010000,
         ),
         (
             "mapping count while the PDO is valid",
             lambda: rig.write_abort(0x1A00, 0, b"\x00"),
-            0x08000022,
+            0x06010000,
         ),
         (
             "EMCY COB-ID change while valid",
