@@ -170,6 +170,21 @@ pub const ALL: &[Bounds] = &[
         warmups: &[&[Warm::Turns(80)], &[Warm::Turns(124)]],
         ..NARROW
     },
+    // The one record of an epoch lost between two others: with a record waiting, the axis
+    // switched, a detent turned, the axis switched again, so that the middle epoch's only
+    // record (its final state) is the one the channel loses. Its motion must not be taken
+    // as the next epoch's, whose record follows the lost one without a gap in the epochs
+    // the host can tell.
+    Bounds {
+        name: "an epoch lost between two",
+        transmit_capacity: 1,
+        turns: 1,
+        switches: 2,
+        channel_faults: 1,
+        warmups: &[&[Warm::Turns(80), Warm::Held(1)]],
+        copy_depth: 0,
+        ..NARROW
+    },
     // A power cycle whose boot-up may be lost, copies of records from before it, and the
     // host configuring again when its rule asks.
     Bounds {
