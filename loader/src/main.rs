@@ -27,6 +27,7 @@ use defmt_rtt as _;
 
 mod bus;
 mod flash;
+mod mem;
 
 use canopen_loader::boot::{LISTEN_MS, MAX_TRIAL_STARTS};
 use canopen_loader::layout::{APP_ORIGIN, HANDOFF_ORIGIN};

@@ -3,7 +3,8 @@
 //! frames out through a [`FrameSink`], flash through a [`SlotFlash`].
 //!
 //! Boot-up, NMT slave, heartbeat producer (0x1017, not stored), the engine's SDO server
-//! (expedited and segmented; 0x1F50:1 streamed segment by segment into the slot) and the
+//! (expedited, segmented and block download; 0x1F50:1 streamed into the slot segment by
+//! segment, or sub-block by sub-block before each is acknowledged) and the
 //! objects 0x1000, 0x1001, 0x1017, 0x1018, 0x1F50, 0x1F51, 0x1F56, 0x1F57. No PDOs, no EMCY.
 
 use canopen_slave::frame::cob;
@@ -246,10 +247,14 @@ impl<F: SlotFlash> ObjectAccess for Objects<'_, F> {
     }
 }
 
+/// The block download's buffer: a sub-block of 127 segments (CiA 301's largest), taken into
+/// RAM and written to flash before its acknowledgement, while the client waits.
+pub const SDO_BLOCK_BYTES: usize = 127 * 7;
+
 /// The loader's node.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct LoaderNode {
-    sdo: SdoServer,
+    sdo: SdoServer<SDO_BLOCK_BYTES>,
     inner: Inner,
 }
 

@@ -13,6 +13,12 @@ pub enum SdoAbort {
     Timeout = 0x0504_0000,
     /// Client/server command specifier not valid or unknown.
     UnknownCommand = 0x0504_0001,
+    /// Invalid block size (block transfer).
+    InvalidBlockSize = 0x0504_0002,
+    /// Invalid sequence number (block transfer).
+    InvalidSequence = 0x0504_0003,
+    /// CRC error (block transfer).
+    CrcError = 0x0504_0004,
     /// Out of memory.
     OutOfMemory = 0x0504_0005,
     /// Unsupported access to an object.

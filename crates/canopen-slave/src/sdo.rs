@@ -1,15 +1,25 @@
-//! SDO server (CiA 301 7.2.4): expedited and segmented transfers, abort codes.
+//! SDO server (CiA 301 7.2.4): expedited and segmented transfers, block download with its
+//! CRC, abort codes.
 //!
-//! The server owns only the protocol state and a small transfer buffer; object access goes
+//! The server owns only the protocol state and its transfer buffers; object access goes
 //! through `ObjectAccess`, implemented by the device, so the protocol code never sees the
 //! object dictionary's internals.
+//!
+//! Block download needs a buffer of its own, `BLOCK` bytes (the server's const parameter):
+//! a sub-block of `BLOCK / 7` segments (at most 127) is taken into RAM and handed to the
+//! object only once it is complete, before its acknowledgement. So the object's slow work
+//! (a flash page erased and programmed) falls where the client waits for the acknowledgement
+//! and the bus is quiet, and no frame of a sub-block arrives while the CPU stalls on flash.
+//! With `BLOCK` below 7 (the default, 0) block download is refused as before (0x05040001)
+//! and costs neither RAM nor code. Block upload is not supported.
 
 pub use crate::abort::SdoAbort;
+use crate::crc::Crc16;
 use crate::nmt::NmtState;
 use crate::time::Instant;
 
 /// Size of the segmented-transfer buffer: the longest object that can be uploaded or
-/// downloaded (device strings are short; block transfer is not supported).
+/// downloaded segmented (device strings are short).
 pub const SDO_BUFFER: usize = 32;
 
 /// What the SDO server needs from the object dictionary. Every method checks existence and
@@ -51,12 +61,16 @@ pub trait ObjectAccess {
     }
 }
 
-/// Which segmented transfer is running, named after the CiA 301 protocols.
+/// Which transfer is running, named after the CiA 301 protocols.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Mode {
     Idle,
     SegmentedDownload,
     SegmentedUpload,
+    /// Sub-blocks coming in.
+    BlockDownload,
+    /// The last segment taken: the end request (its CRC and the unused bytes) is next.
+    BlockDownloadEnd,
 }
 
 /// The SDO server: one transfer at a time, replies built into 8-byte payloads.
@@ -65,7 +79,7 @@ enum Mode {
 /// past `mode` only mean something while a transfer runs, and flat fields are much cheaper
 /// to update in place.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
-pub struct SdoServer {
+pub struct SdoServer<const BLOCK: usize = 0> {
     mode: Mode,
     /// Toggle bit the next segment must carry.
     toggle: bool,
@@ -81,6 +95,20 @@ pub struct SdoServer {
     deadline: Instant,
     timeout_us: u32,
     buf: [u8; SDO_BUFFER],
+    /// Block download: the last segment of this sub-block taken in sequence (0: none yet).
+    seq: u8,
+    /// Block download: the segment with c = 1 was taken.
+    last_taken: bool,
+    /// Block download: whether the client asked for the CRC.
+    crc_asked: bool,
+    /// Block download: the CRC of the bytes handed to the object so far.
+    crc: Crc16,
+    /// Block download: bytes in `block` (a streamed object: of this sub-block, or the last
+    /// segment held back for the end request; else of the whole transfer).
+    block_len: u16,
+    /// Block download: bytes taken in sequence in the whole transfer.
+    taken: u32,
+    block: [u8; BLOCK],
 }
 
 type Reply = Result<[u8; 8], SdoAbort>;
@@ -96,7 +124,14 @@ pub(crate) fn abort_payload(index: u16, sub: u8, abort: SdoAbort) -> [u8; 8] {
     reply(0x80, index, sub, abort.code())
 }
 
-impl SdoServer {
+impl<const BLOCK: usize> SdoServer<BLOCK> {
+    /// Segments per sub-block of a block download (0: block download refused).
+    pub const BLOCK_SIZE: u8 = if BLOCK / 7 > 127 {
+        127
+    } else {
+        (BLOCK / 7) as u8
+    };
+
     /// An idle server whose transfers time out `timeout_ms` after the client's last request.
     pub const fn new(timeout_ms: u16) -> Self {
         Self {
@@ -111,6 +146,13 @@ impl SdoServer {
             // u16 * 1000 always fits a u32.
             timeout_us: timeout_ms as u32 * 1000,
             buf: [0; SDO_BUFFER],
+            seq: 0,
+            last_taken: false,
+            crc_asked: false,
+            crc: Crc16::new(),
+            block_len: 0,
+            taken: 0,
+            block: [0; BLOCK],
         }
     }
 
@@ -163,22 +205,40 @@ impl SdoServer {
         let data = u32::from_le_bytes([d0, d1, d2, d3]);
         let ccs = cmd >> 5;
         // Segment requests carry no multiplexer: an abort then names the running transfer.
-        let segment = ccs == 0 || ccs == 3;
+        // (`BLOCK_SIZE > 0` first: a server without block download compiles without it.)
+        let block = Self::BLOCK_SIZE > 0
+            && matches!(self.mode, Mode::BlockDownload | Mode::BlockDownloadEnd);
+        let segment = ccs == 0 || ccs == 3 || block;
         let (abort_index, abort_sub) = if segment && self.mode != Mode::Idle {
             (self.index, self.sub)
         } else {
             (index, sub)
         };
         let result = match ccs {
-            0 | 3 => self.segment(cmd, req, od),
-            1 => self.initiate_download(cmd, index, sub, data, od),
-            2 => self.initiate_upload(index, sub, od),
-            4 => {
-                // An abort from the client ends the transfer without an answer.
+            // An abort from the client ends the transfer without an answer (0x80 is never
+            // a sub-block's segment: their sequence numbers start at 1).
+            4 if cmd == 0x80 || !block => {
                 self.reset();
                 return None;
             }
-            // 5 and 6 are block upload/download, 7 is undefined.
+            // Within a sub-block every frame is a segment, whatever its first byte.
+            _ if block && self.mode == Mode::BlockDownload => match self.block_segment(req, od) {
+                Ok(None) => {
+                    self.deadline = now.after_us(self.timeout_us);
+                    return None;
+                }
+                Ok(Some(ack)) => Ok(ack),
+                Err(abort) => Err(abort),
+            },
+            _ if block => self.block_end(cmd, req, od),
+            0 | 3 => self.segment(cmd, req, od),
+            1 => self.initiate_download(cmd, index, sub, data, od),
+            2 => self.initiate_upload(index, sub, od),
+            6 if Self::BLOCK_SIZE > 0 && cmd & 0x01 == 0 => {
+                self.initiate_block_download(cmd, index, sub, data, od)
+            }
+            // 5 is block upload, 6 with cs = 1 a block download's end outside one, 7 is
+            // undefined.
             _ => Err(SdoAbort::UnknownCommand),
         };
         match result {
@@ -278,6 +338,127 @@ impl SdoServer {
             self.reset();
         }
         Ok([0x20 | toggle, 0, 0, 0, 0, 0, 0, 0])
+    }
+
+    /// A block download's initiate (client command specifier 6, cs = 0): `cmd` bit 2 the
+    /// client's CRC support, bit 1 the size in `data`.
+    fn initiate_block_download(
+        &mut self,
+        cmd: u8,
+        index: u16,
+        sub: u8,
+        data: u32,
+        od: &mut impl ObjectAccess,
+    ) -> Reply {
+        self.reset();
+        if Self::BLOCK_SIZE == 0 {
+            return Err(SdoAbort::UnknownCommand);
+        }
+        let size = (cmd & 0x02 != 0).then_some(data);
+        od.check_download(index, sub, size)?;
+        if !od.streams(index, sub) && size.is_some_and(|s| s as usize > BLOCK) {
+            // Taken whole into the block buffer: it cannot hold more.
+            return Err(SdoAbort::TooLong);
+        }
+        self.begin(Mode::BlockDownload, index, sub);
+        self.size = size;
+        self.seq = 0;
+        self.last_taken = false;
+        self.crc_asked = cmd & 0x04 != 0;
+        self.crc = Crc16::new();
+        self.block_len = 0;
+        self.taken = 0;
+        // scs = 5, sc = 1 (the server checks the CRC), ss = 0; byte 4 the sub-block size.
+        Ok(reply(0xA4, index, sub, u32::from(Self::BLOCK_SIZE)))
+    }
+
+    /// One segment of a sub-block: byte 0 is c (bit 7, the last of the transfer) and the
+    /// sequence number (1..=`BLOCK_SIZE`), bytes 1-7 the data. Segments out of sequence
+    /// (one before them lost, or a repeat) are ignored; the sub-block ends with the segment
+    /// numbered `BLOCK_SIZE` or one with c = 1, and its acknowledgement names the last one
+    /// taken in sequence, from which the client sends again. What was taken goes to a
+    /// streamed object before the acknowledgement.
+    fn block_segment(
+        &mut self,
+        req: &[u8; 8],
+        od: &mut impl ObjectAccess,
+    ) -> Result<Option<[u8; 8]>, SdoAbort> {
+        let seqno = req[0] & 0x7F;
+        let last = req[0] & 0x80 != 0;
+        if seqno == 0 || seqno > Self::BLOCK_SIZE {
+            return Err(SdoAbort::InvalidSequence);
+        }
+        if seqno == self.seq + 1 && !self.last_taken {
+            let start = usize::from(self.block_len);
+            let dst = self
+                .block
+                .get_mut(start..start + 7)
+                .ok_or(SdoAbort::TooLong)?;
+            dst.copy_from_slice(&req[1..]);
+            // start + 7 <= BLOCK <= u16::MAX here (checked by the slice above and the
+            // block size); the transfer's length is checked against its size at the end.
+            self.block_len += 7;
+            self.taken = self.taken.wrapping_add(7);
+            self.seq = seqno;
+            self.last_taken = last;
+        }
+        if seqno < Self::BLOCK_SIZE && !last {
+            return Ok(None);
+        }
+        if od.streams(self.index, self.sub) {
+            // The last segment waits for the end request, which says how much of it is data.
+            let held = if self.last_taken { 7 } else { 0 };
+            let len = usize::from(self.block_len) - held;
+            let data = self.block.get(..len).unwrap_or(&[]);
+            if !data.is_empty() {
+                self.crc = self.crc.update(data);
+                od.download_chunk(self.index, self.sub, data, false)?;
+            }
+            // The held segment to the front, where the next sub-block would start (byte by
+            // byte: `copy_within` would bring in a general `memmove`).
+            for i in 0..held {
+                let byte = self.block.get(len + i).copied().unwrap_or(0);
+                if let Some(dst) = self.block.get_mut(i) {
+                    *dst = byte;
+                }
+            }
+            self.block_len = held as u16;
+        }
+        let ackseq = self.seq;
+        self.seq = 0;
+        if self.last_taken {
+            self.mode = Mode::BlockDownloadEnd;
+        }
+        Ok(Some([0xA2, ackseq, Self::BLOCK_SIZE, 0, 0, 0, 0, 0]))
+    }
+
+    /// The end request (ccs = 6, cs = 1): `n`, the bytes of the last segment that carry no
+    /// data, in bits 2-4, the CRC in bytes 1-2. The length and the CRC are checked before
+    /// the object gets the rest.
+    fn block_end(&mut self, cmd: u8, req: &[u8; 8], od: &mut impl ObjectAccess) -> Reply {
+        if cmd & 0xE3 != 0xC1 {
+            return Err(SdoAbort::UnknownCommand);
+        }
+        let unused = (cmd >> 2) & 0x07;
+        let len = usize::from(self.block_len)
+            .checked_sub(usize::from(unused))
+            .ok_or(SdoAbort::LengthMismatch)?;
+        let total = self.taken.wrapping_sub(u32::from(unused));
+        if self.size.is_some_and(|s| s != total) {
+            return Err(SdoAbort::LengthMismatch);
+        }
+        let data = self.block.get(..len).unwrap_or(&[]);
+        let crc = self.crc.update(data).finish();
+        if self.crc_asked && crc != u16::from_le_bytes([req[1], req[2]]) {
+            return Err(SdoAbort::CrcError);
+        }
+        if od.streams(self.index, self.sub) {
+            od.download_chunk(self.index, self.sub, data, true)?;
+        } else {
+            od.download(self.index, self.sub, data)?;
+        }
+        self.reset();
+        Ok([0xA1, 0, 0, 0, 0, 0, 0, 0])
     }
 
     fn initiate_upload(&mut self, index: u16, sub: u8, od: &mut impl ObjectAccess) -> Reply {
