@@ -3,10 +3,12 @@ application's 0x1F51 "stop" into the loader, the loader's clear, download, check
 0x1F56 and 0x1F57, the boot decision with its trial boot (an image that never becomes healthy
 leaves the loader in charge with code 64; one that never talks answers nothing). The update's
 tests drive it step by step (test_update.py) and through python-canopen on the virtual bus
-(test_update_cli.py)."""
+(test_update_cli.py), there also behind `BlockDownloadServer`, the server's side of SDO block
+download with its CRC-16."""
 
 import struct
 import zlib
+from typing import Optional
 
 from canopen_handwheel import image
 
@@ -189,3 +191,147 @@ class ProgramDevice:
             raise Abort(0x0800_0020)
         self.slot = bytes(data)
         self.status = status(0)
+
+
+# SDO block download ----------------------------------------------------------------------
+
+
+def crc16_xmodem(data: bytes, crc: int = 0) -> int:
+    """CRC-16/XMODEM (CiA 301's block transfer CRC): polynomial 0x1021, initial 0, no
+    reflection, no final XOR; bit by bit, independent of python-canopen's."""
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = (crc << 1 ^ 0x1021 if crc & 0x8000 else crc << 1) & 0xFFFF
+    return crc
+
+
+ABORT_COMMAND = 0x0504_0001
+ABORT_SEQUENCE = 0x0504_0003
+ABORT_CRC = 0x0504_0004
+ABORT_LENGTH = 0x0607_0010
+
+
+class BlockDownloadServer:
+    """The server's side of CiA 301 SDO block download into one object (`index`, `sub`), for
+    the tests: `request(frame)` takes each frame the client sends to the node's SDO server and
+    returns the answer (None: none). The whole stream goes to `deliver` (a `ProgramDevice`'s
+    `download`: its `Abort` becomes the end's abort) after the end request, once its length
+    and its CRC-16 are right. Segments out of sequence are ignored; a sub-block ends with the
+    segment numbered `blksize` or one with c = 1, acknowledged with the last one taken in
+    sequence (as the loader does: crates/canopen-slave/src/sdo.rs). Faults: `lose` the
+    segment frames (counted from 1 over the server's life) that never arrive; `damage` a byte
+    offset flipped on arrival (the end's CRC no longer matches); `abort_block` (n, code):
+    the n-th sub-block's acknowledgement is that abort instead. `log` has what happened,
+    `frames` every frame received."""
+
+    IDLE, SUBBLOCK, END = "idle", "sub-block", "end"
+
+    def __init__(
+        self, index, sub, deliver, blksize=127, lose=(), damage=None, abort_block=None
+    ) -> None:
+        assert 1 <= blksize <= 127
+        self.index, self.sub = index, sub
+        self.deliver = deliver
+        self.blksize = blksize
+        self.lose = set(lose)
+        self.damage = damage
+        self.abort_block = abort_block
+        self.state = self.IDLE
+        self.segments = 0  # segment frames sent to the server (lost ones too)
+        self.log = []
+        self.frames = []
+
+    @property
+    def busy(self) -> bool:
+        return self.state != self.IDLE
+
+    def _mux(self) -> bytes:
+        return struct.pack("<HB", self.index, self.sub)
+
+    def _abort(self, code: int, mux: bytes = b"") -> bytes:
+        self.log.append(("abort", code))
+        self.state = self.IDLE
+        return b"\x80" + (mux or self._mux()) + struct.pack("<I", code)
+
+    def request(self, frame: bytes) -> Optional[bytes]:
+        frame = bytes(frame).ljust(8, b"\x00")
+        cmd = frame[0]
+        if self.state == self.SUBBLOCK:
+            self.segments += 1
+            if self.segments in self.lose:
+                self.log.append(("lost", cmd & 0x7F))
+                return None
+        self.frames.append(frame)
+        if cmd == 0x80 and self.busy:  # the client's abort (no segment has sequence number 0)
+            self.log.append(("client abort", struct.unpack_from("<I", frame, 4)[0]))
+            self.state = self.IDLE
+            return None
+        if self.state == self.IDLE:
+            return self._initiate(frame)
+        if self.state == self.SUBBLOCK:
+            return self._segment(frame)
+        return self._end(frame)
+
+    def _initiate(self, frame: bytes) -> bytes:
+        cmd = frame[0]
+        if cmd & 0xE1 != 0xC0:  # not ccs 6 with cs 0
+            return self._abort(ABORT_COMMAND, frame[1:4])
+        if frame[1:4] != self._mux():
+            return self._abort(0x0602_0000, frame[1:4])
+        self.crc_asked = bool(cmd & 0x04)
+        self.size = struct.unpack_from("<I", frame, 4)[0] if cmd & 0x02 else None
+        self.log.append(("initiate", self.crc_asked, self.size))
+        self.data = bytearray()  # taken in sub-blocks acknowledged
+        self.pending = bytearray()  # taken in sequence in this sub-block
+        self.ackseq = 0
+        self.last = False
+        self.blocks = 0
+        self.state = self.SUBBLOCK
+        # scs 5, sc 1 (the server checks the CRC), ss 0; byte 4 the sub-block size.
+        return bytes([0xA4]) + self._mux() + bytes([self.blksize, 0, 0, 0])
+
+    def _segment(self, frame: bytes) -> Optional[bytes]:
+        seqno, c = frame[0] & 0x7F, bool(frame[0] & 0x80)
+        if not 1 <= seqno <= self.blksize:
+            return self._abort(ABORT_SEQUENCE)
+        if seqno == self.ackseq + 1 and not self.last:
+            chunk = bytearray(frame[1:8])
+            at = -1 if self.damage is None else self.damage - len(self.data) - len(self.pending)
+            if 0 <= at < 7:
+                chunk[at] ^= 0xFF
+            self.pending += chunk
+            self.ackseq = seqno
+            self.last = c
+        if seqno < self.blksize and not c:
+            return None
+        self.blocks += 1
+        if self.abort_block is not None and self.blocks == self.abort_block[0]:
+            return self._abort(self.abort_block[1])
+        self.data += self.pending
+        self.pending = bytearray()
+        ackseq, self.ackseq = self.ackseq, 0
+        self.log.append(("ack", ackseq, self.blksize))
+        if self.last:
+            self.state = self.END
+        return bytes([0xA2, ackseq, self.blksize, 0, 0, 0, 0, 0])
+
+    def _end(self, frame: bytes) -> bytes:
+        cmd = frame[0]
+        if cmd & 0xE3 != 0xC1:  # not ccs 6 with cs 1
+            return self._abort(ABORT_COMMAND)
+        unused = cmd >> 2 & 0x07
+        data = bytes(self.data[: len(self.data) - unused])
+        crc = struct.unpack_from("<H", frame, 1)[0]
+        self.log.append(("end", unused, crc))
+        if self.size is not None and len(data) != self.size:
+            return self._abort(ABORT_LENGTH)
+        if self.crc_asked and crc16_xmodem(data) != crc:
+            return self._abort(ABORT_CRC)
+        try:
+            self.deliver(data)
+        except Abort as e:
+            return self._abort(e.code)
+        self.state = self.IDLE
+        self.log.append(("done", len(data)))
+        return bytes([0xA1, 0, 0, 0, 0, 0, 0, 0])

@@ -2,6 +2,7 @@
 against a model of the device's program download (program_device.py), step by step: the
 contract's sequence, refusals, the device's answers and aborts, lost answers and boot-ups."""
 
+import dataclasses
 import struct
 import zlib
 
@@ -40,11 +41,15 @@ MASTER_STARTS = "master starts"  # another master sends NMT start before this st
 
 class Driver:
     """Carries out the planner's steps on a `ProgramDevice`, with `faults(n, step)` naming
-    what goes wrong with step n (None: nothing)."""
+    what goes wrong with step n (None: nothing; an `Aborted`: a `Download`'s answer, the
+    device doing nothing). `block`: the device's SDO server offers block download (without
+    it, a block download's initiate is aborted with 0x05040001, as by the loader before it
+    had block download and by python-canopen's LocalNode)."""
 
-    def __init__(self, dev: ProgramDevice, faults=None):
+    def __init__(self, dev: ProgramDevice, faults=None, block=True):
         self.dev = dev
         self.faults = faults or (lambda n, step: None)
+        self.block = block
         self.seen_bootups = 0
         self.armed = 0
         self.steps = []
@@ -84,6 +89,11 @@ class Driver:
             return Ok()
         if fault == LOSE_REQUEST:
             return NoAnswer("timeout")
+        if isinstance(fault, Aborted):
+            assert isinstance(step, update.Download)
+            return fault
+        if isinstance(step, update.Download) and step.transfer == update.BLOCK and not self.block:
+            return Aborted(update.ABORT_NO_BLOCK, at_initiate=True)
         try:
             if isinstance(step, update.Read):
                 out = Ok(dev.read(step.index, step.sub))
@@ -94,6 +104,7 @@ class Driver:
                 out = Ok()
             elif isinstance(step, update.Download):
                 assert step.size == len(NEW_IMAGE.data)
+                assert step.transfer in (update.BLOCK, update.SEGMENTED)
                 dev.download(self.data)
                 out = Ok()
             else:
@@ -111,8 +122,8 @@ class Driver:
     data = NEW
 
 
-def run(dev, faults=None, settings=FAST, data=NEW):
-    d = Driver(dev, faults)
+def run(dev, faults=None, settings=FAST, data=NEW, block=True):
+    d = Driver(dev, faults, block)
     d.data = data
     plan = update.Update(image.UpdateImage.parse(NEW), settings)
     return d.run(plan), d
@@ -120,6 +131,13 @@ def run(dev, faults=None, settings=FAST, data=NEW):
 
 def writes(d):
     return [(s.index, s.value) for s in d.steps if isinstance(s, update.Write)]
+
+
+def downloads(d):
+    return [(s.attempt, s.transfer) for s in d.steps if isinstance(s, update.Download)]
+
+
+BLOCK, SEGMENTED = update.BLOCK, update.SEGMENTED
 
 
 def test_a_full_update_from_the_application_in_the_contracts_order():
@@ -166,6 +184,9 @@ def test_a_full_update_from_the_application_in_the_contracts_order():
     assert writes(d) == [(0x1F51, 0), (0x1F51, 3), (0x1F51, 1)]
     assert [s.arm_bootup for s in d.steps if isinstance(s, update.Write)] == [True, False, True]
     assert dev.bootups == 3  # power-on, the loader, the new application
+    # By block download, which this device offers (`Settings.transfer` is AUTO).
+    assert FAST.transfer == update.AUTO and downloads(d) == [(1, BLOCK)]
+    assert not any("block" in n for n in d.notes)
 
 
 def test_a_device_in_its_loader_is_updated_without_a_stop():
@@ -376,6 +397,114 @@ def test_no_retries_means_one_download():
     assert sum(isinstance(s, update.Download) for s in d.steps) == 1
 
 
+def test_auto_goes_segmented_at_once_where_block_is_not_offered_and_remembers_it():
+    """A device without block download aborts the block download's initiate with
+    0x05040001: one line says so, and the same attempt goes on segmented at once, without a
+    clear again (nothing was written, the loader is still cleared). The attempt after a
+    failed one goes segmented directly."""
+    dev = ProgramDevice(OLD)
+    segmented = []
+
+    def faults(n, step):  # the first segmented download's request is lost
+        if isinstance(step, update.Download) and step.transfer == SEGMENTED:
+            segmented.append(n)
+            return LOSE_REQUEST if len(segmented) == 1 else None
+        return None
+
+    result, d = run(dev, faults, block=False)
+    assert result.status == update.OK and dev.crc() == NEW_IMAGE.crc
+    assert downloads(d) == [(1, BLOCK), (1, SEGMENTED), (2, SEGMENTED)]
+    first = next(i for i, s in enumerate(d.steps) if isinstance(s, update.Download))
+    note, then = d.steps[first + 1], d.steps[first + 2]
+    assert isinstance(note, update.Note) and note.text == (
+        "node 16 does not offer SDO block download (its initiate answered SDO abort "
+        "0x05040001 (command specifier not valid or unknown)): downloading segmented"
+    )
+    assert then == update.Download(len(NEW), 1, 3, SEGMENTED)
+    assert writes(d) == [(0x1F51, 0), (0x1F51, 3), (0x1F51, 3), (0x1F51, 1)]  # a clear each
+    assert sum("does not offer SDO block download" in n for n in d.notes) == 1
+    assert sum("trying again from clear (2 of 3)" in n for n in d.notes) == 1
+
+
+def test_block_only_fails_where_block_is_not_offered():
+    settings = dataclasses.replace(FAST, transfer=BLOCK)
+    result, d = run(ProgramDevice(OLD), settings=settings, block=False)
+    assert result.status == update.FAILED and result.exit_code == update.EXIT_FAILED
+    assert downloads(d) == [(1, BLOCK), (2, BLOCK), (3, BLOCK)]
+    assert "the download failed 3 times; the last: download of 0x1F50:1: SDO abort " in (
+        result.message
+    )
+    assert "0x05040001 (command specifier not valid or unknown) at the block download's " in (
+        result.message
+    )
+    assert "does not offer SDO block download: --sdo-transfer auto or segmented" in (result.message)
+    assert not any("downloading segmented" in n for n in d.notes)
+    assert "without a valid application" in result.message
+
+
+@pytest.mark.parametrize("block", [True, False])
+def test_segmented_never_tries_block(block):
+    settings = dataclasses.replace(FAST, transfer=SEGMENTED)
+    dev = ProgramDevice(OLD)
+    downloads_seen = []
+
+    def faults(n, step):  # the first download fails: the retry is segmented too
+        if isinstance(step, update.Download):
+            downloads_seen.append(n)
+            return LOSE_ANSWER if len(downloads_seen) == 1 else None
+        return None
+
+    result, d = run(dev, faults, settings=settings, block=block)
+    assert result.status == update.OK and dev.crc() == NEW_IMAGE.crc
+    assert downloads(d) == [(1, SEGMENTED), (2, SEGMENTED)]
+    assert not any("block" in n for n in d.notes)
+
+
+@pytest.mark.parametrize(
+    "transfer, abort, words",
+    [
+        # Later in a block download: not the refusal of block download.
+        (update.AUTO, Aborted(0x0504_0001), "0x05040001 (command specifier"),
+        (update.AUTO, Aborted(0x0504_0004), "0x05040004 (CRC error)"),
+        (update.AUTO, Aborted(0x0504_0003), "0x05040003 (invalid sequence number)"),
+        # Another abort at the initiate: the device has block download, and refused this one.
+        (update.AUTO, Aborted(0x0504_0005, at_initiate=True), "0x05040005 (out of memory)"),
+        # The abort that refuses block download, at a segmented download's initiate.
+        (SEGMENTED, Aborted(0x0504_0001, at_initiate=True), "0x05040001 (command specifier"),
+    ],
+)
+def test_an_abort_other_than_block_refused_at_its_initiate_is_a_failed_attempt(
+    transfer, abort, words
+):
+    """Only 0x05040001 answering a block download's initiate means "no block download";
+    any other abort of a download is a failed attempt, tried again from clear with the same
+    transfer."""
+    settings = dataclasses.replace(FAST, transfer=transfer)
+    dev = ProgramDevice(OLD)
+    seen = []
+
+    def faults(n, step):
+        if isinstance(step, update.Download):
+            seen.append(n)
+            return abort if len(seen) == 1 else None
+        return None
+
+    result, d = run(dev, faults, settings=settings)
+    assert result.status == update.OK and dev.crc() == NEW_IMAGE.crc
+    first = BLOCK if transfer == update.AUTO else SEGMENTED
+    assert downloads(d) == [(1, first), (2, first)]
+    assert writes(d).count((0x1F51, 3)) == 2
+    assert not any("does not offer SDO block download" in n for n in d.notes)
+    (again,) = [n for n in d.notes if "trying again from clear" in n]
+    assert again.startswith(f"download of 0x1F50:1: SDO abort {words}")
+    assert "at the block download's initiate" not in again
+
+
+def test_an_unknown_transfer_is_refused():
+    with pytest.raises(ValueError, match="transfer 'fast' is not one of"):
+        update.Update(NEW_IMAGE, dataclasses.replace(FAST, transfer="fast"))
+
+
 def test_a_start_whose_boot_up_was_lost_is_seen_by_its_device_type():
     dev = ProgramDevice(OLD)
 
@@ -476,20 +605,37 @@ FAULTS = st.sampled_from([None] * 6 + [LOSE_ANSWER, LOSE_REQUEST, LOSE_BOOTUP, M
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(FAULTS, max_size=80), st.booleans(), st.integers(0, 3))
-def test_whatever_goes_wrong_the_update_ends_and_never_claims_what_is_not(faults, loader, polls):
+@given(
+    st.lists(FAULTS, max_size=80),
+    st.booleans(),
+    st.integers(0, 3),
+    st.sampled_from(update.TRANSFERS),
+    st.booleans(),
+)
+def test_whatever_goes_wrong_the_update_ends_and_never_claims_what_is_not(
+    faults, loader, polls, transfer, block
+):
     """Lost answers, lost requests, lost boot-ups and another master's NMT start at any
-    steps: the update ends within a bounded number of steps, never raises, and reports
-    success only when the device runs the new application; a device it leaves in its
+    steps, with any transfer setting, on a device with block download or without: the
+    update ends within a bounded number of steps, never raises, and reports success only
+    when the device runs the new application; a download is never by a transfer the setting
+    excludes, and never by block again once it went segmented; a device it leaves in its
     loader still answers and takes a clean update afterwards."""
     dev = ProgramDevice(None if loader else OLD, status_polls=polls)
-    result, d = run(dev, lambda n, s: faults[n] if n < len(faults) else None)
+    settings = dataclasses.replace(FAST, transfer=transfer)
+    result, d = run(dev, lambda n, s: faults[n] if n < len(faults) else None, settings, block=block)
     assert result.status in (update.OK, update.FAILED, update.REFUSED)
     assert result.message
     if result.status == update.OK:
         assert not dev.loader and dev.crc() == NEW_IMAGE.crc
+    used = [t for _, t in downloads(d)]
+    if transfer != update.AUTO:
+        assert set(used) <= {transfer}
+    assert BLOCK not in used[used.index(SEGMENTED) :] if SEGMENTED in used else True
+    if transfer == BLOCK and not block:
+        assert result.status != update.OK
     # The device is never left unreachable, and a clean run afterwards updates it.
-    again, _ = run(dev)
+    again, _ = run(dev, block=block)
     assert again.status == update.OK and not dev.loader and dev.crc() == NEW_IMAGE.crc
 
 

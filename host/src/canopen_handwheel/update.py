@@ -7,10 +7,10 @@ hands back its outcome (`answer`), which gives the next step, until `step` is No
 `result` says how it ended. Steps: `Read`, `Write` (an expedited SDO download; `arm_bootup`:
 forget the boot-ups seen so far first, so that `WaitBootup` waits for one after this write),
 `PreOperational` (NMT to the node), `WaitBootup`, `Pause`, `Download` (0x1F50:1, the whole
-update file, segmented), `HoldInLoader` (the rescue request until it is answered) and `Note`
-(a line for the operator). Outcomes: `Ok` (with the value
-of a `Read`), `Aborted` (the SDO abort code) and `NoAnswer` (a timeout, an unexpected frame,
-no boot-up in time).
+update file, by SDO block download or segmented: its `transfer`), `HoldInLoader` (the rescue
+request until it is answered) and `Note` (a line for the operator). Outcomes: `Ok` (with the
+value of a `Read`), `Aborted` (the SDO abort code; for a `Download`, whether it answered the
+transfer's initiate) and `NoAnswer` (a timeout, an unexpected frame, no boot-up in time).
 
 The order, and why:
 - read 0x1000 (application or loader), 0x1018 (the file must be for this device: a loader's
@@ -22,6 +22,12 @@ The order, and why:
 - in the loader: NMT pre-operational, 0x1F51 = 3 (clear), poll 0x1F57, download, poll
   0x1F57, read 0x1F56 (it must be the file's CRC before the loader is told to start it);
   a failure here is tried again from "clear", `Settings.retries` times;
+- the download goes by SDO block download (CRC-16 checked, acknowledged per sub-block) where
+  the device offers it (`Settings.transfer` `AUTO`): a server without block download aborts
+  the block download's initiate with 0x05040001, before any data, so the same attempt goes
+  on at once segmented (the device did nothing: no clear again), and so does every later
+  attempt of the run. That abort later in a transfer, or any other abort, is a failed
+  attempt. `BLOCK` or `SEGMENTED` use that transfer only;
 - 0x1F51 = 1, wait for the application's boot-up, check 0x1000, read 0x1F56 and 0x1018:3.
   The loader starts a new image on trial: one that never becomes healthy on the bus (a hang,
   a fault) is reset by the watchdog until, after 3 starts, the loader stays and says so in
@@ -98,6 +104,19 @@ PROGRAM_ABORTS = {
     0x0606_0000: "flash erase or program failed",
     0x0504_0005: "the image does not fit the application slot",
 }
+
+# How the update file goes to 0x1F50:1 (`Settings.transfer`, `Download.transfer`): CiA 301
+# SDO block download (sub-blocks of up to 127 segments, each acknowledged; the CRC-16 of the
+# whole checked by the device at the end), segmented (every 7-byte segment answered), or
+# block where the device offers it and segmented where it does not.
+AUTO = "auto"
+BLOCK = "block"
+SEGMENTED = "segmented"
+TRANSFERS = (AUTO, BLOCK, SEGMENTED)
+TRANSFER_TEXT = {BLOCK: "SDO block download", SEGMENTED: "segmented SDO download"}
+# The abort of a block download's initiate by a server without block download (CiA 301:
+# client/server command specifier not valid or unknown).
+ABORT_NO_BLOCK = 0x0504_0001
 
 # Exit status of the command.
 EXIT_OK = 0
@@ -194,12 +213,15 @@ class Pause:
 
 @dataclass(frozen=True)
 class Download:
-    """0x1F50:1 = the whole update file, segmented, its size indicated; `attempt` of
-    `attempts`."""
+    """0x1F50:1 = the whole update file, its size indicated, by `transfer` (`BLOCK`: SDO block
+    download with the CRC; `SEGMENTED`); `attempt` of `attempts`. An abort is `Aborted` with
+    `at_initiate` true when it answered the initiate (no data went), false when it came later
+    (a sub-block's acknowledgement, a segment's answer, the block download's end)."""
 
     size: int
     attempt: int
     attempts: int
+    transfer: str = SEGMENTED
 
 
 @dataclass(frozen=True)
@@ -230,7 +252,11 @@ class Ok:
 
 @dataclass(frozen=True)
 class Aborted:
+    """The SDO abort `code`; `at_initiate`: a `Download`'s abort that answered its initiate
+    (false for every other step)."""
+
     code: int
+    at_initiate: bool = False
 
 
 @dataclass(frozen=True)
@@ -255,6 +281,7 @@ class Settings:
     trial_timeout: float = 15.0
     rescue: bool = False  # first hold the device in its loader at a power-on (HoldInLoader)
     rescue_timeout: float = 60.0  # s the operator has for the power cycle
+    transfer: str = AUTO  # how 0x1F50:1 goes: AUTO, BLOCK or SEGMENTED (`TRANSFERS`)
 
 
 @dataclass(frozen=True)
@@ -322,8 +349,13 @@ class Update:
     """The program download of `image` to `settings.node`: `step`, `answer`, `result`."""
 
     def __init__(self, image: UpdateImage, settings: Settings = Settings()) -> None:
+        if settings.transfer not in TRANSFERS:
+            raise ValueError(f"transfer {settings.transfer!r} is not one of {TRANSFERS}")
         self.image = image
         self.settings = settings
+        # The next `Download`'s transfer: AUTO starts with block and, once the device has
+        # refused it at the initiate, stays segmented for the rest of the run.
+        self.transfer = SEGMENTED if settings.transfer == SEGMENTED else BLOCK
         self.place = UNTOUCHED
         self.before: Optional[Identity] = None
         self.result: Optional[Result] = None
@@ -516,9 +548,24 @@ class Update:
         status = yield from self._poll_status()
         if status >> CODE_SHIFT not in (NO_ERROR, NO_VALID_PROGRAM):  # cleared
             return f"after clear, {status_text(status)}"
-        out = yield Download(len(self.image.data), attempt, attempts)
+        size = len(self.image.data)
+        out = yield Download(size, attempt, attempts, self.transfer)
+        if self.settings.transfer == AUTO and self._block_not_offered(out):
+            # Refused before any data: the loader is still cleared, the same attempt goes on
+            # segmented, and so do the later ones.
+            self.transfer = SEGMENTED
+            yield Note(
+                f"node {self.settings.node} does not offer SDO block download (its "
+                f"initiate answered {abort_text(ABORT_NO_BLOCK)}): downloading segmented"
+            )
+            out = yield Download(size, attempt, attempts, self.transfer)
         if not isinstance(out, Ok):
             what = f"download of 0x1F50:1: {self._what(out)}"
+            if self._block_not_offered(out):  # with --sdo-transfer block
+                what += (
+                    " at the block download's initiate (the device does not offer SDO block "
+                    "download: --sdo-transfer auto or segmented)"
+                )
             try:
                 status = yield from self._poll_status()
             except _End as end:  # still the download's failure, with what 0x1F57 did
@@ -620,6 +667,17 @@ class Update:
         raise _End(FAILED, f"the device did not start its application: {last}.")
 
     # Helpers ---------------------------------------------------------------------------------
+
+    def _block_not_offered(self, out: Outcome) -> bool:
+        """The outcome of a block `Download` (the next one's `transfer` is still `BLOCK`) that
+        says the device has no block download: 0x05040001 answering its initiate (later in
+        the transfer, or at a segmented download's initiate, it is a failed attempt)."""
+        return (
+            self.transfer == BLOCK
+            and isinstance(out, Aborted)
+            and out.at_initiate
+            and out.code == ABORT_NO_BLOCK
+        )
 
     def _device_type_after_reset(self) -> Generator[Step, Outcome, int]:
         """0x1000 after a reset: a device still booting may not answer the first read."""

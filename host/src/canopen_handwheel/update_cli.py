@@ -6,11 +6,15 @@ on stderr and prints the outcome. It decides nothing itself.
 
 python-canopen's SDO client repeats no request here (`MAX_RETRIES`): whether a step that got
 no answer is repeated is the planner's decision, since the device may have carried it out.
+Likewise which transfer a download uses (`update.Download.transfer`): the shell only tells
+the planner whether an abort answered the download's initiate (`update.Aborted.at_initiate`),
+which python-canopen shows by raising it from `SdoClient.open` itself.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import queue
 import sys
 import threading
@@ -22,8 +26,12 @@ from . import bus as buses
 from . import update
 from .image import ImageError, UpdateImage
 
-# Bytes handed to python-canopen's segmented download per write (7 fit one segment).
+# Bytes handed to python-canopen's download stream per write (7 fit one segment, segmented
+# or in a sub-block).
 SEGMENT = 7
+# The client's abort of a block download python-canopen cannot carry on (`write_segment`):
+# CiA 301's general error.
+ABORT_GENERAL = 0x0800_0000
 
 
 def log(message: str) -> None:
@@ -55,6 +63,17 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         type=float,
         default=1.0,
         help="seconds to wait for each SDO answer (1.0, 0.05..10)",
+    )
+    p.add_argument(
+        "--sdo-transfer",
+        choices=update.TRANSFERS,
+        default=update.Settings.transfer,
+        help="how the file goes to 0x1F50:1: 'block', CiA 301 SDO block download (sub-blocks "
+        "of up to 127 segments, each acknowledged once the device has it in flash; the "
+        "CRC-16 of the whole checked at the end); 'segmented', every 7-byte segment "
+        "answered; 'auto', block where the device offers it, else segmented: a device "
+        "without block download aborts the block initiate (0x05040001), and the download "
+        f"goes segmented at once and for the rest of the run ({update.Settings.transfer})",
     )
     p.add_argument(
         "--boot-timeout",
@@ -274,38 +293,78 @@ def settle(device: Device, sleep: Callable[[float], None] = time.sleep) -> None:
 
 
 def download(device: Device, step: update.Download, data: bytes, out: Optional[TextIO] = None):
-    """0x1F50:1 = `data`, segmented with its size indicated, the progress shown on `out`
-    (stderr)."""
+    """0x1F50:1 = `data`, its size indicated, by `step.transfer`, the progress shown on `out`
+    (stderr). Segmented: python-canopen's `WritableStream`, each `write` one segment and its
+    answer. Block: its `BlockDownloadStream` with the CRC requested; `write` sends one segment
+    of a sub-block, and after the sub-block's last (or the transfer's) waits for the
+    acknowledgement, sending again what the device did not take; `close` sends the end with
+    the CRC and waits for its answer. An abort raised by `open` answered the initiate."""
     import canopen
 
     out = sys.stderr if out is None else out
-    log(f"downloading {len(data)} bytes (attempt {step.attempt} of {step.attempts})")
+    log(
+        f"downloading {len(data)} bytes by {update.TRANSFER_TEXT[step.transfer]} "
+        f"(attempt {step.attempt} of {step.attempts})"
+    )
     progress = Progress(len(data), out)
     stream = None
     sent = 0
     try:
         stream = device.node.sdo.open(
-            0x1F50, 1, "wb", buffering=0, size=len(data), block_transfer=False
+            0x1F50,
+            1,
+            "wb",
+            buffering=0,
+            size=len(data),
+            block_transfer=step.transfer == update.BLOCK,
+            request_crc_support=True,
         )
         progress.show(0)
         while sent < len(data):
-            sent += stream.write(data[sent : sent + SEGMENT])
+            sent += write_segment(device, stream, data[sent : sent + SEGMENT])
             progress.show(sent)
-        stream.close()  # every byte went with its segment: sends nothing more
+        # Segmented: every byte went with its segment, nothing more is sent. Block: the end
+        # request with the CRC, answered; only here, after the last segment was acknowledged.
+        stream.close()
         return update.Ok()
     except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as e:
         progress.end()
         if stream is not None:
-            # python-canopen would close a stream it drops by sending an empty last segment:
-            # a stream that failed is over (the client aborted it, or the device did).
-            stream._done = True
+            drop(stream)
         reason = (
-            update.Aborted(e.code)
+            update.Aborted(e.code, at_initiate=stream is None)
             if isinstance(e, canopen.SdoAbortedError)
             else update.NoAnswer(f"{e} after {sent} of {len(data)} bytes")
         )
         settle(device)
         return reason
+
+
+def write_segment(device: Device, stream, chunk: bytes) -> int:
+    """`chunk` (up to 7 bytes) to `stream`: the bytes it took. python-canopen 2.4.1's block
+    download cannot send again segments of the transfer's last sub-block that the device did
+    not take: its `_retransmit` goes through `write`, which raises RuntimeError once the last
+    segment has been sent. The transfer is then aborted (the device would wait for them until
+    its SDO timeout) and fails as one without an answer would."""
+    import canopen
+
+    try:
+        return stream.write(chunk)
+    except RuntimeError as e:
+        device.node.sdo.abort(ABORT_GENERAL)
+        raise canopen.SdoCommunicationError(
+            f"python-canopen could not send again the segments of the last sub-block the "
+            f"device did not take ({e}); the client aborted the transfer"
+        ) from e
+
+
+def drop(stream) -> None:
+    """A stream that failed is over (the device aborted it, or the client did): it is closed
+    without what python-canopen's `close` would send, also when the garbage collector calls
+    it: a segmented download's empty last segment (sent unless `_done`), a block download's
+    end request with its CRC (sent unless `closed`)."""
+    stream._done = True
+    io.RawIOBase.close(stream)
 
 
 def run(args: argparse.Namespace, argv: Sequence[str], out: Optional[TextIO] = None) -> int:
@@ -328,6 +387,7 @@ def run(args: argparse.Namespace, argv: Sequence[str], out: Optional[TextIO] = N
         trial_timeout=args.trial_timeout,
         rescue=args.rescue,
         rescue_timeout=args.rescue_timeout,
+        transfer=args.sdo_transfer,
     )
     import canopen
 
