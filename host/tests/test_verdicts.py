@@ -11,6 +11,7 @@ import pytest
 import records
 from canopen_handwheel import capture, core, decode
 from canopen_handwheel.core import BACKLOG_LIMIT, FeedVerdict, Reason
+from canopen_handwheel.verdict import UncreditedMotion
 from records import EN, SESSION, TPDO1
 
 CAPTURES = sorted((Path(__file__).resolve().parent / "captures").glob("*.log.gz"))
@@ -124,3 +125,28 @@ def test_the_cores_answers():
     assert (v.reason, v.axis, v.delta, v.moved) == (Reason.CREDITED, "f", 2, 20)
     assert v.text == "credited feed-override +2 (moved 20)"
     assert c.counts == {"x": 5, "f": 2}
+
+
+def test_uncredited_motion_is_told_at_once_then_at_most_once_a_second():
+    report = UncreditedMotion(interval=1.0)
+    credited = FeedVerdict(Reason.CREDITED, axis="x", delta=3, moved=3)
+    at_rest = FeedVerdict(Reason.AT_REST, axis="x")
+    undated = FeedVerdict(Reason.UNDATED, axis="y", moved=-10, detail="last probe 0.412 s ago")
+    assert not credited.motion_uncredited and not at_rest.motion_uncredited
+    assert undated.motion_uncredited
+    assert report.line(credited, 0.0) is None
+    assert report.line(at_rest, 0.0) is None
+    assert report.line(undated, 0.5) == (
+        "motion not credited (Y, position -10): baseline: not dated within 0.35 s "
+        "(last probe 0.412 s ago): held on its way?; position -10 since the last record "
+        "taken, not credited"
+    )
+    assert report.line(undated, 0.9) is None
+    assert report.line(undated, 1.4) is None
+    line = report.line(FeedVerdict(Reason.NO_AXIS, moved=4, detail="axis 4"), 1.5)
+    assert line == (
+        "motion not credited (no axis, position +4): moved 4: axis 4 drives nothing (--axes) "
+        "(and 2 more since the last such line)"
+    )
+    assert report.line(undated, 2.49) is None
+    assert report.line(undated, 2.5) is not None

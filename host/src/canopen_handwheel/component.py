@@ -58,6 +58,7 @@ from .bus import add_bus_options as add_bus_options
 from .bus import default_eds as default_eds
 from .bus import open_bus as open_bus
 from .bus import slcan_bus as slcan_bus
+from .verdict import UncreditedMotion
 
 # The component logs from its loop, its heartbeat thread and its signal handling: one line is
 # one write under this lock, so that no line is split by another thread's (`print` writes the
@@ -496,6 +497,9 @@ class Link:
 
         self.failed = threading.Event()
         self.capture = capture
+        # Why detents went uncredited, in the log (rate-limited): an operator's lost detent
+        # has its reason where the builder looks.
+        self.uncredited = UncreditedMotion()
         self.bus = open_bus(args.interface, args.channel, args.bitrate)
         if capture is not None:
             captures.wrap_send(self.bus, capture)
@@ -562,7 +566,10 @@ class Link:
             else:
                 now = clock()
             if judged:
-                c.frame(cob_id, bytes(msg.data), now)
+                verdict = c.frame(cob_id, bytes(msg.data), now)
+                line = None if verdict is None else self.uncredited.line(verdict, now)
+                if line is not None:
+                    log(line)
             elif data_frame and cob_id == self.sdo_response:
                 self.sdo_reply_at = now
                 self.network.notify(cob_id, msg.data, msg.timestamp)

@@ -12,7 +12,7 @@ from .dating import DATE_LIMIT
 from .order import ORDER_WINDOW
 from .overrides import OVERRIDES
 
-__all__ = ["FeedVerdict", "Reason"]
+__all__ = ["FeedVerdict", "Reason", "UncreditedMotion"]
 
 
 class Reason(enum.Enum):
@@ -129,6 +129,13 @@ class FeedVerdict:
         return self.reason is Reason.CREDITED
 
     @property
+    def motion_uncredited(self) -> bool:
+        """The device's position moved since the record taken before it and the rule credited
+        none of it (a baseline after a gap, an undated record, too fast, no axis): detents the
+        operator may have counted and the machine did not move."""
+        return self.moved != 0 and not self.credited
+
+    @property
     def kind(self) -> str:
         """What the reason amounts to: `CREDITED`, `BASELINE`, `COPY`, ..."""
         return KINDS[self.reason]
@@ -146,4 +153,31 @@ class FeedVerdict:
             text += f"; {self.lost} record{'s' if self.lost != 1 else ''} lost before it"
         if self.bad and "bad" not in text:
             text += "; counted bad"
+        return text
+
+
+class UncreditedMotion:
+    """When to say that motion went uncredited (`FeedVerdict.motion_uncredited`): the first
+    time at once, then at most once per `interval` seconds, with how many more there were in
+    between, so that a bus that makes every record a baseline cannot flood the log."""
+
+    def __init__(self, interval: float = 1.0) -> None:
+        self.interval = interval
+        self.told_at: Optional[float] = None
+        self.untold = 0
+
+    def line(self, verdict: FeedVerdict, now: float) -> Optional[str]:
+        """The log line for `verdict` at `now`, or None (not worth a line, or too soon)."""
+        if not verdict.motion_uncredited:
+            return None
+        if self.told_at is not None and now - self.told_at < self.interval:
+            self.untold += 1
+            return None
+        axis = (
+            "no axis" if verdict.axis is None else OVERRIDES.get(verdict.axis, verdict.axis.upper())
+        )
+        text = f"motion not credited ({axis}, position {verdict.moved:+d}): {verdict.text}"
+        if self.untold:
+            text += f" (and {self.untold} more since the last such line)"
+        self.told_at, self.untold = now, 0
         return text
