@@ -118,8 +118,9 @@ def flash_ops_of(data: bytes) -> list[str]:
     return ops + ["mark", "mark"]
 
 
+@pytest.mark.parametrize("transfer", ["segmented", "block"])
 def test_power_cuts_in_a_download_leave_a_loader_that_takes_the_next_update(
-    board, relay, release, tmp_path
+    board, relay, release, tmp_path, transfer
 ):
     """Power fails inside "clear"'s erase, before the first program, inside a page erase of
     the stream, in the middle of the image and inside the mark's last half-word: each time
@@ -128,7 +129,10 @@ def test_power_cuts_in_a_download_leave_a_loader_that_takes_the_next_update(
     update` installs a new image: it runs, 0x1F56 reads its CRC-32 and the heartbeat stored
     before stays. The cuts hit the download of a small image the loader takes as valid
     (`small_valid_image`), so that a cut in its mark costs no full download; every operation
-    of clear, stream and mark is cut on the host (crates/canopen-loader/tests)."""
+    of clear, stream and mark is cut on the host (crates/canopen-loader/tests). The same by
+    segmented and by block download (each sub-block written before its acknowledgement), and
+    the update command with the same transfer."""
+    block = transfer == "block"
     with master(relay) as (_, node):
         assert read(node, 0x1F56, 1) == image_crc(release)
         node.sdo.download(0x1017, 0, (250).to_bytes(2, "little"))
@@ -147,7 +151,7 @@ def test_power_cuts_in_a_download_leave_a_loader_that_takes_the_next_update(
             board.control(f"cut {n} {where}")
             with pytest.raises(canopen.SdoCommunicationError):
                 node.sdo.download(0x1F51, 1, b"\x03")  # clear
-                download(node, small)
+                download(node, small, block=block)
         relay.device.wait_id(0x700 + NODE_ID, b"\x00", since=mark, timeout=5)
         assert board.control("mode") == ["mode loader"], f"cut at operation {n}"
         with master(relay) as (_, node):
@@ -163,14 +167,14 @@ def test_power_cuts_in_a_download_leave_a_loader_that_takes_the_next_update(
     with master(relay) as (_, node):
         node.sdo.download(0x1F51, 1, b"\x03")
         before = flash_ops(board)["ops"]
-        assert download(node, small) is None
+        assert download(node, small, block=block) is None
         assert flash_ops(board)["ops"] - before == total - 1, "clear's erase came before"
         assert read(node, 0x1F56, 1) == image_crc(small)
     new = variant(release, version=7, pad=100)
     path = tmp_path / "new.update"
     path.write_bytes(new)
     started_ms = float(board.status()["ms"])
-    code, out, err = run_update(relay, path)
+    code, out, err = run_update(relay, path, "--sdo-transfer", transfer)
     assert code == 0, err
     assert f"0x{image_crc(new):08X}" in out, out
     print(f"update: {float(board.status()['ms']) - started_ms:.0f} ms emulated")
@@ -191,11 +195,17 @@ def enter_loader(relay: Relay, node) -> None:
     assert read(node, 0x1000, 0) == BOOT
 
 
-def download(node, data: bytes, size: int | None = None) -> int | None:
-    """0x1F50:1 = `data` (segmented, `size` indicated): the abort code, None if none."""
+def download(node, data: bytes, size: int | None = None, block: bool = False) -> int | None:
+    """0x1F50:1 = `data` (segmented, or block download with its CRC; `size` indicated): the
+    abort code, None if none."""
     try:
         stream = node.sdo.open(
-            0x1F50, 1, "wb", buffering=0, size=len(data) if size is None else size
+            0x1F50,
+            1,
+            "wb",
+            buffering=0,
+            size=len(data) if size is None else size,
+            block_transfer=block,
         )
         sent = 0
         while sent < len(data):
@@ -291,7 +301,7 @@ def test_a_dropped_answer_and_a_repeated_segment_cost_a_retry_each(board, relay,
 
     repeater = threading.Thread(target=repeat_a_segment, daemon=True)
     repeater.start()
-    code, _, err = run_update(relay, path, "--retries", "2")
+    code, _, err = run_update(relay, path, "--retries", "2", "--sdo-transfer", "segmented")
     repeater.join(1)
     assert "sent" in done, "the repeated segment was never sent"
     assert code == 0, err
@@ -354,3 +364,48 @@ def test_the_loader_answers_at_the_stored_node_id_and_bit_rate(board, relay, rel
         assert read(node, 0x1000, 0) == 0
         assert read(node, 0x1F51, 1) == 1, "started"
     assert not relay.device.frames(0x710, since=powered), "nothing at node 16 after the store"
+
+
+def test_block_download_sends_again_what_was_lost_and_a_lost_acknowledgement_costs_a_retry(
+    board, relay, release, tmp_path
+):
+    """By block download: the 50th segment of the second sub-block never reaches the device
+    (the relay drops it): the device acknowledges the 49 before it, and python-canopen sends
+    again from there, in the same attempt. Then the device's fifth acknowledgement (of the
+    fourth full sub-block) is lost: the host's wait for it times out, it aborts, and the
+    second attempt from "clear" completes. The device's answers show each step."""
+    blocks = {"segments": None}
+
+    def fiftieth_of_the_second_sub_block(frame) -> bool:
+        if frame.id != 0x600 + NODE_ID:
+            return False
+        if frame.data[0] & 0xE1 == 0xC0:  # the block download's initiate: segments follow
+            blocks["segments"] = 0
+            return False
+        if blocks["segments"] is None:
+            return False
+        blocks["segments"] += 1
+        return blocks["segments"] == 127 + 50
+
+    def fourth_acknowledgement(frame) -> bool:
+        if frame.id != 0x580 + NODE_ID or frame.data[0] != 0xA2:
+            return False
+        blocks["acks"] = blocks.get("acks", 0) + 1
+        return blocks["acks"] == 5  # the first four, and the one after the lost segment
+
+    lost = relay.drop_from_host(fiftieth_of_the_second_sub_block)
+    relay.drop(fourth_acknowledgement)
+    new = variant(release, version=12, pad=40)
+    path = tmp_path / "new.update"
+    path.write_bytes(new)
+    code, _, err = run_update(relay, path, "--retries", "2", "--sdo-transfer", "block")
+    assert lost.done.is_set(), "the segment was dropped"
+    assert code == 0, err
+    assert "attempt 2 of 3" in err and "attempt 3 of 3" not in err, err
+    acks = [f.data for f in relay.device.frames(0x580 + NODE_ID) if f.data[0] == 0xA2]
+    assert acks[:3] == [bytes([0xA2, 127, 127, 0, 0, 0, 0, 0])] + [
+        bytes([0xA2, 49, 127, 0, 0, 0, 0, 0])
+    ] + [bytes([0xA2, 127, 127, 0, 0, 0, 0, 0])], acks[:3]
+    with master(relay) as (_, node):
+        assert read(node, 0x1F56, 1) == image_crc(new)
+    assert board.control("mode") == ["mode application"]

@@ -2,7 +2,8 @@
 // The CiA 302-3 program download (docs/FIRMWARE-UPDATE.md) with node-canopen as the master:
 // 0x1F51 stop into the resident loader, "clear", node-canopen's segmented download of the
 // update file to 0x1F50:1 with the power cut in the middle, then a second, complete
-// download, "start", and the new image answering. A board of its own: it rewrites the flash.
+// download, "start", and the new image answering; then a third image by node-canopen's block
+// download. A board of its own: it rewrites the flash.
 
 const { describe, it, before, after, afterEach } = require('node:test');
 const assert = require('node:assert/strict');
@@ -112,5 +113,33 @@ describe('program download through the resident loader', () => {
         assert.equal(await rig.read(0x1f56, 1, U32), crc, 'the new image');
         assert.equal(await rig.read(0x1008, 0, TEXT), 'CNC handwheel');
         assert.equal(await rig.read(0x1f51, 1, U8), 1, 'started');
+    });
+
+    it('a block download (node-canopen\'s, with its CRC) replaces it: one acknowledgement per '
+        + 'sub-block of 127 segments', async () => {
+        const next = variant(release, 200);
+        let mark = rig.frames.mark();
+        await rig.write(0x1f51, 1, 0, U8); // stop: into the loader
+        await rig.frames.waitId(COB.HEARTBEAT, Buffer.from([STATE.BOOTUP]), { since: mark });
+        await rig.write(0x1f51, 1, 3, U8); // clear
+        mark = rig.frames.mark();
+        await rig.write(0x1f50, 1, next, null,
+            { timeout: SEGMENT_TIMEOUT_MS, blockTransfer: true });
+        const answers = rig.frames.list(COB.SDO_TX, mark).map((f) => f.data);
+        const segments = Math.ceil(next.length / 7);
+        assert.equal(answers[0][0], 0xa4, 'block initiate confirmed, the server checks the CRC');
+        assert.equal(answers[0][4], 127, 'sub-blocks of 127 segments');
+        const acks = answers.slice(1, -1);
+        assert.equal(acks.length, Math.ceil(segments / 127), 'one acknowledgement per sub-block');
+        assert.ok(acks.every((a, i) => a[0] === 0xa2
+            && a[1] === (i + 1 < acks.length ? 127 : segments - 127 * i)),
+        'each acknowledges its whole sub-block');
+        assert.equal(answers.at(-1)[0], 0xa1, 'end confirmed: length and CRC right');
+        assert.equal(await rig.read(0x1f57, 1, U32), 0, 'no error');
+        assert.equal(await rig.read(0x1f56, 1, U32), next.readUInt32LE(0x18));
+        mark = rig.frames.mark();
+        await rig.write(0x1f51, 1, 1, U8); // start
+        await rig.frames.waitId(COB.HEARTBEAT, Buffer.from([STATE.BOOTUP]), { since: mark });
+        assert.equal(await rig.read(0x1f56, 1, U32), next.readUInt32LE(0x18), 'the block image');
     });
 });

@@ -128,6 +128,7 @@ class Relay:
         self.error: Optional[BaseException] = None
         self._lock = threading.Lock()
         self._drops: List[Drop] = []
+        self._host_drops: List[Drop] = []  # `drop_from_host`
         self._replays: List[Replay] = []
         self._outgoing: List[tuple] = []  # (slcan.Frame, to_device, to_client)
         self._hold_until = 0.0  # `hold`: the device's frames wait for the client until then
@@ -149,6 +150,14 @@ class Relay:
         rule = Drop(match, count)
         with self._lock:
             self._drops.append(rule)
+        return rule
+
+    def drop_from_host(self, match: Callable[[slcan.Frame], bool], count: int = 1) -> Drop:
+        """Drops the next `count` frames from the client that match `match`: `host` records
+        them, the device never sees them."""
+        rule = Drop(match, count)
+        with self._lock:
+            self._host_drops.append(rule)
         return rule
 
     def replay(
@@ -246,7 +255,8 @@ class Relay:
                             to_client.append(slcan.OK)  # a channel command: answered here
                             continue
                         self.host.on_message_received(slcan.to_message(frame, now))
-                        to_up.append(line + b"\r")
+                        if not self._host_dropped(frame, now):
+                            to_up.append(line + b"\r")
             with self._lock:
                 outgoing, self._outgoing = self._outgoing, []
             for frame, device, other in outgoing:
@@ -273,6 +283,17 @@ class Relay:
                     client = None
         if client is not None:
             client.close()
+
+    def _host_dropped(self, frame: slcan.Frame, now: float) -> bool:
+        """Whether a `drop_from_host` rule takes the client's `frame`."""
+        with self._lock:
+            for rule in self._host_drops:
+                if rule.wants(frame):
+                    rule.frames.append(_frame(len(rule.frames), now, frame))
+                    if len(rule.frames) >= rule.count:
+                        rule.done.set()
+                    return True
+        return False
 
     def _from_device(self, line: bytes, now: float) -> List[bytes]:
         """What goes to the client for one line from the device."""
