@@ -18,9 +18,10 @@
 //! - [`image_header`]: the image header the resident loader checks (sealed at link time), and
 //!   [`handoff`]: the request to stay in the loader, written before the reset into it.
 //!
-//! Linking this crate also brings the panic handler (a defmt log line, then UDF) and the
-//! image's own `memcpy` (module `mem`: a byte loop that replaces compiler-builtins' larger
-//! word-wise one to keep the image inside its flash budget).
+//! Linking this crate also brings the panic handler (a defmt log line, then UDF), and the
+//! board crate (`handwheel_board`, shared with the resident loader) the image's memory
+//! routines (byte loops that replace compiler-builtins' larger word-wise ones to keep the
+//! image inside its flash budget).
 #![no_std]
 #![warn(missing_docs)]
 
@@ -30,7 +31,6 @@ pub mod edge;
 pub mod events;
 pub mod handoff;
 pub mod image_header;
-mod mem;
 pub use handwheel_device::node_config;
 #[cfg(feature = "stack-overflow-test")]
 pub mod overflow;

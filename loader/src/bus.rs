@@ -5,7 +5,7 @@ use bxcan::filter::ListEntry16;
 use bxcan::{Fifo, Id, StandardId};
 use canopen_slave::frame::cob;
 use canopen_slave::{Frame, NodeId};
-use handwheel_core::{btr_table, BitRate};
+use handwheel_core::BitRate;
 use stm32f1xx_hal::can::Can;
 use stm32f1xx_hal::gpio::PullUp;
 use stm32f1xx_hal::pac;
@@ -15,12 +15,6 @@ pub type Bxcan = bxcan::Can<Can<pac::CAN, PullUp>>;
 /// Frames waiting for a mailbox.
 pub type TxQueue = heapless::Deque<Frame, 8>;
 
-/// The bxCAN kernel clock (APB1), as the application sets it up.
-pub const APB1_HZ: u32 = 36_000_000;
-
-/// `CAN_BTR` timing bits for every rate (by code) at 36 MHz: the application's table.
-const BTR_TABLE: [u32; 8] = btr_table(APB1_HZ);
-
 fn standard_id(id: u16) -> StandardId {
     StandardId::new(id & 0x7FF).unwrap_or(StandardId::ZERO)
 }
@@ -28,10 +22,8 @@ fn standard_id(id: u16) -> StandardId {
 /// Configures the bit timing and the filter (NMT and this node's SDO requests, data frames
 /// only) and asks the controller to join the bus; it does once it has seen the bus idle.
 pub fn start(can: Can<pac::CAN, PullUp>, bit_rate: BitRate, node: NodeId) -> Bxcan {
-    let btr = BTR_TABLE
-        .get(usize::from(bit_rate.code()))
-        .copied()
-        .unwrap_or(BTR_TABLE[0]);
+    // The board's bit timing, the application's (handwheel_board::bit_timing).
+    let btr = handwheel_board::bit_timing::btr(bit_rate.code());
     let mut can = bxcan::Can::builder(can)
         .set_bit_timing(btr)
         .leave_disabled();

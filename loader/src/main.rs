@@ -27,7 +27,6 @@ use defmt_rtt as _;
 
 mod bus;
 mod flash;
-mod mem;
 
 use canopen_loader::boot::{LISTEN_MS, MAX_TRIAL_STARTS};
 use canopen_loader::layout::{APP_ORIGIN, HANDOFF_ORIGIN};
@@ -43,9 +42,8 @@ use cortex_m_rt::entry;
 use handwheel_device::node_config;
 use handwheel_device::od::IDENTITY;
 use handwheel_device::page::ParameterPage;
-use stm32f1xx_hal::can::Can;
 use stm32f1xx_hal::watchdog::IndependentWatchdog;
-use stm32f1xx_hal::{pac, prelude::*, rcc};
+use stm32f1xx_hal::{pac, prelude::*};
 
 /// The application this loader takes images for (0x1018:1 and :2 of the application).
 const DEVICE: DeviceId = DeviceId {
@@ -59,12 +57,9 @@ const REVISION: u32 = 1;
 const UNCONFIGURED_NODE_ID: u8 = 16;
 /// The watchdog's nominal timeout.
 const WATCHDOG_MS: u32 = 2000;
-/// Core clock: HSE 8 MHz, PLL x9, as the application.
-const SYSCLK_HZ: u32 = 72_000_000;
+use handwheel_board::clocks::SYSCLK_HZ;
 /// How long a reset waits for the frames queued before it (the answer to "start").
 const FLUSH_US: u64 = 50_000;
-/// Address of the 96-bit unique device ID (RM0008, "Unique device ID register").
-const UNIQUE_ID_ADDRESS: usize = 0x1FFF_F7E8;
 
 #[entry]
 fn main() -> ! {
@@ -185,16 +180,6 @@ impl Clock {
     }
 }
 
-/// The MCU's 96-bit unique ID, lowest address first (for the serial number).
-fn unique_id() -> [u32; 3] {
-    let base = UNIQUE_ID_ADDRESS as *const u32;
-    core::array::from_fn(|word| {
-        // SAFETY: the unique ID is factory-programmed system memory at a fixed, word-aligned
-        // address; `word` < 3 keeps the read inside its 12 bytes; reads have no side effects.
-        unsafe { core::ptr::read_volatile(base.add(word)) }
-    })
-}
-
 /// The loader on the bus: for `boot`'s listening window, then (unless it starts the
 /// application) as a CANopen node for good (it leaves by a system reset).
 fn run(boot: Boot) -> ! {
@@ -202,46 +187,17 @@ fn run(boot: Boot) -> ! {
         SCB::sys_reset()
     };
     let mut flash = dp.FLASH.constrain();
-    // HSE, PLL x9, AHB /1, APB1 /2 (36 MHz: the bxCAN clock of the bit timing table), APB2
-    // /1, two flash wait states: the application's clocks.
-    let mut rcc = dp.RCC.freeze(
-        rcc::Config::hse(8.MHz())
-            .sysclk(SYSCLK_HZ.Hz())
-            .hclk(SYSCLK_HZ.Hz())
-            .pclk1(bus::APB1_HZ.Hz())
-            .pclk2(SYSCLK_HZ.Hz()),
-        &mut flash.acr,
-    );
+    // The board's clocks, the application's (handwheel_board::clocks).
+    let mut rcc = handwheel_board::clocks::freeze(dp.RCC, &mut flash.acr);
     let mut watchdog = IndependentWatchdog::new(dp.IWDG);
     watchdog.stop_on_debug(&dp.DBGMCU, true);
     watchdog.start(WATCHDOG_MS.millis());
 
     let mut afio = dp.AFIO.constrain(&mut rcc);
     let mut gpiob = dp.GPIOB.split(&mut rcc);
-    // The DIP switch as the application reads it (src/board/pins.rs): switches 1..8 on PB12,
-    // PB13, PB14, PB15, PB0, PB1, PB10, PB11, pulled up, on = low.
-    let dip_pins = [
-        gpiob.pb12.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb13.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb14.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb15.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb0.into_pull_up_input(&mut gpiob.crl).erase(),
-        gpiob.pb1.into_pull_up_input(&mut gpiob.crl).erase(),
-        gpiob.pb10.into_pull_up_input(&mut gpiob.crh).erase(),
-        gpiob.pb11.into_pull_up_input(&mut gpiob.crh).erase(),
-    ];
-    // bxCAN on PB8 (RX, pulled up) and PB9 (TX), AFIO remap 2, as the application.
-    let can = Can::new(
-        dp.CAN.remap::<2>(&mut afio.mapr),
-        dp.USB,
-        (gpiob.pb9, gpiob.pb8.into_pull_up_input(&mut gpiob.crh)),
-        &mut rcc,
-    );
-    // The pull-ups need a moment to lift the open lines after the mode change.
-    cortex_m::asm::delay(SYSCLK_HZ / 10_000);
-    let dip = dip_pins.iter().enumerate().fold(0u8, |dip, (switch, pin)| {
-        dip | u8::from(pin.is_low()) << switch
-    });
+    // The DIP switch and bxCAN's pins as the application has them (handwheel_board::pins).
+    let dip = handwheel_board::read_dip_switch!(gpiob);
+    let can = handwheel_board::open_can!(dp, afio, gpiob, rcc);
 
     // Node-ID and bit rate exactly as the application chooses them.
     let stored = ParameterPage::new(flash::ParameterPages)
@@ -252,7 +208,7 @@ fn run(boot: Boot) -> ! {
         .node_id
         .or(NodeId::new(UNCONFIGURED_NODE_ID).ok())
         .unwrap_or_else(|| SCB::sys_reset());
-    let serial = node_config::serial_number(unique_id());
+    let serial = node_config::serial_number(handwheel_board::chip::unique_id());
 
     let mut can = bus::start(can, settings.bit_rate, node_id);
     let mut slot = flash::Fpec::new(flash, watchdog);

@@ -10,12 +10,13 @@
 //! reason: the reset cause (RCC_CSR), the unique ID, and the one read of GPIOB's input
 //! register that yields A and B together (the HAL reads a pin at a time).
 
-pub mod pins;
 pub mod watchdog;
+
+/// The pin map (in the board crate, which the resident loader shares).
+pub use handwheel_board::pins;
 
 use handwheel_core::AbLevels;
 use stm32f1xx_hal::{
-    afio::Remap,
     can::Can,
     gpio::{
         self, Edge, ExtiPin, IOPinSpeed, Input, Output, OutputSpeed, PinState, PullUp, PushPull,
@@ -29,12 +30,8 @@ use crate::storage::FlashStorage;
 use pins::{WHEEL_A_BIT, WHEEL_B_BIT};
 use watchdog::Watchdog;
 
-/// The crystal on the board.
-pub const HSE_HZ: u32 = 8_000_000;
-/// Core clock (PLL x9), also the SysTick clock.
-pub const SYSCLK_HZ: u32 = 72_000_000;
-/// APB1 clock, the bxCAN kernel clock that the bit timing table is computed for.
-pub const APB1_HZ: u32 = 36_000_000;
+pub use handwheel_board::chip::unique_id;
+pub use handwheel_board::clocks::{APB1_HZ, HSE_HZ, SYSCLK_HZ};
 
 /// The HAL's bxCAN (clocked, its pins PB8/PB9 in their remap-2 modes), for
 /// `bxcan::Can::builder`.
@@ -90,18 +87,9 @@ pub struct Board {
 
 /// Brings up clocks and pins. Takes the device peripherals that RTIC's `init` hands over.
 pub fn init(dp: pac::Peripherals) -> Board {
-    const _: () = assert!(HSE_HZ * 9 == SYSCLK_HZ && SYSCLK_HZ / 2 == APB1_HZ);
     let mut flash = dp.FLASH.constrain();
-    // HSE, PLL x9, AHB /1, APB1 /2 (36 MHz, its maximum and the bxCAN clock the bit timing
-    // table assumes), APB2 /1, two flash wait states (RM0008 7.3, 3.3.3).
-    let mut rcc = dp.RCC.freeze(
-        rcc::Config::hse(HSE_HZ.Hz())
-            .sysclk(SYSCLK_HZ.Hz())
-            .hclk(SYSCLK_HZ.Hz())
-            .pclk1(APB1_HZ.Hz())
-            .pclk2(SYSCLK_HZ.Hz()),
-        &mut flash.acr,
-    );
+    // The board's clocks (handwheel_board::clocks, the loader's too).
+    let mut rcc = handwheel_board::clocks::freeze(dp.RCC, &mut flash.acr);
     let reset_cause = ResetCause::take(&rcc);
 
     let mut afio = dp.AFIO.constrain(&mut rcc);
@@ -124,17 +112,8 @@ pub fn init(dp: pac::Peripherals) -> Board {
             gpioa.pa7.into_pull_up_input(&mut gpioa.crl).erase_number(),
         ],
     };
-    // DIP switches 1..8, pulled up, on = low.
-    let dip_pins = [
-        gpiob.pb12.into_pull_up_input(&mut gpiob.crh).erase_number(),
-        gpiob.pb13.into_pull_up_input(&mut gpiob.crh).erase_number(),
-        gpiob.pb14.into_pull_up_input(&mut gpiob.crh).erase_number(),
-        gpiob.pb15.into_pull_up_input(&mut gpiob.crh).erase_number(),
-        gpiob.pb0.into_pull_up_input(&mut gpiob.crl).erase_number(),
-        gpiob.pb1.into_pull_up_input(&mut gpiob.crl).erase_number(),
-        gpiob.pb10.into_pull_up_input(&mut gpiob.crh).erase_number(),
-        gpiob.pb11.into_pull_up_input(&mut gpiob.crh).erase_number(),
-    ];
+    // The DIP switch, read as the loader reads it (handwheel_board::pins).
+    let dip = handwheel_board::read_dip_switch!(gpiob);
 
     // The LEDs start dark: RUN (PC13) sinks the on-board LED's current, ERR (PB5) sources.
     let mut run = gpioc
@@ -182,20 +161,8 @@ pub fn init(dp: pac::Peripherals) -> Board {
     a.enable_interrupt(&mut exti);
     b.enable_interrupt(&mut exti);
 
-    // bxCAN on PB8 (RX, pulled up) and PB9 (TX) with AFIO remap 2 (MAPR's SWJ_CFG written as
-    // 0 keeps SWD); USB is handed over too, as it shares bxCAN's packet SRAM.
-    let can = Can::new(
-        dp.CAN.remap::<2>(&mut afio.mapr),
-        dp.USB,
-        (gpiob.pb9, gpiob.pb8.into_pull_up_input(&mut gpiob.crh)),
-        &mut rcc,
-    );
-
-    // The pull-ups need a moment to lift the open lines after the mode change.
-    cortex_m::asm::delay(SYSCLK_HZ / 10_000);
-    let dip = dip_pins.iter().enumerate().fold(0, |dip, (switch, pin)| {
-        dip | u8::from(pin.is_low()) << switch
-    });
+    // bxCAN on the board's pins, as the loader opens it (handwheel_board::pins).
+    let can = handwheel_board::open_can!(dp, afio, gpiob, rcc);
 
     let watchdog = Watchdog::new(dp.IWDG, &dp.DBGMCU);
 
@@ -341,20 +308,4 @@ impl ResetCause {
         rcc.csr().modify(|_, w| w.rmvf().set_bit());
         cause
     }
-}
-
-/// Address of the 96-bit unique device ID (RM0008, "Unique device ID register").
-const UNIQUE_ID_ADDRESS: usize = 0x1FFF_F7E8;
-
-/// The MCU's 96-bit unique ID as three words, lowest address first.
-///
-/// Read by hand: the HAL has no API for the unique ID.
-pub fn unique_id() -> [u32; 3] {
-    let base = UNIQUE_ID_ADDRESS as *const u32;
-    core::array::from_fn(|word| {
-        // SAFETY: the unique ID is factory-programmed system memory at a fixed, word-aligned
-        // address on every STM32F1; `word` < 3 keeps the read inside its 12 bytes, and the
-        // read has no side effects.
-        unsafe { core::ptr::read_volatile(base.add(word)) }
-    })
 }

@@ -4,28 +4,27 @@
 use bxcan::filter::{ListEntry16, Mask16};
 use bxcan::{Fifo, Interrupts, Mailbox, StandardId};
 use canopen_slave::RxFilter;
-use handwheel_core::{btr_table, BitRate};
+use handwheel_core::BitRate;
 
 use super::bus::{BusState, ErrorCounters};
 use super::port::{Busy, CanLink, Received};
 use super::{frame, Frame, Mode};
-use crate::board::{CanInstance, APB1_HZ};
+use crate::board::CanInstance;
 use crate::pac;
 
 /// The configured controller.
 pub type Bxcan = bxcan::Can<CanInstance>;
 
 /// `CAN_BTR` timing bits for every rate of [`BitRate::ALL`](handwheel_core::BitRate::ALL)
-/// (by code) at the 36 MHz APB1 clock, evaluated at compile time (the loader programs the
-/// same table).
-pub const BTR_TABLE: [u32; 8] = btr_table(APB1_HZ);
+/// (by code) at the 36 MHz APB1 clock: the board's table, which the loader programs too.
+pub use handwheel_board::bit_timing::BTR_TABLE;
 
 /// `CAN_BTR`'s mode bits, silent and loopback (RM0008 24.9.7); the rest are timing bits.
 const BTR_MODE_BITS: u32 = 0xC000_0000;
 
 /// The `CAN_BTR` timing bits for `rate`.
 pub const fn btr(rate: BitRate) -> u32 {
-    BTR_TABLE[rate.code() as usize]
+    handwheel_board::bit_timing::btr(rate.code())
 }
 
 /// Configures bit timing, the acceptance filters for `filter` and interrupts, and asks the

@@ -62,7 +62,7 @@ SLICE = 2000
 # most that long.
 LONG_SLICE = 32 * SLICE
 
-# Pins (src/board/pins.rs, README "Pin map").
+# Pins (crates/handwheel-board/src/pins.rs, README "Pin map").
 WHEEL_A, WHEEL_B = 6, 7  # PB6, PB7
 AXIS_PINS = [0, 1, 2, 3, 4]  # PA0..PA4 = X, Y, Z, W, V, active low
 MULT_PINS = {1: 5, 10: 6, 100: 7}  # PA5..PA7, active low
@@ -70,7 +70,7 @@ DIP_PINS = [12, 13, 14, 15, 0, 1, 10, 11]  # PB, switch on = grounded
 RUN_LED = ("C", 13)  # active low
 ERR_LED = ("B", 5)  # active high
 # The board's digital outputs, out 1 first (active high): the "jog live" LED, then
-# 0x6A00:1 bits 0..6 (src/board/pins.rs).
+# 0x6A00:1 bits 0..6 (crates/handwheel-board/src/pins.rs).
 OUTPUT_PINS = (("A", 8), ("A", 15), ("B", 3), ("B", 4), ("A", 9), ("A", 10), ("B", 2), ("C", 14))
 # JTAG's pins out of reset (JTDI, JTDO, NJTRST): the GPIO drives them only once AFIO's SWJ_CFG
 # has released them (RM0008 9.3.5, table 41).

@@ -1,7 +1,8 @@
 """The wiring diagram against the firmware's pin map (run by `cargo xtask test` and
 `cargo xtask docs --check`; no Graphviz needed).
 
-- The firmware's pin map is the table in the module doc of `src/board/pins.rs`. The README's
+- The firmware's pin map is the table in the module doc of
+  `crates/handwheel-board/src/pins.rs`. The README's
   "Pin map" table and the board connector of `docs/wiring/handwheel.yml` must give every
   signal of it the same pin, and no other.
 - Every signal's wire in the diagram ends where the hardware needs it (the transceiver's TXD
@@ -186,16 +187,24 @@ def test_stamp_replaces_an_older_one_and_reads_back():
     assert wiring.svg_texts(twice) == {"PB6"}
 
 
-@pytest.mark.parametrize("image", sorted(wiring.DIP_CODE))
-def test_both_images_read_the_dip_switch_on_the_pin_maps_pins(firmware, image):
-    """The loader reads the DIP switch for the node-ID and bit rate it answers at: a pin
-    moved in one image alone would give it another node-ID than the application's."""
-    code = wiring.dip_pins_in_code(wiring.DIP_CODE[image].read_text(encoding="utf-8"))
+def test_the_board_crate_reads_the_dip_switch_on_the_pin_maps_pins(firmware):
+    code = wiring.dip_pins_in_code(wiring.DIP_CODE.read_text(encoding="utf-8"))
     assert code == [firmware[f"DIP {n}"] for n in range(1, 9)]
 
 
+@pytest.mark.parametrize("image", sorted(wiring.IMAGES))
+def test_both_images_read_the_dip_switch_through_the_board_crate(image):
+    """The loader reads the DIP switch for the node-ID and bit rate it answers at: both
+    images read it with the board crate's one macro, so a pin moved there moves in both, and
+    neither has pins of its own that could stay behind."""
+    source = wiring.IMAGES[image].read_text(encoding="utf-8")
+    assert wiring.reads_dip_switch_through_the_board(source)
+    own = source.replace(wiring.DIP_READ, "let dip_pins = [gpiob.pb12.into_pull_up_input()];")
+    assert not wiring.reads_dip_switch_through_the_board(own)
+
+
 def test_a_dip_pin_moved_in_the_code_is_seen():
-    source = wiring.DIP_CODE["loader"].read_text(encoding="utf-8")
+    source = wiring.DIP_CODE.read_text(encoding="utf-8")
     moved = source.replace("gpiob.pb13.into_pull_up_input", "gpiob.pb4.into_pull_up_input")
     assert wiring.dip_pins_in_code(moved)[1] == "PB4"
     with pytest.raises(wiring.PinMapError):

@@ -2,7 +2,8 @@
 
 `docs/wiring/handwheel.yml` (WireViz) is the one source of `docs/wiring/handwheel.svg`. This
 module reads the three pin maps into `{signal: pin}`: the firmware's (the table in the module
-doc of `src/board/pins.rs`, the single source of the pin map), the README's ("Pin map") and
+doc of `crates/handwheel-board/src/pins.rs`, the single source of the pin map), the README's
+("Pin map") and
 the diagram's (the board connector's pins and labels); and it stamps the SVG with a digest of
 the YAML it was rendered from, so that a stale picture is found without Graphviz.
 
@@ -17,13 +18,16 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-FIRMWARE_PINS = ROOT / "src" / "board" / "pins.rs"
-# The code that sets the DIP switch's pins up: the application's board and the loader, which
-# must read the same node-ID and bit rate.
-DIP_CODE = {
+FIRMWARE_PINS = ROOT / "crates" / "handwheel-board" / "src" / "pins.rs"
+# The code that sets the DIP switch's pins up (the board crate's `read_dip_switch!`), and the
+# two images that must read the same node-ID and bit rate through it.
+DIP_CODE = FIRMWARE_PINS
+IMAGES = {
     "application": ROOT / "src" / "board" / "mod.rs",
     "loader": ROOT / "loader" / "src" / "main.rs",
 }
+# How an image reads the DIP switch: the board crate's macro, and nothing of its own.
+DIP_READ = "handwheel_board::read_dip_switch!(gpiob)"
 README = ROOT / "README.md"
 SOURCE = ROOT / "docs" / "wiring" / "handwheel.yml"
 SVG = ROOT / "docs" / "wiring" / "handwheel.svg"
@@ -113,7 +117,7 @@ def pin_map(rows: list[list[str]]) -> dict[str, str]:
 
 
 def firmware_pin_map(rust_source: str) -> dict[str, str]:
-    """The pin map in the module doc (`//!` lines) of `src/board/pins.rs`."""
+    """The pin map in the module doc (`//!` lines) of `crates/handwheel-board/src/pins.rs`."""
     doc = [line.strip()[3:] for line in rust_source.splitlines() if line.strip().startswith("//!")]
     return pin_map(table_rows(doc))
 
@@ -125,6 +129,12 @@ def dip_pins_in_code(rust_source: str) -> list[str]:
     if array is None:
         raise PinMapError("no `let dip_pins = [...]` array")
     return [f"P{port.upper()}{n}" for port, n in re.findall(r"\bgpio([a-e])\.p\1(\d+)\.", array[1])]
+
+
+def reads_dip_switch_through_the_board(rust_source: str) -> bool:
+    """Whether an image's code reads the DIP switch with the board crate's macro and sets up
+    no DIP pin array of its own."""
+    return DIP_READ in rust_source and "let dip_pins" not in rust_source
 
 
 def readme_pin_map(readme: str) -> dict[str, str]:

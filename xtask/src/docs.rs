@@ -24,7 +24,7 @@ pub fn docs(args: &[String]) -> Result<(), String> {
 }
 
 /// The wiring diagram's checks (`tools/wiring/test_wiring.py`) in `target/wiring-venv`: the
-/// YAML's board pins against `src/board/pins.rs` and the README, and the SVG's stamp; every
+/// YAML's board pins against `crates/handwheel-board/src/pins.rs` and the README, and the SVG's stamp; every
 /// relative link in the Markdown files (`tools/doclinks/test_doclinks.py`); and the marks of
 /// the documents' code blocks with the checks that need no emulator
 /// (`tools/snippets/test_marks.py`); and the import graphs of the firmware crate, the no_std

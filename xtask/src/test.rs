@@ -20,6 +20,7 @@ use crate::{contract, dbc, eds, footprint, linuxcnc};
 /// Crates that must also build without `std` for the MCU.
 const NO_STD_CRATES: &[&str] = &[
     "handwheel-core",
+    "handwheel-board",
     "canopen-slave",
     "handwheel-device",
     "canopen-loader",

@@ -1,6 +1,6 @@
 //! The wiring diagram (`tools/wiring`): `docs/wiring/handwheel.yml`, rendered by WireViz
 //! through Graphviz into `docs/wiring/handwheel.svg`, and its checks against the firmware's
-//! pin map (the table in `src/board/pins.rs`) and the README's; with them, the check that
+//! pin map (the table in `crates/handwheel-board/src/pins.rs`) and the README's; with them, the check that
 //! every relative link in the repository's Markdown files resolves (`tools/doclinks`).
 //!
 //! `cargo xtask docs` re-renders the SVG (WireViz from the pinned venv `target/wiring-venv`,

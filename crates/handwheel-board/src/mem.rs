@@ -1,13 +1,15 @@
 //! Byte-wise memory routines in place of `compiler_builtins`' word-wise ones (weak symbols,
-//! so these win at link time): the loader must fit its 12 KiB, and those routines with their
-//! ARM EABI entry points took about 2 KiB of it for speed the loader does not need. The
-//! largest copy it makes (its node, about 1.2 KB, on start and reset communication) takes
-//! some 10 000 cycles, 0.14 ms at 72 MHz, byte by byte.
+//! so these win at link time), in both images: the loader must fit its 12 KiB and the
+//! application its 40 KiB budget, and those routines with their ARM EABI entry points take
+//! about 2 KiB for speed neither needs. The largest copy the loader makes (its node, about
+//! 1.2 KB, at start and at reset communication) takes some 10 000 cycles, 0.14 ms at 72 MHz,
+//! byte by byte; the application copies CAN frames (16 bytes), defmt frames and a few hundred
+//! bytes at start-up, none of it on the wheel's interrupt path.
 //!
 //! Every entry point goes to one of two loops, `copy` and `fill`, which no entry point's name
 //! reaches: a call of `memset` or `memcpy` by name is a library call to the compiler, which
 //! it lowers to the EABI entry point again (a function calling itself), and volatile accesses
-//! keep it from recognising the loops as such calls. `tests/interop` boots this loader in
+//! keep it from recognising the loops as such calls. `tests/interop` boots both images in
 //! every test: a routine that recursed would fault at its first use.
 
 use core::ptr::{read_volatile, write_volatile};
@@ -42,7 +44,7 @@ unsafe fn fill(dest: *mut u8, c: u8, n: usize) {
 ///
 /// # Safety
 /// The C `memcpy` contract: `src` readable and `dest` writable for `n` bytes.
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut u8 {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, false) };
@@ -53,7 +55,7 @@ pub unsafe extern "C" fn memcpy(dest: *mut u8, src: *const u8, n: usize) -> *mut
 ///
 /// # Safety
 /// The C `memmove` contract.
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn memmove(dest: *mut u8, src: *const u8, n: usize) -> *mut u8 {
     // SAFETY: the same contract; forwards when `dest` is below `src`, else backwards, so
     // that each byte is read before a write can reach it.
@@ -65,7 +67,7 @@ pub unsafe extern "C" fn memmove(dest: *mut u8, src: *const u8, n: usize) -> *mu
 ///
 /// # Safety
 /// The C `memset` contract.
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn memset(dest: *mut u8, c: i32, n: usize) -> *mut u8 {
     // SAFETY: the same contract.
     unsafe { fill(dest, c as u8, n) };
@@ -78,7 +80,7 @@ pub unsafe extern "C" fn memset(dest: *mut u8, c: i32, n: usize) -> *mut u8 {
 
 /// # Safety
 /// As [`memcpy`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memcpy(dest: *mut u8, src: *const u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, false) };
@@ -86,7 +88,7 @@ pub unsafe extern "C" fn __aeabi_memcpy(dest: *mut u8, src: *const u8, n: usize)
 
 /// # Safety
 /// As [`memcpy`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memcpy4(dest: *mut u8, src: *const u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, false) };
@@ -94,7 +96,7 @@ pub unsafe extern "C" fn __aeabi_memcpy4(dest: *mut u8, src: *const u8, n: usize
 
 /// # Safety
 /// As [`memcpy`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memcpy8(dest: *mut u8, src: *const u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, false) };
@@ -102,7 +104,7 @@ pub unsafe extern "C" fn __aeabi_memcpy8(dest: *mut u8, src: *const u8, n: usize
 
 /// # Safety
 /// As [`memmove`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memmove(dest: *mut u8, src: *const u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, (dest as usize) > (src as usize)) };
@@ -110,7 +112,7 @@ pub unsafe extern "C" fn __aeabi_memmove(dest: *mut u8, src: *const u8, n: usize
 
 /// # Safety
 /// As [`memmove`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memmove4(dest: *mut u8, src: *const u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, (dest as usize) > (src as usize)) };
@@ -118,7 +120,7 @@ pub unsafe extern "C" fn __aeabi_memmove4(dest: *mut u8, src: *const u8, n: usiz
 
 /// # Safety
 /// As [`memmove`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memmove8(dest: *mut u8, src: *const u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { copy(dest, src, n, (dest as usize) > (src as usize)) };
@@ -126,7 +128,7 @@ pub unsafe extern "C" fn __aeabi_memmove8(dest: *mut u8, src: *const u8, n: usiz
 
 /// # Safety
 /// As [`memset`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memset(dest: *mut u8, n: usize, c: i32) {
     // SAFETY: the same contract.
     unsafe { fill(dest, c as u8, n) };
@@ -134,7 +136,7 @@ pub unsafe extern "C" fn __aeabi_memset(dest: *mut u8, n: usize, c: i32) {
 
 /// # Safety
 /// As [`memset`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memset4(dest: *mut u8, n: usize, c: i32) {
     // SAFETY: the same contract.
     unsafe { fill(dest, c as u8, n) };
@@ -142,7 +144,7 @@ pub unsafe extern "C" fn __aeabi_memset4(dest: *mut u8, n: usize, c: i32) {
 
 /// # Safety
 /// As [`memset`].
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memset8(dest: *mut u8, n: usize, c: i32) {
     // SAFETY: the same contract.
     unsafe { fill(dest, c as u8, n) };
@@ -150,7 +152,7 @@ pub unsafe extern "C" fn __aeabi_memset8(dest: *mut u8, n: usize, c: i32) {
 
 /// # Safety
 /// As [`memset`] with 0.
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memclr(dest: *mut u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { fill(dest, 0, n) };
@@ -158,7 +160,7 @@ pub unsafe extern "C" fn __aeabi_memclr(dest: *mut u8, n: usize) {
 
 /// # Safety
 /// As [`memset`] with 0.
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memclr4(dest: *mut u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { fill(dest, 0, n) };
@@ -166,7 +168,7 @@ pub unsafe extern "C" fn __aeabi_memclr4(dest: *mut u8, n: usize) {
 
 /// # Safety
 /// As [`memset`] with 0.
-#[no_mangle]
+#[unsafe(no_mangle)]
 pub unsafe extern "C" fn __aeabi_memclr8(dest: *mut u8, n: usize) {
     // SAFETY: the same contract.
     unsafe { fill(dest, 0, n) };
