@@ -5,8 +5,8 @@ loader on the emulated board, segmented and by block download, at 1 Mbit/s and a
 transfer and rate, the file's size, the frames each way, the bus time those frames take at
 least (111 bits per 8-byte data frame, without stuffing and interframe space), the flash
 time, the floor (the bus time of the least frames the download needs, plus the flash time),
-the device's time (the emulated clock), its ratio to the floor, and the wall time of the
-whole command on this machine.
+the device's time (the emulated clock), its ratio to the floor, the wall time of the whole
+command on this machine, and the new image's boot time (reset to boot-up).
 """
 
 from __future__ import annotations
@@ -40,6 +40,18 @@ def floor_frames(size: int, transfer: str) -> int:
     if transfer == "segmented":
         return 2 * segments + 2
     return segments + -(-segments // 127) + 4
+
+
+def boot_time_ms(board: Board, relay: Relay, node: int) -> float:
+    """Device milliseconds from the last reset (the loader's "start") to the application's
+    boot-up: the loader's image check and its 100 ms window, then the application's start.
+    The boot-up's device time is taken as the board's clock now less the wall time since the
+    relay saw it (the board keeps real time while it waits)."""
+    status = board.status()
+    now = time.monotonic()
+    boot_up = [f for f in relay.device.frames(0x700 + node) if f.data == b"\x00"][-1]
+    at_ms = float(status["ms"]) - (now - boot_up.t) * 1000
+    return at_ms - float(status["reset_ms"])
 
 
 def download_time(relay: Relay, node: int, host_mark: int, device_mark: int) -> float:
@@ -83,6 +95,7 @@ def test_update_time(tmp_path, release, kbit, code, transfer):
         code_, _, err = run_update(relay, path, "--node", str(node), "--sdo-transfer", transfer)
         wall = time.monotonic() - started
         assert code_ == 0, err
+        boot_ms = boot_time_ms(board, relay, node)
         device_ms = float(board.status()["ms"]) - ms
         from_device = len(relay.device.frames(since=device_mark))
         from_host = len(relay.host.frames(since=host_mark))
@@ -99,7 +112,8 @@ def test_update_time(tmp_path, release, kbit, code, transfer):
             f"floor (the download's least frames plus flash) {floor_s:.2f} s; the download "
             f"itself (its initiate to its last answer) {download_s:.2f} s, "
             f"{download_s / floor_s:.2f} x the floor; the whole command {device_ms / 1000:.2f} s "
-            f"of device time, {wall:.1f} s of wall time"
+            f"of device time, {wall:.1f} s of wall time; the new image's boot: "
+            f'{boot_ms:.0f} ms from the reset ("start") to its boot-up'
         )
     finally:
         if relay is not None:

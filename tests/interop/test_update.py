@@ -328,7 +328,9 @@ def test_the_loader_answers_at_the_stored_node_id_and_bit_rate(board, relay, rel
 
     with master(relay) as (network, node):
         lss = network.lss
-        lss.RESPONSE_TIMEOUT = 1.0
+        # Generous, as SDO_TIMEOUT: a block download on the other worker's board can hold
+        # this board's emulation back (one run without an answer in 1 s).
+        lss.RESPONSE_TIMEOUT = 3.0
         lss.send_switch_state_global(LssMaster.CONFIGURATION_STATE)
         lss.configure_node_id(7)
         lss.configure_bit_timing(4)  # CiA 301's table: 125 kbit/s

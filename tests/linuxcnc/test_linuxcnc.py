@@ -320,15 +320,20 @@ def test_a_bus_that_errors_and_comes_back(machine):
     try:
         machine.wait_pos(moved(start, "y", -10 * SCALE))
     except AssertionError as e:
-        # Seen in the clean-clone CI only (2 of 2 runs on 2026-12-07, since the outputs'
-        # sender and RPDO1 landed; it passes alone and in every local run of the whole suite):
-        # the first detent after the line is back is not credited (the device's position -30
-        # on the pin, the axis still). What was turned meanwhile moving nothing, the safety
-        # half above, stays a hard assertion; this half is reported, not hidden, until found.
+        # Seen after the interop suite only (every clean-clone CI run since 2026-12-07, and
+        # locally when the interop suite ran right before; never alone): the first detent
+        # after the line is back is not credited, a baseline "not dated within 0.35 s". The
+        # cause as far as found: about 0.3 s after the reconnection one send on the
+        # component's new SLCAN socket (python-can over pyserial's socket://) blocks for
+        # 0.3 s; python-canopen's send lock holds the heartbeat, the outputs and the probe's
+        # read behind it, so the probe that would date the detent's record comes 0.41 s after
+        # the one before. Losing motion the host cannot date is the design (never late); why
+        # the send blocks is open. What was turned meanwhile moving nothing, the safety half
+        # above, stays a hard assertion; this half is reported, not hidden.
         t0 = machine.frames.frames(since=mark)[0].t
         print("--- frames since the break (s, id, data) ---")
         for f in machine.frames.frames(since=mark):
-            if f.id != 0x080 + 0 and (f.id >= 0x500 or f.id in (TPDO1, EMCY)):
+            if f.id != 0x080 + 0:
                 print(f"{f.t - t0:8.3f} {f.id:03X} {f.data.hex(' ')}")
         print("--- LinuxCNC log ---\n" + machine.cnc.tail(40))
         pytest.xfail(f"the first detent after the reconnection was not credited: {e}")
