@@ -1,9 +1,9 @@
 'use strict';
 // The CiA 302-3 program download (docs/FIRMWARE-UPDATE.md) with node-canopen as the master:
 // 0x1F51 stop into the resident loader, "clear", node-canopen's segmented download of the
-// update file to 0x1F50:1 with the power cut in the middle, then a second, complete
-// download, "start", and the new image answering; then a third image by node-canopen's block
-// download. A board of its own: it rewrites the flash.
+// update file to 0x1F50:1 with the power cut in the middle, then a second, complete download
+// by node-canopen's block download, "start", and the new image answering. A board of its
+// own: it rewrites the flash.
 
 const { describe, it, before, after, afterEach } = require('node:test');
 const assert = require('node:assert/strict');
@@ -85,6 +85,13 @@ describe('program download through the resident loader', () => {
             const segments = rig.sent.list(COB.SDO_RX, sent).length - 2; // initiate, abort
             assert.ok(segments > 1000 && segments < image.length / 7 - 1000,
                 `cut after ${segments} segments of ${Math.ceil(image.length / 7)}`);
+            // node-canopen's segmented download until the cut: each segment answered, the
+            // toggle alternating.
+            const answers = rig.frames.list(COB.SDO_TX, mark).map((f) => f.data[0]);
+            assert.equal(answers[0], 0x60, 'initiate confirmed');
+            assert.ok(answers.length > 1000, `${answers.length} answers before the cut`);
+            assert.ok(answers.slice(1).every((cmd, i) => cmd === (i % 2 ? 0x30 : 0x20)),
+                'segment answers with alternating toggle');
             await rig.frames.waitId(COB.HEARTBEAT, Buffer.from([STATE.BOOTUP]), { since: mark });
             assert.deepEqual(await rig.control.send('mode'), ['mode loader']);
             assert.equal(await rig.read(0x1000, 0, U32), BOOT);
@@ -92,15 +99,22 @@ describe('program download through the resident loader', () => {
             assert.equal(await rig.read(0x1f56, 1, U32), 0);
         });
 
-    it('a second, complete download is taken, and "start" boots the new image', async () => {
-        await rig.write(0x1f51, 1, 3, U8);
+    it('a second, complete download by block (node-canopen\'s, with its CRC) is taken: one '
+        + 'acknowledgement per sub-block of 127 segments; "start" boots the new image', async () => {
+        await rig.write(0x1f51, 1, 3, U8); // clear
         let mark = rig.frames.mark();
-        await download(image);
-        const answers = rig.frames.list(COB.SDO_TX, mark).map((f) => f.data[0]);
-        assert.equal(answers.length, 1 + Math.ceil(image.length / 7), 'one answer each');
-        assert.equal(answers[0], 0x60, 'initiate confirmed');
-        assert.ok(answers.slice(1).every((cmd, i) => cmd === (i % 2 ? 0x30 : 0x20)),
-            'segment answers with alternating toggle');
+        await rig.write(0x1f50, 1, image, null,
+            { timeout: SEGMENT_TIMEOUT_MS, blockTransfer: true });
+        const answers = rig.frames.list(COB.SDO_TX, mark).map((f) => f.data);
+        const segments = Math.ceil(image.length / 7);
+        assert.equal(answers[0][0], 0xa4, 'block initiate confirmed, the server checks the CRC');
+        assert.equal(answers[0][4], 127, 'sub-blocks of 127 segments');
+        const acks = answers.slice(1, -1);
+        assert.equal(acks.length, Math.ceil(segments / 127), 'one acknowledgement per sub-block');
+        assert.ok(acks.every((a, i) => a[0] === 0xa2
+            && a[1] === (i + 1 < acks.length ? 127 : segments - 127 * i)),
+        'each acknowledges its whole sub-block');
+        assert.equal(answers.at(-1)[0], 0xa1, 'end confirmed: length and CRC right');
         assert.equal(await rig.read(0x1f57, 1, U32), 0, 'no error');
         assert.equal(await rig.read(0x1f56, 1, U32), crc);
 
@@ -113,33 +127,5 @@ describe('program download through the resident loader', () => {
         assert.equal(await rig.read(0x1f56, 1, U32), crc, 'the new image');
         assert.equal(await rig.read(0x1008, 0, TEXT), 'CNC handwheel');
         assert.equal(await rig.read(0x1f51, 1, U8), 1, 'started');
-    });
-
-    it('a block download (node-canopen\'s, with its CRC) replaces it: one acknowledgement per '
-        + 'sub-block of 127 segments', async () => {
-        const next = variant(release, 200);
-        let mark = rig.frames.mark();
-        await rig.write(0x1f51, 1, 0, U8); // stop: into the loader
-        await rig.frames.waitId(COB.HEARTBEAT, Buffer.from([STATE.BOOTUP]), { since: mark });
-        await rig.write(0x1f51, 1, 3, U8); // clear
-        mark = rig.frames.mark();
-        await rig.write(0x1f50, 1, next, null,
-            { timeout: SEGMENT_TIMEOUT_MS, blockTransfer: true });
-        const answers = rig.frames.list(COB.SDO_TX, mark).map((f) => f.data);
-        const segments = Math.ceil(next.length / 7);
-        assert.equal(answers[0][0], 0xa4, 'block initiate confirmed, the server checks the CRC');
-        assert.equal(answers[0][4], 127, 'sub-blocks of 127 segments');
-        const acks = answers.slice(1, -1);
-        assert.equal(acks.length, Math.ceil(segments / 127), 'one acknowledgement per sub-block');
-        assert.ok(acks.every((a, i) => a[0] === 0xa2
-            && a[1] === (i + 1 < acks.length ? 127 : segments - 127 * i)),
-        'each acknowledges its whole sub-block');
-        assert.equal(answers.at(-1)[0], 0xa1, 'end confirmed: length and CRC right');
-        assert.equal(await rig.read(0x1f57, 1, U32), 0, 'no error');
-        assert.equal(await rig.read(0x1f56, 1, U32), next.readUInt32LE(0x18));
-        mark = rig.frames.mark();
-        await rig.write(0x1f51, 1, 1, U8); // start
-        await rig.frames.waitId(COB.HEARTBEAT, Buffer.from([STATE.BOOTUP]), { since: mark });
-        assert.equal(await rig.read(0x1f56, 1, U32), next.readUInt32LE(0x18), 'the block image');
     });
 });
