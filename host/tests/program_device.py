@@ -6,6 +6,7 @@ tests drive it step by step (test_update.py) and through python-canopen on the v
 (test_update_cli.py), there also behind `BlockDownloadServer`, the server's side of SDO block
 download with its CRC-16."""
 
+import binascii
 import struct
 import zlib
 from typing import Optional
@@ -197,13 +198,10 @@ class ProgramDevice:
 
 
 def crc16_xmodem(data: bytes, crc: int = 0) -> int:
-    """CRC-16/XMODEM (CiA 301's block transfer CRC): polynomial 0x1021, initial 0, no
-    reflection, no final XOR; bit by bit, independent of python-canopen's."""
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = (crc << 1 ^ 0x1021 if crc & 0x8000 else crc << 1) & 0xFFFF
-    return crc
+    """CRC-16/XMODEM (CiA 301's block transfer CRC: polynomial 0x1021, initial 0, no
+    reflection, no final XOR): the standard library's `binascii.crc_hqx`, independent of
+    python-canopen's."""
+    return binascii.crc_hqx(data, crc)
 
 
 ABORT_COMMAND = 0x0504_0001
