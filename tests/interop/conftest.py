@@ -20,7 +20,7 @@ import pytest
 
 # The library in tools/rig (on the path through pytest.ini), shared with the demo and the
 # host tools.
-from rig import Board, FrameRecorder, Rig, Stimulus, open_rig
+from rig import NOTIFIER_CYCLE, Board, FrameRecorder, Rig, Stimulus, open_rig, slcan_line
 
 # The suite's longest tests (tens of seconds each: every flash operation of a store cut, the
 # update's downloads, the trial boots) go first: on two workers the short ones then fill in
@@ -97,18 +97,14 @@ def raw_bus(board: Board):
     while True:
         board.check_alive()
         try:
-            bus = can.Bus(
-                interface="slcan",
-                channel=f"socket://127.0.0.1:{board.can_port}",
-                sleep_after_open=0,
-            )
+            bus = slcan_line(f"socket://127.0.0.1:{board.can_port}")
             break
         except can.CanError:
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.1)
     frames = FrameRecorder()
-    notifier = can.Notifier(bus, [frames])
+    notifier = can.Notifier(bus, [frames], timeout=NOTIFIER_CYCLE)
     try:
         yield bus, frames
     finally:

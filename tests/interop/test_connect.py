@@ -19,6 +19,7 @@ from rig import (
     FRAME_TIMEOUT,
     HEARTBEAT,
     NODE_ID,
+    NOTIFIER_CYCLE,
     SDO_TIMEOUT,
     FrameRecorder,
     connect_bus,
@@ -33,6 +34,7 @@ def _connect_and_check_bootup(board, **bus_kwargs):
     connected = time.monotonic()
     frames = FrameRecorder()
     network = canopen.Network(bus)
+    network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
     network.listeners.append(frames)  # before connect(): the notifier sees every frame
     node = network.add_node(NODE_ID, str(EDS))
     network.connect()

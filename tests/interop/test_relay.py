@@ -13,7 +13,7 @@ import can
 import pytest
 
 from canopen_handwheel import slcan
-from rig import Frame
+from rig import Frame, slcan_line
 from rig.relay import Relay, Replay, is_bootup
 
 
@@ -124,7 +124,7 @@ class FakeEmulator:
 def relayed():
     emu = FakeEmulator()
     relay = Relay(emu)
-    bus = can.Bus(interface="slcan", channel=relay.channel, sleep_after_open=0)
+    bus = slcan_line(relay.channel)
     try:
         yield emu, relay, bus
     finally:

@@ -23,8 +23,8 @@ from pathlib import Path
 import canopen
 import pytest
 
-from rig import Board
-from rig.constants import NODE_ID
+from rig import Board, slcan_line
+from rig.constants import NODE_ID, NOTIFIER_CYCLE
 from rig.relay import Relay
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,9 +58,9 @@ def image_crc(data: bytes) -> int:
 @contextmanager
 def master(relay: Relay, node_id: int = NODE_ID):
     """A python-canopen master on the relay's client port for a few SDO requests."""
-    network = canopen.Network()
-    # No 2 s pause after opening: that is for serial adapters, the relay is a TCP port.
-    network.connect(interface="slcan", channel=relay.channel, sleep_after_open=0)
+    network = canopen.Network(slcan_line(relay.channel))
+    network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
+    network.connect()
     try:
         node = network.add_node(node_id, canopen.ObjectDictionary())
         # Generous: on a loaded machine the emulated board can fall a second behind, and a

@@ -18,11 +18,22 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Optional
 
-import can
 import canopen
 import pytest
 
-from rig import AXES, NMT, NODE_ID, SDO_RX, TPDO1, Board, FrameRecorder, Stimulus, feed_record
+from rig import (
+    AXES,
+    NMT,
+    NODE_ID,
+    NOTIFIER_CYCLE,
+    SDO_RX,
+    TPDO1,
+    Board,
+    FrameRecorder,
+    Stimulus,
+    feed_record,
+    slcan_line,
+)
 from sim_machine import SimMachine
 from slcan_hub import SlcanHub
 
@@ -118,9 +129,10 @@ class Machine:
         self.runs = 1
         self.board = start_emulator(tmp, self.runs)
         self.hub = SlcanHub(self.board.can_port)
-        self.bus = can.Bus(interface="slcan", channel=self.hub.channel, sleep_after_open=0)
+        self.bus = slcan_line(self.hub.channel)
         self.frames = FrameRecorder()
         self.network = canopen.Network(self.bus)
+        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
         self.network.listeners.append(self.frames)
         self.network.connect()
         self.hub.protect_current()  # the listener survives `break_clients`
@@ -311,8 +323,9 @@ def machine(tmp_path_factory):
 def master(channel: str, timeout: float = 1.0):
     """A python-canopen master of its own on the hub (`channel`) for a few SDO requests to
     the device: (network, node)."""
-    network = canopen.Network()
-    network.connect(interface="slcan", channel=channel, sleep_after_open=0)
+    network = canopen.Network(slcan_line(channel))
+    network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
+    network.connect()
     try:
         node = network.add_node(NODE_ID, canopen.ObjectDictionary())
         node.sdo.RESPONSE_TIMEOUT = timeout

@@ -35,6 +35,7 @@ from .constants import (
     NMT_START,
     NMT_STOP,
     NODE_ID,
+    NOTIFIER_CYCLE,
     OPERATIONAL,
     PRE_OPERATIONAL,
     ROOT,
@@ -48,7 +49,7 @@ from .constants import (
     TPDO1,
     TPDO2,
 )
-from .emulator import Board, Stimulus, connect_bus, free_ports
+from .emulator import Board, Stimulus, connect_bus, free_ports, slcan_line
 from .frames import STATUS_FLAGS, Frame, FrameRecorder, feed_record
 from .master import MasterHeartbeat, Rig, open_rig
 
@@ -67,6 +68,7 @@ __all__ = [
     "NMT_START",
     "NMT_STOP",
     "NODE_ID",
+    "NOTIFIER_CYCLE",
     "OPERATIONAL",
     "PRE_OPERATIONAL",
     "ROOT",
@@ -89,4 +91,5 @@ __all__ = [
     "feed_record",
     "free_ports",
     "open_rig",
+    "slcan_line",
 ]

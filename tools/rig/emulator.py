@@ -264,6 +264,30 @@ def _refused(error: BaseException) -> bool:
     return False
 
 
+def slcan_line(channel: str, **bus_kwargs) -> can.BusABC:
+    """python-can's slcan bus on a TCP line (`socket://host:port`: a board, a relay, a hub)
+    that opens and closes at once: no pause after opening (that is for serial adapters), and
+    none in closing. pyserial's socket handler (3.5) sleeps 0.3 s in `close()` so that a
+    server has time before a quick reconnect; the boards, relays and hubs here take a new
+    client at once, and every test paid it at its end."""
+    bus = can.Bus(interface="slcan", channel=channel, sleep_after_open=0, **bus_kwargs)
+    port = bus.serialPortOrig
+
+    def close_at_once() -> None:
+        sock, port._socket = getattr(port, "_socket", None), None
+        port.is_open = False
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            sock.close()
+
+    if hasattr(port, "_socket"):
+        port.close = close_at_once
+    return bus
+
+
 def connect_bus(board: Board, **bus_kwargs) -> can.BusABC:
     """python-can's slcan bus on the CAN port, as docs/EMULATED-BOARD.md connects (extra
     `bus_kwargs` such as `bitrate` go to `can.Bus`). The board listens (and starts its CPU
@@ -274,12 +298,7 @@ def connect_bus(board: Board, **bus_kwargs) -> can.BusABC:
     while True:
         board.check_alive()
         try:
-            return can.Bus(
-                interface="slcan",
-                channel=f"socket://127.0.0.1:{board.can_port}",
-                sleep_after_open=0,
-                **bus_kwargs,
-            )
+            return slcan_line(f"socket://127.0.0.1:{board.can_port}", **bus_kwargs)
         except can.CanError as e:
             if not _refused(e) or time.monotonic() > deadline:
                 raise

@@ -20,6 +20,7 @@ from .constants import (
     NMT,
     NMT_START,
     NODE_ID,
+    NOTIFIER_CYCLE,
     OPERATIONAL,
     SDO_RX,
     SDO_TIMEOUT,
@@ -178,6 +179,7 @@ def open_rig(board: Board) -> Iterator[Rig]:
     bus = connect_bus(board)
     frames = FrameRecorder()
     network = canopen.Network(bus)
+    network.NOTIFIER_CYCLE = NOTIFIER_CYCLE
     network.listeners.append(frames)  # before connect(): the notifier sees every frame
     network.add_node(NODE_ID, str(EDS))
     network.connect()

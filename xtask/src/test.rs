@@ -11,9 +11,7 @@ use crate::fw::{
     board_cargo, firmware_build, firmware_elf, one_build_check, FIRMWARE_TARGET, LOADER_MANIFEST,
 };
 use crate::lint::python_lint;
-use crate::suites::{
-    board_unit_tests, feed_check, host_tests, interop, linuxcnc_suite_with, snippets_run,
-};
+use crate::suites::{board_unit_tests, feed_check, host_tests, interop, linuxcnc_suite_with};
 use crate::workspace::{cargo, root_shell, target_dir, workspace_root};
 use crate::{contract, dbc, eds, footprint, linuxcnc};
 
@@ -100,11 +98,10 @@ pub fn test() -> Result<(), String> {
         },
     )?;
     eprintln!(
-        "xtask: build checks passed in {:.0} s; now the documents' snippets and the interop \
-         suite",
+        "xtask: build checks passed in {:.0} s; now the interop suite, then the LinuxCNC \
+         suite with the documents' snippets and the other masters beside it",
         started.elapsed().as_secs_f64()
     );
-    snippets_run()?;
     // LinuxCNC's set-up (its venvs, the component's install) runs beside the interop suite:
     // pip waits mostly on files, the suite mostly on the board's clock.
     let linuxcnc_setup = std::thread::spawn(|| linuxcnc::prepare(&workspace_root(), &target_dir()));
@@ -113,15 +110,69 @@ pub fn test() -> Result<(), String> {
         .join()
         .map_err(|_| "the LinuxCNC set-up panicked".to_string())?;
     interop_result?;
-    linuxcnc_suite_with(&linuxcnc_setup?, &[])?;
-    // Two masters written elsewhere, each with its own habits, on the same release image.
-    crate::node_master::run()?;
-    crate::go_master::run()?;
+    let linuxcnc_setup = linuxcnc_setup?;
+    // Beside the LinuxCNC suite: the documents' snippets, and two masters written elsewhere,
+    // each with its own habits, on the same release image.
+    beside(
+        || linuxcnc_suite_with(&linuxcnc_setup, &[]),
+        &["snippets", "node-master", "go-master"],
+    )?;
     eprintln!(
         "xtask: all checks passed in {:.0} s",
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// Runs `suite` while this program runs the `tasks` one after the other in children whose
+/// output goes to a file, shown once `suite` is over. The LinuxCNC suite waits mostly on its
+/// machine's clock and leaves more than a core idle; the snippets and the other masters'
+/// suites each need about half of one (docs/TESTING.md has the figures), so beside it they
+/// cost no time of their own.
+fn beside(
+    suite: impl FnOnce() -> Result<(), String>,
+    tasks: &'static [&'static str],
+) -> Result<(), String> {
+    let log_path = target_dir().join("beside-linuxcnc.log");
+    let log = std::fs::File::create(&log_path)
+        .map_err(|e| format!("cannot create {}: {e}", log_path.display()))?;
+    let program = std::env::current_exe().map_err(|e| format!("where is xtask? {e}"))?;
+    // Each runs, whatever the one before did: each failure is its own news.
+    let children = std::thread::spawn(move || -> Result<(), String> {
+        let mut failed = Vec::new();
+        for task in tasks {
+            let output = |log: &std::fs::File| {
+                log.try_clone()
+                    .map_err(|e| format!("cannot write the tasks' log: {e}"))
+            };
+            let status = std::process::Command::new(&program)
+                .arg(task)
+                .stdout(output(&log)?)
+                .stderr(output(&log)?)
+                .status()
+                .map_err(|e| format!("cannot run `xtask {task}`: {e}"))?;
+            if !status.success() {
+                failed.push(format!("`xtask {task}` failed ({status})"));
+            }
+        }
+        if failed.is_empty() {
+            Ok(())
+        } else {
+            Err(failed.join("; "))
+        }
+    });
+    let suite_result = suite();
+    let children_result = children
+        .join()
+        .map_err(|_| "the thread of the tasks beside it panicked".to_string())?;
+    eprintln!(
+        "xtask: {} ran beside it; their output (also in {}):",
+        tasks.join(", "),
+        log_path.display()
+    );
+    print!("{}", std::fs::read_to_string(&log_path).unwrap_or_default());
+    suite_result?;
+    children_result
 }
 
 /// The engine's fuzz target on the pinned stable toolchain: the target must build (without
