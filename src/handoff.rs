@@ -11,11 +11,11 @@
 
 use cortex_m::peripheral::SCB;
 
-/// memory.x's HANDOFF: its ASSERTs hold it to the last 8 bytes of the 20 KiB SRAM.
-const HANDOFF: usize = 0x2000_4FF8;
+/// memory.x's HANDOFF (the contract's, which a test holds to memory.x).
+const HANDOFF: usize = canopen_loader::layout::HANDOFF_ORIGIN as usize;
 /// Word 0 of the request ("LOAD" in ASCII, most significant byte first); word 1 is its
 /// complement.
-pub const REQUEST: u32 = 0x4C4F_4144;
+const REQUEST: u32 = canopen_loader::layout::HANDOFF_REQUEST;
 
 /// The start is confirmed: clears the trial's count (both words), so that the next reset
 /// (a reset node, the watchdog, NRST) starts a fresh trial.

@@ -6,17 +6,15 @@
 //! carries its own. `header.x` places the section at `ORIGIN(HEADER)` (memory.x), right
 //! before the vector table.
 
+use canopen_loader::header::{
+    CRC_AT, FORMAT, HEADER_LEN, LENGTH_AT, MAGIC, PRODUCT, PRODUCT_CODE_AT, RESERVED_AT, UNSET,
+    VENDOR_ID_AT, VERSION_AT,
+};
+use canopen_loader::layout::HEADER_SLOT as SLOT;
 use handwheel_device::od::IDENTITY;
 
-/// The validity mark: the bytes "HWIM" as a little-endian word; the loader programs it last.
-pub const MAGIC: u32 = 0x4D49_5748;
-/// The header's layout version.
-pub const FORMAT: u16 = 1;
 /// The header's fields, in bytes; the rest of the slot is padding.
-pub const HEADER_SIZE: u16 = 32;
-/// The header slot: memory.x's HEADER (its vector table after it must be 512-byte aligned
-/// for VTOR); header.x checks that the section fills it exactly.
-pub const SLOT: usize = 512;
+const HEADER_SIZE: u16 = HEADER_LEN as u16;
 
 /// The header as it lies in flash, little-endian.
 #[repr(C)]
@@ -36,9 +34,14 @@ pub struct ImageHeader {
 }
 
 const _: () = assert!(core::mem::size_of::<ImageHeader>() == SLOT);
-const _: () = assert!(core::mem::offset_of!(ImageHeader, length) == 0x14);
-const _: () = assert!(core::mem::offset_of!(ImageHeader, crc) == 0x18);
-const _: () = assert!(core::mem::offset_of!(ImageHeader, padding) == HEADER_SIZE as usize);
+// The layout is the contract's (crates/canopen-loader), field by field.
+const _: () = assert!(core::mem::offset_of!(ImageHeader, vendor_id) == VENDOR_ID_AT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, product_code) == PRODUCT_CODE_AT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, version) == VERSION_AT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, length) == LENGTH_AT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, crc) == CRC_AT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, reserved) == RESERVED_AT);
+const _: () = assert!(core::mem::offset_of!(ImageHeader, padding) == HEADER_LEN);
 
 /// This image's header, unsealed in the source. `#[used]`: nothing in the code refers to it
 /// but [`own_crc`]; the loader reads it.
@@ -48,12 +51,12 @@ pub static IMAGE_HEADER: ImageHeader = ImageHeader {
     magic: MAGIC,
     format: FORMAT,
     header_size: HEADER_SIZE,
-    vendor_id: IDENTITY.vendor_id,
-    product_code: IDENTITY.product_code,
+    vendor_id: PRODUCT.vendor_id,
+    product_code: PRODUCT.product_code,
     version: IDENTITY.revision,
-    length: u32::MAX,
-    crc: u32::MAX,
-    reserved: u32::MAX,
+    length: UNSET,
+    crc: UNSET,
+    reserved: UNSET,
     padding: [0xFF; SLOT - HEADER_SIZE as usize],
 };
 

@@ -31,7 +31,7 @@ pub mod edge;
 pub mod events;
 pub mod handoff;
 pub mod image_header;
-pub use handwheel_device::node_config;
+pub use handwheel_storage::node_config;
 #[cfg(feature = "stack-overflow-test")]
 pub mod overflow;
 mod panic;

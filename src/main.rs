@@ -104,7 +104,7 @@ mod app {
         selectors: Selectors,
         leds: Leds,
         outputs: DigitalOutputs,
-        watchdog: board::watchdog::Watchdog,
+        watchdog: board::Watchdog,
     }
 
     #[init(local = [rx_queue: RxQueue = RxQueue::new()])]

@@ -17,7 +17,7 @@ mod tests {
     use handwheel_firmware::board;
     use handwheel_firmware::pac;
     use handwheel_firmware::storage::{
-        DeviceStorage, Flash, FlashStorage, NodeSettings, BLOB_MAX, PAGE_OFFSET,
+        parameter_pages, DeviceStorage, Flash, FlashStorage, NodeSettings, BLOB_MAX, PAGE_OFFSET,
     };
 
     pub struct State {
@@ -106,7 +106,7 @@ mod tests {
         // record's CRC no longer matches.
         let mut flash = page.into_flash().free();
         super::program_half_word(&mut flash, PAGE_OFFSET + 28, 0x0000);
-        let page = DeviceStorage::new(FlashStorage::new(flash));
+        let page = DeviceStorage::new(parameter_pages(flash));
         defmt::assert_eq!(defmt::unwrap!(page.stored()).1, &[0x55, 0x55, 0x55, 0x55]);
         // Leave the board with nothing stored: it boots with its defaults.
         let mut flash = page.into_flash();

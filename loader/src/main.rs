@@ -39,17 +39,14 @@ use canopen_slave::{FrameSink, Instant, NodeId};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{SCB, SYST};
 use cortex_m_rt::entry;
-use handwheel_device::node_config;
-use handwheel_device::od::IDENTITY;
-use handwheel_device::page::ParameterPage;
-use stm32f1xx_hal::watchdog::IndependentWatchdog;
+use handwheel_board::clocks::SYSCLK_HZ;
+use handwheel_board::watchdog::Watchdog;
+use handwheel_storage::node_config;
+use handwheel_storage::page::ParameterPage;
 use stm32f1xx_hal::{pac, prelude::*};
 
 /// The application this loader takes images for (0x1018:1 and :2 of the application).
-const DEVICE: DeviceId = DeviceId {
-    vendor_id: IDENTITY.vendor_id,
-    product_code: IDENTITY.product_code,
-};
+const DEVICE: DeviceId = canopen_loader::header::PRODUCT;
 /// 0x1018:3 of the loader.
 const REVISION: u32 = 1;
 /// The node-ID when the stored settings say "unconfigured" (LSS, 0xFF): the loader has no
@@ -57,14 +54,13 @@ const REVISION: u32 = 1;
 const UNCONFIGURED_NODE_ID: u8 = 16;
 /// The watchdog's nominal timeout.
 const WATCHDOG_MS: u32 = 2000;
-use handwheel_board::clocks::SYSCLK_HZ;
 /// How long a reset waits for the frames queued before it (the answer to "start").
 const FLUSH_US: u64 = 50_000;
 
 #[entry]
 fn main() -> ! {
     let boot = Boot::decide(read_record(), || {
-        valid_application(&flash::MappedSlot, DEVICE).is_some()
+        valid_application(&flash::MAPPED_SLOT, DEVICE).is_some()
     });
     write_record(boot.record_kept());
     run(boot)
@@ -189,9 +185,8 @@ fn run(boot: Boot) -> ! {
     let mut flash = dp.FLASH.constrain();
     // The board's clocks, the application's (handwheel_board::clocks).
     let mut rcc = handwheel_board::clocks::freeze(dp.RCC, &mut flash.acr);
-    let mut watchdog = IndependentWatchdog::new(dp.IWDG);
-    watchdog.stop_on_debug(&dp.DBGMCU, true);
-    watchdog.start(WATCHDOG_MS.millis());
+    let mut watchdog = Watchdog::new(dp.IWDG, &dp.DBGMCU);
+    watchdog.start(WATCHDOG_MS);
 
     let mut afio = dp.AFIO.constrain(&mut rcc);
     let mut gpiob = dp.GPIOB.split(&mut rcc);
@@ -200,7 +195,7 @@ fn run(boot: Boot) -> ! {
     let can = handwheel_board::open_can!(dp, afio, gpiob, rcc);
 
     // Node-ID and bit rate exactly as the application chooses them.
-    let stored = ParameterPage::new(flash::ParameterPages)
+    let stored = ParameterPage::new(flash::PARAMETER_PAGES)
         .stored()
         .map(|(settings, _)| settings);
     let (settings, _source) = node_config::select(dip, stored);
@@ -292,7 +287,7 @@ fn run(boot: Boot) -> ! {
 fn listen(
     can: &mut bus::Bxcan,
     clock: &mut Clock,
-    watchdog: &mut IndependentWatchdog,
+    watchdog: &mut Watchdog,
     node: NodeId,
 ) -> Option<canopen_slave::Frame> {
     let until = clock.now().add_millis(u64::from(LISTEN_MS));

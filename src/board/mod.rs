@@ -10,8 +10,6 @@
 //! reason: the reset cause (RCC_CSR), the unique ID, and the one read of GPIOB's input
 //! register that yields A and B together (the HAL reads a pin at a time).
 
-pub mod watchdog;
-
 /// The pin map (in the board crate, which the resident loader shares).
 pub use handwheel_board::pins;
 
@@ -26,9 +24,9 @@ use stm32f1xx_hal::{
     rcc,
 };
 
-use crate::storage::FlashStorage;
+use crate::storage::{parameter_pages, FlashStorage};
+pub use handwheel_board::watchdog::Watchdog;
 use pins::{WHEEL_A_BIT, WHEEL_B_BIT};
-use watchdog::Watchdog;
 
 pub use handwheel_board::chip::unique_id;
 pub use handwheel_board::clocks::{APB1_HZ, HSE_HZ, SYSCLK_HZ};
@@ -173,7 +171,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         leds: Leds { run, err },
         outputs,
         can: CanInstance { _can: can },
-        storage: FlashStorage::new(flash),
+        storage: parameter_pages(flash),
         watchdog,
         reset_cause,
         unique_id: unique_id(),

@@ -1,6 +1,6 @@
 //! Non-volatile parameters (0x1010 store, 0x1011 restore, LSS store).
 //!
-//! What is written, and when, is `handwheel_device::page`: a log of records (layout in
+//! What is written, and when, is `handwheel_storage::page`: a log of records (layout in
 //! [`record`]: node-ID, bit rate and the device's parameter blob under a CRC-32) over two
 //! pages, nothing written when nothing changed, a full page erased only after the newest
 //! record was programmed to the other one, and at most as often as the wear budget allows
@@ -14,10 +14,10 @@
 //! every store while the feed is enabled (0x08000022, `HandwheelDevice`'s application).
 
 mod flash;
-pub use handwheel_device::page::{Flash, FlashError, ParameterPage, PAGE_SIZE};
-pub use handwheel_device::record;
+pub use handwheel_storage::page::{Flash, FlashError, ParameterPage, PAGE_SIZE};
+pub use handwheel_storage::record;
 
-pub use flash::{FlashStorage, PAGE_ADDRESS, PAGE_OFFSET};
+pub use flash::{parameter_pages, FlashStorage, PAGE_ADDRESS, PAGE_OFFSET};
 pub use record::{NodeSettings, BLOB_MAX, RECORD_MAX};
 
 /// The CANopen engine's storage: the parameter page over the last two flash pages.

@@ -2,7 +2,7 @@
 stop at the wear budget with a defined answer, and no store is made while the feed is
 enabled, so a store never costs a detent.
 
-The parameter page (`handwheel_device::page`) is over the board's flash: the emulated board's
+The parameter page (`handwheel_storage::page`) is over the board's flash: the emulated board's
 FPEC model counts erases and programmed half-words (`status`), and a page erase stalls the
 CPU 20 ms.
 """

@@ -12,7 +12,7 @@
 //! - where those fields lie inside their byte: handwheel-core's own encoders
 //!   ([`FeedState::selection_byte`], [`FeedState::status_byte`], [`UnitStepEncoder::peek`]),
 //!   probed field by field here, and the flags of [`FeedStatus`];
-//! - the default node-ID: [`NodeSettings::DEFAULT`](handwheel_device::record::NodeSettings).
+//! - the default node-ID: [`NodeSettings::DEFAULT`](handwheel_storage::record::NodeSettings).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -24,7 +24,7 @@ use handwheel_core::{
 use handwheel_device::od::{
     APP_OBJECTS, COMM_DEFAULTS, FEED_SELECTION, FEED_SESSION, FEED_STATUS, SELECTION, UNIT_STEP,
 };
-use handwheel_device::record::NodeSettings;
+use handwheel_storage::record::NodeSettings;
 
 /// The file for the default node-ID, relative to the workspace root.
 pub const PATH: &str = "eds/handwheel.dbc";

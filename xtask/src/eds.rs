@@ -50,7 +50,7 @@ pub fn run(root: &Path, target_dir: &Path, args: &[String]) -> Result<(), String
 fn dcfchk(root: &Path, target_dir: &Path) -> Result<(), String> {
     let python = crate::wiring::python(root, target_dir)?;
     let dcfchk = python.with_file_name("dcfchk");
-    let node = handwheel_device::record::NodeSettings::DEFAULT
+    let node = handwheel_storage::record::NodeSettings::DEFAULT
         .node_id
         .map_or(0, canopen_slave::NodeId::get)
         .to_string();

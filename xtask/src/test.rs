@@ -19,6 +19,7 @@ use crate::{contract, dbc, eds, footprint, linuxcnc};
 const NO_STD_CRATES: &[&str] = &[
     "handwheel-core",
     "handwheel-board",
+    "handwheel-storage",
     "canopen-slave",
     "handwheel-device",
     "canopen-loader",

@@ -170,20 +170,10 @@ mod tests {
     }
 
     /// The application slot as the loader reads it once the update file is in flash.
-    struct Slot(Vec<u8>);
-
-    impl canopen_loader::SlotFlash for Slot {
-        fn erase(&mut self, _: usize) -> Result<(), canopen_loader::FlashError> {
-            unreachable!("the boot check only reads")
-        }
-        fn program(&mut self, _: usize, _: u16) -> Result<(), canopen_loader::FlashError> {
-            unreachable!("the boot check only reads")
-        }
-        fn read(&self, offset: usize, buf: &mut [u8]) {
-            for (i, byte) in buf.iter_mut().enumerate() {
-                *byte = self.0.get(offset + i).copied().unwrap_or(0xFF);
-            }
-        }
+    fn slot(file: &[u8]) -> handwheel_board::flash::model::CutFlash {
+        let mut bytes = file.to_vec();
+        bytes.resize(canopen_loader::layout::SLOT_SIZE, 0xFF);
+        handwheel_board::flash::model::CutFlash::holding(bytes)
     }
 
     /// The image xtask accepts is one the loader starts: its boot check computes, over the
@@ -191,17 +181,14 @@ mod tests {
     #[test]
     fn the_loader_starts_the_update_files_image() {
         let update = from_elf(&application(107, crc32(&image()))).unwrap();
-        let device = canopen_loader::DeviceId {
-            vendor_id: 0,
-            product_code: 1,
-        };
-        let header = canopen_loader::valid_application(&Slot(update.bytes.clone()), device)
+        let device = canopen_loader::header::PRODUCT;
+        let header = canopen_loader::valid_application(&slot(&update.bytes), device)
             .expect("the loader refuses the update file");
         assert_eq!((header.length, header.crc), (107, update.crc));
         let mut damaged = update.bytes;
         damaged[SLOT as usize + 20] ^= 1;
         assert_eq!(
-            canopen_loader::valid_application(&Slot(damaged), device),
+            canopen_loader::valid_application(&slot(&damaged), device),
             None
         );
     }

@@ -72,6 +72,14 @@ pub struct DeviceId {
     pub product_code: u32,
 }
 
+/// The handwheel: the application's 0x1018:1 and :2, the identity its images carry and the
+/// only one the loader takes (the loader's own product code adds
+/// [`LOADER_PRODUCT_BIT`](crate::node::LOADER_PRODUCT_BIT)).
+pub const PRODUCT: DeviceId = DeviceId {
+    vendor_id: 0,
+    product_code: 1,
+};
+
 /// The header's fields past the mark, format and size (which [`ImageHeader::parse`] checks).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

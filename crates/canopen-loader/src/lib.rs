@@ -17,5 +17,5 @@ pub use boot::{is_rescue_request, Boot, BootRecord, StayReason};
 pub use header::{crc32, seal, Crc32, DeviceId, HeaderError, ImageHeader, SealError, MAGIC};
 pub use node::{LoaderConfig, LoaderNode, Request};
 pub use program::{
-    valid_application, Control, ControlAction, FlashError, FlashStatus, Program, SlotFlash,
+    valid_application, Control, ControlAction, Flash, FlashError, FlashStatus, Program,
 };

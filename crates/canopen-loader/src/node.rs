@@ -1,6 +1,6 @@
 //! The loader's CANopen node (docs/FIRMWARE-UPDATE.md, "The loader on the bus"), sans-I/O
 //! like the engine: frames in through [`LoaderNode::on_frame`], time through every call,
-//! frames out through a [`FrameSink`], flash through a [`SlotFlash`].
+//! frames out through a [`FrameSink`], flash through a [`Flash`].
 //!
 //! Boot-up, NMT slave, heartbeat producer (0x1017, not stored), the engine's SDO server
 //! (expedited, segmented and block download; 0x1F50:1 streamed into the slot segment by
@@ -12,7 +12,7 @@ use canopen_slave::sdo::{ObjectAccess, SdoServer};
 use canopen_slave::{Frame, FrameSink, Instant, NmtCommand, NmtState, NodeId, SdoAbort};
 
 use crate::header::DeviceId;
-use crate::program::{ControlAction, Program, SlotFlash};
+use crate::program::{ControlAction, Flash, Program};
 
 /// 0x1000 of the loader: "BOOT".
 pub const DEVICE_TYPE: u32 = 0x544F_4F42;
@@ -151,7 +151,7 @@ struct Objects<'a, F> {
     now: Instant,
 }
 
-impl<F: SlotFlash> ObjectAccess for Objects<'_, F> {
+impl<F: Flash> ObjectAccess for Objects<'_, F> {
     fn upload(&mut self, index: u16, sub: u8, buf: &mut [u8]) -> Result<usize, SdoAbort> {
         let inner = &*self.inner;
         let value = match inner.object(index, sub)? {
@@ -262,7 +262,7 @@ impl LoaderNode {
     /// The node before its boot-up, over the slot as it is (0x1F56 and 0x1F57 from the
     /// boot check).
     #[must_use]
-    pub fn new(config: LoaderConfig, flash: &impl SlotFlash) -> Self {
+    pub fn new(config: LoaderConfig, flash: &impl Flash) -> Self {
         Self {
             sdo: SdoServer::new(config.sdo_timeout_ms),
             inner: Inner {
@@ -328,7 +328,7 @@ impl LoaderNode {
         &mut self,
         now: Instant,
         frame: &Frame,
-        flash: &mut impl SlotFlash,
+        flash: &mut impl Flash,
         tx: &mut impl FrameSink,
     ) -> Option<Request> {
         let node = self.inner.config.node_id;

@@ -1,5 +1,5 @@
 //! CiA 302-3 program download into the application slot (docs/FIRMWARE-UPDATE.md, "0x1F50:1
-//! program data"), sans-I/O over [`SlotFlash`].
+//! program data"), sans-I/O over the board's flash trait ([`Flash`]).
 //!
 //! The image is never valid while incomplete: "clear" erases the header page (the mark goes
 //! first), the stream is programmed as it arrives with each page erased when the stream
@@ -15,23 +15,13 @@ use crate::layout::{
     APP_ORIGIN, HEADER_SLOT, PAGE_SIZE, RAM_LENGTH, RAM_ORIGIN, SLOT_PAGES, SLOT_SIZE,
 };
 
-/// A flash operation failed (the controller reported an error, or the power is going).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct FlashError;
+/// The application slot's flash, as the loader drives it: the board's flash trait over a
+/// region that is the slot (offsets and pages relative to its origin, `HEADER`,
+/// 0x0800_3000: pages `0..SLOT_PAGES` of [`PAGE_SIZE`] bytes; nothing outside it is
+/// reachable), the one both images' flash code and tests use.
+pub use handwheel_board::flash::{Flash, FlashError};
 
-/// The application slot's flash, as the loader drives it. Offsets and pages are relative to
-/// the slot's origin (`HEADER`, 0x0800_3000): pages `0..SLOT_PAGES` of [`PAGE_SIZE`] bytes.
-/// Nothing outside the slot is reachable through it.
-pub trait SlotFlash {
-    /// Erases slot page `page`; every byte of it reads 0xFF after success.
-    fn erase(&mut self, page: usize) -> Result<(), FlashError>;
-    /// Programs the half-word `value` (little-endian) at the even slot `offset`, which
-    /// reads 0xFFFF before (the loader erased it).
-    fn program(&mut self, offset: usize, value: u16) -> Result<(), FlashError>;
-    /// Reads `buf.len()` bytes from slot `offset` (0xFF past the slot).
-    fn read(&self, offset: usize, buf: &mut [u8]);
-}
+use handwheel_board::flash::{program_half_word, read};
 
 /// 0x1F57:1 bit 0: a download runs.
 pub const FLASH_IN_PROGRESS: u32 = 0x01;
@@ -162,23 +152,23 @@ pub fn vector_table_ok(stack_pointer: u32, reset: u32, length: u32) -> bool {
 /// The CRC-32 of `len` slot bytes from `offset`, as the flash reads now (one copy for every
 /// flash type, as [`check_application`]).
 #[inline(never)]
-fn flash_crc(flash: &dyn SlotFlash, offset: usize, len: usize) -> u32 {
+fn flash_crc(flash: &dyn Flash, offset: usize, len: usize) -> u32 {
     let mut crc = Crc32::new();
     let mut buf = [0u8; 64];
     let mut at = 0;
     while at < len {
         let n = (len - at).min(buf.len());
         let chunk = &mut buf[..n];
-        flash.read(offset + at, chunk);
+        read(flash, offset + at, chunk);
         crc = crc.update(chunk);
         at += n;
     }
     crc.finish()
 }
 
-fn read_word(flash: &(impl SlotFlash + ?Sized), offset: usize) -> u32 {
+fn read_word(flash: &dyn Flash, offset: usize) -> u32 {
     let mut w = [0; 4];
-    flash.read(offset, &mut w);
+    read(flash, offset, &mut w);
     u32::from_le_bytes(w)
 }
 
@@ -186,16 +176,16 @@ fn read_word(flash: &(impl SlotFlash + ?Sized), offset: usize) -> u32 {
 /// for `device`, a length that fits, a plausible vector table and the CRC of the flash
 /// content.
 #[must_use]
-pub fn valid_application(flash: &impl SlotFlash, device: DeviceId) -> Option<ImageHeader> {
+pub fn valid_application(flash: &impl Flash, device: DeviceId) -> Option<ImageHeader> {
     check_application(flash, device)
 }
 
 /// [`valid_application`] over any flash, in one copy: the loader checks through two flash
 /// types (before and after it takes the flash controller) and has no flash to spare for two.
 #[inline(never)]
-fn check_application(flash: &dyn SlotFlash, device: DeviceId) -> Option<ImageHeader> {
+fn check_application(flash: &dyn Flash, device: DeviceId) -> Option<ImageHeader> {
     let mut head = [0u8; HEADER_LEN];
-    flash.read(0, &mut head);
+    read(flash, 0, &mut head);
     let header = ImageHeader::parse(&head).ok()?;
     header.check(device).ok()?;
     let sp = read_word(flash, HEADER_SLOT);
@@ -236,7 +226,7 @@ impl Program {
     /// The state at boot over the slot as it is: stopped, with 0x1F56 the CRC of a valid
     /// application and 0x1F57 "no valid program" without one.
     #[must_use]
-    pub fn new(device: DeviceId, flash: &impl SlotFlash) -> Self {
+    pub fn new(device: DeviceId, flash: &impl Flash) -> Self {
         let valid = valid_application(flash, device);
         Self {
             device,
@@ -318,7 +308,7 @@ impl Program {
     pub fn write_control(
         &mut self,
         value: u8,
-        flash: &mut impl SlotFlash,
+        flash: &mut impl Flash,
     ) -> Result<ControlAction, SdoAbort> {
         match value {
             // Stop: the loader runs nothing.
@@ -338,7 +328,7 @@ impl Program {
 
     /// "Clear": erases the header page (the application is invalid from here on) and
     /// accepts program data.
-    fn clear(&mut self, flash: &mut impl SlotFlash) -> Result<(), SdoAbort> {
+    fn clear(&mut self, flash: &mut impl Flash) -> Result<(), SdoAbort> {
         self.streaming = false;
         self.software_id = 0;
         self.erased = 0;
@@ -350,17 +340,14 @@ impl Program {
     }
 
     /// Erases slot page `page` and checks that it reads erased.
-    fn erase(&mut self, page: usize, flash: &mut impl SlotFlash) -> Result<(), ()> {
+    fn erase(&mut self, page: usize, flash: &mut impl Flash) -> Result<(), ()> {
         if page >= SLOT_PAGES {
             return Err(());
         }
         flash.erase(page).map_err(|_| ())?;
-        let mut buf = [0u8; 64];
-        for at in (0..PAGE_SIZE).step_by(buf.len()) {
-            flash.read(page * PAGE_SIZE + at, &mut buf);
-            if buf.iter().any(|&b| b != 0xFF) {
-                return Err(());
-            }
+        let erased = flash.page(page);
+        if erased.len() != PAGE_SIZE || erased.iter().any(|&b| b != 0xFF) {
+            return Err(());
         }
         self.erased = page + 1;
         Ok(())
@@ -398,7 +385,7 @@ impl Program {
     }
 
     /// The next bytes of the stream (any length, odd ones included).
-    pub fn write(&mut self, data: &[u8], flash: &mut impl SlotFlash) -> Result<(), SdoAbort> {
+    pub fn write(&mut self, data: &[u8], flash: &mut impl Flash) -> Result<(), SdoAbort> {
         if !self.streaming {
             self.status = FlashStatus::NotCleared;
             return Err(SdoAbort::DeviceState);
@@ -431,7 +418,7 @@ impl Program {
     }
 
     /// The header is complete: checks it, then programs it but for the mark.
-    fn take_header(&mut self, flash: &mut impl SlotFlash) -> Result<(), SdoAbort> {
+    fn take_header(&mut self, flash: &mut impl Flash) -> Result<(), SdoAbort> {
         let header = match ImageHeader::parse(&self.head) {
             Ok(h) => h,
             Err(_) => return Err(self.fail(FlashStatus::FormatUnknown)),
@@ -460,7 +447,7 @@ impl Program {
         &mut self,
         offset: usize,
         bytes: [u8; 2],
-        flash: &mut impl SlotFlash,
+        flash: &mut impl Flash,
     ) -> Result<(), SdoAbort> {
         let page = offset / PAGE_SIZE;
         while self.erased <= page {
@@ -472,10 +459,9 @@ impl Program {
             // Erased already (the header slot's padding): nothing to program.
             return Ok(());
         }
-        let mut back = [0u8; 2];
-        let written = flash.program(offset, u16::from_le_bytes(bytes));
-        flash.read(offset, &mut back);
-        if written.is_err() || back != bytes {
+        let written = program_half_word(flash, offset, u16::from_le_bytes(bytes));
+        let at = offset % PAGE_SIZE;
+        if written.is_err() || flash.page(page).get(at..at + 2) != Some(&bytes[..]) {
             return Err(self.fail(FlashStatus::WriteError));
         }
         Ok(())
@@ -483,7 +469,7 @@ impl Program {
 
     /// The last segment arrived: checks that the stream is complete and the CRC of the flash
     /// content, then programs the mark and reads it back.
-    pub fn finish(&mut self, flash: &mut impl SlotFlash) -> Result<(), SdoAbort> {
+    pub fn finish(&mut self, flash: &mut impl Flash) -> Result<(), SdoAbort> {
         if !self.streaming {
             self.status = FlashStatus::NotCleared;
             return Err(SdoAbort::DeviceState);

@@ -9,7 +9,7 @@ use canopen_loader::boot::{MAX_TRIAL_STARTS, TRIAL_TAG};
 use canopen_loader::layout::HANDOFF_REQUEST;
 use canopen_loader::{is_rescue_request, Boot, BootRecord, StayReason};
 use canopen_slave::{Frame, NodeId};
-use common::{image, Bench, CutFlash, NODE, SDO_RX};
+use common::{image, Bench, NODE, SDO_RX};
 
 /// The board as the boot decision sees it: the two words (SRAM: kept by a reset, lost at a
 /// power-on) and whether the slot's application is valid.
@@ -205,7 +205,7 @@ fn the_window_takes_only_0x1f51_stop_to_this_node() {
 fn the_loader_says_the_trial_failed_until_the_next_clear() {
     let file = image(5, 2000);
     let with_image = || {
-        let mut bench = Bench::boot(CutFlash::new());
+        let mut bench = Bench::boot(common::erased_slot());
         bench.update(&file).unwrap();
         bench
     };

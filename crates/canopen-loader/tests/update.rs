@@ -6,8 +6,8 @@ mod common;
 use canopen_loader::layout::{APP_ORIGIN, HEADER_SLOT, MAX_IMAGE, PAGE_SIZE, SLOT_SIZE};
 use canopen_loader::{seal, DeviceId, ImageHeader};
 use common::{
-    header_of, image, image_for, mix, Bench, CutFlash, Transfer, DEVICE, HEARTBEAT,
-    LOADER_REVISION, SDO_TX, SERIAL,
+    header_of, image, image_for, mix, Bench, Transfer, DEVICE, HEARTBEAT, LOADER_REVISION, SDO_TX,
+    SERIAL,
 };
 
 const NOT_CLEARED: u32 = 0x0800_0022;
@@ -18,14 +18,14 @@ const ADDRESS_ERROR: u32 = 0x0504_0005;
 
 /// A loader over an erased slot, cleared.
 fn cleared() -> Bench {
-    let mut bench = Bench::boot(CutFlash::new());
+    let mut bench = Bench::boot(common::erased_slot());
     bench.write(0x1F51, 1, &[3]).unwrap();
     bench
 }
 
 #[test]
 fn the_loader_says_what_it_is() {
-    let mut bench = Bench::boot(CutFlash::new());
+    let mut bench = Bench::boot(common::erased_slot());
     assert_eq!(bench.read(0x1000, 0), Ok(0x544F_4F42));
     assert_eq!(bench.read(0x1001, 0), Ok(0));
     assert_eq!(bench.read(0x1017, 0), Ok(1000));
@@ -55,8 +55,7 @@ fn the_loader_says_what_it_is() {
 fn a_complete_update_then_start() {
     let file = image(7, 5 * PAGE_SIZE + 3);
     let header = header_of(&file);
-    let mut bench = Bench::boot(CutFlash::new());
-    let outside = bench.flash.outside_slot();
+    let mut bench = Bench::boot(common::erased_slot());
     bench.write(0x1F51, 1, &[0]).unwrap();
     bench.write(0x1F51, 1, &[3]).unwrap();
     assert_eq!(bench.program_state(), (3, 0, 0));
@@ -65,8 +64,7 @@ fn a_complete_update_then_start() {
     assert_eq!(bench.valid(), Some(header));
     assert!(common::slot_holds(&bench.flash, &file));
     // Past the image, the slot is as it was (erased here).
-    assert!(bench.flash.slot()[file.len()..].iter().all(|&b| b == 0xFF));
-    assert_eq!(bench.flash.outside_slot(), outside);
+    assert!(bench.flash.bytes[file.len()..].iter().all(|&b| b == 0xFF));
 
     // Start: answered first, then the reset (the boot decision starts the application).
     let sent = bench.receive(common::SDO_RX, &[0x2F, 0x51, 0x1F, 1, 1, 0, 0, 0]);
@@ -84,7 +82,7 @@ fn a_complete_update_then_start() {
 
 #[test]
 fn program_control_values() {
-    let mut bench = Bench::boot(CutFlash::new());
+    let mut bench = Bench::boot(common::erased_slot());
     // Start without a valid application: refused.
     assert_eq!(bench.write(0x1F51, 1, &[1]), Err(NOT_CLEARED));
     assert_eq!(bench.write(0x1F51, 1, &[2]), Err(FORMAT_UNKNOWN));
@@ -114,14 +112,14 @@ fn clear_invalidates_a_valid_application() {
     bench.write(0x1F51, 1, &[3]).unwrap();
     assert_eq!(bench.valid(), None);
     assert_eq!(bench.program_state(), (3, 0, 0));
-    assert_eq!(&bench.flash.slot()[..PAGE_SIZE], &[0xFF; PAGE_SIZE][..]);
+    assert_eq!(&bench.flash.bytes[..PAGE_SIZE], &[0xFF; PAGE_SIZE][..]);
     assert_eq!(bench.write(0x1F51, 1, &[1]), Err(NOT_CLEARED));
 }
 
 #[test]
 fn data_before_clear() {
     let file = image(1, 2000);
-    let mut bench = Bench::boot(CutFlash::new());
+    let mut bench = Bench::boot(common::erased_slot());
     assert_eq!(bench.download(&file, Transfer::of(&file)), Err(NOT_CLEARED));
     assert_eq!(bench.program_state(), (0, 0, 4 << 1));
     // Expedited, too.
@@ -164,7 +162,7 @@ fn another_devices_image() {
             Err(FORMAT_UNKNOWN)
         );
         // Refused at the header: nothing past the header page's erase was written.
-        assert!(bench.flash.slot().iter().all(|&b| b == 0xFF));
+        assert!(bench.flash.bytes.iter().all(|&b| b == 0xFF));
         assert_failed(&mut bench, 2);
     }
 }
@@ -203,7 +201,7 @@ fn a_bad_crc() {
         bench.download(&file, Transfer::of(&file)),
         Err(FORMAT_ERROR)
     );
-    assert_eq!(&bench.flash.slot()[..4], &[0xFF; 4], "no mark");
+    assert_eq!(&bench.flash.bytes[..4], &[0xFF; 4], "no mark");
     assert_failed(&mut bench, 3);
     // The header's CRC itself wrong.
     let mut file = image(1, 3000);
@@ -319,7 +317,7 @@ fn short_and_long_streams() {
 fn a_flash_that_fails() {
     let file = image(1, 2000);
     // The erase of clear.
-    let mut flash = CutFlash::new();
+    let mut flash = common::erased_slot();
     flash.fail_at = Some(0);
     let mut bench = Bench::boot(flash);
     assert_eq!(bench.write(0x1F51, 1, &[3]), Err(WRITE_ERROR));
@@ -384,7 +382,7 @@ fn program_takes_any_chunking() {
     for seed in 0..20u64 {
         let mut s = seed + 1000;
         let file = image_for(DEVICE, 1, 1 + (mix(&mut s) % 3000) as usize + 7, seed);
-        let mut flash = CutFlash::new();
+        let mut flash = common::erased_slot();
         let mut program = Program::new(DEVICE, &flash);
         program.write_control(3, &mut flash).unwrap();
         program.begin(None).unwrap();
@@ -453,7 +451,7 @@ fn an_expedited_download_is_a_short_stream() {
 
 #[test]
 fn nmt_and_heartbeat() {
-    let mut bench = Bench::boot(CutFlash::new());
+    let mut bench = Bench::boot(common::erased_slot());
     let beats = |frames: &[canopen_slave::Frame]| -> Vec<Vec<u8>> {
         frames
             .iter()

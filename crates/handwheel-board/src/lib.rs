@@ -8,18 +8,24 @@
 //! - [`pins`]: the pin map as data, and the DIP switch and bxCAN pins brought up in their
 //!   modes (macros, as the HAL's pins are fields of its port structs).
 //! - [`bit_timing`]: `CAN_BTR` for each bit-rate code.
+//! - [`flash`]: the flash as both images drive it (one trait; its power-cut model for host
+//!   tests with the `model` feature), and on the MCU its writer over a region of pages.
 //! - `chip` (MCU only): the 96-bit unique ID.
+//! - `watchdog` (MCU only): the independent watchdog as both images run it.
 //! - `mem` (MCU only): byte-wise memory routines in place of `compiler_builtins`' larger ones.
 #![no_std]
 
 pub mod bit_timing;
 pub mod clocks;
+pub mod flash;
 pub mod pins;
 
 #[cfg(target_os = "none")]
 pub mod chip;
 #[cfg(target_os = "none")]
 mod mem;
+#[cfg(target_os = "none")]
+pub mod watchdog;
 
 #[cfg(target_os = "none")]
 #[doc(hidden)]

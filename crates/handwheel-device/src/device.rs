@@ -7,8 +7,8 @@ use canopen_slave::{
 use handwheel_core::{BitRate, FeedStatus, Selection, StopReason, Wheel};
 
 use crate::app::{AppContext, FeedApp};
-use crate::node_config::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
 use crate::od::{OD, SESSION_DELAY_MS};
+use handwheel_core::bittiming::{bit_rate_from_lss, lss_bit_timing, LSS_BIT_TIMINGS};
 
 /// EMCY code raised while an illegal quadrature transition is latched in the feed status
 /// (CiA 301 "sensor" class). It clears with the epoch, i.e. when the operator re-selects.

@@ -38,11 +38,8 @@ pub mod duties;
 #[doc(hidden)]
 pub mod mutant;
 pub mod node;
-pub mod node_config;
 pub mod od;
-pub mod page;
 pub mod rate_switch;
-pub mod record;
 
 pub use app::WheelParameters;
 pub use device::{DigitalOutputs, HandwheelDevice, TransmitState, EMCY_ENCODER, TRANSMIT_STALL_MS};

@@ -11,6 +11,7 @@
 //! A new stored parameter is a row, and a line in `WheelParameters::apply` if it drives the
 //! wheel (a new stored layout needs a new `BLOB_VERSION`).
 
+use canopen_loader::header::PRODUCT;
 use canopen_slave::{
     standard_objects, Access, CommDefaults, DataType, Identity, Od, OdEntry, SdoAbort,
     TpdoDefaults, STANDARD_OBJECTS,
@@ -129,8 +130,8 @@ pub const IDENTITY: Identity = Identity {
     // No device profile (CiA 301 generic device): the handwheel is not a CiA 406 encoder
     // (no preset, operating parameters, alarms, ...); see docs/CONFORMANCE.md.
     device_type: 0,
-    vendor_id: 0,
-    product_code: 1,
+    vendor_id: PRODUCT.vendor_id,
+    product_code: PRODUCT.product_code,
     revision: 1,
     device_name: "CNC handwheel",
     hardware_version: "STM32F103C8",

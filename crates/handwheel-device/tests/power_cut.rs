@@ -14,7 +14,7 @@ mod flash_bench;
 
 use canopen_slave::Instant;
 use flash_bench::{Cut, CutFlash, Node, LOAD, SAVE};
-use handwheel_device::page::{ERASE_BURST, ERASE_INTERVAL_MS};
+use handwheel_storage::page::{ERASE_BURST, ERASE_INTERVAL_MS};
 use proptest::prelude::*;
 
 /// Changes the two parameters to values made of `n` and saves them (0x1010:1).
@@ -46,7 +46,7 @@ enum Kind {
 
 /// The flash before the store under test: `saves` changed saves on a fresh part.
 fn prepared(saves: u16) -> CutFlash {
-    let mut node = Node::boot(CutFlash::new());
+    let mut node = Node::boot(flash_bench::erased_pages());
     for n in 0..saves {
         save(&mut node, n).unwrap();
     }

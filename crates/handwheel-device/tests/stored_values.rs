@@ -7,8 +7,8 @@
 mod flash_bench;
 
 use flash_bench::{CutFlash, Node, SAVE};
-use handwheel_device::page::{Flash, PAGE_SIZE};
-use handwheel_device::record::{self, NodeSettings, RECORD_MAX};
+use handwheel_storage::page::{Flash, PAGE_SIZE};
+use handwheel_storage::record::{self, NodeSettings, RECORD_MAX};
 
 /// The engine blob's communication section, blob VERSION 1 (canopen-slave's storage tests
 /// pin it): a 4-byte header, then one little-endian U32 per stored parameter in this order.
@@ -40,11 +40,11 @@ fn slot(index: u16, sub: u8) -> usize {
 /// The blob a 0x1010 save of everything writes with the defaults in force, and the
 /// producer heartbeat changed to 250 ms (to see that the rest is restored).
 fn saved_blob() -> Vec<u8> {
-    let mut node = Node::boot(CutFlash::new());
+    let mut node = Node::boot(flash_bench::erased_pages());
     node.write_u16(0x1017, 0, 250).unwrap();
     node.write_u32(0x1010, 1, SAVE).unwrap();
     let flash = node.flash();
-    let page = handwheel_device::page::ParameterPage::new(flash);
+    let page = handwheel_storage::page::ParameterPage::new(flash);
     page.stored().unwrap().1.to_vec()
 }
 
@@ -68,7 +68,7 @@ fn crafted_bytes(changes: &[(u16, u8, u32)], bytes: &[(usize, u8)]) -> CutFlash 
     blob[body..].copy_from_slice(&crc.to_le_bytes());
     let mut out = [0u8; RECORD_MAX];
     let len = record::encode(Some(NodeSettings::DEFAULT), &blob, 0, &mut out).unwrap();
-    let mut flash = CutFlash::new();
+    let mut flash = flash_bench::erased_pages();
     flash.bytes[..len].copy_from_slice(&out[..len]);
     assert_eq!(flash.page(0).len(), PAGE_SIZE);
     flash

@@ -1,17 +1,14 @@
-//! A bench for the loader: the whole 64 KiB flash of the STM32F103C8 as NOR flash behaves,
-//! with at most one power cut before or inside any operation (the model of
-//! crates/handwheel-device's power-cut tests: a cut erase leaves a seeded subset of the page's
-//! half-words erased, a cut program clears only some of the bits it should), the loader's
-//! node over the slot, and an SDO client that drives it frame by frame.
+//! A bench for the loader: the application slot as NOR flash behaves, with at most one power
+//! cut before or inside any operation (`handwheel_board::flash::model`, the model of every
+//! power-cut test of either image), the loader's node over it, and an SDO client that drives
+//! it frame by frame.
 #![allow(dead_code)]
 
-use canopen_loader::layout::{
-    APP_ORIGIN, HEADER_SLOT, LOADER_LENGTH, PAGE_SIZE, RAM_ORIGIN, SLOT_ORIGIN, SLOT_SIZE,
-    STORAGE_LENGTH, STORAGE_ORIGIN,
-};
-use canopen_loader::{
-    seal, DeviceId, FlashError, ImageHeader, LoaderConfig, LoaderNode, Request, SlotFlash,
-};
+#[allow(unused_imports)] // each test binary uses a part
+pub use handwheel_board::flash::model::{mix, Cut, CutFlash};
+
+use canopen_loader::layout::{APP_ORIGIN, HEADER_SLOT, RAM_ORIGIN, SLOT_PAGES};
+use canopen_loader::{seal, DeviceId, ImageHeader, LoaderConfig, LoaderNode, Request};
 use canopen_slave::{Frame, FrameSink, Instant, NodeId, SinkFull};
 
 pub const DEVICE: DeviceId = DeviceId {
@@ -25,158 +22,12 @@ pub const HEARTBEAT: u16 = 0x700 + NODE as u16;
 pub const SERIAL: u32 = 0xC0FF_EE00;
 pub const LOADER_REVISION: u32 = 0x0001_0000;
 
-/// Flash bytes of the chip.
-pub const CHIP: usize = 64 * 1024;
-const SLOT_AT: usize = (SLOT_ORIGIN - 0x0800_0000) as usize;
-const STORAGE_AT: usize = (STORAGE_ORIGIN - 0x0800_0000) as usize;
-
-/// Where power is cut: before flash operation `n` (it never starts), or inside it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Cut {
-    Before(usize),
-    Inside(usize, u64),
-}
-
-/// splitmix64: the seeded choices of a cut and of the tests' data.
-pub fn mix(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-/// The chip's flash: loader, slot and parameter pages; only the slot is reachable through
-/// [`SlotFlash`], and it panics on any access outside it.
-#[derive(Clone, Debug)]
-pub struct CutFlash {
-    pub bytes: Vec<u8>,
-    /// Operations asked for so far (half-word programs and page erases).
-    pub ops: usize,
-    /// The operation a program or erase fails at, without a power cut (a broken controller).
-    pub fail_at: Option<usize>,
-    pub cut: Option<Cut>,
-    /// Power is off: nothing more happens.
-    pub dead: bool,
-}
-
-impl CutFlash {
-    /// A used chip: the loader's pages and the parameter pages hold a pattern, the slot is
-    /// erased.
-    pub fn new() -> Self {
-        let mut seed = 99;
-        let mut bytes: Vec<u8> = (0..CHIP).map(|_| mix(&mut seed) as u8).collect();
-        bytes[SLOT_AT..SLOT_AT + SLOT_SIZE].fill(0xFF);
-        Self {
-            bytes,
-            ops: 0,
-            fail_at: None,
-            cut: None,
-            dead: false,
-        }
-    }
-
-    /// The flash after the power came back: the same bytes, no cut planned, counting anew.
-    pub fn powered_up(&self) -> Self {
-        Self {
-            bytes: self.bytes.clone(),
-            ops: 0,
-            fail_at: None,
-            cut: None,
-            dead: false,
-        }
-    }
-
-    /// Everything outside the slot: the loader's pages and the parameter pages.
-    pub fn outside_slot(&self) -> (Vec<u8>, Vec<u8>) {
-        (
-            self.bytes[..LOADER_LENGTH as usize].to_vec(),
-            self.bytes[STORAGE_AT..STORAGE_AT + STORAGE_LENGTH as usize].to_vec(),
-        )
-    }
-
-    pub fn slot(&self) -> &[u8] {
-        &self.bytes[SLOT_AT..SLOT_AT + SLOT_SIZE]
-    }
-
-    /// Starts an operation: `Ok(None)` to do it, `Ok(Some(seed))` to cut inside it, `Err` when
-    /// the power is (now) off or the controller fails.
-    fn start(&mut self) -> Result<Option<u64>, FlashError> {
-        if self.dead {
-            return Err(FlashError);
-        }
-        let op = self.ops;
-        self.ops += 1;
-        if self.fail_at == Some(op) {
-            return Err(FlashError);
-        }
-        match self.cut {
-            Some(Cut::Before(n)) if n == op => {
-                self.dead = true;
-                Err(FlashError)
-            }
-            Some(Cut::Inside(n, seed)) if n == op => {
-                self.dead = true;
-                Ok(Some(seed))
-            }
-            _ => Ok(None),
-        }
-    }
-}
-
-impl SlotFlash for CutFlash {
-    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
-        assert!(
-            page < SLOT_SIZE / PAGE_SIZE,
-            "erase outside the slot: {page}"
-        );
-        let cut = self.start()?;
-        let at = SLOT_AT + page * PAGE_SIZE;
-        let range = at..at + PAGE_SIZE;
-        let Some(mut seed) = cut else {
-            self.bytes[range].fill(0xFF);
-            return Ok(());
-        };
-        for pair in self.bytes[range].chunks_exact_mut(2) {
-            if mix(&mut seed) & 1 == 1 {
-                pair.fill(0xFF);
-            }
-        }
-        Err(FlashError)
-    }
-
-    fn program(&mut self, offset: usize, value: u16) -> Result<(), FlashError> {
-        assert!(
-            offset.is_multiple_of(2) && offset + 2 <= SLOT_SIZE,
-            "program outside the slot: {offset}"
-        );
-        let at = SLOT_AT + offset;
-        let old = u16::from_le_bytes([self.bytes[at], self.bytes[at + 1]]);
-        assert_eq!(
-            old, 0xFFFF,
-            "programming a half-word that is not erased, at {offset}"
-        );
-        let cut = self.start()?;
-        let new = match cut {
-            None => value,
-            Some(mut seed) => old & !(old & !value & mix(&mut seed) as u16),
-        };
-        self.bytes[at..at + 2].copy_from_slice(&new.to_le_bytes());
-        if cut.is_some() {
-            return Err(FlashError);
-        }
-        Ok(())
-    }
-
-    fn read(&self, offset: usize, buf: &mut [u8]) {
-        for (i, b) in buf.iter_mut().enumerate() {
-            *b = if offset + i < SLOT_SIZE {
-                self.bytes[SLOT_AT + offset + i]
-            } else {
-                0xFF
-            };
-        }
-    }
+/// The application slot, erased: the board's power-cut flash model (the one both images'
+/// tests use) over the slot, the only region the loader's flash reaches. An erase or program
+/// outside it panics in the model, so no test can pass that writes the loader's or the
+/// parameter pages.
+pub fn erased_slot() -> CutFlash {
+    CutFlash::erased(SLOT_PAGES)
 }
 
 /// An update file for `device`: a vector table (stack in RAM, reset inside the image), then
@@ -419,7 +270,7 @@ impl Bench {
 
 /// The image's header slot and image as the slot holds them after a complete update.
 pub fn slot_holds(flash: &CutFlash, file: &[u8]) -> bool {
-    flash.slot()[..file.len()] == *file
+    flash.bytes[..file.len()] == *file
 }
 
 const _: () = assert!(HEADER_SLOT == 512);

@@ -1,139 +1,25 @@
-//! A device over two simulated flash pages, booted as the firmware boots it, for the tests
-//! of power cuts during stores and of stored values the device must not trust.
+//! A device over the two parameter pages in the board's power-cut flash model, booted as the
+//! firmware boots it, for the tests of power cuts during stores and of stored values the
+//! device must not trust.
 #![allow(dead_code)]
 
 use canopen_slave::{Frame, FrameSink, Instant, SinkFull};
+#[allow(unused_imports)] // each test binary uses a part
+pub use handwheel_board::flash::model::{mix, Cut, CutFlash};
 use handwheel_core::{AbLevels, DecoderConfig, EdgeState, LinkedWheel};
-use handwheel_device::node_config::select;
-use handwheel_device::page::{Flash, FlashError, ParameterPage, PAGES, PAGE_SIZE};
-use handwheel_device::record::NodeSettings;
 use handwheel_device::HandwheelDevice;
+use handwheel_storage::node_config::select;
+use handwheel_storage::page::{ParameterPage, PAGES};
+use handwheel_storage::record::NodeSettings;
 
 /// Engine time of every step: no debt is paid back during the test.
 pub const NOW: Instant = Instant::from_millis(1);
 pub const SERIAL: u32 = 0xC0FF_EE00;
 
-/// Where power is cut: before flash operation `n` (it never starts), or inside it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Cut {
-    Before(usize),
-    Inside(usize, u64),
-}
-
-/// Two flash pages as NOR flash behaves, counting operations, with at most one power cut.
-#[derive(Clone, Debug)]
-pub struct CutFlash {
-    pub bytes: Vec<u8>,
-    /// Operations asked for so far (half-word programs and page erases).
-    pub ops: usize,
-    /// Erases that started (completed or cut inside).
-    pub erases: u64,
-    pub cut: Option<Cut>,
-    /// Power is off: nothing more happens.
-    pub dead: bool,
-}
-
-/// splitmix64: the seeded choices of a cut inside an operation.
-pub fn mix(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-impl CutFlash {
-    pub fn new() -> Self {
-        Self {
-            bytes: vec![0xFF; PAGES * PAGE_SIZE],
-            ops: 0,
-            erases: 0,
-            cut: None,
-            dead: false,
-        }
-    }
-
-    /// The flash after the power came back: the same bytes, no cut planned, counting anew.
-    pub fn powered_up(&self) -> Self {
-        Self {
-            bytes: self.bytes.clone(),
-            ops: 0,
-            erases: self.erases,
-            cut: None,
-            dead: false,
-        }
-    }
-
-    /// Starts an operation: `Ok(None)` to do it, `Ok(Some(seed))` to cut inside it, `Err` when
-    /// the power is (now) off.
-    pub fn start(&mut self) -> Result<Option<u64>, FlashError> {
-        if self.dead {
-            return Err(FlashError::Controller);
-        }
-        let op = self.ops;
-        self.ops += 1;
-        match self.cut {
-            Some(Cut::Before(n)) if n == op => {
-                self.dead = true;
-                Err(FlashError::Controller)
-            }
-            Some(Cut::Inside(n, seed)) if n == op => {
-                self.dead = true;
-                Ok(Some(seed))
-            }
-            _ => Ok(None),
-        }
-    }
-}
-
-impl Flash for CutFlash {
-    fn page(&self, page: usize) -> &[u8] {
-        self.bytes
-            .get(page * PAGE_SIZE..(page + 1) * PAGE_SIZE)
-            .unwrap_or(&[])
-    }
-
-    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
-        assert!(page < PAGES);
-        let cut = self.start()?;
-        self.erases += 1;
-        let range = page * PAGE_SIZE..(page + 1) * PAGE_SIZE;
-        let Some(mut seed) = cut else {
-            self.bytes[range].fill(0xFF);
-            return Ok(());
-        };
-        // Cut inside: a seeded half of the half-words erased, the rest as they were.
-        for pair in self.bytes[range].chunks_exact_mut(2) {
-            if mix(&mut seed) & 1 == 1 {
-                pair.fill(0xFF);
-            }
-        }
-        Err(FlashError::Erase)
-    }
-
-    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
-        assert!(page < PAGES && offset.is_multiple_of(2) && offset + bytes.len() <= PAGE_SIZE);
-        for (i, pair) in bytes.chunks_exact(2).enumerate() {
-            let cut = self.start()?;
-            let at = page * PAGE_SIZE + offset + 2 * i;
-            let old = u16::from_le_bytes([self.bytes[at], self.bytes[at + 1]]);
-            let new = u16::from_le_bytes([pair[0], pair[1]]);
-            assert!(
-                old == 0xFFFF || new == 0,
-                "programming a half-word that is not erased, at {at}"
-            );
-            let value = match cut {
-                None => new,
-                // Cut inside: only a seeded part of the bits to clear are cleared.
-                Some(mut seed) => old & !(old & !new & mix(&mut seed) as u16),
-            };
-            self.bytes[at..at + 2].copy_from_slice(&value.to_le_bytes());
-            if cut.is_some() {
-                return Err(FlashError::Program);
-            }
-        }
-        Ok(())
-    }
+/// The parameter pages, erased: the board's power-cut flash model (the one both images'
+/// tests use) over the two pages.
+pub fn erased_pages() -> CutFlash {
+    CutFlash::erased(PAGES)
 }
 
 pub struct Sink(pub Vec<Frame>);

@@ -1,77 +1,22 @@
-//! The parameter pages over simulated NOR flash pages: unchanged stores write nothing,
+//! The parameter pages over the board's NOR flash model: unchanged stores write nothing,
 //! changed ones append and erase only a full page (after moving to the other one), and
 //! erases are bounded per powered time, across power cycles too.
 
 use canopen_slave::{Instant, Storage, StorageError};
+use handwheel_board::flash::model::CutFlash;
 use handwheel_core::BitRate;
-use handwheel_device::page::{
-    Flash, FlashError, ParameterPage, WearBudget, DEBT_LIMIT, ERASE_BURST, ERASE_INTERVAL_MS,
-    PAGES, PAGE_SIZE, RECORDS_END, TICK_AREA,
+use handwheel_storage::page::{
+    Flash, ParameterPage, WearBudget, DEBT_LIMIT, ERASE_BURST, ERASE_INTERVAL_MS, PAGES, PAGE_SIZE,
+    RECORDS_END, TICK_AREA,
 };
-use handwheel_device::record::{self, NodeSettings};
+use handwheel_storage::record::{self, NodeSettings};
 use proptest::prelude::*;
 
-/// The flash pages as NOR flash behaves: erase sets every bit of a page, programming only
-/// clears bits (programming a half-word that is not erased is refused here, but for 0x0000,
-/// which the STM32F1 takes over anything). `bytes` holds the pages one after the other.
-#[derive(Clone, Debug)]
-struct SimFlash {
-    bytes: Vec<u8>,
-    erases: u32,
-    /// Half-words programmed.
-    programs: u32,
-    fail: Option<FlashError>,
-}
-
-impl SimFlash {
-    fn new() -> Self {
-        Self {
-            bytes: vec![0xFF; PAGES * PAGE_SIZE],
-            erases: 0,
-            programs: 0,
-            fail: None,
-        }
-    }
-}
-
-impl Flash for SimFlash {
-    fn page(&self, page: usize) -> &[u8] {
-        &self.bytes[page * PAGE_SIZE..(page + 1) * PAGE_SIZE]
-    }
-
-    fn erase(&mut self, page: usize) -> Result<(), FlashError> {
-        if let Some(error) = self.fail {
-            return Err(error);
-        }
-        self.erases += 1;
-        self.bytes[page * PAGE_SIZE..(page + 1) * PAGE_SIZE].fill(0xFF);
-        Ok(())
-    }
-
-    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
-        if let Some(error) = self.fail {
-            return Err(error);
-        }
-        assert!(
-            page < PAGES && offset + bytes.len() <= PAGE_SIZE,
-            "inside a page"
-        );
-        let offset = page * PAGE_SIZE + offset;
-        assert!(
-            offset.is_multiple_of(2) && bytes.len().is_multiple_of(2),
-            "half-words only"
-        );
-        for (i, pair) in bytes.chunks_exact(2).enumerate() {
-            let at = offset + 2 * i;
-            assert!(
-                self.bytes[at..at + 2] == [0xFF, 0xFF] || pair == [0, 0],
-                "programming a half-word that is not erased, at {at}"
-            );
-            self.bytes[at..at + 2].copy_from_slice(pair);
-            self.programs += 1;
-        }
-        Ok(())
-    }
+/// The parameter pages, erased, in the board's flash model (the one of every flash test of
+/// either image): NOR flash as the STM32F103's behaves, refusing (panicking on) a program
+/// into a half-word that is neither erased nor set to 0x0000; no power cut in these tests.
+fn erased() -> CutFlash {
+    CutFlash::erased(PAGES)
 }
 
 const HOUR_MS: u64 = 60 * 60 * 1000;
@@ -92,13 +37,13 @@ fn settings(node: u8, code: u8) -> NodeSettings {
     NodeSettings::from_parts(node, code).unwrap()
 }
 
-fn stored(page: &ParameterPage<SimFlash>) -> Option<(NodeSettings, Vec<u8>)> {
+fn stored(page: &ParameterPage<CutFlash>) -> Option<(NodeSettings, Vec<u8>)> {
     page.stored().map(|(s, b)| (s, b.to_vec()))
 }
 
 #[test]
 fn unchanged_stores_write_nothing() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     // Nothing stored, and "restore defaults" asked again and again: nothing to write.
     for _ in 0..100 {
         page.store(at_ms(0), &[]).unwrap();
@@ -119,7 +64,7 @@ fn unchanged_stores_write_nothing() {
 
 #[test]
 fn changed_stores_append_six_records_per_erase_until_the_budget_is_spent() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     let mut accepted = 0;
     let refused = loop {
         match page.store(at_ms(accepted), &blob(accepted as u32)) {
@@ -130,7 +75,7 @@ fn changed_stores_append_six_records_per_erase_until_the_budget_is_spent() {
     };
     assert_eq!(refused, StorageError::WearLimit);
     assert_eq!(accepted, 6 * (ERASE_BURST + 1));
-    assert_eq!(u64::from(page.flash().erases), ERASE_BURST);
+    assert_eq!(page.flash().erases, ERASE_BURST);
     // The refusal changed nothing: the last accepted store is the stored state.
     let before = page.flash().bytes.clone();
     assert_eq!(
@@ -156,12 +101,12 @@ fn changed_stores_append_six_records_per_erase_until_the_budget_is_spent() {
         Err(StorageError::WearLimit)
     );
     assert_eq!(page.flash().bytes, before);
-    assert_eq!(u64::from(page.flash().erases), ERASE_BURST);
+    assert_eq!(page.flash().erases, ERASE_BURST);
 }
 
 #[test]
 fn a_record_that_fits_needs_no_erase_even_with_the_budget_spent() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     let mut n = 0;
     // Spend the budget, then fill the new page with five records.
     while page.store(at_ms(0), &blob(n)).is_ok() {
@@ -173,7 +118,7 @@ fn a_record_that_fits_needs_no_erase_even_with_the_budget_spent() {
     assert_eq!(page.store(at_ms(0), &[]), Err(StorageError::WearLimit));
     // A page with room takes it without an erase: LSS settings only (14 bytes) on a page
     // where a move just left one record.
-    let mut fresh = ParameterPage::new(SimFlash::new());
+    let mut fresh = ParameterPage::new(erased());
     for i in 0..7 {
         fresh.store(at_ms(0), &blob(i)).unwrap();
     }
@@ -186,7 +131,7 @@ fn a_record_that_fits_needs_no_erase_even_with_the_budget_spent() {
 
 #[test]
 fn powered_time_pays_the_debt_back_one_erase_per_interval() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     let mut n = 0;
     while page.store(at_ms(0), &blob(n)).is_ok() {
         n += 1;
@@ -199,7 +144,7 @@ fn powered_time_pays_the_debt_back_one_erase_per_interval() {
     for i in 0..6 {
         page.store(day, &blob(n + i)).unwrap();
     }
-    assert_eq!(u64::from(page.flash().erases), ERASE_BURST + 1);
+    assert_eq!(page.flash().erases, ERASE_BURST + 1);
     assert_eq!(page.store(day, &blob(n + 6)), Err(StorageError::WearLimit));
     // After a long quiet spell the bucket is full again, but never fuller.
     let later = at_ms(ERASE_INTERVAL_MS * 100);
@@ -207,12 +152,12 @@ fn powered_time_pays_the_debt_back_one_erase_per_interval() {
     while page.store(later, &blob(n + 100 + more)).is_ok() {
         more += 1;
     }
-    assert_eq!(u64::from(page.flash().erases), 2 * ERASE_BURST + 1);
+    assert_eq!(page.flash().erases, 2 * ERASE_BURST + 1);
 }
 
 #[test]
 fn a_power_cycle_does_not_refill_the_budget() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     let mut n = 0;
     // Four hours into the session, the budget is spent.
     let t = at_ms(4 * HOUR_MS);
@@ -237,7 +182,7 @@ fn a_power_cycle_does_not_refill_the_budget() {
 
 #[test]
 fn lss_settings_and_the_blob_share_the_record() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     page.set_settings(settings(10, 0));
     page.store(at_ms(0), &blob(1)).unwrap();
     // LSS: the new settings with the stored blob.
@@ -273,7 +218,7 @@ fn lss_settings_and_the_blob_share_the_record() {
 
 #[test]
 fn a_store_cut_off_by_a_power_loss_leaves_the_previous_record() {
-    let mut page = ParameterPage::new(SimFlash::new());
+    let mut page = ParameterPage::new(erased());
     page.store(at_ms(0), &blob(1)).unwrap();
     page.store(at_ms(0), &blob(2)).unwrap();
     let mut flash = page.into_flash();
@@ -298,8 +243,8 @@ fn a_store_cut_off_by_a_power_loss_leaves_the_previous_record() {
 }
 
 /// Six stores on a fresh part, then the spare page made dirty as a move cut off leaves it.
-fn full_with_dirty_spare() -> SimFlash {
-    let mut page = ParameterPage::new(SimFlash::new());
+fn full_with_dirty_spare() -> CutFlash {
+    let mut page = ParameterPage::new(erased());
     for n in 0..6 {
         page.store(at_ms(0), &blob(n)).unwrap();
     }
@@ -423,8 +368,8 @@ fn debt_marks_of_older_firmware_still_count_and_spoilt_ones_lock_nothing() {
 
 #[test]
 fn flash_errors_are_write_failures() {
-    let mut flash = SimFlash::new();
-    flash.fail = Some(FlashError::Controller);
+    let mut flash = erased();
+    flash.dead = true; // every operation fails, as with the controller or the power gone
     let mut page = ParameterPage::new(flash);
     assert_eq!(
         page.store(at_ms(0), &blob(1)),
@@ -490,7 +435,7 @@ proptest! {
     fn the_page_keeps_the_last_accepted_state_within_its_erase_budget(
         ops in proptest::collection::vec(op(), 1..200),
     ) {
-        let mut page = ParameterPage::new(SimFlash::new());
+        let mut page = ParameterPage::new(erased());
         let mut model: Option<(NodeSettings, Vec<u8>)> = None;
         // What 0x1010 stores with the blob: the boot's settings, or the last LSS store's.
         let mut in_force = NodeSettings::DEFAULT;
@@ -539,7 +484,7 @@ proptest! {
             }
             prop_assert_eq!(stored(&page), model.clone());
             let allowed = ERASE_BURST + powered / ERASE_INTERVAL_MS;
-            prop_assert!(u64::from(page.flash().erases) <= allowed);
+            prop_assert!(page.flash().erases <= allowed);
         }
     }
 }

@@ -1,5 +1,6 @@
-//! The independent watchdog: the HAL's `IndependentWatchdog`, stopped while a debugger halts
-//! the core.
+//! The independent watchdog, as both images run it: the HAL's `IndependentWatchdog`,
+//! stopped while a debugger halts the core. The loader starts it before each start of the
+//! application (the trial boot), and the application feeds it from then on.
 //!
 //! The HAL picks prescaler and reload for the timeout from the nominal 40 kHz of the LSI
 //! (for 500 ms: /8 and 2500, 500.2 ms). The LSI varies from 30 to 60 kHz over temperature and
@@ -11,7 +12,7 @@ use stm32f1xx_hal::{
     watchdog::IndependentWatchdog,
 };
 
-/// The independent watchdog, not yet started.
+/// The independent watchdog.
 pub struct Watchdog {
     iwdg: IndependentWatchdog,
 }
@@ -24,8 +25,9 @@ impl Watchdog {
         Self { iwdg }
     }
 
-    /// Starts the watchdog with a nominal timeout of `ms` (at most 26 s). It cannot be
-    /// stopped again: from now on [`Watchdog::feed`] must come in time.
+    /// Starts the watchdog with a nominal timeout of `ms` (at most 26 s), or sets a new
+    /// timeout on the running one. It cannot be stopped again: from now on
+    /// [`Watchdog::feed`] must come in time.
     pub fn start(&mut self, ms: u32) {
         self.iwdg.start(MilliSeconds::millis(ms));
     }

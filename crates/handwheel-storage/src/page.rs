@@ -54,6 +54,8 @@
 //! tick where one of its half-words is 0x0000 (one interval more than needed).
 
 use canopen_slave::{Instant, Storage, StorageError};
+/// The flash as both images drive it: the board's (one trait, one power-cut model).
+pub use handwheel_board::flash::{Flash, FlashError, PAGE_SIZE};
 
 use crate::record::{self, Log, NodeSettings, Record, DEBT_MAX, MARK_LEN, RECORD_MAX};
 
@@ -71,8 +73,6 @@ const TICK: [u8; 2] = [0, 0];
 /// Erased bytes kept behind the last record, so that a walk of the records stops there.
 const RECORD_GAP: usize = 4;
 
-/// Bytes in a page.
-pub const PAGE_SIZE: usize = 1024;
 /// Pages the parameters take.
 pub const PAGES: usize = 2;
 /// Debt one erase adds, and the time that pays it back: 24 hours.
@@ -92,38 +92,6 @@ const _: () = assert!(DEBT_LIMIT < DEBT_MAX);
 const _: () = assert!(6 * 154 + RECORD_GAP <= RECORDS_END && MARK_LEN <= MARK_SLOT);
 const _: () = assert!(RECORDS_END.is_multiple_of(2) && MARK_LEN.is_multiple_of(2));
 const _: () = assert!(RECORD_MAX + RECORD_GAP <= RECORDS_END && RECORD_MAX.is_multiple_of(2));
-
-/// A failed erase or program.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum FlashError {
-    /// The erase failed or did not read back as erased.
-    Erase,
-    /// Programming failed or did not read back as written.
-    Program,
-    /// The flash controller would not unlock.
-    Controller,
-    /// No such page.
-    Page,
-}
-
-/// The erasable pages, as the firmware drives them; `page` is `0..PAGES`.
-pub trait Flash {
-    /// Page `page` as it reads now: [`PAGE_SIZE`] bytes (empty for a page that does not
-    /// exist).
-    fn page(&self, page: usize) -> &[u8];
-    /// Erases page `page`: every byte reads 0xFF after success.
-    fn erase(&mut self, page: usize) -> Result<(), FlashError>;
-    /// Programs `bytes` (even length) at the even `offset` of page `page`: into erased bytes
-    /// (the caller checks that they read 0xFF before asking), except an erase tick, the
-    /// half-word 0x0000, which may also go over a tick a power cut left half done (the
-    /// STM32F1's flash controller programs 0x0000 over any half-word, PM0075 2.3.3).
-    fn program(&mut self, page: usize, offset: usize, bytes: &[u8]) -> Result<(), FlashError>;
-
-    /// The engine loaded the stored parameters (at an initialisation), stored with these
-    /// settings: for a board that wants to report them.
-    fn on_load(&self, _settings: NodeSettings) {}
-}
 
 /// The erase budget: the instant at which the erases made so far are paid back.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -407,10 +375,9 @@ fn same(a: &[u8], b: &[u8]) -> bool {
 
 impl<F: Flash> Storage for ParameterPage<F> {
     fn load(&mut self, buf: &mut [u8]) -> usize {
-        let Some((settings, blob)) = self.stored() else {
+        let Some((_, blob)) = self.stored() else {
             return 0;
         };
-        self.flash.on_load(settings);
         match buf.get_mut(..blob.len()) {
             Some(dst) => {
                 dst.copy_from_slice(blob);

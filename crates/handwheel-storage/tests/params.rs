@@ -6,8 +6,8 @@
 
 use canopen_slave::NodeId;
 use handwheel_core::BitRate;
-use handwheel_device::node_config::{select, Source};
-use handwheel_device::record::{
+use handwheel_storage::node_config::{select, Source};
+use handwheel_storage::record::{
     crc32, decode, encode, scan, NodeSettings, Record, BLOB_MAX, RECORD_MAX,
 };
 use proptest::prelude::*;
@@ -162,7 +162,7 @@ fn the_last_intact_record_of_the_log_is_the_stored_state() {
 
 #[test]
 fn lss_bit_timing_indices_map_onto_the_dip_table() {
-    use handwheel_device::node_config::{bit_rate_from_lss, lss_bit_timing};
+    use handwheel_storage::node_config::{bit_rate_from_lss, lss_bit_timing};
     let kbit = [1000, 800, 500, 250, 125, 0, 50, 20, 10];
     for (index, &k) in kbit.iter().enumerate() {
         let index = index as u8;
@@ -180,14 +180,14 @@ fn lss_bit_timing_indices_map_onto_the_dip_table() {
     }
     // What the device tells its LSS slave it supports: 0-8 without 5.
     assert_eq!(
-        handwheel_device::node_config::LSS_BIT_TIMINGS,
+        handwheel_storage::node_config::LSS_BIT_TIMINGS,
         0b1_1101_1111
     );
 }
 
 #[test]
 fn lss_store_configuration_settings() {
-    use handwheel_device::record::NodeSettings;
+    use handwheel_storage::record::NodeSettings;
     let s = NodeSettings::from_lss(5, 2).unwrap();
     assert_eq!((s.node_id, s.bit_rate), (id(5), BitRate::Kbit500));
     assert_eq!(NodeSettings::from_lss(0xFF, 0).unwrap().node_id, None);
