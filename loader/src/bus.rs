@@ -2,9 +2,10 @@
 //! requests, polled receive and transmit (no interrupts).
 
 use bxcan::filter::ListEntry16;
-use bxcan::{Fifo, Id, StandardId};
+use bxcan::Fifo;
 use canopen_slave::frame::cob;
 use canopen_slave::{Frame, NodeId};
+use handwheel_board::frame::{from_bxcan, standard_id, to_bxcan};
 use handwheel_core::BitRate;
 use stm32f1xx_hal::can::Can;
 use stm32f1xx_hal::gpio::PullUp;
@@ -14,10 +15,6 @@ use stm32f1xx_hal::pac;
 pub type Bxcan = bxcan::Can<Can<pac::CAN, PullUp>>;
 /// Frames waiting for a mailbox.
 pub type TxQueue = heapless::Deque<Frame, 8>;
-
-fn standard_id(id: u16) -> StandardId {
-    StandardId::new(id & 0x7FF).unwrap_or(StandardId::ZERO)
-}
 
 /// Configures the bit timing and the filter (NMT and this node's SDO requests, data frames
 /// only) and asks the controller to join the bus; it does once it has seen the bus idle.
@@ -42,13 +39,7 @@ pub fn receive(can: &mut Bxcan) -> Option<Frame> {
     loop {
         match can.receive() {
             Ok(frame) => {
-                let Id::Standard(id) = frame.id() else {
-                    continue;
-                };
-                let Some(data) = frame.data() else {
-                    continue;
-                };
-                if let Ok(frame) = Frame::new(id.as_raw(), data) {
+                if let Some(frame) = from_bxcan(&frame) {
                     return Some(frame);
                 }
             }
@@ -62,17 +53,13 @@ pub fn receive(can: &mut Bxcan) -> Option<Frame> {
 /// Moves queued frames into free mailboxes, in order.
 pub fn transmit(can: &mut Bxcan, queue: &mut TxQueue) {
     while let Some(frame) = queue.front() {
-        let data = bxcan::Data::new(frame.data()).unwrap_or_else(bxcan::Data::empty);
-        let out = bxcan::Frame::new_data(standard_id(frame.id()), data);
-        match can.transmit(&out) {
+        match can.transmit(&to_bxcan(frame)) {
             Ok(status) => {
                 queue.pop_front();
                 if let Some(displaced) = status.dequeued_frame() {
                     // A pending frame of lower priority made room: it goes again later.
-                    if let (Id::Standard(id), Some(data)) = (displaced.id(), displaced.data()) {
-                        if let Ok(frame) = Frame::new(id.as_raw(), data) {
-                            let _ = queue.push_front(frame);
-                        }
+                    if let Some(frame) = from_bxcan(displaced) {
+                        let _ = queue.push_front(frame);
                     }
                     return;
                 }

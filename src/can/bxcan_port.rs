@@ -2,13 +2,14 @@
 //! and receive FIFO 0.
 
 use bxcan::filter::{ListEntry16, Mask16};
-use bxcan::{Fifo, Interrupts, Mailbox, StandardId};
+use bxcan::{Fifo, Interrupts, Mailbox};
 use canopen_slave::RxFilter;
 use handwheel_core::BitRate;
 
 use super::bus::{BusState, ErrorCounters};
+use super::frame::{self, standard_id};
 use super::port::{Busy, CanLink, Received};
-use super::{frame, Frame, Mode};
+use super::{Frame, Mode};
 use crate::board::CanInstance;
 use crate::pac;
 
@@ -95,10 +96,6 @@ pub fn set_filters(can: &mut Bxcan, filter: RxFilter) {
     second_sdo.data_frames_only();
     filters.enable_bank(1, Fifo::Fifo0, [heartbeats, second_sdo]);
     filters.enable_bank(2, Fifo::Fifo0, [data(filter.rpdo()); 4]);
-}
-
-fn standard_id(id: u16) -> StandardId {
-    StandardId::new(id & 0x7FF).unwrap_or(StandardId::ZERO)
 }
 
 impl CanLink for Bxcan {

@@ -68,7 +68,8 @@ pub fn program_half_word(
     flash.program(offset / PAGE_SIZE, offset % PAGE_SIZE, &value.to_le_bytes())
 }
 
-#[cfg(feature = "model")]
+// Its own tests run with the crate's, whatever the features.
+#[cfg(any(test, feature = "model"))]
 pub mod model;
 
 /// A region of the chip's flash, written through its controller with the HAL's writer (it

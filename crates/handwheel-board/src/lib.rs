@@ -8,6 +8,7 @@
 //! - [`pins`]: the pin map as data, and the DIP switch and bxCAN pins brought up in their
 //!   modes (macros, as the HAL's pins are fields of its port structs).
 //! - [`bit_timing`]: `CAN_BTR` for each bit-rate code.
+//! - [`frame`]: the engine's frames to and from bxcan's, and 11-bit identifiers for filters.
 //! - [`flash`]: the flash as both images drive it (one trait; its power-cut model for host
 //!   tests with the `model` feature), and on the MCU its writer over a region of pages.
 //! - `chip` (MCU only): the 96-bit unique ID.
@@ -18,6 +19,7 @@
 pub mod bit_timing;
 pub mod clocks;
 pub mod flash;
+pub mod frame;
 pub mod pins;
 
 #[cfg(target_os = "none")]
