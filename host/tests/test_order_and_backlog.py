@@ -7,6 +7,7 @@ import threading
 import time
 import tracemalloc
 
+import can
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -577,6 +578,41 @@ def test_slcan_lines_are_read_in_bulk():
         thread.join(5)
         for conn in accepted:
             conn.close()
+        server.close()
+
+
+@pytest.mark.parametrize("peer_gone", [False, True])
+def test_the_slcan_bus_closes_its_line_at_once_even_when_the_line_broke(peer_gone):
+    """`shutdown` sends `C` while the line takes it and closes the socket in any case, at
+    once: no exception, no port left open for the garbage collector (whose pyserial close
+    paused 0.3 s in whatever thread ran it: a send of the next line stalled behind it)."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    bus = component.slcan_bus(f"socket://127.0.0.1:{server.getsockname()[1]}", sleep_after_open=0)
+    conn, _ = server.accept()
+    port = bus.serialPortOrig
+    sock = port._socket
+    try:
+        if peer_gone:
+            conn.close()  # a hub that breaks the line: the `C` meets a closed connection
+            time.sleep(0.05)
+            with pytest.raises(can.CanError):
+                for _ in range(20):  # the first write after a peer's close may still pass
+                    bus.send(can.Message(arbitration_id=0x710, data=b"\x05", is_extended_id=False))
+                    time.sleep(0.01)
+        start = time.perf_counter()
+        bus.shutdown()
+        took = time.perf_counter() - start
+        assert took < 0.1, took
+        assert sock.fileno() == -1, "the socket is closed"
+        assert not port.is_open
+        if not peer_gone:
+            conn.settimeout(1.0)
+            assert conn.recv(64).endswith(b"C\r")
+        bus.shutdown()  # a second call changes nothing
+    finally:
+        conn.close()
         server.close()
 
 

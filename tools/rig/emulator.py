@@ -269,22 +269,13 @@ def slcan_line(channel: str, **bus_kwargs) -> can.BusABC:
     that opens and closes at once: no pause after opening (that is for serial adapters), and
     none in closing. pyserial's socket handler (3.5) sleeps 0.3 s in `close()` so that a
     server has time before a quick reconnect; the boards, relays and hubs here take a new
-    client at once, and every test paid it at its end."""
+    client at once, and every test paid it at its end (the component's own bus closes its
+    line the same way: `canopen_handwheel.bus`)."""
+    from canopen_handwheel.bus import close_port_at_once
+
     bus = can.Bus(interface="slcan", channel=channel, sleep_after_open=0, **bus_kwargs)
     port = bus.serialPortOrig
-
-    def close_at_once() -> None:
-        sock, port._socket = getattr(port, "_socket", None), None
-        port.is_open = False
-        if sock is not None:
-            try:
-                sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            sock.close()
-
-    if hasattr(port, "_socket"):
-        port.close = close_at_once
+    port.close = lambda: close_port_at_once(port)
     return bus
 
 

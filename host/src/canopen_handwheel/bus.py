@@ -9,6 +9,7 @@ import argparse
 import collections
 import os
 import select
+import socket
 import time
 from importlib import resources
 from typing import Optional
@@ -37,6 +38,25 @@ def add_bus_options(p: argparse.ArgumentParser) -> None:
         help="bit rate for interfaces that set it (default: leave it as it is)",
     )
     p.add_argument("--node", type=int, default=16, help="the handwheel's node-ID (16)")
+
+
+def close_port_at_once(port) -> None:
+    """Closes a pyserial port now. pyserial's `socket://` handler (3.5) sleeps 0.3 s in
+    `close()` "for quick reconnects", in whatever thread closes it; its socket is shut and
+    closed here instead (a second call finds it closed). Other ports close as pyserial
+    closes them."""
+    if not hasattr(port, "_socket"):
+        port.close()
+        return
+    sock, port._socket = port._socket, None
+    port.is_open = False
+    if sock is None:
+        return
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass  # the other end closed it already
+    sock.close()
 
 
 def slcan_bus(channel: str, **kwargs):
@@ -79,6 +99,22 @@ def slcan_bus(channel: str, **kwargs):
                     raise can.CanOperationError("the SLCAN line closed")
                 self._parse(data)
             return self._frames.popleft(), False
+
+        def shutdown(self) -> None:
+            """Closes the channel (`C`) if the line still takes it, and the line itself
+            always, at once. python-can's `shutdown` raises when the `C` cannot be written
+            (a line the other end broke) before it closes the port, which then stays open
+            until the garbage collector finalises it, in any thread, with pyserial's 0.3 s
+            pause: seen as a send of the component's next line blocked for 0.3 s (the
+            sequence probe late, a detent not credited)."""
+            if self._is_shutdown:
+                return
+            can.BusABC.shutdown(self)
+            try:
+                self.close()
+            except can.CanError:
+                pass  # the line is gone: nothing to tell the adapter
+            close_port_at_once(self.serialPortOrig)
 
         def _parse(self, data: bytes) -> None:
             for line in self._lines.feed(data):
