@@ -10,8 +10,6 @@ use stm32f1xx_hal::flash::{self, FLASH_START};
 
 /// Offset of the first parameter page from the start of flash (pages 62 and 63).
 pub const PAGE_OFFSET: u32 = STORAGE_ORIGIN - FLASH_START;
-/// Absolute address of the first parameter page.
-pub const PAGE_ADDRESS: u32 = STORAGE_ORIGIN;
 // The contract's STORAGE holds the pages the parameter log uses.
 const _: () = assert!(STORAGE_LENGTH as usize == PAGES * PAGE_SIZE);
 

@@ -17,7 +17,7 @@ mod flash;
 pub use handwheel_storage::page::{Flash, FlashError, ParameterPage, PAGE_SIZE};
 pub use handwheel_storage::record;
 
-pub use flash::{parameter_pages, FlashStorage, PAGE_ADDRESS, PAGE_OFFSET};
+pub use flash::{parameter_pages, FlashStorage, PAGE_OFFSET};
 pub use record::{NodeSettings, BLOB_MAX, RECORD_MAX};
 
 /// The CANopen engine's storage: the parameter page over the last two flash pages.

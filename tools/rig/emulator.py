@@ -275,7 +275,8 @@ def slcan_line(channel: str, **bus_kwargs) -> can.BusABC:
 
     bus = can.Bus(interface="slcan", channel=channel, sleep_after_open=0, **bus_kwargs)
     port = bus.serialPortOrig
-    port.close = lambda: close_port_at_once(port)
+    if hasattr(port, "_socket"):  # pyserial's socket:// port, the only one it pauses for
+        port.close = lambda: close_port_at_once(port)
     return bus
 
 

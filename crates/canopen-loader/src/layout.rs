@@ -1,8 +1,8 @@
 //! The memory map of docs/FIRMWARE-UPDATE.md as numbers (the root `memory.x` states the same
 //! regions for the linker; a test reads it and compares).
 
-/// Bytes in a flash page of the STM32F103C8 (medium density).
-pub const PAGE_SIZE: usize = 1024;
+/// Bytes in a flash page of the STM32F103C8 (medium density): the board's.
+pub const PAGE_SIZE: usize = handwheel_board::flash::PAGE_SIZE;
 /// Bytes of the chip's flash, from [`LOADER_ORIGIN`]: the loader's pages first, the
 /// parameter pages last.
 pub const CHIP_FLASH_SIZE: u32 = 64 * 1024;
